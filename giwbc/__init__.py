@@ -1,0 +1,3 @@
+"""giwbc: floating-base robots from reinforcement learning in simulation to a real robot on a CAN bus."""
+
+__version__ = "0.1.0"

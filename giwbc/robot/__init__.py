@@ -1,0 +1,27 @@
+"""Robots: descriptions that build matching Pinocchio and MuJoCo models, and the Robot interface."""
+
+from giwbc.robot.description import (
+    ContactRectangle,
+    JointSpec,
+    RobotDescription,
+    RobotDescriptionError,
+    available_robots,
+    load,
+)
+from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
+from giwbc.robot.mujoco_robot import MujocoRobot
+
+__all__ = [
+    "BaseState",
+    "ContactRectangle",
+    "ContactWrench",
+    "ImpedanceCommand",
+    "ImuReading",
+    "JointSpec",
+    "MujocoRobot",
+    "Robot",
+    "RobotDescription",
+    "RobotDescriptionError",
+    "available_robots",
+    "load",
+]

@@ -1,0 +1,384 @@
+"""Robot descriptions: one folder per robot, a ``robot.toml`` naming the model source and what a
+controller and a deployment need. Both the Pinocchio and the MuJoCo model are built from it.
+
+``load("g1")`` looks the name up in the robot search path (``$GIWBC_ROBOT_PATH``, then the
+project's ``robots/`` folder); ``load(path)`` takes a robot folder or its ``robot.toml``.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import math
+import os
+import tomllib
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco
+    import pinocchio
+
+CONFIG_NAME = "robot.toml"
+ERD_PREFIX = "erd:"  # a path inside the example-robot-data wheel's share folder
+PROJECT_ROBOTS = Path(__file__).resolve().parents[2] / "robots"
+
+
+class RobotDescriptionError(ValueError):
+    """A robot description is missing, malformed or inconsistent with its model."""
+
+
+@dataclass(frozen=True)
+class JointSpec:
+    """One joint of the description: limits come from the URDF, the rest from robot.toml."""
+
+    name: str
+    lower: float
+    upper: float
+    effort: float
+    velocity: float
+    default: float = 0.0
+    kp: float = 0.0
+    kd: float = 0.0
+    armature: float = 0.0
+    actuated: bool = True
+
+    @property
+    def unbounded(self) -> bool:
+        return self.upper - self.lower > 1e6
+
+
+@dataclass(frozen=True)
+class ContactRectangle:
+    """A flat foot: a rectangle in a link frame, sole plane at ``center[2]``.
+
+    The WBC puts a point contact at each corner; MuJoCo gets a collision box with this sole.
+    """
+
+    name: str
+    link: str
+    center: tuple[float, float, float]
+    half_length: float
+    half_width: float
+
+    @property
+    def corners(self) -> np.ndarray:
+        """The 4 corners (4, 3) in the link frame: front-left, front-right, back-left, back-right."""
+        signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], dtype=float)
+        corners = np.tile(np.asarray(self.center, dtype=float), (4, 1))
+        corners[:, 0] += signs[:, 0] * self.half_length
+        corners[:, 1] += signs[:, 1] * self.half_width
+        return corners
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """Everything giwbc knows about one robot, independent of any backend."""
+
+    name: str
+    folder: Path
+    urdf_path: Path
+    floating_base: bool
+    base_link: str
+    joints: tuple[JointSpec, ...]
+    contacts: tuple[ContactRectangle, ...] = ()
+    imu_frame: str | None = None
+    timestep: float = 0.002
+    integrator: str = "implicitfast"
+    floor_friction: float = 1.0
+    description: str = ""
+
+    # --- joint arrays, in description order -------------------------------------------------
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return tuple(j.name for j in self.joints)
+
+    @property
+    def dofs(self) -> int:
+        return len(self.joints)
+
+    def _array(self, field: str) -> np.ndarray:
+        return np.array([getattr(j, field) for j in self.joints], dtype=float)
+
+    @property
+    def default_positions(self) -> np.ndarray:
+        return self._array("default")
+
+    @property
+    def kp(self) -> np.ndarray:
+        return self._array("kp")
+
+    @property
+    def kd(self) -> np.ndarray:
+        return self._array("kd")
+
+    @property
+    def effort_limits(self) -> np.ndarray:
+        """Per-joint effort limit; 0 for a passive joint."""
+        return np.where(self._array("actuated") > 0, self._array("effort"), 0.0)
+
+    @property
+    def velocity_limits(self) -> np.ndarray:
+        return self._array("velocity")
+
+    @property
+    def position_limits(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._array("lower"), self._array("upper")
+
+    @property
+    def actuated(self) -> np.ndarray:
+        return self._array("actuated") > 0
+
+    def contact(self, name: str) -> ContactRectangle:
+        for contact in self.contacts:
+            if contact.name == name:
+                return contact
+        raise KeyError(f"robot {self.name!r} has no contact {name!r}; it has {[c.name for c in self.contacts]}")
+
+    @cached_property
+    def default_base_position(self) -> np.ndarray:
+        """Base position at the default pose with the lowest sole corner on the floor (z = 0)."""
+        if not self.floating_base or not self.contacts:
+            return np.zeros(3)
+        import pinocchio as pin
+
+        model = self.build_pinocchio()
+        data = model.createData()
+        q = np.concatenate([np.zeros(3), [0.0, 0.0, 0.0, 1.0], self.default_positions])
+        pin.framesForwardKinematics(model, data, q)
+        lowest = min(
+            (data.oMf[model.getFrameId(c.link)].act(corner)[2] for c in self.contacts for corner in c.corners),
+        )
+        return np.array([0.0, 0.0, -lowest])
+
+    def default_configuration(self) -> np.ndarray:
+        """Standing configuration in Pinocchio's convention (free-flyer ``[p, quat_xyzw]`` first)."""
+        if not self.floating_base:
+            return self.default_positions
+        return np.concatenate([self.default_base_position, [0.0, 0.0, 0.0, 1.0], self.default_positions])
+
+    # --- models ----------------------------------------------------------------------------
+    def urdf_text(self) -> str:
+        """The URDF with ``package://`` URIs resolved to absolute paths."""
+        text = self.urdf_path.read_text()
+        share = _example_robot_data_share()
+        if share is not None:
+            text = text.replace("package://example-robot-data/", f"{share}/")
+        return text
+
+    def build_pinocchio(self) -> "pinocchio.Model":
+        from giwbc.robot.pinocchio_model import build_pinocchio_model
+
+        return build_pinocchio_model(self)
+
+    def build_mujoco(self) -> "mujoco.MjModel":
+        from giwbc.robot.mujoco_model import build_mujoco_model
+
+        return build_mujoco_model(self)
+
+    @cached_property
+    def total_mass(self) -> float:
+        root = ET.fromstring(self.urdf_path.read_text())
+        return float(sum(float(m.get("value", 0.0)) for m in root.iter("mass")))
+
+
+# --- loading ---------------------------------------------------------------------------------
+def robot_search_path() -> list[Path]:
+    """Folders searched for a robot by name: ``$GIWBC_ROBOT_PATH`` (os.pathsep-separated), then the project's."""
+    extra = [Path(p) for p in os.environ.get("GIWBC_ROBOT_PATH", "").split(os.pathsep) if p]
+    return [*extra, PROJECT_ROBOTS]
+
+
+def available_robots() -> list[str]:
+    names: dict[str, None] = {}
+    for folder in robot_search_path():
+        if folder.is_dir():
+            for config in sorted(folder.glob(f"*/{CONFIG_NAME}")):
+                names.setdefault(config.parent.name)
+    return list(names)
+
+
+def load(robot: str | os.PathLike[str]) -> RobotDescription:
+    """Load a robot description by name (``"g1"``) or from a robot folder / ``robot.toml`` path."""
+    config_path = _find_config(robot)
+    try:
+        with config_path.open("rb") as stream:
+            config = tomllib.load(stream)
+    except tomllib.TOMLDecodeError as error:
+        raise RobotDescriptionError(f"{config_path}: malformed TOML: {error}") from error
+    return _parse(config, config_path)
+
+
+def _find_config(robot: str | os.PathLike[str]) -> Path:
+    path = Path(robot)
+    if path.suffix == ".toml" or path.is_dir() or os.sep in str(robot):
+        config = path / CONFIG_NAME if path.suffix != ".toml" else path
+        if not config.is_file():
+            raise RobotDescriptionError(f"no robot description at {config} (missing file)")
+        return config
+    for folder in robot_search_path():
+        config = folder / str(robot) / CONFIG_NAME
+        if config.is_file():
+            return config
+    raise RobotDescriptionError(f"unknown robot {str(robot)!r}; available robots: {', '.join(available_robots()) or 'none'}")
+
+
+def _example_robot_data_share() -> Path | None:
+    """``.../share/example-robot-data`` inside the installed example-robot-data wheel."""
+    try:
+        distribution = importlib.metadata.distribution("example-robot-data")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    marker = "share/example-robot-data/package.xml"
+    for file in distribution.files or ():
+        if str(file).replace(os.sep, "/").endswith(marker):
+            return Path(str(distribution.locate_file(file))).parent
+    return None
+
+
+def _resolve_model_path(source: str, config_path: Path) -> Path:
+    if source.startswith(ERD_PREFIX):
+        share = _example_robot_data_share()
+        if share is None:
+            raise RobotDescriptionError(f"{config_path}: model {source!r} needs the example-robot-data package, which is not installed")
+        path = share / source[len(ERD_PREFIX):]
+    else:
+        path = (config_path.parent / source).resolve()
+    if not path.is_file():
+        raise RobotDescriptionError(f"{config_path}: model file {path} does not exist (missing file)")
+    return path
+
+
+def _require(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
+    if key not in table:
+        raise RobotDescriptionError(f"{where}: missing required key {key!r}")
+    value = table[key]
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise RobotDescriptionError(f"{where}: key {key!r} should be {getattr(kind, '__name__', kind)}, got {value!r}")
+    return value
+
+
+def _number(table: dict[str, Any], key: str, default: float, where: str) -> float:
+    value = table.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise RobotDescriptionError(f"{where}: {key!r} should be a finite number, got {value!r}")
+    return float(value)
+
+
+def _urdf_joint_limits(urdf_path: Path, config_path: Path) -> dict[str, tuple[float, float, float, float]]:
+    """``name -> (lower, upper, effort, velocity)`` for every movable URDF joint."""
+    try:
+        root = ET.parse(urdf_path).getroot()
+    except ET.ParseError as error:
+        raise RobotDescriptionError(f"{urdf_path}: malformed URDF: {error}") from error
+    if root.tag != "robot":
+        raise RobotDescriptionError(f"{urdf_path}: not a URDF (root element <{root.tag}>, expected <robot>)")
+    limits = {}
+    for joint in root.iter("joint"):
+        kind = joint.get("type")
+        if kind in ("fixed", "floating", None):
+            continue
+        limit = joint.find("limit")
+        if limit is None:
+            lower, upper, effort, velocity = -math.inf, math.inf, 0.0, math.inf
+        else:
+            lower = float(limit.get("lower", -math.inf if kind == "continuous" else 0.0))
+            upper = float(limit.get("upper", math.inf if kind == "continuous" else 0.0))
+            effort = float(limit.get("effort", 0.0))
+            velocity = float(limit.get("velocity", math.inf))
+        if kind == "continuous":
+            lower, upper = -math.inf, math.inf
+        limits[joint.get("name")] = (lower, upper, effort, velocity)
+    return limits
+
+
+def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
+    where = str(config_path)
+    model = _require(config, "model", dict, where)
+    urdf_path = _resolve_model_path(_require(model, "urdf", str, f"{where} [model]"), config_path)
+    urdf_limits = _urdf_joint_limits(urdf_path, config_path)
+
+    joint_table = _require(config, "joints", dict, where)
+    if not joint_table:
+        raise RobotDescriptionError(f"{where}: [joints] is empty")
+    joints = []
+    for name, spec in joint_table.items():
+        if not isinstance(spec, dict):
+            raise RobotDescriptionError(f"{where}: joint {name!r} should be a table, got {spec!r}")
+        if name not in urdf_limits:
+            raise RobotDescriptionError(
+                f"{where}: joint {name!r} is listed in the config but the model {urdf_path.name} has no such movable joint"
+            )
+        unknown = set(spec) - {"default", "kp", "kd", "armature", "actuated"}
+        if unknown:
+            raise RobotDescriptionError(f"{where}: joint {name!r} has unknown keys {sorted(unknown)}")
+        lower, upper, effort, velocity = urdf_limits[name]
+        joint = JointSpec(
+            name=name,
+            lower=lower,
+            upper=upper,
+            effort=effort,
+            velocity=velocity,
+            default=_number(spec, "default", 0.0, f"{where} joint {name!r}"),
+            kp=_number(spec, "kp", 0.0, f"{where} joint {name!r}"),
+            kd=_number(spec, "kd", 0.0, f"{where} joint {name!r}"),
+            armature=_number(spec, "armature", 0.0, f"{where} joint {name!r}"),
+            actuated=bool(spec.get("actuated", True)),
+        )
+        if min(joint.kp, joint.kd, joint.armature) < 0:
+            raise RobotDescriptionError(f"{where}: joint {name!r} has a negative gain or armature")
+        if not joint.unbounded and not lower <= joint.default <= upper:
+            raise RobotDescriptionError(f"{where}: joint {name!r} default {joint.default} is outside its limits [{lower}, {upper}]")
+        joints.append(joint)
+    missing = [name for name in urdf_limits if name not in joint_table]
+    if missing:
+        raise RobotDescriptionError(f"{where}: the model has joints the config does not list: {missing}")
+
+    contacts = []
+    for index, table in enumerate(config.get("contacts", [])):
+        cwhere = f"{where} [[contacts]] #{index}"
+        center = _require(table, "center", list, cwhere)
+        if len(center) != 3:
+            raise RobotDescriptionError(f"{cwhere}: 'center' needs 3 numbers, got {center!r}")
+        contact = ContactRectangle(
+            name=_require(table, "name", str, cwhere),
+            link=_require(table, "link", str, cwhere),
+            center=tuple(float(c) for c in center),
+            half_length=_number(table, "half_length", 0.0, cwhere),
+            half_width=_number(table, "half_width", 0.0, cwhere),
+        )
+        if contact.half_length <= 0 or contact.half_width <= 0:
+            raise RobotDescriptionError(f"{cwhere}: half_length and half_width must be > 0")
+        contacts.append(contact)
+
+    simulation = config.get("simulation", {})
+    integrator = simulation.get("integrator", "implicitfast")
+    if integrator not in ("euler", "implicit", "implicitfast", "rk4"):
+        raise RobotDescriptionError(f"{where}: unknown integrator {integrator!r}")
+    description = RobotDescription(
+        name=_require(config, "name", str, where),
+        folder=config_path.parent,
+        urdf_path=urdf_path,
+        floating_base=bool(model.get("floating_base", False)),
+        base_link=_require(model, "base_link", str, f"{where} [model]"),
+        joints=tuple(joints),
+        contacts=tuple(contacts),
+        imu_frame=model.get("imu_frame"),
+        timestep=_number(simulation, "timestep", 0.002, f"{where} [simulation]"),
+        integrator=integrator,
+        floor_friction=_number(simulation, "floor_friction", 1.0, f"{where} [simulation]"),
+        description=str(config.get("description", "")),
+    )
+    if description.timestep <= 0:
+        raise RobotDescriptionError(f"{where}: timestep must be > 0")
+    links = {link.get("name") for link in ET.parse(urdf_path).getroot().iter("link")}
+    for label, link in [("base_link", description.base_link), ("imu_frame", description.imu_frame)] + [
+        (f"contact {c.name!r} link", c.link) for c in contacts
+    ]:
+        if link is not None and link not in links:
+            raise RobotDescriptionError(f"{where}: {label} {link!r} is not a link of {urdf_path.name}")
+    return description

@@ -1,0 +1,191 @@
+"""The Robot interface over a MuJoCo ``MjData``."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from giwbc.robot.conventions import wxyz_to_xyzw
+from giwbc.robot.description import RobotDescription
+from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot, quat_to_matrix
+from giwbc.robot.mujoco_model import imu_sensor_names
+
+_BIAS_POSITION, _BIAS_VELOCITY = 1, 2  # columns of actuator_biasprm (affine bias: b0 + b1*q + b2*qdot)
+
+
+def _as_slice(indices: np.ndarray) -> slice | np.ndarray:
+    """A slice when the indices are contiguous (a view instead of a gather), else the indices."""
+    if len(indices) and np.array_equal(indices, np.arange(indices[0], indices[0] + len(indices))):
+        return slice(int(indices[0]), int(indices[0]) + len(indices))
+    return indices
+
+
+class MujocoRobot(Robot):
+    """A robot simulated by MuJoCo, built from a :class:`RobotDescription`.
+
+    Commands are held and evaluated by MuJoCo's actuators at every physics step, the way a
+    motor driver evaluates an impedance command at its own rate. :meth:`step` advances physics.
+    """
+
+    def __init__(self, description: RobotDescription, model: mujoco.MjModel | None = None) -> None:
+        self.description = description
+        self.model = model if model is not None else description.build_mujoco()
+        self.data = mujoco.MjData(self.model)
+        m = self.model
+        first = 1 if description.floating_base else 0
+        joint_ids = np.arange(first, first + description.dofs)
+        self._qpos = _as_slice(m.jnt_qposadr[joint_ids])
+        self._qvel = _as_slice(m.jnt_dofadr[joint_ids])
+        actuated = description.actuated
+        self._actuated = actuated
+        self._actuator_joint = np.array([m.actuator_trnid[a, 0] - first for a in range(m.nu)], dtype=int)
+        if not np.array_equal(self._actuator_joint, np.flatnonzero(actuated)):
+            raise ValueError("MuJoCo actuators do not match the description's actuated joints")
+        self._body_ids: dict[str, int] = {}
+        self._sensor_slices = {
+            m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i])) for i in range(m.nsensor)
+        }
+        self._effort_limits = description.effort_limits
+        self._wrench = np.zeros(6)
+        self.reset()
+
+    # --- identity -------------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.description.name
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.description.joint_names
+
+    @property
+    def floating_base(self) -> bool:
+        return self.description.floating_base
+
+    def time(self) -> float:
+        return float(self.data.time)
+
+    # --- simulation -----------------------------------------------------------------------
+    def reset(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> None:
+        """Reset to the default standing pose, or to a Pinocchio-convention state ``(q, v)``."""
+        mujoco.mj_resetDataKeyframe(self.model, self.data, 0)
+        if q is not None:
+            from giwbc.robot.conventions import pinocchio_to_mujoco
+
+            v = np.zeros(self.model.nv) if v is None else v
+            if self.floating_base:
+                qpos, qvel = pinocchio_to_mujoco(np.asarray(q, float), np.asarray(v, float))
+            else:
+                qpos, qvel = np.asarray(q, float), np.asarray(v, float)
+            self.data.qpos[:] = qpos
+            self.data.qvel[:] = qvel
+        self.set_joint_torques(np.zeros(self.dofs))
+        mujoco.mj_forward(self.model, self.data)
+
+    def step(self, n: int = 1) -> None:
+        """Advance physics by ``n`` steps, holding the current command."""
+        mujoco.mj_step(self.model, self.data, nstep=n)
+
+    def set_external_wrench(self, link: str, force: np.ndarray, torque: np.ndarray | None = None) -> None:
+        """World-frame force (at the link's centre of mass) and torque on a link, held until changed."""
+        body = self._body_id(link)
+        self.data.xfrc_applied[body, :3] = force
+        self.data.xfrc_applied[body, 3:] = 0.0 if torque is None else torque
+
+    # --- joints ---------------------------------------------------------------------------
+    def joint_positions(self) -> np.ndarray:
+        return self.data.qpos[self._qpos].copy()
+
+    def joint_velocities(self) -> np.ndarray:
+        return self.data.qvel[self._qvel].copy()
+
+    def joint_efforts(self) -> np.ndarray:
+        efforts = np.zeros(self.dofs)
+        efforts[self._actuated] = self.data.actuator_force
+        return efforts
+
+    # --- base, links, contacts, sensors -----------------------------------------------------
+    def base_state(self) -> BaseState:
+        if not self.floating_base:
+            body = self._body_id(self.description.base_link)
+            xquat = self.data.xquat[body]
+            return BaseState(self.data.xpos[body].copy(), wxyz_to_xyzw(xquat), np.zeros(3), np.zeros(3))
+        qpos, qvel = self.data.qpos, self.data.qvel
+        quaternion = wxyz_to_xyzw(qpos[3:7])
+        return BaseState(qpos[:3].copy(), quaternion, qvel[:3].copy(), quat_to_matrix(quaternion) @ qvel[3:6])
+
+    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
+        qpos, qvel = self.data.qpos, self.data.qvel
+        if not self.floating_base:
+            return qpos.copy(), qvel.copy()
+        quaternion = wxyz_to_xyzw(qpos[3:7])
+        q = np.concatenate([qpos[:3], quaternion, qpos[7:]])
+        v = np.concatenate([quat_to_matrix(quaternion).T @ qvel[:3], qvel[3:]])
+        return q, v
+
+    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        body = self._body_id(link)
+        return self.data.xpos[body].copy(), self.data.xmat[body].reshape(3, 3).copy()
+
+    def contact_wrench(self, link: str) -> ContactWrench:
+        body = self._body_id(link)
+        force, torque = np.zeros(3), np.zeros(3)
+        origin = self.data.xpos[body]
+        in_contact = False
+        geom_body = self.model.geom_bodyid
+        for index in range(self.data.ncon):
+            contact = self.data.contact[index]
+            sign = 1.0 if geom_body[contact.geom2] == body else -1.0 if geom_body[contact.geom1] == body else 0.0
+            if sign == 0.0:
+                continue
+            mujoco.mj_contactForce(self.model, self.data, index, self._wrench)
+            # The contact frame's rows are its axes (normal first); the force acts on geom2.
+            world_force = sign * (contact.frame.reshape(3, 3).T @ self._wrench[:3])
+            force += world_force
+            torque += np.cross(contact.pos - origin, world_force)
+            in_contact = True
+        return ContactWrench(force, torque, in_contact)
+
+    def imu(self) -> ImuReading:
+        names = imu_sensor_names()
+        quaternion = wxyz_to_xyzw(self.sensor(names["quaternion"]))
+        return ImuReading(
+            quaternion, self.sensor(names["angular_velocity"]), self.sensor(names["linear_acceleration"]), self.time()
+        )
+
+    def sensor(self, name: str) -> np.ndarray:
+        """Raw reading of a named MuJoCo sensor (IMU channels, foot force/torque/touch)."""
+        try:
+            return self.data.sensordata[self._sensor_slices[name]].copy()
+        except KeyError:
+            raise KeyError(f"no sensor {name!r}; available: {sorted(self._sensor_slices)}") from None
+
+    # --- commands -------------------------------------------------------------------------
+    def set_joint_torques(self, torques: np.ndarray) -> None:
+        torques = np.asarray(torques, dtype=float)
+        if torques.shape != (self.dofs,):
+            raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
+        if not np.all(np.isfinite(torques)):
+            raise ValueError(f"joint torques must be finite, got {torques}")
+        bias = self.model.actuator_biasprm
+        bias[:, _BIAS_POSITION] = 0.0
+        bias[:, _BIAS_VELOCITY] = 0.0
+        self.data.ctrl[:] = torques[self._actuated]
+
+    def set_joint_impedance(self, command: ImpedanceCommand) -> None:
+        command.validate(self.dofs)
+        actuated = self._actuated
+        bias = self.model.actuator_biasprm
+        bias[:, _BIAS_POSITION] = -command.kp[actuated]
+        bias[:, _BIAS_VELOCITY] = -command.kd[actuated]
+        self.data.ctrl[:] = (command.kp * command.q_ref + command.kd * command.v_ref + command.tau_ff)[actuated]
+
+    # --- helpers --------------------------------------------------------------------------
+    def _body_id(self, link: str) -> int:
+        body = self._body_ids.get(link)
+        if body is None:
+            body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, link)
+            if body < 0:
+                raise KeyError(f"robot {self.name!r} has no link {link!r}")
+            self._body_ids[link] = body
+        return body
