@@ -1,0 +1,108 @@
+"""The ``giwbc`` command line: list robots, simulate, run the demo."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, load
+from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
+
+GRAVITY = 9.81
+
+
+def cmd_robots(_: argparse.Namespace) -> int:
+    """List shipped robots with DoF and mass."""
+    print(f"{'robot':<12}{'dofs':>5}{'actuated':>10}{'mass (kg)':>11}  base      description")
+    for name in available_robots():
+        description = load(name)
+        base = "floating" if description.floating_base else "fixed"
+        print(
+            f"{name:<12}{description.dofs:>5}{int(description.actuated.sum()):>10}"
+            f"{description.total_mass:>11.2f}  {base:<9} {description.description}"
+        )
+    return 0
+
+
+def run_pd_hold(robot_name: str, seconds: float) -> StandingSummary:
+    """Hold the default pose with joint PD in MuJoCo, headless, and summarise."""
+    description = load(robot_name)
+    robot = MujocoRobot(description)
+    robot.set_joint_impedance(pd_hold_command(description))
+    steps_per_check = max(1, int(round(0.02 / description.timestep)))
+    start = robot.base_state().position.copy()
+    heights, tilts = [start[2]], [0.0]
+    wall = time.perf_counter()
+    while robot.time() < seconds - 1e-9:
+        robot.step(steps_per_check)
+        heights.append(robot.base_state().position[2])
+        tilts.append(base_tilt_deg(robot))
+    wall = time.perf_counter() - wall
+    vertical = sum(robot.contact_wrench(c.link).force[2] for c in description.contacts)
+    return StandingSummary(
+        seconds=robot.time(),
+        wall_seconds=wall,
+        min_base_height=float(min(heights)),
+        max_base_height=float(max(heights)),
+        max_tilt_deg=float(max(tilts)),
+        base_drift_m=float(np.linalg.norm(robot.base_state().position[:2] - start[:2])),
+        vertical_contact_force=float(vertical),
+        weight=description.total_mass * GRAVITY,
+        floating_base=description.floating_base,
+    )
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    """Headless joint-PD hold at the default pose, with a short summary."""
+    summary = run_pd_hold(args.robot, args.seconds)
+    if args.json:
+        print(json.dumps({**summary.__dict__, "real_time_factor": summary.real_time_factor, "stood": summary.stood}))
+    else:
+        print(f"{args.robot}: joint-PD hold for {summary.seconds:.2f} s simulated in {summary.wall_seconds:.2f} s "
+              f"(real-time factor {summary.real_time_factor:.1f})")
+        if summary.floating_base:
+            print(f"  base height {summary.min_base_height:.3f}..{summary.max_base_height:.3f} m, max tilt "
+                  f"{summary.max_tilt_deg:.2f} deg, drift {1000 * summary.base_drift_m:.1f} mm")
+            print(f"  vertical contact force {summary.vertical_contact_force:.1f} N vs weight {summary.weight:.1f} N")
+            print("  stood" if summary.stood else "  FELL")
+    return 0 if summary.stood else 1
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """The main job: what giwbc can do today, end to end."""
+    from giwbc.demo import run_demo
+
+    return run_demo(seconds=args.seconds)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="giwbc", description=__doc__)
+    commands = parser.add_subparsers(dest="command", required=True)
+    commands.add_parser("robots", help=cmd_robots.__doc__).set_defaults(run=cmd_robots)
+    sim = commands.add_parser("sim", help=cmd_sim.__doc__)
+    sim.add_argument("--robot", default="g1")
+    sim.add_argument("--seconds", type=float, default=5.0)
+    sim.add_argument("--json", action="store_true", help="print one JSON object")
+    sim.set_defaults(run=cmd_sim)
+    demo = commands.add_parser("demo", help=cmd_demo.__doc__)
+    demo.add_argument("--seconds", type=float, default=10.0)
+    demo.set_defaults(run=cmd_demo)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except RobotDescriptionError as error:
+        print(f"giwbc: error: {error}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
