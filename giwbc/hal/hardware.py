@@ -1,0 +1,386 @@
+"""Hardware plan of a robot: CAN buses, the motors on them, the IMU source (``hardware.toml``).
+
+Schema::
+
+    [[buses]]                      # one per CAN interface
+    name = "can0"                  # referenced by motors
+    interface = "socketcan"        # python-can interface (tests and dry runs override: "virtual")
+    channel = "can0"
+    bitrate = 1000000
+    max_load = 0.8                 # optional, nominal utilisation limit (default 0.8)
+    protocol = "mit"               # optional, default "mit"
+
+    [[motors]]
+    bus = "can0"
+    id = 1                         # CAN id, unique per bus
+    joint = "left_hip_pitch_joint" # unique
+    model = "DM10010"              # a preset of giwbc.hal.motor.MOTOR_PRESETS
+    sign = 1                       # optional, +1 / -1
+    zero_offset = 0.0              # optional, rad, joint angle at which the motor reads 0
+    gear_ratio = 1.0               # optional, motor rad per joint rad
+    reply = "damiao"               # optional, reply variant (default: the model's)
+    torque = 150.0                 # optional overrides of the model's ranges: x, [min, max] or
+                                   # {min = .., max = ..} for position, velocity, kp, kd, torque
+
+    [imu]
+    source = "emulated"            # or "serial" (device = "/dev/ttyUSB0", baudrate = 921600)
+                                   # or "can" (bus = "can4", id = 0x50)
+
+Validation names the file and the problem: unknown keys, unknown bus, duplicate CAN id on a bus,
+duplicate joint, unknown model preset, bad ranges, ambiguous replies, and buses over capacity at
+the control rate. :func:`validate_joints` checks the plan against the robot's joint names (and
+optionally effort limits) handed in by the caller.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+import can
+
+from giwbc.hal.bus import DEFAULT_MAX_LOAD, BusCapacityError, BusLoad, BusPlanSpec, CanBusLink, plan_bus_loads
+from giwbc.hal.motor import RANGE_FIELDS, MotorConfig, motor_preset
+from giwbc.hal.protocols import ActuatorProtocol, ProtocolConfigError, protocol_class
+
+IMU_SOURCES = ("emulated", "serial", "can")
+
+
+class HardwareConfigError(ValueError):
+    """A hardware plan is malformed or cannot work; the message names the file and the problem."""
+
+
+@dataclass(frozen=True)
+class BusConfig:
+    """One CAN bus and its motors, in file order."""
+
+    name: str
+    interface: str
+    channel: str | int
+    bitrate: int
+    max_load: float = DEFAULT_MAX_LOAD
+    protocol: str = "mit"
+    motors: tuple[MotorConfig, ...] = ()
+
+    def make_protocol(self, **kwargs: Any) -> ActuatorProtocol:
+        """The protocol instance for this bus's motors."""
+        return protocol_class(self.protocol)(self.motors, **kwargs)
+
+    def open(self, **kwargs: Any) -> can.BusABC:
+        """Open the python-can bus (``kwargs`` go to ``can.Bus``)."""
+        return can.Bus(interface=self.interface, channel=self.channel, bitrate=self.bitrate, **kwargs)
+
+    def open_link(self, **kwargs: Any) -> CanBusLink:
+        """Open the bus and wrap it in a :class:`CanBusLink` (``kwargs`` go to the link)."""
+        return CanBusLink(self.open(), self.make_protocol(), name=self.name, **kwargs)
+
+
+@dataclass(frozen=True)
+class ImuConfig:
+    """Where the IMU comes from: ``emulated``, a ``serial`` device, or a ``can`` id on a bus."""
+
+    source: str
+    device: str | None = None
+    baudrate: int | None = None
+    bus: str | None = None
+    can_id: int | None = None
+
+
+@dataclass(frozen=True)
+class HardwarePlan:
+    """A validated hardware plan; ``loads`` are the bus loads at ``control_rate``."""
+
+    source: str
+    control_rate: float
+    buses: tuple[BusConfig, ...]
+    imu: ImuConfig
+    loads: Mapping[str, BusLoad]
+
+    @property
+    def motors(self) -> tuple[MotorConfig, ...]:
+        return tuple(m for b in self.buses for m in b.motors)
+
+    @property
+    def joints(self) -> tuple[str, ...]:
+        return tuple(m.joint for m in self.motors)
+
+    def bus(self, name: str) -> BusConfig:
+        for b in self.buses:
+            if b.name == name:
+                return b
+        raise KeyError(f"{self.source}: no bus {name!r}")
+
+    def motor(self, joint: str) -> tuple[BusConfig, MotorConfig]:
+        """The bus and motor driving ``joint``."""
+        for b in self.buses:
+            for m in b.motors:
+                if m.joint == joint:
+                    return b, m
+        raise KeyError(f"{self.source}: no motor drives joint {joint!r}")
+
+    def routing(self, joint_names: Sequence[str]) -> tuple[tuple[str, int], ...]:
+        """For each robot joint (in the robot's order): (bus name, index of its motor on that bus)."""
+        validate_joints(self, joint_names)
+        where = {m.joint: (b.name, i) for b in self.buses for i, m in enumerate(b.motors)}
+        return tuple(where[j] for j in joint_names)
+
+    def with_interface(self, interface: str) -> HardwarePlan:
+        """The same plan with every bus on another python-can interface (e.g. ``"virtual"``)."""
+        return replace(self, buses=tuple(replace(b, interface=interface) for b in self.buses))
+
+
+# ----------------------------------------------------------------------------- loading
+def load_hardware(
+    path: str | Path,
+    control_rate: float = 500.0,
+    *,
+    joint_names: Sequence[str] | None = None,
+    effort_limits: Mapping[str, float] | None = None,
+    interface: str | None = None,
+) -> HardwarePlan:
+    """Read and validate ``hardware.toml``; also :func:`validate_joints` when ``joint_names`` is given.
+
+    ``interface`` replaces every bus's python-can interface (``"virtual"`` for tests, dry runs).
+    """
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except OSError as e:
+        raise HardwareConfigError(f"{p}: cannot read hardware file: {e.strerror or e}") from e
+    return parse_hardware(
+        text, control_rate, source=str(p), joint_names=joint_names, effort_limits=effort_limits, interface=interface
+    )
+
+
+def parse_hardware(
+    text: str,
+    control_rate: float = 500.0,
+    *,
+    source: str = "<hardware.toml>",
+    joint_names: Sequence[str] | None = None,
+    effort_limits: Mapping[str, float] | None = None,
+    interface: str | None = None,
+) -> HardwarePlan:
+    """:func:`load_hardware` for TOML text; ``source`` names it in error messages."""
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise HardwareConfigError(f"{source}: invalid TOML: {e}") from e
+    plan = _build(data, float(control_rate), source, interface)
+    if joint_names is not None:
+        validate_joints(plan, joint_names, effort_limits)
+    return plan
+
+
+def validate_joints(
+    plan: HardwarePlan, joint_names: Sequence[str], effort_limits: Mapping[str, float] | None = None
+) -> None:
+    """The plan drives exactly the robot's joints; with ``effort_limits`` (N m per joint), each
+    motor's torque range covers its joint's limit. HardwareConfigError otherwise."""
+    names = list(joint_names)
+    dup = sorted({j for j in names if names.count(j) > 1})
+    if dup:
+        raise HardwareConfigError(f"{plan.source}: the robot's joint list repeats {dup}")
+    have = set(plan.joints)
+    missing = [j for j in names if j not in have]
+    extra = [j for j in plan.joints if j not in set(names)]
+    problems = []
+    if missing:
+        problems.append(f"no motor for robot joint(s) {missing}")
+    if extra:
+        problems.append(f"motors for joint(s) the robot does not have: {extra}")
+    if problems:
+        raise HardwareConfigError(f"{plan.source}: " + "; ".join(problems))
+    for joint, limit in (effort_limits or {}).items():
+        if joint not in have:
+            continue
+        _, m = plan.motor(joint)
+        if m.joint_effort_limit < limit:
+            raise HardwareConfigError(
+                f"{plan.source}: joint {joint!r}: motor {m.model.name} (torque range {m.model.torque.min:g}.."
+                f"{m.model.torque.max:g} N m, gear {m.gear_ratio:g}) covers only {m.joint_effort_limit:g} N m "
+                f"at the joint, below its effort limit {limit:g} N m"
+            )
+
+
+# ----------------------------------------------------------------------------- internals
+_BUS_KEYS = {"name", "interface", "channel", "bitrate", "max_load", "protocol"}
+_MOTOR_KEYS = {"bus", "id", "joint", "model", "sign", "zero_offset", "gear_ratio", "reply", *RANGE_FIELDS}
+_TOP_KEYS = {"buses", "motors", "imu", "description"}
+
+
+def _fail(source: str, where: str, msg: str) -> HardwareConfigError:
+    return HardwareConfigError(f"{source}: {where}: {msg}" if where else f"{source}: {msg}")
+
+
+def _check_keys(source: str, where: str, table: Any, allowed: set[str], required: Iterable[str]) -> None:
+    if not isinstance(table, Mapping):
+        raise _fail(source, where, f"expected a table, got {type(table).__name__}")
+    unknown = sorted(set(table) - allowed)
+    if unknown:
+        raise _fail(source, where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
+    absent = [k for k in required if k not in table]
+    if absent:
+        raise _fail(source, where, f"missing key(s) {absent}")
+
+
+def _str(source: str, where: str, table: Mapping[str, Any], key: str) -> str:
+    v = table[key]
+    if not isinstance(v, str) or not v:
+        raise _fail(source, where, f"{key} must be a non-empty string, got {v!r}")
+    return v
+
+
+def _int(source: str, where: str, table: Mapping[str, Any], key: str) -> int:
+    v = table[key]
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise _fail(source, where, f"{key} must be an integer, got {v!r}")
+    return v
+
+
+def _num(source: str, where: str, table: Mapping[str, Any], key: str, default: float) -> float:
+    v = table.get(key, default)
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+        raise _fail(source, where, f"{key} must be a finite number, got {v!r}")
+    return float(v)
+
+
+def _build(data: Mapping[str, Any], control_rate: float, source: str, interface: str | None) -> HardwarePlan:
+    _check_keys(source, "", data, _TOP_KEYS, ("buses", "motors", "imu"))
+    if not (math.isfinite(control_rate) and control_rate > 0):
+        raise _fail(source, "", f"control rate must be > 0 Hz, got {control_rate}")
+    raw_buses, raw_motors = data["buses"], data["motors"]
+    if not isinstance(raw_buses, list) or not raw_buses:
+        raise _fail(source, "buses", "need at least one [[buses]] table")
+    if not isinstance(raw_motors, list):
+        raise _fail(source, "motors", "must be an array of [[motors]] tables")
+
+    buses: dict[str, dict[str, Any]] = {}
+    for k, b in enumerate(raw_buses):
+        where = f"buses[{k}]"
+        _check_keys(source, where, b, _BUS_KEYS, ("name", "interface", "channel", "bitrate"))
+        name = _str(source, where, b, "name")
+        where = f"bus {name!r}"
+        if name in buses:
+            raise _fail(source, where, "duplicate bus name")
+        bitrate = _int(source, where, b, "bitrate")
+        if not 0 < bitrate <= 1_000_000:
+            raise _fail(source, where, f"bitrate must be in 1..1000000 bit/s (classic CAN), got {bitrate}")
+        max_load = _num(source, where, b, "max_load", DEFAULT_MAX_LOAD)
+        if not 0 < max_load <= 1:
+            raise _fail(source, where, f"max_load must be in (0, 1], got {max_load}")
+        protocol = b.get("protocol", "mit")
+        try:
+            protocol_class(protocol)
+        except ValueError as e:
+            raise _fail(source, where, str(e)) from None
+        buses[name] = dict(
+            name=name,
+            interface=interface or _str(source, where, b, "interface"),
+            channel=_channel(source, where, b["channel"]),
+            bitrate=bitrate,
+            max_load=max_load,
+            protocol=protocol,
+            motors=[],
+        )
+
+    joints: dict[str, str] = {}
+    for k, m in enumerate(raw_motors):
+        where = f"motors[{k}]"
+        _check_keys(source, where, m, _MOTOR_KEYS, ("bus", "id", "joint", "model"))
+        joint = _str(source, where, m, "joint")
+        where = f"motors[{k}] (joint {joint!r})"
+        if joint in joints:
+            raise _fail(source, where, f"duplicate joint, already driven by a motor on bus {joints[joint]!r}")
+        bus_name = _str(source, where, m, "bus")
+        if bus_name not in buses:
+            raise _fail(source, where, f"unknown bus {bus_name!r}; buses: {', '.join(buses)}")
+        can_id = _int(source, where, m, "id")
+        on_bus = buses[bus_name]["motors"]
+        clash = next((o for o in on_bus if o.can_id == can_id), None)
+        if clash is not None:
+            raise _fail(source, where, f"duplicate CAN id {can_id} on bus {bus_name!r} (also {clash.joint!r})")
+        try:
+            model = motor_preset(_str(source, where, m, "model"))
+            overrides = {f: m[f] for f in RANGE_FIELDS if f in m}
+            if overrides:
+                model = model.with_overrides(**overrides)
+            sign = m.get("sign", 1)
+            motor = MotorConfig(
+                can_id=can_id,
+                model=model,
+                joint=joint,
+                sign=sign,
+                zero_offset=_num(source, where, m, "zero_offset", 0.0),
+                gear_ratio=_num(source, where, m, "gear_ratio", 1.0),
+                reply=m.get("reply"),
+            )
+        except ValueError as e:
+            if isinstance(e, HardwareConfigError):
+                raise
+            raise _fail(source, where, str(e)) from None
+        on_bus.append(motor)
+        joints[joint] = bus_name
+
+    configs = []
+    for b in buses.values():
+        cfg = BusConfig(**{**b, "motors": tuple(b["motors"])})
+        try:
+            cfg.make_protocol()  # validates ids, reply variants and reply demultiplexing
+        except ProtocolConfigError as e:
+            raise _fail(source, f"bus {cfg.name!r}", str(e)) from None
+        configs.append(cfg)
+
+    imu = _imu(source, data["imu"], buses)
+    specs = [
+        BusPlanSpec(c.name, c.bitrate, tuple(protocol_class(c.protocol).traffic(m) for m in c.motors), c.max_load)
+        for c in configs
+    ]
+    try:
+        loads = plan_bus_loads(specs, control_rate)
+    except BusCapacityError as e:
+        raise _fail(source, "", str(e)) from e
+    if imu.source == "can":
+        ids = {m.can_id for m in buses[imu.bus]["motors"]}  # type: ignore[index]
+        if imu.can_id in ids:
+            raise _fail(source, "imu", f"CAN id {imu.can_id} is a motor's id on bus {imu.bus!r}")
+    return HardwarePlan(source, control_rate, tuple(configs), imu, MappingProxyType(loads))
+
+
+def _channel(source: str, where: str, v: Any) -> str | int:
+    if isinstance(v, bool) or not isinstance(v, (str, int)) or v == "":
+        raise _fail(source, where, f"channel must be a non-empty string or an integer, got {v!r}")
+    return v
+
+
+def _imu(source: str, t: Any, buses: Mapping[str, Any]) -> ImuConfig:
+    where = "imu"
+    _check_keys(source, where, t, {"source", "device", "baudrate", "bus", "id"}, ("source",))
+    kind = t["source"]
+    if kind not in IMU_SOURCES:
+        raise _fail(source, where, f"source must be one of {', '.join(IMU_SOURCES)}, got {kind!r}")
+    allowed = {"emulated": {"source"}, "serial": {"source", "device", "baudrate"}, "can": {"source", "bus", "id"}}[kind]
+    required = {"emulated": (), "serial": ("device",), "can": ("bus", "id")}[kind]
+    _check_keys(source, f"imu (source {kind!r})", t, allowed, required)
+    if kind == "emulated":
+        return ImuConfig("emulated")
+    if kind == "serial":
+        device = _str(source, where, t, "device")
+        baud = None
+        if "baudrate" in t:
+            baud = _int(source, where, t, "baudrate")
+            if baud <= 0:
+                raise _fail(source, where, f"baudrate must be > 0, got {baud}")
+        return ImuConfig("serial", device=device, baudrate=baud)
+    bus = _str(source, where, t, "bus")
+    if bus not in buses:
+        raise _fail(source, where, f"unknown bus {bus!r}; buses: {', '.join(buses)}")
+    can_id = _int(source, where, t, "id")
+    if not 0 <= can_id <= 0x7FF:
+        raise _fail(source, where, f"id must be a standard 11-bit CAN id, got {can_id}")
+    return ImuConfig("can", bus=bus, can_id=can_id)
