@@ -45,7 +45,9 @@ class MujocoRobot(Robot):
         self._sensor_slices = {
             m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i])) for i in range(m.nsensor)
         }
-        self._effort_limits = description.effort_limits
+        self._dofs = description.dofs
+        self._joint_names = description.joint_names
+        self._impedance_active = True  # biasprm may hold gains until the first torque command clears them
         self._wrench = np.zeros(6)
         self.reset()
 
@@ -56,7 +58,11 @@ class MujocoRobot(Robot):
 
     @property
     def joint_names(self) -> tuple[str, ...]:
-        return self.description.joint_names
+        return self._joint_names
+
+    @property
+    def dofs(self) -> int:
+        return self._dofs
 
     @property
     def floating_base(self) -> bool:
@@ -118,9 +124,11 @@ class MujocoRobot(Robot):
         qpos, qvel = self.data.qpos, self.data.qvel
         if not self.floating_base:
             return qpos.copy(), qvel.copy()
-        quaternion = wxyz_to_xyzw(qpos[3:7])
-        q = np.concatenate([qpos[:3], quaternion, qpos[7:]])
-        v = np.concatenate([quat_to_matrix(quaternion).T @ qvel[:3], qvel[3:]])
+        q, v = qpos.copy(), qvel.copy()  # then reorder the quaternion and rotate the base velocity
+        q[3:6], q[6] = qpos[4:7], qpos[3]
+        conjugate = np.empty(4)
+        mujoco.mju_negQuat(conjugate, qpos[3:7])
+        mujoco.mju_rotVecQuat(v[:3], qvel[:3], conjugate)
         return q, v
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
@@ -167,9 +175,11 @@ class MujocoRobot(Robot):
             raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
         if not np.all(np.isfinite(torques)):
             raise ValueError(f"joint torques must be finite, got {torques}")
-        bias = self.model.actuator_biasprm
-        bias[:, _BIAS_POSITION] = 0.0
-        bias[:, _BIAS_VELOCITY] = 0.0
+        if self._impedance_active:  # torque mode: no stiffness or damping in the actuator
+            bias = self.model.actuator_biasprm
+            bias[:, _BIAS_POSITION] = 0.0
+            bias[:, _BIAS_VELOCITY] = 0.0
+            self._impedance_active = False
         self.data.ctrl[:] = torques[self._actuated]
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
@@ -178,6 +188,7 @@ class MujocoRobot(Robot):
         bias = self.model.actuator_biasprm
         bias[:, _BIAS_POSITION] = -command.kp[actuated]
         bias[:, _BIAS_VELOCITY] = -command.kd[actuated]
+        self._impedance_active = True
         self.data.ctrl[:] = (command.kp * command.q_ref + command.kd * command.v_ref + command.tau_ff)[actuated]
 
     # --- helpers --------------------------------------------------------------------------
