@@ -1,0 +1,199 @@
+"""A ready-made standing / balance controller for any robot description with foot contacts.
+
+Double support on every ``ContactRectangle`` of the description, and three tasks:
+
+* **CoM** position (world), the balance task — highest weight;
+* **base orientation** (the description's ``base_link``, e.g. the G1 pelvis) upright;
+* **posture** towards the description's default joint positions — lowest weight, it resolves
+  the redundancy (arms, waist) without fighting the other two;
+
+plus a small contact-force regularisation, torque limits from the description and optional
+joint-limit acceleration bounds. Optional: a centroidal angular-momentum damping task.
+
+``make_balance_controller(description)`` returns a :class:`BalanceController`; the demo, the RL
+task (which moves the CoM / posture references) and the deployment use the same object::
+
+    controller = make_balance_controller(load("g1"))
+    result = controller.update(q, v, t)          # Pinocchio state, seconds
+    robot.set_joint_torques(result.tau)          # or robot.set_joint_impedance(result.impedance)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pinocchio as pin
+
+from giwbc.control.contacts import foot_contacts
+from giwbc.control.tasks import (
+    AngularMomentumTask,
+    ComTask,
+    ContactForceRegularization,
+    FrameOrientationTask,
+    PostureTask,
+)
+from giwbc.control.wbc import WbcResult, WholeBodyController
+from giwbc.robot.description import RobotDescription
+from giwbc.robot.interface import Robot
+
+
+@dataclass(frozen=True)
+class BalanceConfig:
+    """Gains, weights and options of :class:`BalanceController` (``kd=None``: critical damping)."""
+
+    solver: str = "proxsuite"
+    solver_settings: dict = field(default_factory=dict)
+    contact_model: str = "surface"  # "surface" (6D wrench cone) or "corners" (4 pyramids)
+    mu: float = 0.8
+    # Normal-force bounds per contact (per corner for "corners"), N. Default minimum: 6 % of the
+    # weight per contact, so that no foot is ever asked to carry (almost) nothing: under a push the
+    # CoM then gives way instead of unloading a foot to the point where it rolls or lifts.
+    min_normal_force: float | None = None
+    max_normal_force: float | None = None  # default: 3 × the robot's weight
+    contact_kd: float = 20.0  # damping feedback on the contact motion rows (settles foot micro-motion)
+    contact_kp: float = 0.0  # pose feedback on the contact motion rows
+    support_scale: float = 0.85  # foot rectangles shrunk about their centres: a CoP margin
+    com_kp: float = 100.0
+    com_kd: float | None = None
+    com_weight: float = 10.0
+    base_kp: float = 100.0
+    base_kd: float | None = None
+    base_weight: float = 1.0
+    posture_kp: float = 50.0
+    posture_kd: float | None = None
+    posture_weight: float = 0.05
+    angular_momentum_weight: float = 0.0  # > 0 adds the momentum-damping task
+    angular_momentum_kd: float = 10.0
+    # Contact-force regularisation towards the static weight split of the CoM target: large enough
+    # to make the CoM compliant to pushes (the feet keep sharing the load), small enough to track
+    # commanded CoM motion.
+    force_weight: float = 1e-3
+    torque_limit_scale: float = 1.0
+    joint_limits: bool = True
+    acceleration_regularization: float = 1e-6
+    impedance_kp_scale: float = 0.0  # impedance output gains, fractions of the description's kp/kd
+    impedance_kd_scale: float = 0.1
+    impedance_lookahead: float = 0.0
+    contact_ramp_time: float = 0.0  # s, for contacts made at construction
+
+
+class BalanceController:
+    """Double-support balance on a :class:`WholeBodyController` (see the module docstring).
+
+    References: the CoM target defaults to the CoM at the first tick (or at :meth:`reset`), the
+    base orientation to upright with the initial heading, the posture to the default pose.
+    """
+
+    def __init__(self, description: RobotDescription, config: BalanceConfig | None = None, model: pin.Model | None = None) -> None:
+        if not description.contacts:
+            raise ValueError(f"robot {description.name!r} has no foot contacts; a balance controller needs some")
+        if not description.floating_base:
+            raise ValueError(f"robot {description.name!r} has a fixed base; balance needs a floating base")
+        self.description = description
+        self.config = config = config or BalanceConfig()
+        model = description.build_pinocchio() if model is None else model
+        weight = description.total_mass * 9.81
+        self.wbc = WholeBodyController(
+            model,
+            dt=description.timestep,
+            solver=config.solver,
+            solver_settings=dict(config.solver_settings),
+            torque_limits=description.effort_limits * config.torque_limit_scale,
+            joint_limits=config.joint_limits,
+            acceleration_regularization=config.acceleration_regularization,
+            impedance_kp=description.kp * config.impedance_kp_scale,
+            impedance_kd=description.kd * config.impedance_kd_scale,
+            impedance_lookahead=config.impedance_lookahead,
+            fallback_kd=description.kd,
+        )
+        max_force = 3.0 * weight if config.max_normal_force is None else config.max_normal_force
+        min_force = 0.06 * weight if config.min_normal_force is None else config.min_normal_force
+        if config.contact_model == "corners" and config.min_normal_force is None:
+            min_force /= 4.0
+        self.contacts = foot_contacts(
+            description,
+            config.contact_model,
+            mu=config.mu,
+            min_normal_force=min_force,
+            max_normal_force=max_force,
+            kd=config.contact_kd,
+            kp=config.contact_kp,
+            scale=config.support_scale,
+        )
+        for contact in self.contacts:
+            self.wbc.add_contact(contact, ramp_time=config.contact_ramp_time)
+        self.com_task = ComTask(weight=config.com_weight, kp=config.com_kp, kd=config.com_kd)
+        self.base_task = FrameOrientationTask(
+            description.base_link, weight=config.base_weight, kp=config.base_kp, kd=config.base_kd
+        )
+        self.posture_task = PostureTask(
+            reference=description.default_positions, weight=config.posture_weight, kp=config.posture_kp, kd=config.posture_kd
+        )
+        self.wbc.add_task(self.com_task)
+        self.wbc.add_task(self.base_task)
+        self.wbc.add_task(self.posture_task)
+        self.momentum_task: AngularMomentumTask | None = None
+        if config.angular_momentum_weight > 0:
+            self.momentum_task = AngularMomentumTask(weight=config.angular_momentum_weight, kd=config.angular_momentum_kd)
+            self.wbc.add_task(self.momentum_task)
+        self.force_regularization = ContactForceRegularization(weight=config.force_weight)
+        self.wbc.add_task(self.force_regularization)
+        self.nominal_com: np.ndarray | None = None
+
+    # --- references ------------------------------------------------------------------------------
+    def reset(self, q: np.ndarray | None = None) -> None:
+        """Re-anchor the references at configuration ``q`` (default: the description's standing
+        pose): CoM target = its CoM, base upright with its heading, posture = default pose."""
+        q = self.description.default_configuration() if q is None else np.asarray(q, dtype=float)
+        kin = self.wbc.kin
+        kin.update(q, np.zeros(kin.nv))
+        self.nominal_com = np.array(kin.com)
+        self.set_com_target(self.nominal_com)
+        base = kin.frame_placement(kin.frame_id(self.description.base_link))
+        self.base_task.set_reference(pin.SE3(_heading(base.rotation), base.translation))
+        self.posture_task.set_reference(self.description.default_positions)
+        self.wbc.solver.reset()
+
+    def set_com_target(self, position: np.ndarray, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
+        """Absolute CoM target (world), with optional feed-forward velocity and acceleration."""
+        self.com_task.set_reference(position, velocity, acceleration)
+        self.force_regularization.set_support_point(self.com_task.position_ref)
+
+    def set_com_offset(self, offset: np.ndarray, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
+        """CoM target relative to the nominal CoM (the one of :meth:`reset` or the first tick)."""
+        if self.nominal_com is None:
+            raise RuntimeError("the nominal CoM is set by reset() or the first update()")
+        self.set_com_target(self.nominal_com + np.asarray(offset, dtype=float), velocity, acceleration)
+
+    # --- the tick ----------------------------------------------------------------------------------
+    def update(self, q: np.ndarray, v: np.ndarray, t: float | None = None) -> WbcResult:
+        """One WBC tick for Pinocchio state ``(q, v)`` at time ``t`` (s)."""
+        if self.nominal_com is None:
+            self.reset(q)
+        return self.wbc.update(q, v, t)
+
+    def step(self, robot: Robot) -> WbcResult:
+        """Read ``robot``'s state, run one tick and command its joint torques."""
+        q, v = robot.generalized_state()
+        result = self.update(q, v, robot.time())
+        robot.set_joint_torques(result.tau)
+        return result
+
+
+def _heading(rotation: np.ndarray) -> np.ndarray:
+    """The yaw-only rotation with the same heading as ``rotation``."""
+    yaw = float(np.arctan2(rotation[1, 0], rotation[0, 0]))
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+
+
+def make_balance_controller(
+    description: RobotDescription, config: BalanceConfig | None = None, *, model: pin.Model | None = None, **overrides: object
+) -> BalanceController:
+    """The standing/balance controller of a description; ``overrides`` replace config fields
+    (``make_balance_controller(g1, solver="osqp", com_kp=150.0)``)."""
+    config = config or BalanceConfig()
+    if overrides:
+        config = replace(config, **overrides)  # type: ignore[arg-type]
+    return BalanceController(description, config, model)

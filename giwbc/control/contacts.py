@@ -1,0 +1,359 @@
+"""Rigid contacts of the whole-body QP: force variables, friction constraints and ramping.
+
+A contact is a rigid body (a foot) pinned to the environment at a *contact frame* (the sole
+centre, z along the surface normal). It contributes to the QP
+
+* ``n_force`` force variables, expressed in the contact frame;
+* 6 **motion rows** ``J q̈ = −J̇ v − Kp e − Kd J v`` (contact frame, ``LOCAL`` Jacobian): the foot
+  does not accelerate (optional feedback on its pose drift);
+* ``n_ineq`` **friction rows** ``l ≤ F f ≤ u`` — constant matrices, only the normal-force bounds
+  change (ramping), since the variables live in the contact frame;
+* its generalized force ``Jᵀ Φ f`` in the equation of motion, ``Φ`` (6 × n_force) the constant map
+  from the variables to the contact-frame wrench about the contact origin.
+
+Two models of a flat rectangular foot (both exact for 4 corner point contacts with linearized
+friction pyramids ``|f_t1|, |f_t2| ≤ μ f_n``):
+
+* :class:`SurfaceContact` (default) — 6 variables, the wrench ``(f, τ)`` at the sole centre,
+  constrained to the **contact wrench cone** of the rectangle: the set of wrenches the 4 corner
+  forces can produce with each corner inside its pyramid (16 face inequalities, Caron, Pham and
+  Nakamura, RSS 2015), plus bounds on the total normal force. Corner forces inside their pyramids
+  reproducing a wrench are recovered on demand by :func:`corner_forces_from_wrench` (exact: the
+  cone is the span of the 16 pyramid edges). Half the variables of the corner model, hence the
+  faster QP.
+* :class:`CornerContact` — 12 variables, one 3D force per corner, 5 rows per corner (4 pyramid
+  faces and the normal-force bounds ``f_min ≤ f_n ≤ f_max`` *per corner*).
+
+Ramping: adding or removing a contact at run time moves its ``activation`` linearly between 0
+and 1 over a ramp time, and caps the contact's total normal force at ``activation · F`` (the lower
+bound becomes ``min(min_normal_force, cap)``): ``F`` is the normal force the contact carried when
+its removal started, or the robot's weight when it is added, so the load is transferred evenly
+over the whole ramp and torques stay continuous. The controller owns the ramp clock.
+"""
+
+from __future__ import annotations
+
+import abc
+import itertools
+import math
+
+import numpy as np
+import pinocchio as pin
+from scipy.optimize import nnls
+
+from giwbc.control.kinodynamics import LOCAL, Kinodynamics
+
+DEFAULT_FRICTION = 0.8
+DEFAULT_MAX_NORMAL_FORCE = 2000.0  # N, per contact (SurfaceContact) or per corner (CornerContact)
+
+
+def pyramid_matrix(mu: float) -> np.ndarray:
+    """(4, 3) rows ``F`` with ``F f ≤ 0`` ⇔ ``|f_x| ≤ μ f_z`` and ``|f_y| ≤ μ f_z`` (contact frame)."""
+    return np.array([[1.0, 0.0, -mu], [-1.0, 0.0, -mu], [0.0, 1.0, -mu], [0.0, -1.0, -mu]])
+
+
+def wrench_cone_matrix(half_length: float, half_width: float, mu: float) -> np.ndarray:
+    """(16, 6) face matrix ``W`` of the contact wrench cone of a ``2X × 2Y`` rectangle: ``W w ≤ 0``.
+
+    ``w = (f_x, f_y, f_z, τ_x, τ_y, τ_z)`` about the rectangle centre in the contact frame. Rows:
+    ``|f_x|, |f_y| ≤ μ f_z`` (friction), ``|τ_x| ≤ Y f_z``, ``|τ_y| ≤ X f_z`` (centre of pressure
+    inside the rectangle) and 8 rows bounding the yaw torque
+    ``τ_min ≤ τ_z ≤ τ_max``, ``τ_max = μ(X+Y) f_z − |Y f_x + μ τ_x| − |X f_y + μ τ_y|``,
+    ``τ_min = −μ(X+Y) f_z + |Y f_x − μ τ_x| + |X f_y − μ τ_y|``.
+    """
+    x, y = float(half_length), float(half_width)
+    rows = []
+    for s in (1.0, -1.0):
+        rows += [[s, 0, -mu, 0, 0, 0], [0, s, -mu, 0, 0, 0], [0, 0, -y, s, 0, 0], [0, 0, -x, 0, s, 0]]
+    yaw = -mu * (x + y)
+    for s1, s2 in itertools.product((1.0, -1.0), (1.0, -1.0)):
+        rows.append([s1 * y, s2 * x, yaw, s1 * mu, s2 * mu, 1.0])
+        rows.append([s1 * y, s2 * x, yaw, -s1 * mu, -s2 * mu, -1.0])
+    return np.array(rows, dtype=float)
+
+
+def rectangle_corners(half_length: float, half_width: float) -> np.ndarray:
+    """(4, 3) corners in the contact frame: front-left, front-right, back-left, back-right."""
+    x, y = half_length, half_width
+    return np.array([[x, y, 0.0], [x, -y, 0.0], [-x, y, 0.0], [-x, -y, 0.0]])
+
+
+def corner_wrench_map(corners: np.ndarray) -> np.ndarray:
+    """(6, 3k) ``Φ`` mapping k stacked corner forces to the wrench about the origin."""
+    corners = np.asarray(corners, dtype=float)
+    phi = np.zeros((6, 3 * len(corners)))
+    for i, corner in enumerate(corners):
+        phi[:3, 3 * i : 3 * i + 3] = np.eye(3)
+        phi[3:, 3 * i : 3 * i + 3] = pin.skew(corner)
+    return phi
+
+
+def pyramid_generators(corners: np.ndarray, mu: float) -> np.ndarray:
+    """(6, 4k) wrenches of the 4 pyramid edges ``(±μ, ±μ, 1)`` at each corner."""
+    columns = []
+    for corner in np.asarray(corners, dtype=float):
+        for a, b in itertools.product((mu, -mu), (mu, -mu)):
+            force = np.array([a, b, 1.0])
+            columns.append(np.concatenate([force, np.cross(corner, force)]))
+    return np.array(columns).T
+
+
+def corner_forces_from_wrench(
+    wrench: np.ndarray, half_length: float, half_width: float, mu: float
+) -> tuple[np.ndarray, float]:
+    """Corner forces (4, 3) inside their pyramids whose wrench is ``wrench`` (contact frame).
+
+    Non-negative least squares over the 16 pyramid edges: the residual (returned) is 0 exactly
+    when ``wrench`` lies in the contact wrench cone. Diagnostic, not for the hot path.
+    """
+    corners = rectangle_corners(half_length, half_width)
+    generators = pyramid_generators(corners, mu)
+    scale = max(1.0, float(np.abs(wrench).max()))
+    weights, residual = nnls(generators, np.asarray(wrench, dtype=float) / scale)
+    forces = np.zeros((4, 3))
+    for i in range(4):
+        forces[i] = generators[:3, 4 * i : 4 * i + 4] @ weights[4 * i : 4 * i + 4] * scale
+    return forces, float(residual * scale)
+
+
+class Contact(abc.ABC):
+    """A rigid contact at a frame fixed to a link of the model (see the module docstring).
+
+    ``link`` names a model frame (usually the link); ``offset`` is the contact frame's placement
+    in it (the sole centre for a foot). Gains ``kp``/``kd`` add feedback to the motion rows
+    (``kp`` on the pose drift from where the contact was made, ``kd`` on the contact twist).
+    """
+
+    n_motion = 6
+
+    def __init__(
+        self,
+        name: str,
+        link: str,
+        *,
+        offset: pin.SE3 | np.ndarray | None = None,
+        mu: float = DEFAULT_FRICTION,
+        min_normal_force: float = 0.0,
+        max_normal_force: float = DEFAULT_MAX_NORMAL_FORCE,
+        kp: float = 0.0,
+        kd: float = 0.0,
+    ) -> None:
+        if not (math.isfinite(mu) and mu > 0):
+            raise ValueError(f"contact {name!r}: friction coefficient mu must be > 0, got {mu}")
+        if not (0.0 <= min_normal_force <= max_normal_force):
+            raise ValueError(
+                f"contact {name!r}: need 0 <= min_normal_force <= max_normal_force, got {min_normal_force}, {max_normal_force}"
+            )
+        if kp < 0 or kd < 0:
+            raise ValueError(f"contact {name!r}: gains must be >= 0")
+        self.name = name
+        self.link = link
+        if offset is None:
+            offset = pin.SE3.Identity()
+        elif not isinstance(offset, pin.SE3):
+            offset = pin.SE3(np.eye(3), np.asarray(offset, dtype=float).reshape(3))
+        self.offset = offset
+        self.mu = float(mu)
+        self.min_normal_force = float(min_normal_force)
+        self.max_normal_force = float(max_normal_force)
+        self.kp = float(kp)
+        self.kd = float(kd)
+        self.reference: pin.SE3 | None = None  # contact-frame placement when the contact was made
+        self.joint_id = -1
+        self.placement = offset  # contact frame in the parent joint frame, set by bind
+        self.jacobian = np.zeros((6, 0))
+        self.drift = np.zeros(6)
+        self._friction = self.friction_matrix()
+        self.phi = self.wrench_map()  # constant: None (identity) or (6, n_force)
+
+    @property
+    def feedback(self) -> bool:
+        """True when the motion rows carry pose or velocity feedback."""
+        return self.kp > 0.0 or self.kd > 0.0
+
+    # --- what a model provides -------------------------------------------------------------------
+    @property
+    @abc.abstractmethod
+    def n_force(self) -> int: ...
+
+    @abc.abstractmethod
+    def friction_matrix(self) -> np.ndarray:
+        """(n_ineq, n_force) constant rows of the friction constraints."""
+
+    @abc.abstractmethod
+    def friction_bounds(self, lower: np.ndarray, upper: np.ndarray, limit: float | None = None) -> None:
+        """Fill the (n_ineq,) bounds of the friction rows; ``limit`` caps the contact's total
+        normal force below its nominal bounds (ramping), ``None`` for the nominal bounds."""
+
+    @abc.abstractmethod
+    def wrench_map(self) -> np.ndarray | None:
+        """(6, n_force) ``Φ`` from the variables to the contact-frame wrench; None for identity."""
+
+    @abc.abstractmethod
+    def nominal_force(self, normal_force: float) -> np.ndarray:
+        """Force variables carrying ``normal_force`` evenly (reference for regularisation)."""
+
+    @property
+    def n_ineq(self) -> int:
+        return self._friction.shape[0]
+
+    # --- binding and per-tick terms -----------------------------------------------------------
+    def bind(self, kin: Kinodynamics) -> None:
+        """Resolve the link in a model (called by the controller when the contact is added)."""
+        frame = kin.model.frames[kin.frame_id(self.link)]
+        self.joint_id = int(frame.parentJoint)
+        self.placement = frame.placement * self.offset
+
+    def placement_in_world(self, kin: Kinodynamics) -> pin.SE3:
+        return kin.data.oMi[self.joint_id] * self.placement
+
+    def update(self, kin: Kinodynamics) -> None:
+        """Contact-frame Jacobian (6, nv) and drift ``J̇ v`` (6,) for the current state."""
+        model, data = kin.model, kin.data
+        self.jacobian = pin.getFrameJacobian(model, data, self.joint_id, self.placement, LOCAL)
+        self.drift = pin.getFrameClassicalAcceleration(model, data, self.joint_id, self.placement, LOCAL).vector
+
+    def motion_target(self, kin: Kinodynamics, out: np.ndarray) -> None:
+        """Right-hand side of the motion rows: ``−J̇ v − Kp e − Kd J v`` (call after update)."""
+        np.negative(self.drift, out=out)
+        if self.kd > 0.0:
+            out -= self.kd * (self.jacobian @ kin.v)
+        if self.kp > 0.0 and self.reference is not None:
+            out -= self.kp * pin.log6(self.reference.actInv(self.placement_in_world(kin))).vector
+
+    def wrench_in_contact_frame(self, forces: np.ndarray) -> np.ndarray:
+        """The 6D wrench ``(f, τ)`` about the contact origin, contact frame, from the variables."""
+        phi = self.wrench_map()
+        return np.array(forces, dtype=float) if phi is None else phi @ forces
+
+    def wrench_in_world(self, kin: Kinodynamics, forces: np.ndarray) -> np.ndarray:
+        """The wrench about the contact origin with world axes (force, torque)."""
+        rotation = self.placement_in_world(kin).rotation
+        wrench = self.wrench_in_contact_frame(forces)
+        return np.concatenate([rotation @ wrench[:3], rotation @ wrench[3:]])
+
+    def normal_force(self, forces: np.ndarray) -> float:
+        return float(self.wrench_in_contact_frame(forces)[2])
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, link={self.link!r}, mu={self.mu})"
+
+
+class RectangleContact(Contact):
+    """Shared part of the two flat-foot models: a ``2X × 2Y`` rectangle at the contact frame."""
+
+    def __init__(self, name: str, link: str, half_length: float, half_width: float, **kwargs: object) -> None:
+        if not (half_length > 0 and half_width > 0):
+            raise ValueError(f"contact {name!r}: half_length and half_width must be > 0")
+        self.half_length = float(half_length)
+        self.half_width = float(half_width)
+        super().__init__(name, link, **kwargs)  # type: ignore[arg-type]
+
+    @property
+    def corners(self) -> np.ndarray:
+        """(4, 3) corners in the contact frame."""
+        return rectangle_corners(self.half_length, self.half_width)
+
+    @classmethod
+    def from_rectangle(cls, rectangle: object, *, scale: float = 1.0, **kwargs: object) -> "RectangleContact":
+        """Build from a :class:`giwbc.robot.description.ContactRectangle` (sole centre as offset),
+        its sides scaled by ``scale``."""
+        offset = pin.SE3(np.eye(3), np.asarray(rectangle.center, dtype=float))  # type: ignore[attr-defined]
+        return cls(
+            rectangle.name,  # type: ignore[attr-defined]
+            rectangle.link,  # type: ignore[attr-defined]
+            scale * rectangle.half_length,  # type: ignore[attr-defined]
+            scale * rectangle.half_width,  # type: ignore[attr-defined]
+            offset=offset,
+            **kwargs,
+        )
+
+    def corner_forces(self, forces: np.ndarray) -> np.ndarray:
+        """(4, 3) corner forces in the contact frame reproducing the variables' wrench."""
+        raise NotImplementedError
+
+
+class SurfaceContact(RectangleContact):
+    """Flat foot with the 6D wrench as variables, inside the contact wrench cone (16 rows) and
+    with the total normal force in ``[min_normal_force, activation · max_normal_force]``."""
+
+    @property
+    def n_force(self) -> int:
+        return 6
+
+    def friction_matrix(self) -> np.ndarray:
+        rows = np.zeros((17, 6))
+        rows[:16] = wrench_cone_matrix(self.half_length, self.half_width, self.mu)
+        rows[16, 2] = 1.0
+        return rows
+
+    def friction_bounds(self, lower: np.ndarray, upper: np.ndarray, limit: float | None = None) -> None:
+        lower[:16] = -np.inf
+        upper[:16] = 0.0
+        upper[16] = self.max_normal_force if limit is None else min(max(limit, 0.0), self.max_normal_force)
+        lower[16] = min(self.min_normal_force, upper[16])
+
+    def wrench_map(self) -> None:
+        return None
+
+    def nominal_force(self, normal_force: float) -> np.ndarray:
+        force = np.zeros(6)
+        force[2] = normal_force
+        return force
+
+    def corner_forces(self, forces: np.ndarray) -> np.ndarray:
+        return corner_forces_from_wrench(forces, self.half_length, self.half_width, self.mu)[0]
+
+
+class CornerContact(RectangleContact):
+    """Flat foot with one 3D force per corner (12 variables, contact frame), each inside its
+    friction pyramid, with ``min_normal_force ≤ f_n ≤ activation · max_normal_force`` per corner."""
+
+
+    @property
+    def n_force(self) -> int:
+        return 12
+
+    def friction_matrix(self) -> np.ndarray:
+        rows = np.zeros((20, 12))
+        pyramid = pyramid_matrix(self.mu)
+        for i in range(4):
+            rows[5 * i : 5 * i + 4, 3 * i : 3 * i + 3] = pyramid
+            rows[5 * i + 4, 3 * i + 2] = 1.0
+        return rows
+
+    def friction_bounds(self, lower: np.ndarray, upper: np.ndarray, limit: float | None = None) -> None:
+        maximum = self.max_normal_force if limit is None else min(max(limit, 0.0) / 4.0, self.max_normal_force)
+        minimum = min(self.min_normal_force, maximum)
+        for i in range(4):
+            lower[5 * i : 5 * i + 4] = -np.inf
+            upper[5 * i : 5 * i + 4] = 0.0
+            lower[5 * i + 4] = minimum
+            upper[5 * i + 4] = maximum
+
+    def wrench_map(self) -> np.ndarray:
+        return corner_wrench_map(self.corners)
+
+
+
+    def nominal_force(self, normal_force: float) -> np.ndarray:
+        force = np.zeros(12)
+        force[2::3] = normal_force / 4.0
+        return force
+
+    def corner_forces(self, forces: np.ndarray) -> np.ndarray:
+        return np.asarray(forces, dtype=float).reshape(4, 3).copy()
+
+
+def foot_contacts(description: object, model: str = "surface", *, scale: float = 1.0, **kwargs: object) -> list[RectangleContact]:
+    """One contact per ``ContactRectangle`` of a robot description (``model``: surface | corners).
+
+    ``scale`` (0, 1] shrinks the rectangles about their centres: a margin that keeps the centre
+    of pressure off the very edge of the real sole, where any model error rolls the foot.
+    """
+    kinds = {"surface": SurfaceContact, "corners": CornerContact}
+    if model not in kinds:
+        raise ValueError(f"unknown contact model {model!r}; choose from {sorted(kinds)}")
+    if not 0.0 < scale <= 1.0:
+        raise ValueError(f"scale must be in (0, 1], got {scale}")
+    return [kinds[model].from_rectangle(rectangle, scale=scale, **kwargs) for rectangle in description.contacts]  # type: ignore[attr-defined]

@@ -1,0 +1,453 @@
+"""Weighted tasks of the whole-body QP, each a small class (pink / mink style).
+
+An acceleration task has a Jacobian ``J`` (dim × nv), a drift ``J̇ v``, a position error ``e``
+(reference minus measured), a velocity reference ``v_ref`` (so ``ė = v_ref − J v``), gains
+``Kp``, ``Kd`` and a feed-forward ``ẍ_ref``. It asks for
+
+    J q̈ + J̇ v = ẍ*,   ẍ* = ẍ_ref + Kp e + Kd ė,
+
+and enters the cost as ``‖J q̈ − (ẍ* − J̇ v)‖²_W`` with ``W = diag(weight)``.
+
+A task only *measures*: :meth:`Task.write` puts ``J``, ``e`` and ``J̇ v`` into rows of buffers the
+controller owns. The base-class side of the contract — gains, weights, references, and turning
+all tasks into one least-squares term — is evaluated by the controller for all tasks at once
+(:class:`TaskStack`: a handful of numpy calls per tick, whatever the number of tasks).
+:meth:`Task.compute` fills ``jacobian``, ``drift``, ``error`` and ``error_velocity`` for inspection
+and for the finite-difference tests.
+
+A :class:`ContactForceRegularization` acts on the contact-force variables instead:
+``‖f − f_ref‖²_W``.
+
+Weights and gains are scalars or per-row arrays; references, gains and weights can change at any
+time (each change bumps the task's ``version``, which the controller watches).
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+
+import numpy as np
+import pinocchio as pin
+
+from giwbc.control.kinodynamics import LWA, Kinodynamics
+
+
+def _row_vector(value: float | np.ndarray, dim: int, what: str) -> np.ndarray:
+    array = np.broadcast_to(np.asarray(value, dtype=float), (dim,)).copy()
+    if not np.all(np.isfinite(array)) or np.any(array < 0):
+        raise ValueError(f"{what} must be finite and >= 0, got {value}")
+    return array
+
+
+def _vector(value: np.ndarray | list[float], dim: int, what: str) -> np.ndarray:
+    """A finite float copy of ``value`` with ``dim`` entries (cheap: references change every tick)."""
+    array = np.array(value, dtype=float)
+    if array.shape != (dim,):
+        array = array.reshape(-1)
+        if array.shape != (dim,):
+            raise ValueError(f"{what} must have {dim} entries, got shape {np.shape(value)}")
+    if not math.isfinite(float(array @ array)):
+        raise ValueError(f"{what} must be finite, got {array}")
+    return array
+
+
+def critical_damping(kp: float | np.ndarray) -> np.ndarray | float:
+    """``Kd = 2 √Kp``: the damping gain of a critically damped double integrator."""
+    return 2.0 * np.sqrt(kp)
+
+
+class Task(abc.ABC):
+    """Base class of acceleration tasks (see the module docstring).
+
+    Subclasses implement :meth:`write`; a task whose Jacobian is constant (``constant_jacobian``)
+    writes its rows only when ``rows_stale`` is set, and one whose drift is zero
+    (``zero_drift``) never writes it.
+    """
+
+    constant_jacobian = False
+    zero_drift = False
+
+    def __init__(
+        self,
+        name: str,
+        dim: int,
+        *,
+        weight: float | np.ndarray = 1.0,
+        kp: float | np.ndarray = 0.0,
+        kd: float | np.ndarray | None = None,
+    ) -> None:
+        self.name = name
+        self.dim = int(dim)
+        self.version = 0  # bumped by weight and gain changes
+        self.ref_version = 0  # bumped by velocity / acceleration reference changes
+        self.rows_stale = True
+        self._zeros = np.zeros(self.dim)
+        self._zeros.flags.writeable = False  # shared default reference
+        self.acceleration_ref = self._zeros
+        self.velocity_ref = self._zeros
+        self.set_weight(weight)
+        self.set_gains(kp, kd)
+        self.jacobian = np.zeros((self.dim, 0))
+        self.drift = np.zeros(self.dim)
+        self.error = np.zeros(self.dim)
+        self.error_velocity = np.zeros(self.dim)
+        self.nv = 0
+
+    # --- settings ------------------------------------------------------------------------------
+    def _changed(self) -> None:
+        self.version += 1
+
+    def set_weight(self, weight: float | np.ndarray) -> None:
+        """Cost weight, a scalar or one per row (>= 0)."""
+        self.weight = _row_vector(weight, self.dim, f"task {self.name!r} weight")
+        self._changed()
+
+    def set_gains(self, kp: float | np.ndarray, kd: float | np.ndarray | None = None) -> None:
+        """Proportional and derivative gains; ``kd=None`` is critical damping ``2 √kp``."""
+        self.kp = _row_vector(kp, self.dim, f"task {self.name!r} kp")
+        self.kd = _row_vector(critical_damping(self.kp) if kd is None else kd, self.dim, f"task {self.name!r} kd")
+        self._changed()
+
+    def _set_rates(self, velocity: np.ndarray | None, acceleration: np.ndarray | None) -> None:
+        self.velocity_ref = self._zeros if velocity is None else _vector(velocity, self.dim, "velocity reference")
+        self.acceleration_ref = self._zeros if acceleration is None else _vector(acceleration, self.dim, "acceleration reference")
+        self.ref_version += 1
+
+    # --- evaluation ----------------------------------------------------------------------------
+    def bind(self, kin: Kinodynamics) -> None:
+        """Resolve names in the model (called when the task is added to a controller)."""
+        self.nv = kin.nv
+        self.rows_stale = True
+
+    @abc.abstractmethod
+    def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
+        """Hot path: write ``J`` into ``rows`` (dim, nv), ``e`` into ``error`` and ``J̇ v`` into ``drift``."""
+
+    def compute(self, kin: Kinodynamics) -> None:
+        """Fill ``jacobian``, ``drift``, ``error`` and ``error_velocity`` for the current state."""
+        rows = np.zeros((self.dim, kin.nv))
+        error = np.zeros(self.dim)
+        drift = np.zeros(self.dim)
+        stale, self.rows_stale = self.rows_stale, True
+        self.write(kin, rows, error, drift)
+        self.rows_stale = stale
+        self.jacobian, self.error, self.drift = rows, error, drift
+        self.error_velocity = self.velocity_ref - rows @ kin.v
+
+    def desired_acceleration(self) -> np.ndarray:
+        """``ẍ* = ẍ_ref + Kp e + Kd ė`` (after :meth:`compute`)."""
+        return self.acceleration_ref + self.kp * self.error + self.kd * self.error_velocity
+
+    def residual(self, qdd: np.ndarray) -> np.ndarray:
+        """``J q̈ + J̇ v − ẍ*`` (after :meth:`compute`): how far an acceleration is from the wish."""
+        return self.jacobian @ qdd + self.drift - self.desired_acceleration()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
+
+
+class TaskStack:
+    """All tasks of a controller as one weighted least-squares term ``‖J_w q̈ − b_w‖²``.
+
+    Row blocks of shared buffers hold each task's ``J``, ``e`` and ``J̇ v`` and its references;
+    per tick::
+
+        J_w = √W J,   b_w = √W Kp e − Kd (J_w v) − √W J̇ v + √W ẍ_ref + √W Kd v_ref
+
+    (``√W Kd J v = Kd J_w v``): the five signals are the rows of one (5, m) array and
+    ``b_w = Σ_rows(K ⊙ signals)`` is two numpy calls for all tasks. References are copied in only
+    when a task's ``ref_version`` changes, gains and weights gathered only when its ``version``
+    does. The Hessian ``J_wᵀ J_w`` is formed from the rows of the tasks whose Jacobian changes;
+    the constant-Jacobian tasks (posture) contribute ``hessian_constant`` (with ``ε I``).
+    """
+
+    def __init__(self, tasks: list[Task], nv: int, regularization: float = 0.0) -> None:
+        # Varying-Jacobian tasks first: their rows are the only ones in the Hessian product.
+        self.tasks = [t for t in tasks if not t.constant_jacobian] + [t for t in tasks if t.constant_jacobian]
+        m = sum(task.dim for task in self.tasks)
+        self.m, self.nv = m, nv
+        self.m_varying = mv = sum(task.dim for task in self.tasks if not task.constant_jacobian)
+        self.regularization = float(regularization)
+        self.J = np.zeros((m, nv))  # raw Jacobians
+        self.Jw = np.zeros((m, nv))  # weighted
+        self.signals = np.zeros((5, m))  # rows: e, J_w v, J̇ v, ẍ_ref, v_ref
+        self.error, self._jv, self.drift, self._acc_ref, self._vel_ref = self.signals
+        self.b = np.zeros(m)
+        self.hessian_constant = regularization * np.eye(nv)
+        self._gains = np.zeros((5, m))  # rows: √W Kp, −Kd, −√W, √W, √W Kd
+        self._products = np.zeros((5, m))
+        self._sw_col = np.zeros((m, 1))
+        self._J_varying, self._Jw_varying, self._sw_varying = self.J[:mv], self.Jw[:mv], self._sw_col[:mv]
+        self.views = []
+        start = 0
+        for task in self.tasks:
+            rows = slice(start, start + task.dim)
+            self.views.append((task, self.J[rows], self.error[rows], self.drift[rows], rows))
+            task.rows_stale = True
+            start += task.dim
+        self._versions = [(-1, -1)] * len(self.tasks)
+        self._hessian_stale = True
+
+    def _refresh(self) -> None:
+        for i, (task, _, _, _, rows) in enumerate(self.views):
+            version, ref_version = self._versions[i]
+            if version != task.version:
+                sw = np.sqrt(task.weight)
+                self._sw_col[rows, 0] = sw
+                gains = self._gains
+                gains[0, rows] = sw * task.kp
+                gains[1, rows] = -task.kd
+                gains[2, rows] = -sw
+                gains[3, rows] = sw
+                gains[4, rows] = sw * task.kd
+                self._hessian_stale = self._hessian_stale or task.constant_jacobian
+            if ref_version != task.ref_version:
+                self._acc_ref[rows] = task.acceleration_ref
+                self._vel_ref[rows] = task.velocity_ref
+            self._versions[i] = (task.version, task.ref_version)
+        if self._hessian_stale:
+            mv = self.m_varying
+            constant = self.Jw[mv:] = self.J[mv:] * self._sw_col[mv:]
+            self.hessian_constant = constant.T @ constant + self.regularization * np.eye(self.nv)
+            self._hessian_stale = False
+
+    def evaluate(self, kin: Kinodynamics) -> None:
+        """Write every task and form ``Jw`` and ``b`` for the current state."""
+        stale = self._hessian_stale
+        versions = self._versions
+        for i, (task, rows, error, drift, _) in enumerate(self.views):
+            if task.rows_stale and task.constant_jacobian:
+                stale = self._hessian_stale = True
+            task.write(kin, rows, error, drift)
+            if versions[i] != (task.version, task.ref_version):
+                stale = True
+        if stale:
+            self._refresh()
+        np.multiply(self._J_varying, self._sw_varying, out=self._Jw_varying)
+        np.matmul(self.Jw, kin.v, out=self._jv)
+        np.multiply(self._gains, self.signals, out=self._products)
+        np.add.reduce(self._products, axis=0, out=self.b)
+
+    def hessian(self, out: np.ndarray) -> None:
+        """``out = Σ Jᵀ W J + ε I`` (nv, nv), after :meth:`evaluate`."""
+        np.matmul(self._Jw_varying.T, self._Jw_varying, out=out)
+        out += self.hessian_constant
+
+    def gradient(self, out: np.ndarray) -> None:
+        """``out = −Σ Jᵀ W (ẍ* − J̇ v)`` (nv,), after :meth:`evaluate`."""
+        np.matmul(self.b, self.Jw, out=out)
+        np.negative(out, out=out)
+
+
+class ComTask(Task):
+    """Centre-of-mass position (world frame, 3 rows)."""
+
+    def __init__(self, name: str = "com", *, weight: float | np.ndarray = 1.0, kp: float | np.ndarray = 100.0, kd=None) -> None:
+        super().__init__(name, 3, weight=weight, kp=kp, kd=kd)
+        self.position_ref: np.ndarray | None = None  # None: hold the CoM where it is at the first tick
+
+    def set_reference(self, position: np.ndarray, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
+        self.position_ref = _vector(position, 3, "CoM position reference")
+        self._set_rates(velocity, acceleration)
+
+    def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
+        com = kin.com
+        if self.position_ref is None:
+            self.position_ref = np.array(com)
+        rows[:] = kin.com_jacobian
+        np.subtract(self.position_ref, com, out=error)
+        drift[:] = kin.com_drift
+
+
+class FramePoseTask(Task):
+    """Pose of a model frame: ``[position; orientation]`` rows in world axes, a subset selectable.
+
+    Position error ``p_ref − p``; orientation error ``log3(R_ref Rᵀ)`` (world axes) — the rotation
+    vector taking the frame to its reference. Velocities are the frame's ``LOCAL_WORLD_ALIGNED``
+    twist ``J v`` (origin velocity, angular velocity). ``mask`` picks rows of
+    ``(x, y, z, rx, ry, rz)``.
+    """
+
+    def __init__(
+        self,
+        frame: str,
+        name: str | None = None,
+        *,
+        mask: np.ndarray | list[bool] | None = None,
+        weight: float | np.ndarray = 1.0,
+        kp: float | np.ndarray = 100.0,
+        kd=None,
+    ) -> None:
+        selection = np.ones(6, dtype=bool) if mask is None else np.asarray(mask, dtype=bool).reshape(6)
+        if not selection.any():
+            raise ValueError("a frame task needs at least one selected row")
+        self.frame = frame
+        self.rows = np.flatnonzero(selection)
+        contiguous = bool(np.all(np.diff(self.rows) == 1))
+        self._select = slice(int(self.rows[0]), int(self.rows[-1]) + 1) if contiguous else self.rows
+        self._linear = bool(self.rows[0] < 3)
+        self._angular = bool(self.rows[-1] >= 3)
+        super().__init__(name or f"{frame}_pose", len(self.rows), weight=weight, kp=kp, kd=kd)
+        self.frame_id = -1
+        self.reference: pin.SE3 | None = None  # None: hold the pose at the first tick
+        self._error6 = np.zeros(6)
+
+    def bind(self, kin: Kinodynamics) -> None:
+        super().bind(kin)
+        self.frame_id = kin.frame_id(self.frame)
+
+    def set_reference(self, placement: pin.SE3, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
+        """Reference pose; optional twist and classical acceleration, 6D world axes ``[linear; angular]``."""
+        if not isinstance(placement, pin.SE3):
+            raise TypeError("the reference of a frame task is a pinocchio.SE3")
+        self.reference = pin.SE3(placement)
+        self._reference_rotation = np.array(self.reference.rotation)
+        self._reference_translation = np.array(self.reference.translation)
+        velocity = None if velocity is None else _vector(velocity, 6, "frame velocity reference")[self.rows]
+        acceleration = None if acceleration is None else _vector(acceleration, 6, "frame acceleration reference")[self.rows]
+        self._set_rates(velocity, acceleration)
+
+    def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
+        placement = kin.frame_placement(self.frame_id)
+        if self.reference is None:
+            self.set_reference(placement)
+        select = self._select
+        rows[:] = kin.frame_jacobian(self.frame_id, LWA)[select]
+        drift[:] = kin.frame_drift(self.frame_id, LWA)[select]
+        e = self._error6
+        if self._linear:
+            np.subtract(self._reference_translation, placement.translation, out=e[:3])
+        if self._angular:
+            e[3:] = pin.log3(self._reference_rotation @ placement.rotation.T)
+        error[:] = e[select]
+
+
+class FramePositionTask(FramePoseTask):
+    """Position of a model frame's origin (world axes, 3 rows)."""
+
+    def __init__(self, frame: str, name: str | None = None, **kwargs) -> None:
+        super().__init__(frame, name or f"{frame}_position", mask=[1, 1, 1, 0, 0, 0], **kwargs)
+
+
+class FrameOrientationTask(FramePoseTask):
+    """Orientation of a model frame (world axes, 3 rows)."""
+
+    def __init__(self, frame: str, name: str | None = None, **kwargs) -> None:
+        super().__init__(frame, name or f"{frame}_orientation", mask=[0, 0, 0, 1, 1, 1], **kwargs)
+
+
+class PostureTask(Task):
+    """Joint positions (the coordinates after the floating base):
+    ``q̈_j = ẍ_ref + Kp (q_ref − q_j) + Kd (v_ref − v_j)``. Constant selection Jacobian, zero drift."""
+
+    constant_jacobian = True
+    zero_drift = True
+
+    def __init__(
+        self,
+        name: str = "posture",
+        *,
+        dim: int | None = None,
+        weight: float | np.ndarray = 1.0,
+        kp: float | np.ndarray = 0.0,
+        kd=None,
+        reference: np.ndarray | None = None,
+    ) -> None:
+        if dim is None and reference is None:
+            raise ValueError("give the posture task its dimension or a reference")
+        dim = len(reference) if dim is None else dim  # type: ignore[arg-type]
+        super().__init__(name, dim, weight=weight, kp=kp, kd=kd)
+        self.position_ref: np.ndarray | None = None if reference is None else _vector(reference, dim, "posture reference")
+        self.joint_q = slice(0, 0)
+        self.joint_v = slice(0, 0)
+
+    def bind(self, kin: Kinodynamics) -> None:
+        super().bind(kin)
+        if kin.n_joints != self.dim:
+            raise ValueError(f"posture task {self.name!r} has {self.dim} rows, the model has {kin.n_joints} joints")
+        self.joint_q, self.joint_v = kin.joint_q, kin.joint_v
+
+    def set_reference(self, position: np.ndarray, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
+        self.position_ref = _vector(position, self.dim, "posture reference")
+        self._set_rates(velocity, acceleration)
+
+    def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
+        if self.rows_stale:
+            rows[:] = 0.0
+            rows[:, self.joint_v] = np.eye(self.dim)
+            drift[:] = 0.0
+            self.rows_stale = False
+        q_joints = kin.q[self.joint_q]
+        if self.position_ref is None:
+            self.position_ref = np.array(q_joints)
+        np.subtract(self.position_ref, q_joints, out=error)
+
+
+class AngularMomentumTask(Task):
+    """Centroidal angular momentum ``L`` (world axes about the CoM, 3 rows):
+    ``L̇ = A_ω q̈ + Ȧ_ω v → L̇_ref + Kd (L_ref − L)`` (no position level: ``e = 0``)."""
+
+    def __init__(self, name: str = "angular_momentum", *, weight: float | np.ndarray = 1.0, kd: float | np.ndarray = 10.0) -> None:
+        super().__init__(name, 3, weight=weight, kp=0.0, kd=kd)
+
+    def set_reference(self, momentum: np.ndarray, rate: np.ndarray | None = None) -> None:
+        """Angular momentum reference (the task's ``v_ref``) and its rate (``ẍ_ref``)."""
+        self._set_rates(momentum, rate)
+
+    def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
+        rows[:] = kin.centroidal_map[3:]
+        drift[:] = kin.centroidal_drift[3:]
+
+
+class ContactForceRegularization:
+    """``‖f − f_ref‖²_W`` on every contact's force variables: keeps the redundant contact forces
+    (internal squeeze between feet, corner distribution) small and smooth.
+
+    ``reference="weight"`` (default) asks the active contacts to carry the robot's weight: shared
+    in proportion to their activations, or — after :meth:`set_support_point` with two contacts —
+    split by the lever rule so that the weight is statically supported at that point (the CoM
+    target of a balance controller), so the regularisation neither fights gravity nor a commanded
+    CoM shift. ``"zero"`` regularises towards no force.
+    """
+
+    def __init__(self, name: str = "contact_forces", *, weight: float = 1e-5, reference: str = "weight") -> None:
+        if reference not in ("weight", "zero"):
+            raise ValueError(f"reference must be 'weight' or 'zero', got {reference!r}")
+        self.name = name
+        self.reference = reference
+        self.support_point: np.ndarray | None = None
+        self.version = 0
+        self.set_weight(weight)
+
+    def set_weight(self, weight: float) -> None:
+        if not (math.isfinite(weight) and weight >= 0):
+            raise ValueError(f"force regularisation weight must be finite and >= 0, got {weight}")
+        self.weight = float(weight)
+        self.version += 1
+
+    def set_support_point(self, point: np.ndarray | None) -> None:
+        """World point (x, y used) whose static support sets the weight split between two contacts."""
+        self.support_point = None if point is None else _vector(point, 3, "support point")
+        self.version += 1
+
+    def shares(self, positions: list[np.ndarray], activations: list[float]) -> np.ndarray:
+        """Fraction of the weight for each contact (sums to 1 when any is active)."""
+        activation = np.asarray(activations, dtype=float)
+        if activation.sum() <= 0:
+            return np.zeros(len(activation))
+        share = activation / activation.sum()
+        active = np.flatnonzero(activation > 0)
+        if self.support_point is not None and len(active) == 2:
+            p1, p2 = (np.asarray(positions[i], dtype=float)[:2] for i in active)
+            d = p1 - p2
+            if d @ d > 1e-12:
+                alpha = float(np.clip((self.support_point[:2] - p2) @ d / (d @ d), 0.0, 1.0))
+                lever = np.zeros(len(activation))
+                lever[active] = [alpha, 1.0 - alpha]
+                share = lever * activation
+                share /= share.sum() if share.sum() > 0 else 1.0
+        return share
+
+    def __repr__(self) -> str:
+        return f"ContactForceRegularization({self.name!r}, weight={self.weight})"

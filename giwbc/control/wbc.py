@@ -1,0 +1,755 @@
+"""The torque-level whole-body controller: an inverse-dynamics QP per tick.
+
+Decision variables ``x = [q̈ (nv), f (contact force variables)]``; the joint torques are recovered
+from the equation of motion ``M q̈ + h = Sᵀ τ + Σ Jᵀ Φ f`` (reduced formulation: only the
+``n_base`` unactuated rows are equality constraints). The QP::
+
+    min  Σ_tasks ‖J q̈ − (ẍ* − J̇ v)‖²_W + ‖f − f_ref‖²_Wf + ε ‖q̈‖²
+    s.t. M_b q̈ − (JᵀΦ)_b f = −h_b                       floating-base rows of the dynamics
+         J_c q̈ = −J̇_c v − Kp e − Kd J_c v                each active contact (6 rows, contact frame)
+         F_c f_c ∈ [l_c, u_c]                            friction cone / pyramids, normal-force bounds
+         τ_min − h_j ≤ M_j q̈ − (JᵀΦ)_j f ≤ τ_max − h_j   torque limits (joints with a finite limit)
+         q̈_min ≤ q̈_j ≤ q̈_max                            optional joint position/velocity limits
+
+Every matrix is preallocated when the *structure* (contacts, limits) changes and filled by
+slicing each tick; constant blocks (friction rows, posture selection, regularisation) are written
+once. :meth:`WholeBodyController.build` returns the :class:`~giwbc.control.qp.QpProblem`,
+:meth:`WholeBodyController.solve` solves it, :meth:`WholeBodyController.update` does both and
+returns a :class:`WbcResult` — it never raises on a numerical failure or a non-finite state: the
+result then carries a fallback command and a status, and the controller counts the failure.
+
+Contacts can be added and removed at run time: a contact's normal-force upper bound ramps over
+``ramp_time`` (see :mod:`giwbc.control.contacts`); a removed contact keeps its slot with zero force
+(no re-initialisation of the solver), a new contact name grows the problem (one cold solve).
+
+Output for a :class:`~giwbc.robot.interface.Robot`: joint torques ``tau``; and
+``WbcResult.impedance``, an :class:`~giwbc.robot.interface.ImpedanceCommand` for actuators that
+run their own PD loop: ``tau_ff = tau``, ``q_ref = q + v h + ½ q̈ h²``, ``v_ref = v + q̈ h`` (the
+state the WBC predicts ``h = impedance_lookahead`` seconds ahead, default 0 — the measured state),
+with *low* gains ``impedance_kp``/``impedance_kd``. At the measured state the actuator then
+outputs exactly the WBC torque; between WBC ticks the gains only resist drift away from the
+predicted motion, so they must stay well below a joint-PD controller's gains (they are a safety
+net for latency, not the controller).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pinocchio as pin
+
+from giwbc.control.contacts import Contact
+from giwbc.control.kinodynamics import Kinodynamics
+from giwbc.control.qp import QpProblem, QpSolution, QpSolver, QpStatus, make_solver
+from giwbc.control.tasks import ContactForceRegularization, Task, TaskStack
+from giwbc.robot.interface import ImpedanceCommand
+
+UNLIMITED = 1e10  # limits at or above this (Pinocchio uses DBL_MAX) count as "no limit"
+
+
+class WbcStatus(enum.Enum):
+    OK = "ok"
+    QP_FAILED = "qp_failed"  # see WbcResult.qp_status; the result holds the fallback command
+    INVALID_STATE = "invalid_state"  # q or v not finite; the result holds the fallback command
+
+
+@dataclass(slots=True)
+class WbcTimings:
+    """Wall-clock seconds of one tick: Pinocchio pass, QP assembly, solver, and everything."""
+
+    pinocchio: float = 0.0
+    build: float = 0.0
+    solve: float = 0.0
+    total: float = 0.0
+
+
+@dataclass(eq=False, slots=True)
+class WbcResult:
+    """One tick's output. ``tau`` is always finite (the fallback when ``status`` is not OK).
+
+    ``qdd`` (nv) and ``forces`` (all contact variables) are NaN when the QP failed;
+    ``contact_wrenches`` maps each contact with non-zero activation to its 6D wrench
+    ``(f, τ)`` about the contact origin *in the contact frame* (world axes:
+    :meth:`WholeBodyController.contact_wrench_world`).
+    """
+
+    status: WbcStatus
+    tau: np.ndarray
+    qdd: np.ndarray
+    forces: np.ndarray
+    contact_wrenches: dict[str, np.ndarray]
+    t: float
+    qp_status: QpStatus | None = None
+    iterations: int = 0
+    message: str = ""
+    failures: int = 0  # failed ticks so far (this one included)
+    timings: WbcTimings = field(default_factory=WbcTimings)
+    # inputs of the impedance command (joint coordinates)
+    _q_joints: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
+    _v_joints: np.ndarray = field(default=None, repr=False)  # type: ignore[assignment]
+    _gains: tuple = field(default=(), repr=False)
+
+    @property
+    def ok(self) -> bool:
+        return self.status is WbcStatus.OK
+
+    @property
+    def impedance(self) -> ImpedanceCommand:
+        """The equivalent per-joint impedance command (see the module docstring); a new object
+        at each access."""
+        kp, kd, lookahead, fallback_kd = self._gains
+        q, v = self._q_joints, self._v_joints
+        if not self.ok:
+            # Fallback: hold no position, damp, keep the fallback feed-forward.
+            finite = np.all(np.isfinite(q)) and np.all(np.isfinite(v))
+            q_ref = q.copy() if finite else np.zeros_like(self.tau)
+            return ImpedanceCommand(q_ref, np.zeros_like(self.tau), np.zeros_like(self.tau), fallback_kd.copy(), self.tau.copy())
+        qdd = self.qdd[len(self.qdd) - len(self.tau) :]
+        h = lookahead
+        return ImpedanceCommand(q + v * h + 0.5 * h * h * qdd, v + qdd * h, kp.copy(), kd.copy(), self.tau.copy())
+
+
+@dataclass
+class _ContactSlot:
+    """A contact's place in the problem and its ramp state."""
+
+    contact: Contact
+    columns: slice = field(default_factory=lambda: slice(0, 0))
+    motion_rows: slice = field(default_factory=lambda: slice(0, 0))
+    friction_rows: slice = field(default_factory=lambda: slice(0, 0))
+    activation: float = 0.0
+    ramp_from: float = 0.0
+    ramp_to: float = 1.0
+    ramp_time: float = 0.0
+    ramp_start: float | None = None  # None: starts at the next tick
+    ramping: bool = True  # False once the activation reached ramp_to
+    engaged: bool = True  # in contact: its motion rows constrain the robot
+    bounds_activation: float = -1.0  # activation the friction bounds were last written for
+    in_problem: bool = False  # motion rows currently written (True) or zeroed
+    ramp_force: float = 0.0  # N: the normal force a ramp moves between 0 and
+    unit_index: np.ndarray | None = None  # entries of the force vector carrying normal force
+    unit_value: np.ndarray | None = None  # their share of 1 N of normal force
+    last_normal: float = 0.0  # N: the normal force of the last solution
+
+    def normal_limit(self) -> float | None:
+        """Cap on the total normal force: none once fully made, ``activation · ramp_force`` else."""
+        if not self.ramping and self.ramp_to > 0.0:
+            return None
+        return self.activation * self.ramp_force
+
+    def start_ramp(self, target: float, duration: float) -> None:
+        self.ramp_from, self.ramp_to, self.ramp_time, self.ramp_start = self.activation, target, float(duration), None
+        self.ramping = True
+        self.engaged = True
+
+    def advance(self, t: float) -> float:
+        """Activation at time ``t``; a contact ramped down to zero is no longer engaged."""
+        if self.ramp_start is None:
+            self.ramp_start = t
+        if self.ramp_time <= 0.0:
+            progress = 1.0
+        else:
+            progress = min(max((t - self.ramp_start) / self.ramp_time, 0.0), 1.0)
+        self.activation = self.ramp_from + (self.ramp_to - self.ramp_from) * progress
+        if progress >= 1.0:
+            self.ramping = False
+            self.engaged = self.ramp_to > 0.0
+        return self.activation
+
+
+def _as_joint_array(value: float | np.ndarray | None, n: int, what: str, default: float = 0.0) -> np.ndarray:
+    array = np.broadcast_to(np.asarray(default if value is None else value, dtype=float), (n,)).copy()
+    if not np.all(np.isfinite(array)) or np.any(array < 0):
+        raise ValueError(f"{what} must be finite and >= 0 (one value or {n}), got {value}")
+    return array
+
+
+class WholeBodyController:
+    """Inverse-dynamics QP controller over a Pinocchio model (see the module docstring).
+
+    Parameters
+    ----------
+    model: the Pinocchio model (free-flyer root for a floating base; a fixed-base model works too).
+    dt: control period, s (the internal clock when ``update`` gets no time; joint-limit horizon).
+    solver: a backend name (``"proxsuite"``, ``"osqp"``, any qpsolvers name) or a :class:`QpSolver`.
+    solver_settings: keyword settings for the named backend.
+    n_base: unactuated leading velocity coordinates (default: 6 for a free flyer, else 0).
+    torque_limits: per-joint |τ| bounds (default ``model.effortLimit``; ≥ 1e10 or inf: none).
+    joint_limits: add acceleration bounds keeping joints inside position/velocity limits.
+    joint_limit_horizon: time, s, over which the acceleration bounds must stop a joint at its limit.
+    acceleration_regularization: ``ε`` of ``ε ‖q̈‖²`` (strict convexity).
+    impedance_kp, impedance_kd, impedance_lookahead: the impedance output (module docstring).
+    fallback_decay: factor applied to the last good torques per failed tick.
+    fallback_kd: damping of the fallback impedance command (default: ``impedance_kd``).
+    """
+
+    def __init__(
+        self,
+        model: pin.Model,
+        *,
+        dt: float = 0.002,
+        solver: str | QpSolver = "proxsuite",
+        solver_settings: dict | None = None,
+        n_base: int | None = None,
+        torque_limits: np.ndarray | None = None,
+        joint_limits: bool = False,
+        joint_limit_horizon: float = 0.05,
+        acceleration_regularization: float = 1e-6,
+        impedance_kp: float | np.ndarray = 0.0,
+        impedance_kd: float | np.ndarray = 0.0,
+        impedance_lookahead: float = 0.0,
+        fallback_decay: float = 0.9,
+        fallback_kd: float | np.ndarray | None = None,
+    ) -> None:
+        if not (dt > 0 and math.isfinite(dt)):
+            raise ValueError(f"dt must be > 0, got {dt}")
+        if not (0.0 <= fallback_decay <= 1.0):
+            raise ValueError(f"fallback_decay must be in [0, 1], got {fallback_decay}")
+        if not (acceleration_regularization >= 0 and math.isfinite(acceleration_regularization)):
+            raise ValueError("acceleration_regularization must be finite and >= 0")
+        if not (joint_limit_horizon > 0):
+            raise ValueError("joint_limit_horizon must be > 0")
+        self.kin = Kinodynamics(model, n_base=n_base)
+        self.model = model
+        self.dt = float(dt)
+        kin = self.kin
+        self.nv, self.n_base, self.n_joints = kin.nv, kin.n_base, kin.n_joints
+        self.solver = make_solver(solver, **(solver_settings or {})) if isinstance(solver, str) else solver
+        nj = self.n_joints
+        limits = model.effortLimit[self.n_base :] if torque_limits is None else np.asarray(torque_limits, dtype=float)
+        if limits.shape != (nj,):
+            raise ValueError(f"torque_limits must have {nj} entries, got shape {limits.shape}")
+        if np.any(limits < 0) or np.any(np.isnan(limits)):
+            raise ValueError("torque limits must be >= 0")
+        self.torque_limits = np.where(np.isfinite(limits) & (limits < UNLIMITED), limits, np.inf)
+        self.joint_limits = bool(joint_limits)
+        self.joint_limit_horizon = float(joint_limit_horizon)
+        lower = np.array(model.lowerPositionLimit[kin.joint_q], dtype=float)
+        upper = np.array(model.upperPositionLimit[kin.joint_q], dtype=float)
+        velocity = np.array(model.velocityLimit[self.n_base :], dtype=float)
+        self._q_lower = np.where(np.abs(lower) < UNLIMITED, lower, -np.inf)
+        self._q_upper = np.where(np.abs(upper) < UNLIMITED, upper, np.inf)
+        self._v_limit = np.where(np.isfinite(velocity) & (velocity < UNLIMITED) & (velocity > 0), velocity, np.inf)
+        self.acceleration_regularization = float(acceleration_regularization)
+        self.impedance_kp = _as_joint_array(impedance_kp, nj, "impedance_kp")
+        self.impedance_kd = _as_joint_array(impedance_kd, nj, "impedance_kd")
+        self.impedance_lookahead = float(impedance_lookahead)
+        self.fallback_decay = float(fallback_decay)
+        self.fallback_kd = self.impedance_kd.copy() if fallback_kd is None else _as_joint_array(fallback_kd, nj, "fallback_kd")
+
+        self.tasks: list[Task] = []
+        self.force_regularization: ContactForceRegularization | None = None
+        self._slots: dict[str, _ContactSlot] = {}
+        self._structure = 0
+        self._layout_dirty = True
+        self._tasks_dirty = True
+        self._time = 0.0
+        self._last_tau: np.ndarray | None = None
+        self.failures = 0
+        self.consecutive_failures = 0
+        self.ticks = 0
+        self.problem: QpProblem | None = None
+
+    # --- tasks -----------------------------------------------------------------------------------
+    def add_task(self, task: Task | ContactForceRegularization) -> Task | ContactForceRegularization:
+        """Add a task (or the contact-force regularisation); returns it. Names must be unique."""
+        if isinstance(task, ContactForceRegularization):
+            self.force_regularization = task
+            self._layout_dirty = True
+            return task
+        if not isinstance(task, Task):
+            raise TypeError(f"expected a Task, got {type(task).__name__}")
+        if any(existing.name == task.name for existing in self.tasks):
+            raise ValueError(f"a task named {task.name!r} already exists")
+        task.bind(self.kin)
+        self.tasks.append(task)
+        self._tasks_dirty = True
+        return task
+
+    def remove_task(self, name: str) -> None:
+        if self.force_regularization is not None and self.force_regularization.name == name:
+            self.force_regularization = None
+            self._layout_dirty = True
+            return
+        for i, task in enumerate(self.tasks):
+            if task.name == name:
+                del self.tasks[i]
+                self._tasks_dirty = True
+                return
+        raise KeyError(f"no task named {name!r}")
+
+    def task(self, name: str) -> Task:
+        for task in self.tasks:
+            if task.name == name:
+                return task
+        raise KeyError(f"no task named {name!r}; tasks: {[t.name for t in self.tasks]}")
+
+    # --- contacts ----------------------------------------------------------------------------------
+    def add_contact(self, contact: Contact, ramp_time: float = 0.0) -> Contact:
+        """Make a contact (or re-make a removed one by name); its force bound ramps up over ``ramp_time`` s.
+
+        A new name grows the problem (the solver re-initialises once); re-adding a known name
+        with the same number of force variables reuses its slot.
+        """
+        if not isinstance(contact, Contact):
+            raise TypeError(f"expected a Contact, got {type(contact).__name__}")
+        if ramp_time < 0:
+            raise ValueError("ramp_time must be >= 0")
+        contact.bind(self.kin)
+        slot = self._slots.get(contact.name)
+        if slot is None or slot.contact.n_force != contact.n_force or slot.contact.n_ineq != contact.n_ineq:
+            activation = 0.0 if slot is None else slot.activation
+            slot = _ContactSlot(contact, activation=activation)
+            self._slots[contact.name] = slot
+            self._layout_dirty = True
+        elif slot.contact is not contact:
+            slot.contact = contact
+            slot.bounds_activation = -1.0
+            slot.in_problem = False
+            if not self._layout_dirty and self.problem is not None:
+                self.problem.C[slot.friction_rows, slot.columns] = contact.friction_matrix()
+        if slot.activation == 0.0:
+            contact.reference = None  # re-anchored at the next tick
+        slot.ramp_force = float(np.linalg.norm(self.kin.gravity)) * self.kin.mass
+        slot.start_ramp(1.0, ramp_time)
+        return contact
+
+    def remove_contact(self, name: str, ramp_time: float = 0.0) -> None:
+        """Break a contact: its force bound ramps down to zero over ``ramp_time`` s, then its
+        motion constraint is dropped (the slot stays, with zero force)."""
+        if ramp_time < 0:
+            raise ValueError("ramp_time must be >= 0")
+        slot = self._slot(name)
+        if slot.ramp_to > 0.0:
+            # Ramp down from the load it carries now (its activation scales that from here on).
+            slot.ramp_force = slot.last_normal / slot.activation if slot.activation > 0.0 else 0.0
+        slot.start_ramp(0.0, ramp_time)
+
+    def forget_contact(self, name: str) -> None:
+        """Delete a contact's slot altogether (shrinks the problem; the solver re-initialises)."""
+        self._slot(name)
+        del self._slots[name]
+        self._layout_dirty = True
+
+    def contact(self, name: str) -> Contact:
+        return self._slot(name).contact
+
+    def contact_activation(self, name: str) -> float:
+        """Current activation in [0, 1] (1: full force allowed; 0: broken)."""
+        return self._slot(name).activation
+
+    @property
+    def contacts(self) -> list[Contact]:
+        return [slot.contact for slot in self._slots.values()]
+
+    @property
+    def active_contacts(self) -> list[str]:
+        return [name for name, slot in self._slots.items() if slot.engaged]
+
+    def _slot(self, name: str) -> _ContactSlot:
+        try:
+            return self._slots[name]
+        except KeyError:
+            raise KeyError(f"no contact named {name!r}; contacts: {list(self._slots)}") from None
+
+    # --- layout ----------------------------------------------------------------------------------
+    def _layout(self) -> None:
+        """(Re)allocate every buffer for the current contacts and limits; write constant blocks.
+
+        Row order is chosen so that the floating-base rows (last rows of ``A``) and the torque
+        rows (first rows of ``C``) are adjacent in the shared ``[A; C]`` buffer: together they are
+        the whole equation of motion ``[M, −JᵀΦ] x = Sᵀτ − h``, one (nv × n) block ``D`` filled by
+        one copy of ``M`` and one copy of each contact's ``−JᵀΦ`` per tick.
+        """
+        nv, nb, nj = self.nv, self.n_base, self.n_joints
+        n, eq = nv, 0
+        for slot in self._slots.values():
+            c = slot.contact
+            slot.columns = slice(n, n + c.n_force)
+            slot.motion_rows = slice(eq, eq + c.n_motion)
+            n, eq = n + c.n_force, eq + c.n_motion
+            slot.bounds_activation = -1.0
+            slot.in_problem = False
+        n_eq = eq + nb
+        limited = np.flatnonzero(np.isfinite(self.torque_limits))
+        self._torque_all = len(limited) == nj
+        self._torque_idx = limited
+        n_torque = len(limited)
+        ineq = n_torque
+        for slot in self._slots.values():
+            slot.friction_rows = slice(ineq, ineq + slot.contact.n_ineq)
+            ineq += slot.contact.n_ineq
+        self.n_force = n - nv
+
+        AC = np.zeros((n_eq + ineq, n))
+        A, C = AC[:n_eq], AC[n_eq:]
+        if self._torque_all:
+            self._D = AC[eq : eq + nv]  # base rows of A, then the torque rows of C
+        else:
+            self._D = np.zeros((nv, n))
+        self._base_b = slice(eq, n_eq)
+        self._torque_rows = slice(0, n_torque)
+        H = np.zeros((n, n))
+        g = np.zeros(n)
+        b = np.zeros(n_eq)
+        lo = np.full(ineq, -np.inf)
+        hi = np.full(ineq, np.inf)
+        lb = ub = None
+        if self.joint_limits:
+            lb = np.full(n, -np.inf)
+            ub = np.full(n, np.inf)
+            self._limit_bounds = np.zeros((4, nj))
+            T = self.joint_limit_horizon
+            s = 2.0 / (T * T)
+            # rows: upper (position), upper (velocity), lower (position), lower (velocity) = c + dq q + dv v
+            with np.errstate(invalid="ignore"):
+                self._limit_c = np.array([self._q_upper * s, self._v_limit / T, self._q_lower * s, -self._v_limit / T])
+            self._limit_dq = np.array([-s, 0.0, -s, 0.0])[:, None] * np.ones(nj)
+            self._limit_dv = np.array([-s * T, -1.0 / T, -s * T, -1.0 / T])[:, None] * np.ones(nj)
+        self._tau_lo = -self.torque_limits[limited]
+        self._tau_hi = self.torque_limits[limited]
+        for slot in self._slots.values():
+            C[slot.friction_rows, slot.columns] = slot.contact.friction_matrix()
+        self._h_diag = np.lib.stride_tricks.as_strided(H, shape=(n,), strides=((n + 1) * H.itemsize,))
+        self._reg_f = np.zeros(n - nv)
+        self._g_force = np.zeros(n - nv)
+        self._force_version = -1
+        self._weight_force = float(np.linalg.norm(self.kin.gravity)) * self.kin.mass
+        self._force_weight = -1.0
+        self._slot_list = list(self._slots.values())
+        for slot in self._slot_list:
+            unit = slot.contact.nominal_force(1.0)
+            nonzero = np.flatnonzero(unit)
+            slot.unit_index = nonzero + (slot.columns.start - nv)
+            slot.unit_value = unit[nonzero]
+        self._tau = np.zeros(nj)
+
+        # Structural patterns for sparse backends.
+        h_pattern = np.zeros((n, n), dtype=bool)
+        h_pattern[:nv, :nv] = True
+        h_pattern[np.arange(n), np.arange(n)] = True
+        ac_pattern = np.zeros_like(AC, dtype=bool)
+        m_pattern, supports = self._tree_patterns()
+        d_rows = np.concatenate([eq + np.arange(nb), n_eq + np.arange(n_torque)])  # rows of [A; C]
+        d_source = np.concatenate([np.arange(nb), nb + limited])  # their rows of D
+        ac_pattern[d_rows, :nv] = m_pattern[d_source]
+        for slot in self._slots.values():
+            cols = supports[slot.contact.joint_id]
+            ac_pattern[slot.motion_rows, :nv] = cols
+            ac_pattern[d_rows, slot.columns] = cols[d_source][:, None]
+            rows = slice(n_eq + slot.friction_rows.start, n_eq + slot.friction_rows.stop)
+            ac_pattern[rows, slot.columns] = slot.contact.friction_matrix() != 0
+        self._structure += 1
+        self.problem = QpProblem(H, g, A, b, C, lo, hi, lb, ub, h_pattern, ac_pattern, self._structure)
+        self._layout_dirty = False
+        self._tasks_dirty = True
+
+    def _tree_patterns(self) -> tuple[np.ndarray, np.ndarray]:
+        """Structural non-zeros of ``M`` (joints on one branch) and, per joint, the velocity
+        columns a Jacobian of a frame on that joint can use (its supporting joints)."""
+        model, nv = self.model, self.nv
+        supports = np.zeros((model.njoints, nv), dtype=bool)
+        for joint in range(1, model.njoints):
+            for ancestor in model.supports[joint]:
+                if ancestor > 0:
+                    start = model.idx_vs[ancestor]
+                    supports[joint, start : start + model.nvs[ancestor]] = True
+        mass = np.zeros((nv, nv), dtype=bool)
+        for joint in range(1, model.njoints):
+            start = model.idx_vs[joint]
+            cols = supports[joint]
+            mass[start : start + model.nvs[joint]] |= cols
+            mass[cols, start : start + model.nvs[joint]] = True
+        return mass, supports
+
+    def _layout_tasks(self) -> None:
+        self._stack = TaskStack(self.tasks, self.nv, self.acceleration_regularization)
+        self._tasks_dirty = False
+
+    # --- the tick ----------------------------------------------------------------------------------
+    def build(self, q: np.ndarray, v: np.ndarray, t: float | None = None) -> QpProblem:
+        """Update the kinematics and dynamics for ``(q, v)`` and assemble the QP.
+
+        The returned problem's arrays are the controller's buffers, overwritten at the next tick
+        (``problem.copy()`` to keep one). ``ValueError`` for wrong shapes or a non-finite state.
+        """
+        q, v = self.kin.check_state(q, v)
+        if not Kinodynamics.is_finite(q, v):
+            raise ValueError("state (q, v) is not finite")
+        self.kin.update(q, v)
+        self._assemble(self._tick_time(t))
+        assert self.problem is not None
+        return self.problem
+
+    def _tick_time(self, t: float | None) -> float:
+        if t is None:
+            t = self._time + (self.dt if self.ticks else 0.0)
+        self._time = float(t)
+        return self._time
+
+    def _assemble(self, t: float) -> None:
+        if self._layout_dirty:
+            self._layout()
+        if self._tasks_dirty:
+            self._layout_tasks()
+        kin = self.kin
+        p = self.problem
+        nv, nb = self.nv, self.n_base
+        M, h = kin.mass_matrix, kin.nonlinear_effects
+        H, g, A, b = p.H, p.g, p.A, p.b
+
+        # Tasks: H_qq = Σ Jᵀ W J + ε I, g_q = −Σ Jᵀ W (ẍ* − J̇ v).
+        stack = self._stack
+        stack.evaluate(kin)
+        stack.hessian(H[:nv, :nv])
+        stack.gradient(g[:nv])
+
+        # Equation of motion block D = [M, −JᵀΦ]: base rows (equalities), torque rows.
+        D = self._D
+        D[:, :nv] = M
+        if nb:
+            np.negative(h[:nb], out=b[self._base_b])
+
+        # Contacts.
+        force_changed = False
+        for slot in self._slots.values():
+            c = slot.contact
+            if slot.ramping or slot.bounds_activation < 0.0:
+                activation = slot.advance(t)
+                if activation != slot.bounds_activation:
+                    rows = slot.friction_rows
+                    c.friction_bounds(p.l[rows], p.u[rows], slot.normal_limit())
+                    slot.bounds_activation = activation
+                    force_changed = True
+            if slot.engaged:
+                c.update(kin)
+                J = c.jacobian
+                A[slot.motion_rows, :nv] = J
+                if c.feedback:
+                    if c.reference is None:
+                        c.reference = c.placement_in_world(kin)
+                    c.motion_target(kin, b[slot.motion_rows])
+                else:
+                    np.negative(c.drift, out=b[slot.motion_rows])
+                phi = c.phi
+                np.negative(J.T if phi is None else J.T @ phi, out=D[:, slot.columns])
+                slot.in_problem = True
+            elif slot.in_problem:
+                A[slot.motion_rows] = 0.0
+                b[slot.motion_rows] = 0.0
+                D[:, slot.columns] = 0.0
+                slot.in_problem = False
+                slot.contact.reference = None
+
+        # Regularisation: ε on q̈, the force regularisation on f (constant between ramps).
+        reg = self.force_regularization
+        if force_changed or (reg is not None and reg.version != self._force_version):
+            self._update_force_regularization()
+        self._h_diag[nv:] = self._reg_f
+        g[nv:] = self._g_force
+
+        # Torque limits: τ_min − h_j ≤ M_j q̈ − (JᵀΦ)_j f ≤ τ_max − h_j.
+        rows = self._torque_rows
+        hj = h[nb:]
+        if self._torque_all:
+            np.subtract(self._tau_lo, hj, out=p.l[rows])
+            np.subtract(self._tau_hi, hj, out=p.u[rows])
+        else:
+            A[self._base_b] = D[:nb]
+            if len(self._torque_idx):
+                idx = self._torque_idx
+                p.C[rows] = D[nb:][idx]
+                p.l[rows] = self._tau_lo - hj[idx]
+                p.u[rows] = self._tau_hi - hj[idx]
+
+        if self.joint_limits:
+            self._joint_limit_bounds(p)
+
+    def _update_force_regularization(self) -> None:
+        """Gradient of ``w ‖f − f_ref‖²`` (and its diagonal): called when activations, the weight
+        or the support point change — at every tick while a balance controller moves its CoM
+        target, so this is float arithmetic and a few scalar writes."""
+        reg = self.force_regularization
+        g = self._g_force
+        weight = 0.0 if reg is None else reg.weight
+        if reg is None or reg.version != self._force_version or self._force_weight != weight:
+            self._reg_f[:] = weight
+            self._force_weight = weight
+        self._force_version = -1 if reg is None else reg.version
+        shares = self._force_shares(reg) if reg is not None and reg.reference == "weight" and weight > 0 else None
+        scale = -weight * self._weight_force
+        for i, slot in enumerate(self._slot_list):
+            share = 0.0 if shares is None else shares[i]
+            if len(slot.unit_index) == 1:
+                g[slot.unit_index[0]] = scale * share
+            else:
+                g[slot.unit_index] = (scale * share) * slot.unit_value
+
+    def _force_shares(self, reg: ContactForceRegularization) -> list[float]:
+        """Weight share of each contact: by activation, or by the lever rule about the support
+        point when exactly two contacts are active."""
+        slots = self._slot_list
+        activations = [slot.activation for slot in slots]
+        total = sum(activations)
+        if total <= 0.0:
+            return [0.0] * len(slots)
+        shares = [a / total for a in activations]
+        point = reg.support_point
+        active = [i for i, a in enumerate(activations) if a > 0.0]
+        if point is not None and len(active) == 2:
+            i, j = active
+            p1, p2 = self._contact_xy(slots[i]), self._contact_xy(slots[j])
+            dx, dy = p1[0] - p2[0], p1[1] - p2[1]
+            norm = dx * dx + dy * dy
+            if norm > 1e-12:
+                alpha = min(max(((point[0] - p2[0]) * dx + (point[1] - p2[1]) * dy) / norm, 0.0), 1.0)
+                a1, a2 = alpha * activations[i], (1.0 - alpha) * activations[j]
+                if a1 + a2 > 0.0:
+                    shares[i], shares[j] = a1 / (a1 + a2), a2 / (a1 + a2)
+        return shares
+
+    def _contact_xy(self, slot: _ContactSlot) -> tuple[float, float]:
+        reference = slot.contact.reference
+        translation = (reference if reference is not None else slot.contact.placement_in_world(self.kin)).translation
+        return float(translation[0]), float(translation[1])
+
+    def _joint_limit_bounds(self, p: QpProblem) -> None:
+        """q̈ bounds that stop each joint at its position limit within the horizon ``T``
+        (``q + v T + ½ q̈ T² ≤ q_max``) and keep its velocity inside its limit (``|v + q̈ T| ≤ v_max``);
+        where they conflict (state already outside), the upper bound wins so the box stays non-empty."""
+        kin = self.kin
+        bounds = self._limit_bounds
+        np.multiply(self._limit_dq, kin.q[kin.joint_q], out=bounds)
+        bounds += self._limit_c
+        bounds += self._limit_dv * kin.v[kin.joint_v]
+        upper = p.ub[self.n_base : self.nv]  # type: ignore[index]
+        lower = p.lb[self.n_base : self.nv]  # type: ignore[index]
+        np.minimum(bounds[0], bounds[1], out=upper)
+        np.maximum(bounds[2], bounds[3], out=lower)
+        np.minimum(lower, upper, out=lower)
+
+    def solve(self, problem: QpProblem | None = None) -> QpSolution:
+        """Solve the problem of the last :meth:`build` (or a given one) with the backend."""
+        problem = self.problem if problem is None else problem
+        if problem is None:
+            raise RuntimeError("call build(q, v, t) before solve()")
+        return self.solver.solve(problem)
+
+    def update(self, q: np.ndarray, v: np.ndarray, t: float | None = None) -> WbcResult:
+        """One control tick: build, solve, recover the torques. Never raises on a numerical
+        failure or a non-finite state (wrong *shapes* raise ``ValueError``)."""
+        start = time.perf_counter()
+        kin = self.kin
+        q, v = kin.check_state(q, v)
+        self.ticks += 1
+        if not Kinodynamics.is_finite(q, v):
+            return self._fallback(q, v, self._tick_time(t), WbcStatus.INVALID_STATE, None, "state (q, v) is not finite", start, valid_state=False)
+        kin.update(q, v, checked=True)
+        t_pin = time.perf_counter()
+        t = self._tick_time(t)
+        self._assemble(t)
+        t_build = time.perf_counter()
+        solution = self.solver.solve(self.problem)  # type: ignore[arg-type]
+        t_solve = time.perf_counter()
+        if not solution.ok:
+            return self._fallback(q, v, t, WbcStatus.QP_FAILED, solution, solution.message, start, timings=(t_pin, t_build, t_solve))
+        x = solution.x
+        nv, nb = self.nv, self.n_base
+        tau = self._D[nb:] @ x
+        tau += kin.nonlinear_effects[nb:]
+        limits = self.torque_limits
+        np.minimum(tau, limits, out=tau)
+        np.maximum(tau, -limits, out=tau)
+        wrenches = {}
+        for name, slot in self._slots.items():
+            if slot.activation > 0.0:
+                forces = x[slot.columns]
+                phi = slot.contact.phi
+                wrench = wrenches[name] = forces if phi is None else phi @ forces
+                slot.last_normal = wrench[2]
+        self._last_tau = tau
+        self.consecutive_failures = 0
+        end = time.perf_counter()
+        return WbcResult(
+            WbcStatus.OK, tau, x[:nv], x[nv:], wrenches, t, solution.status, solution.iterations, "", self.failures,
+            WbcTimings(t_pin - start, t_build - t_pin, t_solve - t_build, end - start),
+            q[kin.joint_q].copy(), v[kin.joint_v].copy(), (self.impedance_kp, self.impedance_kd, self.impedance_lookahead, self.fallback_kd),
+        )
+
+    def _fallback(
+        self,
+        q: np.ndarray,
+        v: np.ndarray,
+        t: float,
+        status: WbcStatus,
+        solution: QpSolution | None,
+        message: str,
+        start: float,
+        *,
+        valid_state: bool = True,
+        timings: tuple[float, float, float] | None = None,
+    ) -> WbcResult:
+        """A safe command when no QP solution is available: the last good torques decayed by
+        ``fallback_decay`` per failed tick; before any success, zero torque on a floating base and
+        gravity compensation ``g(q)`` on a fixed base. The impedance output becomes pure damping."""
+        self.failures += 1
+        self.consecutive_failures += 1
+        nj = self.n_joints
+        if self._last_tau is not None:
+            tau = self._last_tau * self.fallback_decay
+        elif valid_state and self.n_base == 0:
+            tau = np.clip(np.array(self.kin.generalized_gravity), -self.torque_limits, self.torque_limits)
+        else:
+            tau = np.zeros(nj)
+        self._last_tau = tau
+        end = time.perf_counter()
+        if timings is None:
+            timing = WbcTimings(total=end - start)
+        else:
+            t_pin, t_build, t_solve = timings
+            timing = WbcTimings(t_pin - start, t_build - t_pin, t_solve - t_build, end - start)
+        n = self.problem.n if self.problem is not None else self.nv
+        kin = self.kin
+        return WbcResult(
+            status, tau, np.full(self.nv, np.nan), np.full(n - self.nv, np.nan), {}, t,
+            None if solution is None else solution.status, 0 if solution is None else solution.iterations,
+            message, self.failures, timing,
+            np.array(q[kin.joint_q]), np.array(v[kin.joint_v]),
+            (self.impedance_kp, self.impedance_kd, self.impedance_lookahead, self.fallback_kd),
+        )
+
+    # --- inspection ------------------------------------------------------------------------------
+    def contact_wrench_world(self, name: str, result: WbcResult) -> np.ndarray:
+        """A contact's wrench of ``result`` with world axes, about the contact origin (force, torque).
+        Uses the current kinematics: call before the next update."""
+        slot = self._slot(name)
+        if name not in result.contact_wrenches:
+            return np.zeros(6)
+        rotation = slot.contact.placement_in_world(self.kin).rotation
+        wrench = result.contact_wrenches[name]
+        return np.concatenate([rotation @ wrench[:3], rotation @ wrench[3:]])
+
+    def contact_forces(self, name: str, result: WbcResult) -> np.ndarray:
+        """A contact's force variables in ``result`` (contact frame; 6D wrench or 4 × 3 corners)."""
+        columns = self.contact_columns(name)
+        return result.forces[columns.start - self.nv : columns.stop - self.nv]
+
+    def contact_columns(self, name: str) -> slice:
+        """The slice of a contact's force variables in ``x``."""
+        if self._layout_dirty:
+            self._layout()
+        return self._slot(name).columns
+
+    def generalized_contact_forces(self, forces: np.ndarray) -> np.ndarray:
+        """``Σ Jᵀ Φ f`` (nv,) for the current kinematics and a vector of force variables."""
+        out = np.zeros(self.nv)
+        for slot in self._slots.values():
+            if slot.engaged:
+                c = slot.contact
+                f = forces[slot.columns.start - self.nv : slot.columns.stop - self.nv]
+                out += c.jacobian.T @ c.wrench_in_contact_frame(f)
+        return out

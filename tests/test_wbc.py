@@ -1,0 +1,474 @@
+"""The inverse-dynamics QP: equation of motion, friction, statics, computed torque on closed-form
+models, task Jacobians against finite differences, contact ramping, failures and fallbacks."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from giwbc.control import (
+    AngularMomentumTask,
+    ComTask,
+    ContactForceRegularization,
+    CornerContact,
+    FrameOrientationTask,
+    FramePoseTask,
+    FramePositionTask,
+    PostureTask,
+    QpStatus,
+    SurfaceContact,
+    WbcStatus,
+    WholeBodyController,
+    available_solvers,
+    foot_contacts,
+    make_balance_controller,
+    make_solver,
+)
+from giwbc.control.contacts import (
+    corner_forces_from_wrench,
+    pyramid_generators,
+    rectangle_corners,
+    wrench_cone_matrix,
+)
+from giwbc.control.kinodynamics import Kinodynamics
+from giwbc.testing import CartPole, DoublePendulum, PlanarFloatingArm, SimplePendulum
+from giwbc.testing.checks import assert_computed_torque
+from giwbc.testing.pinocchio_models import build_pinocchio_model, planar_floating_arm_model
+
+SOLVERS = ["proxsuite", "osqp"]
+ACCURATE = {"proxsuite": {"eps_abs": 1e-9}, "osqp": {"eps_abs": 1e-8, "eps_rel": 1e-8, "max_iter": 20000}}
+
+
+@pytest.fixture(scope="module")
+def g1_model(g1):
+    return g1.build_pinocchio()
+
+
+def g1_controller(g1, g1_model, solver: str, contact_model: str = "surface", accurate: bool = True) -> WholeBodyController:
+    """Double support, CoM + pelvis orientation + posture + force regularisation, torque limits."""
+    wbc = WholeBodyController(
+        g1_model,
+        solver=solver,
+        solver_settings=ACCURATE[solver] if accurate else None,
+        torque_limits=g1.effort_limits,
+        impedance_kd=g1.kd * 0.1,
+    )
+    for contact in foot_contacts(g1, contact_model, mu=0.8):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask(weight=10.0, kp=100.0))
+    wbc.add_task(FrameOrientationTask("pelvis", kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    wbc.add_task(ContactForceRegularization(weight=1e-5))
+    return wbc
+
+
+def random_state(g1, model, rng, scale=0.05, speed=0.5):
+    q = pin.integrate(model, g1.default_configuration(), rng.uniform(-scale, scale, model.nv))
+    return q, rng.uniform(-speed, speed, model.nv)
+
+
+def eom_residual(wbc: WholeBodyController, result) -> np.ndarray:
+    """``M q̈ + h − Sᵀτ − Σ Jᵀ Φ f`` with the controller's current kinematics."""
+    kin = wbc.kin
+    tau_full = np.zeros(kin.nv)
+    tau_full[kin.n_base :] = result.tau
+    return kin.mass_matrix @ result.qdd + kin.nonlinear_effects - tau_full - wbc.generalized_contact_forces(result.forces)
+
+
+# --- friction model ------------------------------------------------------------------------------
+def test_wrench_cone_is_the_span_of_the_corner_pyramids(rng):
+    """A wrench satisfies the 16 face inequalities iff 4 corner forces in their pyramids make it."""
+    X, Y, mu = 0.085, 0.03, 0.8
+    faces = wrench_cone_matrix(X, Y, mu)
+    generators = pyramid_generators(rectangle_corners(X, Y), mu)
+    assert np.max(faces @ generators) <= 1e-12  # every edge is inside
+    agree = 0
+    for _ in range(3000):
+        wrench = rng.normal(size=6) * np.array([1.0, 1.0, 3.0, 0.1, 0.1, 0.05])
+        wrench[2] = abs(wrench[2])
+        inside = bool(np.all(faces @ wrench <= 1e-12))
+        forces, residual = corner_forces_from_wrench(wrench, X, Y, mu)
+        assert inside == (residual < 1e-9)
+        if inside:
+            agree += 1
+            np.testing.assert_allclose(forces.sum(axis=0), wrench[:3], atol=1e-9)
+            assert np.all(np.abs(forces[:, :2]) <= mu * forces[:, 2:] + 1e-9)
+    assert agree > 100  # the sample did hit the cone
+
+
+# --- equation of motion and friction on G1 ------------------------------------------------------
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+def test_equation_of_motion_and_friction_in_double_support(g1, g1_model, rng, solver, contact_model):
+    wbc = g1_controller(g1, g1_model, solver, contact_model)
+    mu = 0.8
+    for _ in range(8):
+        q, v = random_state(g1, g1_model, rng)
+        result = wbc.update(q, v)
+        assert result.ok, result.message
+        residual = eom_residual(wbc, result)
+        assert np.max(np.abs(residual)) < 1e-5 * g1.total_mass * 9.81, residual
+        assert np.all(np.abs(result.tau) <= g1.effort_limits + 1e-9)
+        for name, wrench in result.contact_wrenches.items():
+            contact = wbc.contact(name)
+            corners = contact.corner_forces(wbc.contact_forces(name, result))
+            # Every corner force inside its pyramid (hence the CoP inside the foot) and unilateral.
+            assert np.all(corners[:, 2] >= -1e-6)
+            assert np.all(np.abs(corners[:, :2]) <= mu * corners[:, 2:] + 1e-5), corners
+            np.testing.assert_allclose(corners.sum(axis=0), wrench[:3], atol=1e-5)
+            if wrench[2] > 1.0:  # centre of pressure inside the (contact-frame) rectangle
+                cop = np.array([-wrench[4], wrench[3]]) / wrench[2]
+                assert abs(cop[0]) <= contact.half_length + 1e-6 and abs(cop[1]) <= contact.half_width + 1e-6
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_standing_still_carries_exactly_the_weight(g1, g1_model, solver):
+    wbc = g1_controller(g1, g1_model, solver)
+    result = wbc.update(g1.default_configuration(), np.zeros(g1_model.nv))
+    assert result.ok
+    total = sum(wbc.contact_wrench_world(name, result)[:3] for name in result.contact_wrenches)
+    weight = wbc.kin.mass * 9.81
+    assert abs(total[2] - weight) <= 1e-3 * weight
+    assert np.all(np.abs(total[:2]) <= 1e-3 * weight)
+    # The description's mass (URDF) and the model's agree.
+    assert wbc.kin.mass == pytest.approx(g1.total_mass, rel=1e-9)
+    # Nothing moves: the base does not accelerate.
+    assert np.max(np.abs(result.qdd)) < 1e-3
+
+
+# --- computed torque on closed-form fixed-base models -------------------------------------------
+@pytest.mark.parametrize("solver", SOLVERS)
+@pytest.mark.parametrize("params", [SimplePendulum.uniform_rod(), DoublePendulum(), CartPole()], ids=lambda p: type(p).__name__)
+def test_posture_acceleration_task_is_computed_torque(params, solver, rng):
+    """With only a joint-acceleration task, the WBC is τ = M q̈* + C q̇ + g of the analytic model."""
+    model = build_pinocchio_model(params)
+    wbc = WholeBodyController(model, solver=solver, solver_settings=ACCURATE[solver], acceleration_regularization=0.0)
+    task = wbc.add_task(PostureTask(dim=model.nv, kp=0.0, kd=0.0))
+    assert wbc.n_base == 0
+
+    def controller(q, qd, qdd):
+        task.set_reference(q, qd, qdd)  # zero error: the target is the feed-forward acceleration
+        result = wbc.update(q, qd)
+        assert result.ok, result.message
+        return result.tau
+
+    assert_computed_torque(controller, params, rng, n_states=15, rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_torque_limits_bind_on_a_fixed_base(solver, rng):
+    model = build_pinocchio_model(DoublePendulum())
+    wbc = WholeBodyController(model, solver=solver, torque_limits=np.array([5.0, 2.0]))
+    task = wbc.add_task(PostureTask(dim=2))
+    task.set_reference(np.zeros(2), np.zeros(2), np.array([50.0, -50.0]))
+    result = wbc.update(np.array([0.3, -0.2]), np.zeros(2))
+    assert result.ok
+    np.testing.assert_allclose(np.abs(result.tau), [5.0, 2.0], atol=1e-4)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_underactuated_planar_base_without_contacts(solver, rng):
+    """A floating (planar) base with no contact: the base rows force free-fall dynamics."""
+    params = PlanarFloatingArm()
+    model = planar_floating_arm_model(params)
+    wbc = WholeBodyController(model, solver=solver, solver_settings=ACCURATE[solver], n_base=3)
+    wbc.add_task(FramePositionTask("tip", kp=10.0))
+    for _ in range(5):
+        q, v = rng.uniform(-1, 1, 4), rng.uniform(-1, 1, 4)
+        result = wbc.update(q, v)
+        assert result.ok
+        tau = np.concatenate([np.zeros(3), result.tau])
+        expected_qdd = params.forward_dynamics(q, v, tau)
+        np.testing.assert_allclose(result.qdd, expected_qdd, atol=1e-6)
+
+
+# --- task Jacobians against finite differences on the manifold ----------------------------------
+def _task_cases(g1):
+    return [
+        ComTask(),
+        FramePoseTask("left_wrist_yaw_link"),
+        FramePositionTask("torso_link"),
+        FrameOrientationTask("pelvis"),
+        FramePoseTask("right_ankle_roll_link", mask=[1, 0, 1, 0, 1, 0]),
+        PostureTask(reference=g1.default_positions),
+    ]
+
+
+def _task_value(task, kin):
+    """The quantity a task's Jacobian differentiates: position, rotation, joint angles."""
+    if isinstance(task, ComTask):
+        return np.array(kin.com)
+    if isinstance(task, PostureTask):
+        return np.array(kin.q[kin.joint_q])
+    placement = kin.frame_placement(task.frame_id)
+    return pin.SE3(placement)
+
+
+def _difference(task, plus, minus):
+    if isinstance(plus, pin.SE3):
+        linear = plus.translation - minus.translation
+        angular = pin.log3(plus.rotation @ minus.rotation.T)
+        return np.concatenate([linear, angular])[task.rows]
+    return plus - minus
+
+
+@pytest.mark.parametrize("index", range(6))
+def test_task_jacobians_and_drifts_against_finite_differences(g1, g1_model, rng, index):
+    task = _task_cases(g1)[index]
+    kin = Kinodynamics(g1_model)
+    task.bind(kin)
+    q, v = random_state(g1, g1_model, rng, scale=0.3, speed=1.0)
+    a = rng.uniform(-1, 1, g1_model.nv)
+    kin.update(q, v)
+    task.compute(kin)
+    jacobian, drift = task.jacobian.copy(), task.drift.copy()
+    eps = 1e-6
+    numeric = np.zeros_like(jacobian)
+    probe = Kinodynamics(g1_model)
+    for i in range(g1_model.nv):
+        dq = np.zeros(g1_model.nv)
+        dq[i] = eps
+        probe.update(pin.integrate(g1_model, q, dq), v)
+        plus = _task_value(task, probe)
+        probe.update(pin.integrate(g1_model, q, -dq), v)
+        minus = _task_value(task, probe)
+        numeric[:, i] = _difference(task, plus, minus) / (2 * eps)
+    np.testing.assert_allclose(jacobian, numeric, atol=1e-6)
+    # Drift: d/dt (J v) − J a along q ⊕ v t, v + a t.
+    h = 1e-6
+    rates = []
+    for sign in (1.0, -1.0):
+        probe.update(pin.integrate(g1_model, q, sign * v * h), v + sign * a * h)
+        task.compute(probe)
+        rates.append(task.jacobian @ probe.v)
+    np.testing.assert_allclose(jacobian @ a + drift, (rates[0] - rates[1]) / (2 * h), atol=2e-5)
+    # The task's error is reference minus value, and its rate is v_ref − J v.
+    kin.update(q, v)
+    task.compute(kin)
+    np.testing.assert_allclose(task.error_velocity, task.velocity_ref - jacobian @ v, atol=1e-12)
+
+
+def test_angular_momentum_task_jacobian_and_drift(g1, g1_model, rng):
+    """L̇ = A q̈ + Ȧ v: finite differences of L(q(t), v(t))."""
+    task = AngularMomentumTask()
+    kin = Kinodynamics(g1_model)
+    task.bind(kin)
+    q, v = random_state(g1, g1_model, rng, scale=0.3, speed=1.0)
+    a = rng.uniform(-1, 1, g1_model.nv)
+    kin.update(q, v)
+    task.compute(kin)
+    h = 1e-6
+    momentum = []
+    for sign in (1.0, -1.0):
+        kin.update(pin.integrate(g1_model, q, sign * v * h), v + sign * a * h)
+        momentum.append(np.array(kin.centroidal_momentum[3:]))
+    np.testing.assert_allclose(task.jacobian @ a + task.drift, (momentum[0] - momentum[1]) / (2 * h), atol=2e-5)
+    np.testing.assert_allclose(task.error_velocity, -(task.jacobian @ v), atol=1e-10)
+
+
+def test_task_settings_are_validated():
+    with pytest.raises(ValueError):
+        ComTask(weight=-1.0)
+    with pytest.raises(ValueError):
+        ComTask(kp=[1.0, 2.0])
+    task = ComTask(kp=100.0)
+    np.testing.assert_allclose(task.kd, 20.0)  # critical damping by default
+    version, ref_version = task.version, task.ref_version
+    task.set_reference([0.0, 0.0, 0.7])
+    assert task.ref_version > ref_version and task.version == version
+    task.set_weight(2.0)
+    assert task.version > version
+    with pytest.raises(ValueError):
+        task.set_reference([0.0, np.nan, 0.7])
+    with pytest.raises(ValueError):
+        FramePoseTask("pelvis", mask=[0] * 6)
+    with pytest.raises(TypeError):
+        FramePoseTask("pelvis").set_reference(np.eye(4))
+
+
+# --- the problem, its structure and the solvers --------------------------------------------------
+def test_build_returns_an_inspectable_problem(g1, g1_model, rng):
+    wbc = g1_controller(g1, g1_model, "proxsuite")
+    q, v = random_state(g1, g1_model, rng)
+    problem = wbc.build(q, v, 0.0)
+    problem.validate()
+    # 35 accelerations + 2 × 6 wrench variables; 6 base rows + 2 × 6 contact rows;
+    # 29 torque rows + 2 × 17 wrench-cone rows.
+    assert (problem.n, problem.n_eq, problem.n_in) == (47, 18, 63)
+    np.testing.assert_allclose(problem.H, problem.H.T, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(problem.H) > 0)
+    solution = wbc.solve()
+    assert solution.ok and problem.violation(solution.x) < 1e-6
+    kept = problem.copy()
+    wbc.build(*random_state(g1, g1_model, rng))
+    assert not np.array_equal(kept.H, wbc.problem.H)  # the controller's buffers moved on, the copy did not
+
+
+def test_sparsity_patterns_cover_every_nonzero(g1, g1_model, rng):
+    """The structural masks OSQP is set up with must contain every entry that is ever non-zero."""
+    for contact_model in ("surface", "corners"):
+        wbc = g1_controller(g1, g1_model, "proxsuite", contact_model)
+        for _ in range(5):
+            p = wbc.build(*random_state(g1, g1_model, rng, scale=0.5, speed=2.0))
+            assert not np.any((p.H != 0) & ~p.H_pattern)
+            ac = np.vstack([p.A, p.C])
+            assert not np.any((ac != 0) & ~p.AC_pattern)
+
+
+def test_solver_backends_agree(g1, g1_model, rng):
+    q, v = random_state(g1, g1_model, rng)
+    results = {}
+    for solver in ["proxsuite", "osqp", "qpsolvers:proxqp"]:
+        wbc = g1_controller(g1, g1_model, solver, accurate=solver != "qpsolvers:proxqp")
+        results[solver] = wbc.update(q, v)
+        assert results[solver].ok
+    np.testing.assert_allclose(results["proxsuite"].tau, results["osqp"].tau, atol=1e-3)
+    np.testing.assert_allclose(results["proxsuite"].tau, results["qpsolvers:proxqp"].tau, atol=1e-3)
+    assert "proxsuite" in available_solvers() and "osqp" in available_solvers()
+    with pytest.raises(ValueError, match="unknown QP solver"):
+        make_solver("no-such-solver")
+
+
+# --- contacts at run time ------------------------------------------------------------------------
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_contact_removal_ramps_the_force_down_and_keeps_torques_continuous(g1, g1_model, solver):
+    wbc = g1_controller(g1, g1_model, solver, accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    dt = 0.002
+    result = wbc.update(q, v, 0.0)
+    structure = wbc.problem.structure
+    wbc.remove_contact("right_foot", ramp_time=0.1)
+    previous = result.tau
+    normal = []
+    jumps = []
+    for i in range(1, 80):
+        result = wbc.update(q, v, i * dt)
+        assert result.ok, result.message
+        normal.append(result.contact_wrenches.get("right_foot", np.zeros(6))[2])
+        jumps.append(np.max(np.abs(result.tau - previous)))
+        previous = result.tau
+        # The cap falls linearly from the load at removal to zero, from the first tick after the call.
+        bound = 163.6 * max(0.0, 1.0 - (i - 1) * dt / 0.1)
+        assert normal[-1] <= bound + 0.5
+    assert normal[-1] == 0.0 and "right_foot" not in wbc.active_contacts
+    assert wbc.contact_activation("right_foot") == 0.0
+    assert wbc.problem.structure == structure  # the slot stays: no re-initialisation
+    # Torques are continuous during the ramp: removing the contact at once jumps by the load of a
+    # whole foot; the ramp spreads that over 50 ticks.
+    abrupt = g1_controller(g1, g1_model, solver, accurate=False)
+    before = abrupt.update(q, v, 0.0).tau
+    abrupt.remove_contact("right_foot")
+    step = np.max(np.abs(abrupt.update(q, v, dt).tau - before))
+    assert max(jumps) < 0.1 * step, (max(jumps), step)
+    # Re-adding the same contact ramps it back up and reuses its slot.
+    wbc.add_contact(wbc.contact("right_foot"), ramp_time=0.05)
+    for i in range(80, 120):
+        result = wbc.update(q, v, i * dt)
+    assert result.ok and wbc.contact_activation("right_foot") == 1.0
+    assert wbc.problem.structure == structure
+    assert result.contact_wrenches["right_foot"][2] > 100.0
+
+
+def test_a_new_contact_grows_the_problem(g1, g1_model):
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    wbc.update(q, v, 0.0)
+    n = wbc.problem.n
+    wbc.add_contact(SurfaceContact("left_hand", "left_wrist_yaw_link", 0.02, 0.02), ramp_time=0.1)
+    wbc.remove_contact("left_hand")
+    result = wbc.update(q, v, 0.002)
+    assert result.ok and wbc.problem.n == n + 6
+    wbc.forget_contact("left_hand")
+    assert wbc.update(q, v, 0.004).ok and wbc.problem.n == n
+    with pytest.raises(KeyError):
+        wbc.remove_contact("nowhere")
+
+
+# --- failures never raise inside the loop --------------------------------------------------------
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_non_finite_state_returns_a_fallback(g1, g1_model, solver):
+    wbc = g1_controller(g1, g1_model, solver, accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    good = wbc.update(q, v, 0.0)
+    bad_q = q.copy()
+    bad_q[10] = np.nan
+    result = wbc.update(bad_q, v, 0.002)
+    assert result.status is WbcStatus.INVALID_STATE and not result.ok
+    np.testing.assert_allclose(result.tau, good.tau * wbc.fallback_decay)
+    assert result.failures == 1 and wbc.failures == 1 and wbc.consecutive_failures == 1
+    assert np.all(np.isfinite(result.impedance.tau_ff)) and np.all(result.impedance.kp == 0)
+    result = wbc.update(q, np.full(g1_model.nv, np.inf), 0.004)
+    assert result.status is WbcStatus.INVALID_STATE and wbc.consecutive_failures == 2
+    np.testing.assert_allclose(result.tau, good.tau * wbc.fallback_decay**2)
+    assert wbc.update(q, v, 0.006).ok and wbc.consecutive_failures == 0
+    with pytest.raises(ValueError, match="shape"):
+        wbc.update(q[:-1], v)
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_infeasible_problem_returns_a_fallback(g1, g1_model, solver):
+    """Limp joints (1 mN m) cannot push the feet down with twice the weight each: the QP is
+    infeasible, the tick is not."""
+    wbc = WholeBodyController(g1_model, solver=solver, torque_limits=np.full(29, 1e-3), solver_settings={"max_iter": 200})
+    weight = g1.total_mass * 9.81
+    for contact in foot_contacts(g1, min_normal_force=2 * weight, max_normal_force=3 * weight):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask())
+    result = wbc.update(g1.default_configuration(), np.zeros(35), 0.0)
+    assert result.status is WbcStatus.QP_FAILED
+    assert result.qp_status in (QpStatus.PRIMAL_INFEASIBLE, QpStatus.MAX_ITER, QpStatus.FAILED, QpStatus.DUAL_INFEASIBLE)
+    assert np.all(result.tau == 0.0) and np.all(np.isnan(result.qdd))  # no previous torque: zero on a floating base
+    assert wbc.failures == 1 and result.message
+
+
+# --- the output for a Robot ------------------------------------------------------------------------
+def test_impedance_command_reproduces_the_torque_at_the_measured_state(g1, g1_model, rng):
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    wbc.impedance_kp = np.full(29, 5.0)
+    q, v = random_state(g1, g1_model, rng)
+    result = wbc.update(q, v)
+    command = result.impedance
+    command.validate(29)
+    np.testing.assert_allclose(command.torque(q[7:], v[6:]), result.tau, atol=1e-12)
+    np.testing.assert_allclose(command.kd, g1.kd * 0.1)
+    # With a look-ahead h the references are the state integrated h ahead with q̈.
+    wbc.impedance_lookahead = 0.01
+    result = wbc.update(q, v)
+    command = result.impedance
+    np.testing.assert_allclose(command.q_ref, q[7:] + 0.01 * v[6:] + 0.5e-4 * result.qdd[6:])
+    np.testing.assert_allclose(command.v_ref, v[6:] + 0.01 * result.qdd[6:])
+
+
+def test_balance_controller_factory(g1):
+    controller = make_balance_controller(g1, solver="osqp", com_kp=80.0)
+    assert controller.config.solver == "osqp" and controller.com_task.kp[0] == 80.0
+    q = g1.default_configuration()
+    result = controller.update(q, np.zeros(35), 0.0)
+    assert result.ok
+    np.testing.assert_allclose(controller.nominal_com, controller.wbc.kin.com)
+    controller.set_com_offset([0.0, 0.02, 0.0])
+    np.testing.assert_allclose(controller.com_task.position_ref, controller.nominal_com + [0.0, 0.02, 0.0])
+    with pytest.raises(TypeError):
+        make_balance_controller(g1, no_such_option=1.0)
+    corners = make_balance_controller(g1, contact_model="corners")
+    assert all(isinstance(c, CornerContact) for c in corners.contacts)
+    assert corners.update(q, np.zeros(35), 0.0).ok
+
+
+def test_joint_limit_bounds_stop_a_joint_at_its_limit(g1, g1_model):
+    wbc = WholeBodyController(g1_model, torque_limits=g1.effort_limits, joint_limits=True, joint_limit_horizon=0.05)
+    wbc.add_task(PostureTask(reference=g1.default_positions))
+    q, v = g1.default_configuration(), np.zeros(35)
+    lower, upper = g1.position_limits
+    knee = 3
+    q[7 + knee] = upper[knee] - 0.01
+    v[6 + knee] = 1.0  # heading into the limit
+    problem = wbc.build(q, v, 0.0)
+    bound = problem.ub[6 + knee]
+    assert bound == pytest.approx(2.0 * (0.01 - 0.05) / 0.05**2)
+    assert problem.lb[6 + knee] <= bound
+    assert np.all(problem.lb <= problem.ub)
+    assert np.all(np.isinf(problem.lb[:6])) and np.all(np.isinf(problem.lb[35:]))
