@@ -1,0 +1,495 @@
+"""The floating-base state estimator: what the CAN robot uses for the base state nothing measures.
+
+Inputs are only what a real robot measures (the Robot interface's IMU, joints, efforts and time),
+so the same code runs on MuJoCo sensor data and on CAN/IMU data:
+
+1. orientation: a complementary filter on SO(3) (gyro propagation, pulled toward the IMU's own
+   orientation or the accelerometer's gravity, gyro bias estimated);
+2. contacts: normal force per foot from joint efforts (``J^T`` of each leg) or foot sensors,
+   low-passed, through a hysteresis threshold, or the controller's contact plan passed to
+   :meth:`StateEstimator.update`; a stance foot's load also sets how much it is trusted not to
+   slip (a lightly loaded foot's velocity counts less);
+3. position and velocity: a linear Kalman filter over IMU position/velocity and stance-foot
+   positions, driven by the IMU acceleration and corrected by leg kinematics (Pinocchio); a foot
+   whose velocity contradicts the IMU-propagated one (slip, impact) is down-weighted.
+
+The IMU's own orientation output is assumed to share the world frame's yaw reference (true in
+simulation and for an IMU whose yaw is zeroed at start); with ``use_imu_orientation=False`` only
+roll and pitch are observed and yaw drifts with the gyro bias.
+
+Output: an :class:`Estimate`: the base state, Pinocchio ``(q, v)`` for the whole-body controller,
+contact flags and forces, covariance and fault diagnostics. Bad sensor data (NaN, saturated,
+stale or backward timestamps) is flagged with a reason and counted, and never used: the update is
+skipped (the last good estimate is held) or the bad channel is left out.
+
+:class:`EstimatedRobot` wraps a robot whose base is not measured (hardware, or a
+:class:`~giwbc.robot.noise.NoisyRobot`) into a :class:`Robot` whose ``base_state()`` and
+``generalized_state()`` come from the estimator, so a controller runs unchanged on it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pinocchio as pin
+
+from giwbc.robot.description import RobotDescription
+from giwbc.robot.estimation import so3
+from giwbc.robot.estimation.contacts import ContactDetector
+from giwbc.robot.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
+
+_HOLDING = int(HOLDING_FAULTS)
+UNKNOWN_VARIANCE = 1e6  # covariance diagonal of an estimate not yet initialized (finite on purpose)
+from giwbc.robot.estimation.kalman import GRAVITY, LegKalmanFilter, LegKalmanNoise
+from giwbc.robot.estimation.kinematics import LegKinematics
+from giwbc.robot.estimation.orientation import OrientationFilter
+from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
+
+__all__ = [
+    "EstimatedRobot",
+    "Estimate",
+    "EstimatorConfig",
+    "Fault",
+    "FaultReport",
+    "LegKalmanNoise",
+    "Measurement",
+    "StateEstimator",
+]
+
+
+@dataclass(frozen=True)
+class EstimatorConfig:
+    """Tuning of the estimator and the ranges of the sensors it checks.
+
+    Contact thresholds are fractions of the robot's weight; the accelerometer and gyro ranges
+    are the IMU's full scale (a reading within 0.1 % of it counts as saturated).
+    """
+
+    use_imu_orientation: bool = True  # pull toward the IMU's own orientation output (else gravity only)
+    orientation_gain: float = 2.0  # 1/s
+    gravity_gain: float = 0.5  # 1/s, accelerometer tilt correction when the orientation output is unusable
+    gyro_bias_gain: float = 0.2  # 1/s^2
+    noise: LegKalmanNoise = field(default_factory=LegKalmanNoise)
+    ground_height: float | None = None  # flat ground at this height: stance feet measured on it
+    velocity_gate: float = 11.3  # normalized innovation (3 dof) above which a foot's velocity is down-weighted; 0: off
+    contact_on: float = 0.12  # x weight: a foot goes into contact above this normal force
+    contact_off: float = 0.06  # x weight: ... and out of it below this one
+    contact_filter_time: float = 0.01  # s, low-pass on contact forces before the thresholds
+    contact_full: float = 0.25  # x weight: a stance foot with this load is fully trusted not to slip;
+    # below it, its velocity counts less (down to contact_min_confidence at contact_off)
+    contact_min_confidence: float = 0.1
+    gyro_range: float = math.radians(2000.0)  # rad/s
+    accel_range: float = 16.0 * 9.80665  # m/s^2
+    max_dt: float = 0.02  # s: a longer gap between IMU samples is flagged (TIME_GAP)
+    initial_base_xy: tuple[float, float] = (0.0, 0.0)  # world x, y of the base at start (defines the frame)
+    initial_ground_height: float = 0.0  # height of the ground the feet stand on at start
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.contact_off < self.contact_on:
+            raise ValueError("contact thresholds need 0 <= contact_off < contact_on")
+        if min(self.orientation_gain, self.gravity_gain, self.gyro_bias_gain) < 0 or self.max_dt <= 0:
+            raise ValueError("gains must be >= 0 and max_dt > 0")
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """What one read of a robot's sensors returns; ``time`` is the IMU sample's timestamp.
+
+    ``contact_forces``: optional measured normal force per contact (N, description order), from
+    foot force sensors; without it, contact forces are estimated from joint efforts.
+    """
+
+    imu: ImuReading
+    joint_positions: np.ndarray
+    joint_velocities: np.ndarray
+    joint_efforts: np.ndarray
+    contact_forces: np.ndarray | None = None
+
+    @property
+    def time(self) -> float:
+        return float(self.imu.time)
+
+    @classmethod
+    def from_robot(cls, robot: Robot) -> "Measurement":
+        """The measured quantities of ``robot`` (never its base state)."""
+        return cls(robot.imu(), robot.joint_positions(), robot.joint_velocities(), robot.joint_efforts())
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """The estimator's output after one update.
+
+    ``q``/``v`` are Pinocchio's free-flyer convention (``[p, quat_xyzw, joints]`` /
+    ``[v_local, w_local, joints]``), ready for the whole-body controller; the joints are the
+    encoder readings (last good value for a bad one). Per contact (description order):
+    ``contacts`` (flags used), ``contact_confidence`` (0 swing, up to 1 for a fully loaded
+    stance foot), ``contact_forces`` (world-frame ground force at the sole centre, estimated or
+    measured). ``covariance``: base position/velocity covariance (6, 6, world); ``gyro_bias``:
+    estimated gyro bias (IMU frame); ``time``: timestamp of the last accepted measurement;
+    ``faults``: what was wrong with this update; ``initialized``: False until the first good
+    measurement (until then the description's default pose).
+    """
+
+    time: float
+    base: BaseState
+    q: np.ndarray
+    v: np.ndarray
+    contacts: np.ndarray
+    contact_confidence: np.ndarray
+    contact_forces: np.ndarray
+    covariance: np.ndarray
+    gyro_bias: np.ndarray
+    faults: FaultReport
+    initialized: bool = True
+
+    @property
+    def covariance_trace(self) -> float:
+        return float(np.trace(self.covariance))
+
+
+class StateEstimator:
+    """Estimates the floating base of ``description`` from IMU, encoders, efforts and contacts.
+
+    Call :meth:`update` once per new sample (typically each control tick, e.g. 500 Hz) with a
+    :class:`Measurement` and, optionally, the controller's contact plan; it returns an
+    :class:`Estimate`. :attr:`fault_counts` counts every fault since construction or :meth:`reset`.
+    """
+
+    def __init__(
+        self, description: RobotDescription, config: EstimatorConfig | None = None, model: pin.Model | None = None
+    ) -> None:
+        self.description = description
+        self.config = config if config is not None else EstimatorConfig()
+        c = self.config
+        self.kinematics = LegKinematics(description, model)
+        n_feet, dofs = self.kinematics.n_feet, description.dofs
+        weight = description.total_mass * -GRAVITY[2]
+        self.orientation = OrientationFilter(c.orientation_gain, c.gravity_gain, c.gyro_bias_gain)
+        self.filter = LegKalmanFilter(n_feet, c.noise, use_ground_height=c.ground_height is not None, velocity_gate=c.velocity_gate)
+        self.detector = ContactDetector(
+            n_feet, c.contact_on * weight, c.contact_off * weight, c.contact_filter_time, c.contact_full * weight
+        )
+        self._imu_rotation = self.kinematics.imu_rotation  # IMU frame in base frame
+        self._imu_to_base = so3.quat_conjugate(so3.matrix_to_quat(self._imu_rotation))
+        leg_joints = [self.kinematics.leg_joints(i) for i in range(n_feet)]
+        self._leg_mask = np.zeros((n_feet, dofs), dtype=bool)  # which joints each foot's kinematics uses
+        for i, joints in enumerate(leg_joints):
+            self._leg_mask[i, joints] = True
+        self._dofs = dofs
+        self._all_feet = np.ones(n_feet, dtype=bool)
+        self._all_feet.flags.writeable = False
+        self.reset()
+
+    # --- public ---------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget everything: the next good measurement initializes the estimate."""
+        self.monitor = FaultMonitor()
+        self.orientation.initialized = False
+        self.detector.reset()
+        self._time: float | None = None
+        self._positions = self.description.default_positions.copy()
+        self._velocities = np.zeros(self._dofs)
+        self._efforts = np.zeros(self._dofs)
+        self._forces = np.zeros((self.kinematics.n_feet, 3))
+        self._estimate = self._initial_estimate()
+
+    @property
+    def estimate(self) -> Estimate:
+        """The latest estimate (``initialized`` is False until a good measurement arrived)."""
+        return self._estimate
+
+    @property
+    def fault_counts(self) -> dict[str, int]:
+        """Faults counted per kind since construction or the last reset."""
+        return dict(self.monitor.counts)
+
+    def update_from_robot(self, robot: Robot, contacts: np.ndarray | None = None) -> Estimate:
+        """:meth:`update` with ``robot``'s measured quantities."""
+        return self.update(Measurement.from_robot(robot), contacts)
+
+    def update(self, measurement: Measurement, contacts: np.ndarray | None = None) -> Estimate:
+        """Fuse one measurement. ``contacts``: the controller's contact plan (one bool per
+        contact, description order); it overrides force-based detection for this update."""
+        monitor, c = self.monitor, self.config
+        imu = measurement.imu
+        now = float(imu.time)
+        gyro = np.asarray(imu.angular_velocity, float)
+        accel = np.asarray(imu.linear_acceleration, float)
+        self._check_time(now)
+        self._check_vector(gyro, c.gyro_range, Fault.GYRO_INVALID, Fault.GYRO_SATURATED, "gyro")
+        accel_ok = self._check_vector(accel, c.accel_range, Fault.ACCEL_INVALID, Fault.ACCEL_SATURATED, "accelerometer")
+        orientation = self._imu_orientation(imu.quaternion)  # validated quaternion or None
+        plan = self._contact_plan(contacts)
+        if monitor.has(_HOLDING):
+            return self._hold()
+        position_ok, velocity_ok, effort_ok = self._read_joints(measurement)
+        starting = not self.orientation.initialized
+        if starting:
+            if not self.orientation.initialize(orientation, accel if accel_ok else None):
+                monitor.flag(Fault.ORIENTATION_INVALID, "no usable IMU orientation or gravity to start from: not initialized")
+                return self._hold()
+            dt = 0.0
+        else:
+            dt = now - self._time
+            self.orientation.update(gyro, dt, orientation, accel if accel_ok else None)
+        self._time = now
+
+        base_quaternion = so3.quat_multiply(self.orientation.quaternion, self._imu_to_base)
+        base_rotation = so3.quat_to_matrix(base_quaternion)
+        base_omega = self._imu_rotation @ self.orientation.angular_velocity(gyro)  # base frame
+        use_efforts = measurement.contact_forces is None
+        try:
+            efforts = self._efforts if use_efforts else None
+            self.kinematics.compute(base_quaternion, base_omega, self._positions, self._velocities, efforts, base_rotation)
+        except np.linalg.LinAlgError:  # a leg at a singularity: no effort-based forces this update
+            use_efforts, effort_ok = False, np.zeros_like(effort_ok)
+        stance = self._detect_contacts(measurement, effort_ok, use_efforts, plan, dt)
+
+        confidence = np.where(stance, np.maximum(self.detector.confidence(), c.contact_min_confidence), 0.0)
+        if starting:
+            self._initialize_filter(stance)
+        else:
+            acceleration = base_rotation @ (self._imu_rotation @ accel) + GRAVITY if accel_ok else None
+            self.filter.predict(acceleration, dt, confidence)
+            if not stance.any():
+                monitor.flag(Fault.NO_STANCE_FOOT, "no foot in contact: base velocity from the IMU alone")
+            self.filter.correct(
+                self.kinematics.foot_positions, self.kinematics.foot_velocities, confidence, position_ok, velocity_ok,
+                0.0 if c.ground_height is None else c.ground_height,
+            )
+        self._estimate = self._make_estimate(base_rotation, base_quaternion, base_omega, stance, confidence, monitor.finish())
+        return self._estimate
+
+    # --- checks ---------------------------------------------------------------------------
+    def _check_time(self, now: float) -> None:
+        last, monitor = self._time, self.monitor
+        if not math.isfinite(now):
+            monitor.flag(Fault.TIME_INVALID, f"IMU timestamp is {now}: update skipped")
+        elif last is not None and now == last:
+            monitor.flag(Fault.STALE_TIMESTAMP, f"IMU timestamp {now} repeats the last accepted one: update skipped")
+        elif last is not None and now < last:
+            monitor.flag(Fault.TIME_BACKWARDS, f"IMU timestamp {now} is before the last accepted {last}: update skipped")
+        elif last is not None and now - last > self.config.max_dt:
+            monitor.flag(Fault.TIME_GAP, f"{now - last:.4f} s since the last IMU sample (> {self.config.max_dt} s)")
+
+    def _check_vector(self, value: np.ndarray, limit: float, invalid: Fault, saturated: Fault, name: str) -> bool:
+        if value.shape == (3,) and np.abs(value).max() < 0.999 * limit:  # fast path; False for NaN
+            return True
+        if value.shape != (3,) or not np.isfinite(value).all():
+            self.monitor.flag(invalid, f"{name} reading {value} is not 3 finite numbers")
+            return False
+        if (np.abs(value) >= 0.999 * limit).any():
+            self.monitor.flag(saturated, f"{name} reading {value} is at its range +-{limit:g}")
+            return False
+        return True
+
+    def _imu_orientation(self, quaternion: np.ndarray | None) -> np.ndarray | None:
+        """The IMU's orientation output (a unit quaternion), or None when unusable or unused."""
+        if not self.config.use_imu_orientation or quaternion is None:
+            return None
+        quaternion = np.asarray(quaternion, float)
+        if quaternion.shape != (4,) or not np.isfinite(quaternion).all() or abs(float(quaternion @ quaternion) - 1.0) > 0.02:
+            reason = f"IMU orientation {quaternion} is not a unit quaternion: gravity used instead"
+            self.monitor.flag(Fault.ORIENTATION_INVALID, reason)
+            return None
+        return quaternion
+
+    def _contact_plan(self, contacts: np.ndarray | None) -> np.ndarray | None:
+        if contacts is None:
+            return None
+        plan = np.array(contacts, dtype=bool)  # a copy: estimates must not change with the caller's array
+        if plan.shape != (self.kinematics.n_feet,):
+            names = self.kinematics.contact_names
+            raise ValueError(f"contact plan needs {len(names)} flags ({names}), got shape {plan.shape}")
+        return plan
+
+    def _read_joints(self, measurement: Measurement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Take the joint readings, holding the last good value of any non-finite one. Returns,
+        per foot, whether its leg's positions, velocities and efforts are all good."""
+        readings = []
+        for name, value in (
+            ("position", measurement.joint_positions),
+            ("velocity", measurement.joint_velocities),
+            ("effort", measurement.joint_efforts),
+        ):
+            value = np.asarray(value, float)
+            if value.shape != (self._dofs,):
+                raise ValueError(f"joint {name}s need shape ({self._dofs},), got {value.shape}")
+            readings.append(value)
+        positions, velocities, efforts = readings
+        if np.isfinite(positions).all() and np.isfinite(velocities).all() and np.isfinite(efforts).all():
+            # Copies: the caller may refill its arrays in place, and these are the "last good" values.
+            self._positions, self._velocities, self._efforts = positions.copy(), velocities.copy(), efforts.copy()
+            return self._all_feet, self._all_feet, self._all_feet
+        ok, held = [], []
+        for name, value, last, fault in (
+            ("position", positions, self._positions, Fault.JOINT_POSITION_INVALID),
+            ("velocity", velocities, self._velocities, Fault.JOINT_VELOCITY_INVALID),
+            ("effort", efforts, self._efforts, Fault.JOINT_EFFORT_INVALID),
+        ):
+            finite = np.isfinite(value)
+            if not finite.all():
+                bad = [self.description.joint_names[j] for j in np.flatnonzero(~finite)]
+                self.monitor.flag(fault, f"non-finite joint {name} at {bad}: last good value held")
+            ok.append(~(self._leg_mask & ~finite).any(axis=1))
+            held.append(np.where(finite, value, last))
+        self._positions, self._velocities, self._efforts = held
+        position_ok, velocity_ok, effort_ok = ok
+        return position_ok, velocity_ok & position_ok, effort_ok & position_ok
+
+    def _detect_contacts(
+        self, measurement: Measurement, effort_ok: np.ndarray, use_efforts: bool, plan: np.ndarray | None, dt: float
+    ) -> np.ndarray:
+        """Ground forces per foot (world) and the contact flags used by this update."""
+        if use_efforts:
+            valid = effort_ok
+            if valid is self._all_feet:
+                self._forces[:] = self.kinematics.foot_wrenches[:, :3]
+            else:
+                self._forces[valid] = self.kinematics.foot_wrenches[valid, :3]
+        else:
+            given = measurement.contact_forces
+            measured = np.asarray(given, float) if given is not None else np.full(len(effort_ok), np.nan)
+            valid = np.isfinite(measured)
+            if measurement.contact_forces is not None and not valid.all():
+                self.monitor.flag(Fault.CONTACT_FORCE_INVALID, f"non-finite contact forces {measured}: contact flags held")
+            self._forces[valid] = 0.0
+            self._forces[valid, 2] = measured[valid]
+        detected = self.detector.update(self._forces[:, 2], dt, None if valid is self._all_feet else valid)
+        return detected if plan is None else plan
+
+    # --- state ----------------------------------------------------------------------------
+    def _initialize_filter(self, stance: np.ndarray) -> None:
+        """Feet on the ground (all of them, or those in stance) at rest; xy from the config."""
+        c, kin = self.config, self.kinematics
+        on_ground = stance if stance.any() else np.ones_like(stance)
+        imu = np.empty(3)
+        imu[:2] = np.asarray(c.initial_base_xy, float) + kin.imu_offset[:2]
+        imu[2] = c.initial_ground_height - float(np.mean(kin.foot_positions[on_ground, 2]))
+        self.filter.initialize(imu, imu + kin.foot_positions)
+
+    def _initial_estimate(self) -> Estimate:
+        """Placeholder before the first good measurement: the description's default pose."""
+        q = self.description.default_configuration()
+        n = self.kinematics.n_feet
+        base = BaseState(q[:3].copy(), q[3:7].copy(), np.zeros(3), np.zeros(3))
+        v = np.zeros(self.kinematics.model.nv)
+        covariance = np.eye(6) * UNKNOWN_VARIANCE
+        return Estimate(float("nan"), base, q, v, np.ones(n, bool), np.ones(n), np.zeros((n, 3)), covariance, np.zeros(3),
+                        FaultReport(), initialized=False)
+
+    def _hold(self) -> Estimate:
+        """The last good estimate, carrying this update's faults."""
+        self._estimate = replace(self._estimate, faults=self.monitor.finish(held=True))
+        return self._estimate
+
+    def _make_estimate(
+        self, rotation: np.ndarray, quaternion: np.ndarray, omega_local: np.ndarray, stance: np.ndarray, confidence: np.ndarray,
+        faults: FaultReport,
+    ) -> Estimate:
+        kf, kin = self.filter, self.kinematics
+        omega_world = rotation @ omega_local
+        position = kf.imu_position - kin.imu_offset
+        velocity = kf.imu_velocity - so3.cross(omega_world, kin.imu_offset)
+        base = BaseState(position, quaternion, velocity, omega_world)
+        q = np.concatenate([position, quaternion, self._positions])
+        v = np.concatenate([rotation.T @ velocity, omega_local, self._velocities])
+        return Estimate(self._time, base, q, v, stance, confidence, self._forces.copy(), kf.base_covariance(),
+                        self.orientation.gyro_bias, faults)
+
+
+class EstimatedRobot(Robot):
+    """A robot whose base state comes from a :class:`StateEstimator` fed by its measurements.
+
+    Wraps a robot that does not measure its base (hardware, a :class:`~giwbc.robot.noise.NoisyRobot`);
+    the estimator updates once per new ``robot.time()``, on the first read of the base state.
+    A contact plan set with :meth:`set_contact_plan` is passed to every update.
+    """
+
+    def __init__(self, robot: Robot, estimator: StateEstimator) -> None:
+        self.robot = robot
+        self.estimator = estimator
+        self._updated_at: float | None = None
+        self._plan: np.ndarray | None = None
+
+    def set_contact_plan(self, contacts: np.ndarray | None) -> None:
+        """The controller's contact plan (None: detect contacts from forces)."""
+        self._plan = None if contacts is None else np.asarray(contacts, dtype=bool)
+
+    @property
+    def estimate(self) -> Estimate:
+        """The estimate for the robot's current time (updating the estimator if time moved)."""
+        now = self.robot.time()
+        if now != self._updated_at:
+            self.estimator.update_from_robot(self.robot, self._plan)
+            self._updated_at = now
+        return self.estimator.estimate
+
+    # --- identity, time, joints and IMU: the wrapped robot's ---------------------------------
+    @property
+    def name(self) -> str:
+        return self.robot.name
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.robot.joint_names
+
+    @property
+    def floating_base(self) -> bool:
+        return self.robot.floating_base
+
+    def time(self) -> float:
+        return self.robot.time()
+
+    def joint_positions(self) -> np.ndarray:
+        return self.robot.joint_positions()
+
+    def joint_velocities(self) -> np.ndarray:
+        return self.robot.joint_velocities()
+
+    def joint_efforts(self) -> np.ndarray:
+        return self.robot.joint_efforts()
+
+    def imu(self) -> ImuReading:
+        return self.robot.imu()
+
+    # --- estimated ------------------------------------------------------------------------
+    def base_state(self) -> BaseState:
+        return self.estimate.base
+
+    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """The estimate's Pinocchio ``(q, v)`` (joints as the estimator last read them)."""
+        estimate = self.estimate
+        return estimate.q.copy(), estimate.v.copy()
+
+    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """A link's world pose at the estimated configuration."""
+        model, data = self.estimator.kinematics.model, self.estimator.kinematics.data
+        frame = model.getFrameId(link)
+        if frame >= model.nframes:
+            raise KeyError(f"robot {self.name!r} has no link {link!r}")
+        pin.framesForwardKinematics(model, data, self.estimate.q)
+        placement = data.oMf[frame]
+        return placement.translation.copy(), placement.rotation.copy()
+
+    def contact_wrench(self, link: str) -> ContactWrench:
+        """The estimated ground force on a contact link (torque about the link origin from the
+        force acting at the sole centre)."""
+        names = [c.link for c in self.estimator.description.contacts]
+        if link not in names:
+            raise KeyError(f"no contact on link {link!r}; contacts are on {names}")
+        index = names.index(link)
+        estimate = self.estimate
+        force = estimate.contact_forces[index]
+        position, rotation = self.link_pose(link)
+        lever = rotation @ np.asarray(self.estimator.description.contacts[index].center, float)
+        return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[index]))
+
+    # --- commands -------------------------------------------------------------------------
+    def set_joint_torques(self, torques: np.ndarray) -> None:
+        self.robot.set_joint_torques(torques)
+
+    def set_joint_impedance(self, command: ImpedanceCommand) -> None:
+        self.robot.set_joint_impedance(command)
