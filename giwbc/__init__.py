@@ -1,3 +1,5 @@
 """giwbc: floating-base robots from reinforcement learning in simulation to a real robot on a CAN bus."""
 
 __version__ = "0.1.0"
+
+from giwbc import envs as envs  # noqa: E402  registers the giwbc/... gymnasium ids (imports gymnasium only)

@@ -10,8 +10,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from giwbc.policy import add_play_command
 from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
+from giwbc.training import add_train_command
 
 GRAVITY = 9.81
 
@@ -92,6 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help=cmd_demo.__doc__)
     demo.add_argument("--seconds", type=float, default=10.0)
     demo.set_defaults(run=cmd_demo)
+    add_train_command(commands)
+    add_play_command(commands)
     return parser
 
 

@@ -1,0 +1,145 @@
+"""Environment throughput: steps/s, real-time factor, where the time goes, and 2-process scaling (one JSON object).
+
+Each environment steps with zero actions (episodes reset on termination) in this process, pinned
+to one thread; the share of wall time in MuJoCo, in the controller (the WBC for G1Balance) and in
+everything else comes from the runtime's own timers. G1Balance-v0 runs as registered (random
+pushes) and without pushes (quiet standing: the WBC's warm-started best case). Scaling: the same
+seeded work (two jobs) run by 1 worker process in turn, then by 2 worker processes at once (fork).
+"""
+
+from __future__ import annotations
+
+import os
+
+for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import multiprocessing as mp  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+from typing import Any  # noqa: E402
+
+import gymnasium  # noqa: E402
+import numpy as np  # noqa: E402
+
+import giwbc.envs  # noqa: E402,F401
+
+CASES: dict[str, tuple[str, dict[str, Any]]] = {
+    "cartpole": (giwbc.envs.CARTPOLE_BALANCE, {}),
+    "g1_balance_wbc": (giwbc.envs.G1_BALANCE, {"controller_rate": 500.0}),
+    "g1_balance_wbc_no_pushes": (giwbc.envs.G1_BALANCE, {"controller_rate": 500.0, "sim2real": {"pushes": None}}),
+    "g1_balance_pd": (giwbc.envs.G1_BALANCE, {"controller": "pd", "controller_rate": 50.0}),
+}
+
+
+def _run(env: Any, steps: int) -> float:
+    """Step ``env`` ``steps`` times with zero actions; the wall time in seconds."""
+    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    started = time.perf_counter()
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+    return time.perf_counter() - started
+
+
+def measure(env_id: str, kwargs: dict[str, Any], steps: int) -> dict[str, Any]:
+    env = gymnasium.make(env_id, **kwargs).unwrapped
+    env.reset(seed=0)
+    _run(env, max(1, steps // 10))  # warm up: caches, solver workspaces
+    env.timings.clear()
+    wall = _run(env, steps)
+    timings, rates = env.timings, env.rates
+    simulated = timings.physics_steps * rates.physics_dt
+    env.close()
+    return {
+        "env": env_id,
+        "agent_hz": rates.agent,
+        "controller_hz": rates.controller,
+        "physics_hz": rates.physics,
+        "steps": steps,
+        "steps_per_s": steps / wall,
+        "real_time_factor": simulated / wall,
+        "time_share": {
+            "mujoco": timings.physics / wall,
+            "controller": timings.controller / wall,
+            "other": 1.0 - (timings.physics + timings.controller) / wall,
+        },
+        "us_per_physics_step": {
+            "mujoco": 1e6 * timings.physics / timings.physics_steps,
+            "controller": 1e6 * timings.controller / timings.physics_steps,
+        },
+    }
+
+
+def _worker(env_id: str, kwargs: dict[str, Any], jobs: list[tuple[int, int]], barrier: Any, results: Any) -> None:
+    """Run each ``(seed, steps)`` job on its own env, one after the other, after a common start."""
+    envs = []
+    for seed, _ in jobs:
+        env = gymnasium.make(env_id, **kwargs).unwrapped
+        env.reset(seed=seed)
+        envs.append(env)
+    barrier.wait()
+    started = time.perf_counter()
+    for env, (_, steps) in zip(envs, jobs):
+        _run(env, steps)
+    results.put(time.perf_counter() - started)
+
+
+def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int, jobs: int = 2) -> float:
+    """Throughput (steps/s) of ``workers`` processes sharing the same ``jobs`` seeded episodes' worth of steps.
+
+    The work is identical whatever the number of workers: job ``i`` is seed ``i`` for ``total_steps / jobs``
+    steps; one worker runs them in turn, two workers one each. Wall time from a common start (a barrier
+    after every env is built) to the last worker's end.
+    """
+    context = mp.get_context("fork")
+    barrier = context.Barrier(workers + 1)
+    results = context.Queue()
+    work = [(seed, total_steps // jobs) for seed in range(jobs)]
+    processes = [context.Process(target=_worker, args=(env_id, kwargs, work[index::workers], barrier, results))
+                 for index in range(workers)]
+    for process in processes:
+        process.start()
+    barrier.wait()
+    started = time.perf_counter()
+    for _ in processes:
+        results.get()
+    wall = time.perf_counter() - started
+    for process in processes:
+        process.join()
+    return sum(steps for _, steps in work) / wall
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--steps", type=int, default=2000, help="agent steps per measurement")
+    parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
+    parser.add_argument("--scaling-case", default="g1_balance_wbc", choices=list(CASES))
+    parser.add_argument("--scaling-steps", type=int, default=1000, help="total agent steps of the scaling test")
+    args = parser.parse_args()
+
+    result: dict[str, Any] = {
+        "benchmark": "env_throughput",
+        "machine": {"cpus": os.cpu_count(), "load_average_1min": os.getloadavg()[0], "python": platform.python_version()},
+    }
+    for name in args.cases:
+        env_id, kwargs = CASES[name]
+        result[name] = measure(env_id, kwargs, args.steps)
+    env_id, kwargs = CASES[args.scaling_case]
+    one = scaling(env_id, kwargs, args.scaling_steps, 1)
+    two = scaling(env_id, kwargs, args.scaling_steps, 2)
+    result["scaling"] = {
+        "case": args.scaling_case,
+        "total_steps": args.scaling_steps,
+        "steps_per_s_1_process": one,
+        "steps_per_s_2_processes": two,
+        "speedup_2_over_1": two / one,
+    }
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,129 @@
+"""Registered environments: ``gymnasium.make("giwbc/<Id>")`` after ``import giwbc.envs``
+(or, with nothing imported, ``gymnasium.make("giwbc.envs:giwbc/<Id>")``).
+
+Each id is a factory building a Robot from a description, a Task and a :class:`SimulatedRuntime`.
+Keyword arguments of ``gymnasium.make`` reach the factory: rates, ``real_time_factor``,
+``render_mode``, ``sim2real`` (a :class:`SimToReal` or a dict of its fields), ``model`` (a modified
+``mujoco.MjModel`` to simulate instead of the description's; it is copied) and the task's own options.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import TYPE_CHECKING, Any
+
+import gymnasium
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from giwbc.robot.description import RobotDescription
+    from giwbc.runtimes.simulated import SimulatedRuntime
+    from giwbc.tasks.task import Task
+
+NAMESPACE = "giwbc"
+CARTPOLE_BALANCE = "giwbc/CartPoleBalance-v0"
+CARTPOLE_SWING_UP = "giwbc/CartPoleSwingUp-v0"
+G1_BALANCE = "giwbc/G1Balance-v0"
+
+# id -> (entry point, max_episode_steps); each entry point is a factory below.
+ENVIRONMENTS: dict[str, tuple[str, int]] = {
+    CARTPOLE_BALANCE: ("giwbc.envs:cartpole_balance", 500),
+    CARTPOLE_SWING_UP: ("giwbc.envs:cartpole_swing_up", 1000),
+    G1_BALANCE: ("giwbc.envs:g1_balance", 1000),
+}
+
+
+def simulated_env(
+    task: "Task",
+    description: "str | RobotDescription",
+    *,
+    model: "mujoco.MjModel | None" = None,
+    agent_rate: float,
+    controller_rate: float | None = None,
+    real_time_factor: float | None = None,
+    render_mode: str | None = None,
+    sim2real: Any = None,
+    render_size: tuple[int, int] = (480, 640),
+) -> "SimulatedRuntime":
+    """A MuJoCo runtime for ``task`` on the robot ``description`` (a name, a path or a description)."""
+    from giwbc.robot import MujocoRobot, RobotDescription, load
+    from giwbc.runtimes import SimToReal, SimulatedRuntime
+
+    if not isinstance(description, RobotDescription):
+        description = load(description)
+    if isinstance(sim2real, dict):
+        sim2real = SimToReal.from_dict(sim2real)
+    robot = MujocoRobot(description, copy.copy(model) if model is not None else None)
+    return SimulatedRuntime(
+        task,
+        robot,
+        agent_rate=agent_rate,
+        controller_rate=controller_rate,
+        real_time_factor=real_time_factor,
+        render_mode=render_mode,
+        sim2real=sim2real,
+        render_size=render_size,
+    )
+
+
+_RUNTIME_OPTIONS = ("model", "controller_rate", "real_time_factor", "render_mode", "sim2real", "render_size")
+
+
+def _split(kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+    runtime = {k: kwargs.pop(k) for k in _RUNTIME_OPTIONS if k in kwargs}
+    return runtime, kwargs
+
+
+def cartpole_balance(*, robot: "str | RobotDescription" = "cartpole", agent_rate: float = 50.0, **kwargs: Any) -> "SimulatedRuntime":
+    """``giwbc/CartPoleBalance-v0``: keep the pole upright (task options: see :class:`CartPoleBalance`)."""
+    from giwbc.tasks.cartpole import CartPoleBalance
+
+    runtime, task = _split(kwargs)
+    return simulated_env(CartPoleBalance(**task), robot, agent_rate=agent_rate, **runtime)
+
+
+def cartpole_swing_up(*, robot: "str | RobotDescription" = "cartpole", agent_rate: float = 50.0, **kwargs: Any) -> "SimulatedRuntime":
+    """``giwbc/CartPoleSwingUp-v0``: swing the pole up and hold it (see :class:`CartPoleSwingUp`)."""
+    from giwbc.tasks.cartpole import CartPoleSwingUp
+
+    runtime, task = _split(kwargs)
+    return simulated_env(CartPoleSwingUp(**task), robot, agent_rate=agent_rate, **runtime)
+
+
+def g1_balance(
+    *,
+    robot: "str | RobotDescription" = "g1",
+    agent_rate: float = 50.0,
+    controller_rate: float | None = None,
+    sim2real: Any = None,
+    **kwargs: Any,
+) -> "SimulatedRuntime":
+    """``giwbc/G1Balance-v0``: G1 standing under random pushes, residual actions over the WBC.
+
+    The WBC runs at 500 Hz unless ``controller_rate`` says otherwise (the ``controller="pd"``
+    baseline at the agent rate: the actuators evaluate its impedance every physics step). Pushes
+    are on by default (:class:`PushConfig`); ``sim2real={"pushes": None}`` turns them off.
+    """
+    from giwbc.robot import RobotDescription, load
+    from giwbc.runtimes import PushConfig
+    from giwbc.tasks.balance import G1Balance
+
+    description = robot if isinstance(robot, RobotDescription) else load(robot)
+    if sim2real is None or isinstance(sim2real, dict):
+        sim2real = {"pushes": PushConfig(), **(sim2real or {})}
+    if controller_rate is None:
+        controller_rate = 500.0 if kwargs.get("controller", "wbc") == "wbc" else agent_rate
+    runtime, task = _split(kwargs)
+    return simulated_env(G1Balance(description, **task), description, agent_rate=agent_rate, controller_rate=controller_rate,
+                         sim2real=sim2real, **runtime)
+
+
+def register_envs() -> None:
+    """Register every giwbc id with gymnasium (idempotent)."""
+    for env_id, (entry_point, max_steps) in ENVIRONMENTS.items():
+        if env_id not in gymnasium.registry:
+            gymnasium.register(id=env_id, entry_point=entry_point, max_episode_steps=max_steps)
+
+
+register_envs()

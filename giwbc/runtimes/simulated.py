@@ -1,0 +1,356 @@
+"""The simulated runtime: a ``gymnasium.Env`` running a Task on a simulated robot (MuJoCo).
+
+One agent step, as in Gym-Ignition, with ``n = physics / agent`` physics steps::
+
+    task.set_action(action)              # after `action_latency` physics steps
+    for each physics step:
+        if controller tick: task.apply_command()   # e.g. the WBC from the task's references
+        robot.step()
+    observation (+ noise), reward, terminated, truncated, info
+
+Physics runs in chunks between events (controller ticks, delayed actions and commands, pushes),
+so a task without a fast controller costs one ``mj_step`` call per agent step. The runtime is
+accelerated by default, or paced to ``real_time_factor``; headless unless a render mode is set.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
+
+import gymnasium
+import numpy as np
+
+from giwbc.robot.interface import Robot
+from giwbc.runtimes.rates import Rates
+from giwbc.runtimes.sim2real import ActionQueue, DelayedCommandRobot, PushSchedule, SimToReal
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from giwbc.tasks.task import Task
+
+RENDER_MODES = ("human", "rgb_array")
+
+
+@runtime_checkable
+class SimulatedRobot(Protocol):
+    """What the runtime needs beyond the Robot interface: a simulator's step, reset and push."""
+
+    def step(self, n: int = 1) -> None: ...
+
+    def reset(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> None: ...
+
+    def set_external_wrench(self, link: str, force: np.ndarray, torque: np.ndarray | None = None) -> None: ...
+
+
+@dataclass
+class StepTimings:
+    """Wall time spent inside the runtime since the last :meth:`clear`, by part."""
+
+    physics: float = 0.0
+    controller: float = 0.0
+    total: float = 0.0
+    agent_steps: int = 0
+    physics_steps: int = 0
+
+    def clear(self) -> None:
+        self.physics = self.controller = self.total = 0.0
+        self.agent_steps = self.physics_steps = 0
+
+    @property
+    def other(self) -> float:
+        return max(0.0, self.total - self.physics - self.controller)
+
+
+class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
+    """Runs ``task`` on a simulated ``robot`` at the given agent and controller rates.
+
+    The physics rate is the robot's (the description's timestep). ``real_time_factor=None`` runs as
+    fast as possible; a number paces simulated time to wall time times that factor. Every random draw
+    (the task's initial state, observation noise, pushes) comes from the seeded ``np_random``, so the
+    same seed gives bit-identical episodes.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": list(RENDER_MODES), "render_fps": 50}
+
+    def __init__(
+        self,
+        task: Task,
+        robot: Robot,
+        *,
+        agent_rate: float,
+        controller_rate: float | None = None,
+        real_time_factor: float | None = None,
+        render_mode: str | None = None,
+        sim2real: SimToReal | None = None,
+        render_size: tuple[int, int] = (480, 640),
+    ) -> None:
+        if not isinstance(robot, SimulatedRobot):
+            raise TypeError(f"{type(robot).__name__} cannot be simulated: it needs step(), reset() and set_external_wrench()")
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+        if real_time_factor is not None and not (real_time_factor > 0 and math.isfinite(real_time_factor)):
+            raise ValueError(f"real_time_factor must be a positive number or None, got {real_time_factor!r}")
+        self.rates = Rates.from_timestep(_timestep(robot), agent_rate, controller_rate)
+        self.sim_robot = robot
+        self.task = task
+        self.sim2real = sim2real or SimToReal()
+        self.render_mode = render_mode
+        self.real_time_factor = 1.0 if real_time_factor is None and render_mode == "human" else real_time_factor
+        self.render_size = render_size
+        self.metadata = {**type(self).metadata, "render_fps": self.rates.agent}
+
+        # The task commands the robot through the actuator-delay line when there is one.
+        self._delay = DelayedCommandRobot(robot, self.sim2real.actuator_delay) if self.sim2real.actuator_delay else None
+        task.bind(self._delay or robot, self.rates)
+        self.action_space = task.action_space
+        self.observation_space = task.observation_space
+        self._noise_std = self.sim2real.noise_std(int(np.prod(self.observation_space.shape)))
+        self._noisy = bool(np.any(self._noise_std > 0))
+        self._observation_low = self.observation_space.low.astype(np.float64)
+        self._observation_high = self.observation_space.high.astype(np.float64)
+        self._warnings_of = _divergence_counter(robot)
+        self._actions = ActionQueue(self.sim2real.action_latency)
+        pushes = self.sim2real.pushes
+        self._pushes = PushSchedule(pushes, pushes.link or _base_link(robot), self.rates.physics_dt) if pushes else None
+        # What can fall due between controller ticks: physics is stepped in chunks between them.
+        self._event_sources = tuple(
+            source for source in (self._actions if self._actions.latency else None, self._delay, self._pushes) if source is not None
+        )
+
+        self.timings = StepTimings()
+        self._tick = 0
+        self._wall_start = 0.0
+        self._renderer: Any = None
+        self._camera: Any = None
+        self._viewer: Any = None
+        self._reset_done = False
+        self._diverged = False
+        self._warnings = 0
+
+    # --- gymnasium API ------------------------------------------------------------------------
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+        super().reset(seed=seed)
+        task, robot = self.task, self.sim_robot
+        task.np_random = self.np_random
+        state = task.initial_state()
+        if state is None:
+            robot.reset()
+        else:
+            robot.reset(*state)
+        self._tick = 0
+        self._actions.clear()
+        if self._delay is not None:
+            self._delay.clear()
+        if self._pushes is not None:
+            self._pushes.reset(self.np_random, robot)
+        self._diverged = False
+        self._warnings = self._warnings_of()
+        task.reset_task()
+        self._reset_done = True
+        self._wall_start = time.perf_counter()
+        observation = self._observe()
+        if self.render_mode == "human":
+            self.render()
+        return observation, self._info()
+
+    def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        if not self._reset_done:
+            raise RuntimeError("call reset() before step()")
+        started = time.perf_counter()
+        task, robot = self.task, self.sim_robot
+        action = task.validate_action(action)  # raises before anything changes
+        delay, pushes, actions = self._delay, self._pushes, self._actions
+        latency = actions.latency
+        if latency:
+            actions.push(self._tick, action)
+        else:
+            if delay is not None:
+                delay.set_tick(self._tick)
+            task.set_action(action)
+        events = self._event_sources
+        period = self.rates.physics_per_controller
+        tick = self._tick
+        end = tick + self.rates.physics_per_agent
+        physics_time = controller_time = 0.0
+        clock = time.perf_counter
+        while tick < end:
+            if delay is not None:
+                delay.set_tick(tick)
+            if latency:
+                for due in actions.pop_due(tick):
+                    task.set_action(due)
+            if tick % period == 0:
+                t0 = clock()
+                task.apply_command()
+                controller_time += clock() - t0
+            if delay is not None:
+                delay.release(tick)
+            if pushes is not None:
+                pushes.update(tick, self.np_random, robot)
+            following = min(end, tick - tick % period + period)
+            for source in events:
+                following = min(following, source.next_tick())
+            t0 = clock()
+            robot.step(int(following) - tick)
+            physics_time += clock() - t0
+            tick = self._tick = int(following)
+
+        observation = self._observe()
+        reward = float(task.get_reward())
+        self._diverged = self._diverged or self._warnings_of() > self._warnings
+        terminated = bool(task.is_terminated()) or self._diverged
+        truncated = bool(task.is_truncated())
+        info = self._info()
+        timings = self.timings
+        timings.physics += physics_time
+        timings.controller += controller_time
+        timings.agent_steps += 1
+        timings.physics_steps += self.rates.physics_per_agent
+        timings.total += time.perf_counter() - started
+        if self.render_mode == "human":
+            self.render()
+        if self.real_time_factor is not None:
+            self._pace()
+        return observation, reward, terminated, truncated, info
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called without a render_mode; pass render_mode='rgb_array' or 'human'")
+            return None
+        if self.render_mode == "rgb_array":
+            return self._render_frame()
+        self._sync_viewer()
+        return None
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+    # --- runtime state ------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Simulated seconds since the last reset."""
+        return self._tick * self.rates.physics_dt
+
+    @property
+    def pushes(self) -> PushSchedule | None:
+        return self._pushes
+
+    def describe(self) -> dict[str, Any]:
+        """The task's deployment metadata plus this runtime's rates and sim-to-real settings."""
+        return {**self.task.describe(), "rates": self.rates.as_dict(), "robot": self.sim_robot.name}
+
+    # --- internals ----------------------------------------------------------------------------
+    def _observe(self) -> np.ndarray:
+        """The task's observation, plus noise, clipped to the observation space (a new array)."""
+        observation = np.asarray(self.task.get_observation(), dtype=np.float64)
+        if self._noisy:
+            observation = observation + self.np_random.normal(0.0, 1.0, observation.shape) * self._noise_std
+        clipped = np.minimum(np.maximum(observation, self._observation_low), self._observation_high)
+        return clipped.astype(self.observation_space.dtype)
+
+    def _info(self) -> dict[str, Any]:
+        info: dict[str, Any] = {"time": self.time, **self.task.get_info()}
+        if self._pushes is not None:
+            info["push_force"] = self._pushes.force.copy()
+            info["pushes"] = self._pushes.count
+        if self._diverged:
+            info["physics_diverged"] = True
+        return info
+
+    def _pace(self) -> None:
+        target = self.time / self.real_time_factor - (time.perf_counter() - self._wall_start)
+        if target > 0:
+            time.sleep(target)
+
+    def _mujoco(self) -> tuple["mujoco.MjModel", "mujoco.MjData"]:
+        model, data = getattr(self.sim_robot, "model", None), getattr(self.sim_robot, "data", None)
+        if model is None or data is None:
+            raise RuntimeError(f"rendering needs a MuJoCo robot, got {type(self.sim_robot).__name__}")
+        return model, data
+
+    def _render_frame(self) -> np.ndarray:
+        import mujoco
+
+        model, data = self._mujoco()
+        if self._renderer is None:
+            height, width = self.render_size
+            model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+            model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+            try:
+                self._renderer = mujoco.Renderer(model, height, width)
+            except Exception as error:  # no display, no EGL/OSMesa
+                raise RuntimeError(
+                    f"cannot create an offscreen MuJoCo renderer ({error}); set MUJOCO_GL=egl or MUJOCO_GL=osmesa "
+                    "before importing mujoco"
+                ) from error
+            self._camera = _default_camera(self.sim_robot, model)
+        self._renderer.update_scene(data, camera=self._camera)
+        return self._renderer.render()
+
+    def _sync_viewer(self) -> None:
+        if self._viewer is None:
+            import mujoco.viewer
+
+            model, data = self._mujoco()
+            self._viewer = mujoco.viewer.launch_passive(model, data)
+        if self._viewer.is_running():  # the user may have closed the window
+            self._viewer.sync()
+
+
+def _divergence_counter(robot: Robot) -> Callable[[], int]:
+    """How many times MuJoCo found NaN/huge positions, velocities or accelerations (and reset the state)."""
+    data = getattr(robot, "data", None)
+    if data is None or not hasattr(data, "warning"):
+        return lambda: 0
+    import mujoco
+
+    stats = [data.warning[int(w)] for w in (mujoco.mjtWarning.mjWARN_BADQPOS, mujoco.mjtWarning.mjWARN_BADQVEL, mujoco.mjtWarning.mjWARN_BADQACC)]
+    return lambda: sum(int(stat.number) for stat in stats)
+
+
+def _timestep(robot: Robot) -> float:
+    """The physics step of the simulated robot: its MuJoCo model's, else its own or its description's."""
+    model = getattr(robot, "model", None)
+    if model is not None and hasattr(model, "opt"):
+        return float(model.opt.timestep)
+    for source in (robot, getattr(robot, "description", None)):
+        timestep = getattr(source, "timestep", None)
+        if timestep is not None:
+            return float(timestep)
+    raise ValueError(f"cannot tell the physics timestep of {type(robot).__name__}: give it a `timestep` attribute")
+
+
+def _base_link(robot: Robot) -> str:
+    description = getattr(robot, "description", None)
+    if description is None:
+        raise ValueError("pushes need PushConfig(link=...) for a robot without a description")
+    return description.base_link
+
+
+def _default_camera(robot: Robot, model: "mujoco.MjModel") -> "mujoco.MjvCamera":
+    """A camera following the base of a floating robot, or framing a fixed one."""
+    import mujoco
+
+    camera = mujoco.MjvCamera()
+    base = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, _base_link(robot))
+    camera.azimuth, camera.elevation = 135.0, -15.0
+    if robot.floating_base and base >= 0:
+        camera.type = mujoco.mjtCamera.mjCAMERA_TRACKING
+        camera.trackbodyid = base
+        camera.distance = 2.5
+    else:
+        camera.type = mujoco.mjtCamera.mjCAMERA_FREE
+        camera.azimuth, camera.elevation = 90.0, -10.0
+        camera.lookat[:] = model.stat.center
+        camera.distance = 1.3 * model.stat.extent
+    return camera

@@ -1,0 +1,252 @@
+"""Training with PPO (stable-baselines3, CPU torch): vectorized envs, seeds, progress bar, checkpoints,
+and export of the deterministic policy to ONNX with the metadata a deployment needs.
+
+Needs the ``train`` extra (torch, stable-baselines3, onnx, onnxruntime, tqdm, rich); everything here
+imports them lazily, so ``giwbc --help`` and the deploy path (:mod:`giwbc.policy`) never load torch.
+
+Layout of a run folder::
+
+    out/config.json                                     the TrainConfig
+    out/checkpoints/step_<N>.{zip,vecnormalize.pkl,onnx}  every checkpoint_every steps
+    out/policy.{zip,vecnormalize.pkl,onnx}              the final policy (SB3 model, normalizer, ONNX)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from giwbc.policy import MlpWeights, ObservationNormalization, PlayResult, export_onnx, play
+
+if TYPE_CHECKING:
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import VecNormalize
+
+
+@dataclass
+class TrainConfig:
+    """One PPO run. ``ppo`` overrides stable-baselines3's PPO arguments (n_steps, batch_size, ...)."""
+
+    env_id: str = "giwbc/CartPoleBalance-v0"
+    total_timesteps: int = 100_000
+    n_envs: int = 4
+    seed: int = 0
+    out_dir: str = "runs/cartpole"
+    vectorization: str = "subproc"  # worker processes; "dummy": all envs in this process
+    checkpoint_every: int = 50_000  # environment steps, all envs together; 0: none
+    normalize_observations: bool = True
+    normalize_rewards: bool = True
+    net_arch: tuple[int, ...] = (64, 64)
+    activation: str = "tanh"
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    ppo: dict[str, Any] = field(default_factory=dict)
+    progress_bar: bool = True
+    eval_episodes: int = 3
+
+    def __post_init__(self) -> None:
+        if self.vectorization not in ("subproc", "dummy"):
+            raise ValueError(f"vectorization must be 'subproc' or 'dummy', got {self.vectorization!r}")
+        if self.n_envs < 1 or self.total_timesteps < 1:
+            raise ValueError("n_envs and total_timesteps must be >= 1")
+        try:
+            json.dumps(self.env_kwargs)
+        except TypeError as error:
+            raise ValueError(f"env_kwargs must be JSON-serializable (they go into the policy metadata): {error}") from error
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """Where a run left its files, and how the exported policy did in evaluation."""
+
+    out_dir: Path
+    model: Path
+    policy: Path
+    vecnormalize: Path | None
+    checkpoints: tuple[Path, ...]
+    evaluation: PlayResult | None
+
+
+def _module_id(env_id: str) -> str:
+    """``giwbc.envs:giwbc/X``: worker processes register the ids themselves, whatever the start method."""
+    return env_id if ":" in env_id or not env_id.startswith("giwbc/") else f"giwbc.envs:{env_id}"
+
+
+def _activation(name: str) -> Any:
+    import torch.nn as nn
+
+    try:
+        return {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}[name]
+    except KeyError:
+        raise ValueError(f"activation must be tanh, relu or elu, got {name!r}") from None
+
+
+def describe_env(env_id: str, env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The environment's deployment description (task layout, joints, rates, gains)."""
+    import gymnasium
+
+    env = gymnasium.make(_module_id(env_id), **env_kwargs)
+    try:
+        return env.unwrapped.describe()
+    finally:
+        env.close()
+
+
+def sb3_policy_weights(model: "PPO", activation: str) -> MlpWeights:
+    """The deterministic actor of an SB3 ``MlpPolicy``: policy MLP then ``action_net`` (the Gaussian mean)."""
+    import torch.nn as nn
+    from stable_baselines3.common.distributions import DiagGaussianDistribution
+    from stable_baselines3.common.torch_layers import FlattenExtractor
+
+    policy = model.policy
+    if not isinstance(policy.action_dist, DiagGaussianDistribution) or policy.squash_output:
+        raise ValueError("only unsquashed diagonal-Gaussian MlpPolicy actors can be exported")
+    if not isinstance(policy.pi_features_extractor, FlattenExtractor):
+        raise ValueError("only flat observations (FlattenExtractor) can be exported")
+    expected = type(_activation(activation)())
+    layers = []
+    for module in policy.mlp_extractor.policy_net:
+        if isinstance(module, nn.Linear):
+            layers.append(module)
+        elif not isinstance(module, expected):
+            raise ValueError(f"unexpected module {module} in the policy network (activation {activation})")
+    layers.append(policy.action_net)
+    return MlpWeights(
+        tuple((layer.weight.detach().cpu().numpy().astype(np.float64), layer.bias.detach().cpu().numpy().astype(np.float64)) for layer in layers),
+        activation,
+    )
+
+
+def export_sb3_policy(
+    model: "PPO",
+    path: str | os.PathLike[str],
+    *,
+    env_id: str,
+    env_kwargs: dict[str, Any],
+    vecnormalize: "VecNormalize | None" = None,
+    activation: str = "tanh",
+    described: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> Path:
+    """Export a PPO actor (with its observation normalization and action clip) to a giwbc ONNX policy."""
+    described = described if described is not None else describe_env(env_id, env_kwargs)
+    normalization = None
+    if vecnormalize is not None and vecnormalize.norm_obs:
+        normalization = ObservationNormalization(
+            np.asarray(vecnormalize.obs_rms.mean, float), np.asarray(vecnormalize.obs_rms.var, float),
+            float(vecnormalize.epsilon), float(vecnormalize.clip_obs),
+        )
+    space = model.action_space
+    metadata = {
+        **described,
+        "env_id": env_id.split(":", 1)[-1],
+        "env_kwargs": env_kwargs,
+        "observation_normalization": "in_graph" if normalization is not None else "none",
+        **(extra or {}),
+    }
+    return export_onnx(path, sb3_policy_weights(model, activation), metadata, normalization=normalization,
+                       action_low=space.low, action_high=space.high)
+
+
+def train(config: TrainConfig) -> TrainResult:
+    """Train PPO on ``config.env_id``, checkpointing as it goes; export and evaluate the final policy."""
+    import stable_baselines3
+    import torch
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
+
+    torch.set_num_threads(1)  # small MLPs: one thread is fastest, and leaves the cores to the workers
+    out = Path(config.out_dir)
+    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+    (out / "config.json").write_text(json.dumps(asdict(config), indent=2))
+    described = describe_env(config.env_id, config.env_kwargs)
+    env_id = _module_id(config.env_id)
+    if config.vectorization == "subproc":
+        vec_cls, vec_kwargs = SubprocVecEnv, {"start_method": "fork" if os.name == "posix" else "spawn"}
+    else:
+        vec_cls, vec_kwargs = DummyVecEnv, {}
+    venv = make_vec_env(env_id, n_envs=config.n_envs, seed=config.seed, env_kwargs=config.env_kwargs,
+                        vec_env_cls=vec_cls, vec_env_kwargs=vec_kwargs)
+    ppo_kwargs = {"gamma": 0.99, **config.ppo}
+    normalize = config.normalize_observations or config.normalize_rewards
+    if normalize:
+        venv = VecNormalize(venv, norm_obs=config.normalize_observations, norm_reward=config.normalize_rewards,
+                            clip_obs=10.0, gamma=ppo_kwargs["gamma"])
+    model = PPO(
+        "MlpPolicy", venv, seed=config.seed, device="cpu", verbose=0,
+        policy_kwargs={"net_arch": {"pi": list(config.net_arch), "vf": list(config.net_arch)},
+                       "activation_fn": _activation(config.activation)},
+        **ppo_kwargs,
+    )
+    training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
+                     "n_envs": config.n_envs}
+    checkpoints: list[Path] = []
+
+    def save(folder: Path, name: str, steps: int) -> Path:
+        """``name.zip`` (SB3), ``name.vecnormalize.pkl`` and ``name.onnx`` in ``folder``."""
+        model.save(folder / f"{name}.zip")
+        vecnormalize = venv if isinstance(venv, VecNormalize) else None
+        if vecnormalize is not None:
+            vecnormalize.save(str(folder / f"{name}.vecnormalize.pkl"))
+        return export_sb3_policy(model, folder / f"{name}.onnx", env_id=config.env_id, env_kwargs=config.env_kwargs,
+                                 vecnormalize=vecnormalize, activation=config.activation, described=described,
+                                 extra={"training": {**training_info, "timesteps": steps}})
+
+    class Checkpoints(BaseCallback):
+        """Model, normalizer and ONNX policy every ``checkpoint_every`` environment steps."""
+
+        def __init__(self, every: int) -> None:
+            super().__init__()
+            self.every, self.next = every, every
+
+        def _on_step(self) -> bool:
+            if self.every and self.num_timesteps >= self.next:
+                self.next += self.every
+                checkpoints.append(save(out / "checkpoints", f"step_{self.num_timesteps}", self.num_timesteps))
+            return True
+
+    try:
+        model.learn(total_timesteps=config.total_timesteps, callback=Checkpoints(config.checkpoint_every),
+                    progress_bar=config.progress_bar)
+        policy_path = save(out, "policy", model.num_timesteps)
+    finally:
+        venv.close()
+    evaluation = play(policy_path, episodes=config.eval_episodes, seed=10_000 + config.seed) if config.eval_episodes else None
+    return TrainResult(out, out / "policy.zip", policy_path, out / "policy.vecnormalize.pkl" if normalize else None,
+                       tuple(checkpoints), evaluation)
+
+
+# --- command line ------------------------------------------------------------------------------
+def add_train_command(commands: Any) -> None:
+    """Add ``giwbc train`` to an argparse subparsers object."""
+    parser = commands.add_parser("train", help="train a PPO policy and export it to ONNX (needs the train extra)")
+    parser.add_argument("--env", default=TrainConfig.env_id, help="registered id, e.g. giwbc/G1Balance-v0")
+    parser.add_argument("--timesteps", type=int, default=TrainConfig.total_timesteps)
+    parser.add_argument("--n-envs", type=int, default=TrainConfig.n_envs)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", default=None, help="run folder (default: runs/<env name>)")
+    parser.add_argument("--checkpoint-every", type=int, default=TrainConfig.checkpoint_every)
+    parser.add_argument("--vectorization", choices=("subproc", "dummy"), default="subproc")
+    parser.add_argument("--env-kwargs", default="{}", help='JSON options for gymnasium.make, e.g. \'{"controller": "pd"}\'')
+    parser.add_argument("--ppo", default="{}", help='JSON PPO overrides, e.g. \'{"n_steps": 1024}\'')
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.set_defaults(run=run_train_command)
+
+
+def run_train_command(args: Any) -> int:
+    out = args.out or f"runs/{args.env.split('/')[-1]}"
+    config = TrainConfig(env_id=args.env, total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed, out_dir=out,
+                         checkpoint_every=args.checkpoint_every, vectorization=args.vectorization,
+                         env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress)
+    result = train(config)
+    print(f"policy: {result.policy}")
+    if result.evaluation is not None:
+        returns = result.evaluation.returns
+        print(f"evaluation over {len(returns)} episodes: mean return {np.mean(returns):.2f} (min {min(returns):.2f})")
+    return 0
