@@ -41,13 +41,20 @@ def _stats(values_s: list[float]) -> dict[str, float]:
     return {"median": round(float(np.median(us)), 1), "p99": round(float(np.percentile(us, 99)), 1), "max": round(float(us.max()), 1)}
 
 
-def record(description, solver: str, seconds: float) -> tuple[list, list]:
+def _guess_stats(solver) -> dict | None:
+    guess = getattr(solver, "guess", None)
+    if guess is None or not guess.tries:
+        return None
+    return {"tries": guess.tries, "hits": guess.hits, "hit_rate": round(guess.hits / guess.tries, 3)}
+
+
+def record(description, solver: str, seconds: float, settings: dict) -> tuple[list, list]:
     """Closed-loop run with MuJoCo: stand, sway ±3 cm at 0.5 Hz, a 60 N lateral push."""
     from giwbc.control import make_balance_controller
     from giwbc.robot import MujocoRobot
 
     robot = MujocoRobot(description)
-    controller = make_balance_controller(description, solver=solver)
+    controller = make_balance_controller(description, solver=solver, solver_settings=settings)
     states, in_loop = [], []
     dt = description.timestep
     omega = 2 * np.pi * 0.5
@@ -77,6 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=6.0, help="simulated seconds recorded and replayed")
     parser.add_argument("--repeat", type=int, default=2, help="replays of the recording (ticks = repeat × recorded)")
     parser.add_argument("--pin-cpu", action="store_true", help="pin the process to one CPU (hurts if another process runs there)")
+    parser.add_argument("--no-guess", action="store_true", help="no active-set guess: every tick runs the solver itself")
     args = parser.parse_args(argv)
 
     cpu = _pin_to_one_cpu() if args.pin_cpu else None
@@ -88,9 +96,10 @@ def main(argv: list[str] | None = None) -> int:
     from giwbc.robot import load
 
     description = load(args.robot)
-    states, in_loop = record(description, args.solver, args.seconds)
+    settings = {"active_set_guess": False} if args.no_guess else {}
+    states, in_loop = record(description, args.solver, args.seconds, settings)
 
-    controller = make_balance_controller(description, solver=args.solver)
+    controller = make_balance_controller(description, solver=args.solver, solver_settings=settings)
     timings, iterations, failures = [], [], 0
     for _ in range(args.repeat):
         controller.wbc.solver.reset()
@@ -124,6 +133,7 @@ def main(argv: list[str] | None = None) -> int:
         },
         "iterations": {"median": float(np.median(iterations)), "p99": float(np.percentile(iterations, 99)), "max": int(max(iterations))},
         "failures": failures,
+        "active_set_guess": _guess_stats(controller.wbc.solver),
         "scenario": "replay of a recorded closed-loop MuJoCo run at 500 Hz: stand, ±3 cm lateral CoM sway at 0.5 Hz, 60 N lateral push for 0.2 s",
         "threads": 1,
         "cpu": cpu,

@@ -13,7 +13,18 @@
 from giwbc.control.balance import BalanceConfig, BalanceController, make_balance_controller
 from giwbc.control.contacts import Contact, CornerContact, RectangleContact, SurfaceContact, foot_contacts
 from giwbc.control.kinodynamics import Kinodynamics
-from giwbc.control.qp import QpProblem, QpSolution, QpSolver, QpStatus, available_solvers, make_solver
+from giwbc.control.qp import (
+    ActiveSetGuess,
+    OsqpSolver,
+    ProxsuiteSolver,
+    QpProblem,
+    QpSolution,
+    QpSolver,
+    QpStatus,
+    QpsolversSolver,
+    available_solvers,
+    make_solver,
+)
 from giwbc.control.tasks import (
     AngularMomentumTask,
     ComTask,
@@ -27,6 +38,7 @@ from giwbc.control.tasks import (
 from giwbc.control.wbc import WbcResult, WbcStatus, WbcTimings, WholeBodyController
 
 __all__ = [
+    "ActiveSetGuess",
     "AngularMomentumTask",
     "BalanceConfig",
     "BalanceController",
@@ -38,11 +50,14 @@ __all__ = [
     "FramePoseTask",
     "FramePositionTask",
     "Kinodynamics",
+    "OsqpSolver",
     "PostureTask",
+    "ProxsuiteSolver",
     "QpProblem",
     "QpSolution",
     "QpSolver",
     "QpStatus",
+    "QpsolversSolver",
     "RectangleContact",
     "SurfaceContact",
     "Task",

@@ -7,8 +7,16 @@ Double support on every ``ContactRectangle`` of the description, and three tasks
 * **posture** towards the description's default joint positions — lowest weight, it resolves
   the redundancy (arms, waist) without fighting the other two;
 
-plus a small contact-force regularisation, torque limits from the description and optional
-joint-limit acceleration bounds. Optional: a centroidal angular-momentum damping task.
+plus torque limits from the description and the choices that make it stand robustly on a real
+(soft, imperfect) contact, all in :class:`BalanceConfig`: a contact-force regularisation towards
+the static weight split of the CoM target (the CoM gives way to a push instead of one foot
+unloading), a minimum normal force per foot, foot rectangles shrunk to 85 % (a CoP margin) and
+damping on the contact motion rows. Optional: joint-limit acceleration bounds, a centroidal
+angular-momentum damping task.
+
+References move at run time: :meth:`BalanceController.set_com_target` /
+:meth:`~BalanceController.set_com_offset`, :meth:`~BalanceController.set_posture`,
+``controller.base_task.set_reference(pin.SE3)``.
 
 ``make_balance_controller(description)`` returns a :class:`BalanceController`; the demo, the RL
 task (which moves the CoM / posture references) and the deployment use the same object::
@@ -70,7 +78,10 @@ class BalanceConfig:
     # commanded CoM motion.
     force_weight: float = 1e-3
     torque_limit_scale: float = 1.0
-    joint_limits: bool = True
+    # Joint position/velocity limits as acceleration bounds: off for standing (the posture stays
+    # far from the limits and the bounds cost ~25 µs a tick); turn on when references can push
+    # joints towards their limits.
+    joint_limits: bool = False
     acceleration_regularization: float = 1e-6
     impedance_kp_scale: float = 0.0  # impedance output gains, fractions of the description's kp/kd
     impedance_kd_scale: float = 0.1
@@ -165,6 +176,11 @@ class BalanceController:
         if self.nominal_com is None:
             raise RuntimeError("the nominal CoM is set by reset() or the first update()")
         self.set_com_target(self.nominal_com + np.asarray(offset, dtype=float), velocity, acceleration)
+
+    def set_posture(self, positions: np.ndarray, velocities: np.ndarray | None = None) -> None:
+        """Posture target (joint positions, description order), clipped into the joint limits."""
+        lower, upper = self.description.position_limits
+        self.posture_task.set_reference(np.clip(np.asarray(positions, dtype=float), lower, upper), velocities)
 
     # --- the tick ----------------------------------------------------------------------------------
     def update(self, q: np.ndarray, v: np.ndarray, t: float | None = None) -> WbcResult:

@@ -1,7 +1,10 @@
 """Rigid contacts of the whole-body QP: force variables, friction constraints and ramping.
 
 A contact is a rigid body (a foot) pinned to the environment at a *contact frame* (the sole
-centre, z along the surface normal). It contributes to the QP
+centre, z along the sole normal). The friction cone is expressed in that frame: it is the
+ground's as long as the foot is flat on the ground, which the motion rows keep it. Working in
+the contact frame (``LOCAL`` Jacobian) rather than world axes makes every friction row constant.
+It contributes to the QP
 
 * ``n_force`` force variables, expressed in the contact frame;
 * 6 **motion rows** ``J q̈ = −J̇ v − Kp e − Kd J v`` (contact frame, ``LOCAL`` Jacobian): the foot
@@ -215,9 +218,13 @@ class Contact(abc.ABC):
 
     def motion_target(self, kin: Kinodynamics, out: np.ndarray) -> None:
         """Right-hand side of the motion rows: ``−J̇ v − Kp e − Kd J v`` (call after update)."""
-        np.negative(self.drift, out=out)
         if self.kd > 0.0:
-            out -= self.kd * (self.jacobian @ kin.v)
+            # The contact twist J v, read from the velocities of the Pinocchio pass.
+            twist = pin.getFrameVelocity(kin.model, kin.data, self.joint_id, self.placement, LOCAL).vector
+            np.multiply(twist, -self.kd, out=out)
+            out -= self.drift
+        else:
+            np.negative(self.drift, out=out)
         if self.kp > 0.0 and self.reference is not None:
             out -= self.kp * pin.log6(self.reference.actInv(self.placement_in_world(kin))).vector
 

@@ -154,6 +154,114 @@ class QpSolver(abc.ABC):
         return QpSolution(np.full(n, np.nan), status, iterations, self.name, message, time.perf_counter() - start)
 
 
+# --- active-set guess ------------------------------------------------------------------------------
+class ActiveSetGuess:
+    """Solve the QP with last tick's active set as equalities and keep the result only if it is
+    provably optimal.
+
+    One dense KKT solve (LAPACK ``dgesv``) of ``[[H, Aᵀ, C_aᵀ], [A, 0, 0], [C_a, 0, 0]]`` with
+    ``C_a`` the inequality rows active at the previous solution; the candidate is accepted when it
+    satisfies every inequality (to ``tolerance``) and the multipliers of the active rows have the
+    right signs — then all KKT conditions hold and, the QP being convex, the candidate *is* its
+    optimum (to machine precision, tighter than the iterative solver). When it is not, up to
+    ``steps − 1`` primal-dual active-set corrections are tried. The active set of a balance
+    controller rarely changes from one tick to the next, so most ticks end here; when the guess
+    fails the caller runs the full solver and hands its active set back (:meth:`learn`).
+    Problems with variable bounds are not handled (always the full solver).
+    """
+
+    def __init__(self, tolerance: float = 1e-8, steps: int = 3) -> None:
+        from scipy.linalg import lapack
+
+        self.steps = int(steps)
+        self._gesv = lapack.dgesv
+        self.tolerance = float(tolerance)
+        self.active = np.zeros(0, dtype=np.int64)
+        self.upper = np.zeros(0, dtype=bool)
+        self._buffers: dict[tuple[int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.hits = 0
+        self.tries = 0
+
+    def reset(self) -> None:
+        self.active = np.zeros(0, dtype=np.int64)
+        self.upper = np.zeros(0, dtype=bool)
+
+    def learn(self, problem: QpProblem, x: np.ndarray, z: np.ndarray) -> None:
+        """Active set of a solution from its inequality multipliers ``z`` (positive: upper bound)."""
+        active = np.flatnonzero(np.abs(z) > 1e-10)
+        self.active = active
+        self.upper = z[active] > 0
+
+    def try_solve(self, p: QpProblem) -> np.ndarray | None:
+        """The optimum if last tick's active set — or one corrected by up to ``steps − 1``
+        primal-dual active-set updates (add the violated rows, drop the rows whose multiplier has
+        the wrong sign) — is provably optimal; else None (the caller runs the full solver)."""
+        if p.lb is not None:
+            return None
+        self.tries += 1
+        for _ in range(self.steps):
+            x, violated, wrong = self._solve_active(p)
+            if x is not None and violated is None:
+                self.hits += 1
+                return x
+            if x is None:
+                return None
+            keep = np.ones(len(self.active), dtype=bool) if wrong is None else ~wrong
+            new_rows, new_upper = violated
+            self.active = np.concatenate([self.active[keep], new_rows])
+            self.upper = np.concatenate([self.upper[keep], new_upper])
+        return None
+
+    def _solve_active(self, p: QpProblem) -> tuple[np.ndarray | None, tuple | None, np.ndarray | None]:
+        """KKT solve with the current active set: ``(x, violated rows, wrong-sign mask)``;
+        ``x`` is None when the system is singular."""
+        n, ne, active = p.n, p.n_eq, self.active
+        k = len(active)
+        key = (n, ne, k)
+        buffers = self._buffers.get(key)
+        if buffers is None:
+            buffers = self._buffers[key] = (np.zeros((n + ne + k, n + ne + k)), np.zeros(n + ne + k))
+        K, rhs = buffers
+        K[:n, :n] = p.H
+        K[n:, n:] = 0.0
+        K[n : n + ne, :n] = p.A
+        K[:n, n : n + ne] = p.A.T
+        np.negative(p.g, out=rhs[:n])
+        rhs[n : n + ne] = p.b
+        upper = self.upper
+        if k:
+            rows = p.C[active]
+            K[n + ne :, :n] = rows
+            K[:n, n + ne :] = rows.T
+            rhs[n + ne :] = np.where(upper, p.u[active], p.l[active])
+        # K is symmetric: its transpose is a Fortran-ordered view LAPACK factorises in place.
+        _, _, solution, info = self._gesv(K.T, rhs, overwrite_a=1, overwrite_b=1)
+        if info != 0:
+            return None, None, None
+        x = solution[:n]
+        if not math.isfinite(float(x @ x)):
+            return None, None, None
+        tol = self.tolerance
+        if ne and np.abs(p.A @ x - p.b).max() > 1e3 * tol:  # an ill-conditioned system: do not trust it
+            return None, None, None
+        wrong = None
+        if k:
+            multipliers = solution[n + ne :]
+            wrong = np.where(upper, multipliers < -tol, multipliers > tol) & (p.l[active] != p.u[active])
+            if not wrong.any():
+                wrong = None
+        cx = p.C @ x
+        over, under = cx - p.u, p.l - cx
+        if over.max(initial=-1.0) > tol or under.max(initial=-1.0) > tol:
+            up = np.flatnonzero(over > tol)
+            down = np.flatnonzero(under > tol)
+            rows = np.concatenate([up, down])
+            return np.array(x), (rows, np.concatenate([np.ones(len(up), bool), np.zeros(len(down), bool)])), wrong
+        if wrong is not None:
+            return np.array(x), (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)), wrong
+        return np.array(x), None, None
+
+
 # --- proxsuite -----------------------------------------------------------------------------------
 class ProxsuiteSolver(QpSolver):
     """Persistent ``proxsuite.proxqp.dense.QP``, updated in place and warm-started every tick.
@@ -163,7 +271,9 @@ class ProxsuiteSolver(QpSolver):
     starts — fewer iterations than ``"PrimalLDLT"`` — or ``"Automatic"``), ``retry_cold`` (when a
     warm-started solve fails, re-initialise and solve once from scratch before reporting the
     failure: warm starts far from the new solution occasionally end in a spurious infeasibility
-    verdict), plus any attribute of ``proxsuite.proxqp.Settings`` by name.
+    verdict), ``active_set_guess`` (default True: first try last tick's active set with one KKT
+    solve, see :class:`ActiveSetGuess`; proxsuite runs only when that is not provably optimal),
+    plus any attribute of ``proxsuite.proxqp.Settings`` by name.
     """
 
     name = "proxsuite"
@@ -176,11 +286,13 @@ class ProxsuiteSolver(QpSolver):
         max_iter: int = 300,
         backend: str = "PrimalDualLDLT",
         retry_cold: bool = True,
+        active_set_guess: bool = True,
         **settings: object,
     ) -> None:
         import proxsuite
 
         self.retry_cold = retry_cold
+        self.guess = ActiveSetGuess() if active_set_guess else None
         self._proxqp = proxsuite.proxqp
         self._settings = dict(eps_abs=eps_abs, eps_rel=eps_rel, max_iter=max_iter, verbose=False, **settings)
         self._backend = getattr(proxsuite.proxqp.dense.DenseBackend, backend)
@@ -199,6 +311,8 @@ class ProxsuiteSolver(QpSolver):
         self._structure = None
         self._problem = None
         self._token = -1
+        if getattr(self, "guess", None) is not None:
+            self.guess.reset()
 
     def _init(self, p: QpProblem) -> None:
         dense = self._proxqp.dense
@@ -217,6 +331,11 @@ class ProxsuiteSolver(QpSolver):
         p = problem
         # Same problem object and structure token as last time: the hot path, no bookkeeping.
         cold = self._qp is None or p is not self._problem or p.structure != self._token
+        guess = self.guess
+        if guess is not None and not cold:
+            x = guess.try_solve(p)
+            if x is not None:
+                return QpSolution(x, QpStatus.SOLVED, 0, self.name, "active-set guess", time.perf_counter() - start)
         if cold:
             key = (p.structure, p.n, p.n_eq, p.n_in, p.has_bounds)
             cold = self._qp is None or key != self._structure
@@ -251,7 +370,11 @@ class ProxsuiteSolver(QpSolver):
         if status not in USABLE:
             self.reset()  # do not warm-start from a failed solve
             return self._failure(p.n, status, f"proxsuite: {status.value}", start, iterations)
-        return QpSolution(np.array(self._qp.results.x), status, iterations, self.name, "", time.perf_counter() - start)
+        results = self._qp.results
+        x = np.array(results.x)
+        if guess is not None:
+            guess.learn(p, x, results.z)
+        return QpSolution(x, status, iterations, self.name, "", time.perf_counter() - start)
 
     def _status_of(self, results: object) -> tuple[QpStatus, int]:
         info = results.info  # type: ignore[attr-defined]
@@ -280,14 +403,17 @@ class OsqpSolver(QpSolver):
     gathered from the dense ``H`` and ``[A; C]`` with precomputed indices each tick. Bounds
     ``lb ≤ x ≤ ub`` become identity rows. Settings are OSQP's (defaults here: ``eps_abs`` =
     ``eps_rel`` = 1e-6, polishing on — it makes active constraints exact — ``max_iter`` 4000).
+    ``active_set_guess`` (default True) puts the same :class:`ActiveSetGuess` in front of OSQP
+    as in front of proxsuite.
     """
 
     name = "osqp"
 
-    def __init__(self, **settings: object) -> None:
+    def __init__(self, *, active_set_guess: bool = True, **settings: object) -> None:
         import osqp
         import scipy.sparse
 
+        self.guess = ActiveSetGuess() if active_set_guess else None
         self._osqp = osqp
         self._sparse = scipy.sparse
         defaults = dict(eps_abs=1e-6, eps_rel=1e-6, polishing=True, max_iter=4000, verbose=False, warm_starting=True)
@@ -312,6 +438,8 @@ class OsqpSolver(QpSolver):
     def reset(self) -> None:
         self._solver = None
         self._structure = None
+        if self.guess is not None:
+            self.guess.reset()
 
     def _setup(self, p: QpProblem) -> None:
         n, m_ac = p.n, p.n_eq + p.n_in
@@ -361,6 +489,11 @@ class OsqpSolver(QpSolver):
         start = time.perf_counter()
         p = problem
         key = (p.structure, p.n, p.n_eq, p.n_in, p.has_bounds)
+        guess = self.guess
+        if guess is not None and self._solver is not None and key == self._structure:
+            x = guess.try_solve(p)
+            if x is not None:
+                return QpSolution(x, QpStatus.SOLVED, 0, self.name, "active-set guess", time.perf_counter() - start)
         try:
             if self._solver is None or key != self._structure:
                 self._setup(p)
@@ -379,6 +512,9 @@ class OsqpSolver(QpSolver):
         if status not in USABLE:
             self.reset()
             return self._failure(p.n, status, f"osqp: {result.info.status}", start, int(result.info.iter))
+        if guess is not None:
+            # OSQP's multipliers of [A; C; bounds]: positive at an upper bound, negative at a lower.
+            guess.learn(p, x, result.y[p.n_eq : p.n_eq + p.n_in])
         return QpSolution(np.array(x), status, int(result.info.iter), self.name, "", time.perf_counter() - start)
 
 

@@ -188,6 +188,7 @@ class TaskStack:
             start += task.dim
         self._versions = [(-1, -1)] * len(self.tasks)
         self._hessian_stale = True
+        self._constant_diagonal: np.ndarray | None = None
 
     def _refresh(self) -> None:
         for i, (task, _, _, _, rows) in enumerate(self.views):
@@ -210,6 +211,9 @@ class TaskStack:
             mv = self.m_varying
             constant = self.Jw[mv:] = self.J[mv:] * self._sw_col[mv:]
             self.hessian_constant = constant.T @ constant + self.regularization * np.eye(self.nv)
+            diagonal = np.diag(self.hessian_constant)
+            # A diagonal constant part (selection tasks, ε I) is added on the diagonal only.
+            self._constant_diagonal = diagonal.copy() if np.count_nonzero(self.hessian_constant - np.diag(diagonal)) == 0 else None
             self._hessian_stale = False
 
     def evaluate(self, kin: Kinodynamics) -> None:
@@ -229,10 +233,14 @@ class TaskStack:
         np.multiply(self._gains, self.signals, out=self._products)
         np.add.reduce(self._products, axis=0, out=self.b)
 
-    def hessian(self, out: np.ndarray) -> None:
-        """``out = Σ Jᵀ W J + ε I`` (nv, nv), after :meth:`evaluate`."""
+    def hessian(self, out: np.ndarray, diagonal: np.ndarray | None = None) -> None:
+        """``out = Σ Jᵀ W J + ε I`` (nv, nv), after :meth:`evaluate`; ``diagonal``, a writable
+        view of ``out``'s diagonal, lets a diagonal constant part be added there only."""
         np.matmul(self._Jw_varying.T, self._Jw_varying, out=out)
-        out += self.hessian_constant
+        if diagonal is not None and self._constant_diagonal is not None:
+            diagonal += self._constant_diagonal
+        else:
+            out += self.hessian_constant
 
     def gradient(self, out: np.ndarray) -> None:
         """``out = −Σ Jᵀ W (ẍ* − J̇ v)`` (nv,), after :meth:`evaluate`."""
@@ -315,9 +323,11 @@ class FramePoseTask(Task):
         select = self._select
         rows[:] = kin.frame_jacobian(self.frame_id, LWA)[select]
         drift[:] = kin.frame_drift(self.frame_id, LWA)[select]
+        if not self._linear:  # orientation only: the common base / torso task
+            error[:] = pin.log3(self._reference_rotation @ placement.rotation.T)[select.start - 3 if isinstance(select, slice) else select - 3]
+            return
         e = self._error6
-        if self._linear:
-            np.subtract(self._reference_translation, placement.translation, out=e[:3])
+        np.subtract(self._reference_translation, placement.translation, out=e[:3])
         if self._angular:
             e[3:] = pin.log3(self._reference_rotation @ placement.rotation.T)
         error[:] = e[select]

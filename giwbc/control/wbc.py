@@ -18,6 +18,11 @@ once. :meth:`WholeBodyController.build` returns the :class:`~giwbc.control.qp.Qp
 returns a :class:`WbcResult` — it never raises on a numerical failure or a non-finite state: the
 result then carries a fallback command and a status, and the controller counts the failure.
 
+The solver backends (:mod:`giwbc.control.qp`) are persistent and warm-started; in front of them,
+one KKT solve with the previous tick's active set answers most ticks exactly
+(:class:`~giwbc.control.qp.ActiveSetGuess`; the backend runs whenever that answer is not provably
+optimal). ``WbcResult.message`` says which: ``"active-set guess"`` or ``""``.
+
 Contacts can be added and removed at run time: a contact's normal-force upper bound ramps over
 ``ramp_time`` (see :mod:`giwbc.control.contacts`); a removed contact keeps its slot with zero force
 (no re-initialisation of the solver), a new contact name grows the problem (one cold solve).
@@ -72,6 +77,7 @@ class WbcResult:
     """One tick's output. ``tau`` is always finite (the fallback when ``status`` is not OK).
 
     ``qdd`` (nv) and ``forces`` (all contact variables) are NaN when the QP failed;
+    ``iterations`` are the backend's (0 when the active-set guess answered);
     ``contact_wrenches`` maps each contact with non-zero activation to its 6D wrench
     ``(f, τ)`` about the contact origin *in the contact frame* (world axes:
     :meth:`WholeBodyController.contact_wrench_world`).
@@ -132,6 +138,8 @@ class _ContactSlot:
     in_problem: bool = False  # motion rows currently written (True) or zeroed
     ramp_force: float = 0.0  # N: the normal force a ramp moves between 0 and
     unit_index: np.ndarray | None = None  # entries of the force vector carrying normal force
+    xy: tuple[float, float] = (0.0, 0.0)  # ground position of the contact reference (cached)
+    xy_of: object = None  # the reference placement xy was read from
     unit_value: np.ndarray | None = None  # their share of 1 N of normal force
     last_normal: float = 0.0  # N: the normal force of the last solution
 
@@ -420,6 +428,8 @@ class WholeBodyController:
         self._force_version = -1
         self._weight_force = float(np.linalg.norm(self.kin.gravity)) * self.kin.mass
         self._force_weight = -1.0
+        self._lever: tuple | None = None
+        self._lever_activations: list[float] = []
         self._slot_list = list(self._slots.values())
         for slot in self._slot_list:
             unit = slot.contact.nominal_force(1.0)
@@ -505,7 +515,7 @@ class WholeBodyController:
         # Tasks: H_qq = Σ Jᵀ W J + ε I, g_q = −Σ Jᵀ W (ẍ* − J̇ v).
         stack = self._stack
         stack.evaluate(kin)
-        stack.hessian(H[:nv, :nv])
+        stack.hessian(H[:nv, :nv], self._h_diag[:nv])
         stack.gradient(g[:nv])
 
         # Equation of motion block D = [M, −JᵀΦ]: base rows (equalities), torque rows.
@@ -529,9 +539,9 @@ class WholeBodyController:
                 c.update(kin)
                 J = c.jacobian
                 A[slot.motion_rows, :nv] = J
+                if c.reference is None:
+                    c.reference = c.placement_in_world(kin)
                 if c.feedback:
-                    if c.reference is None:
-                        c.reference = c.placement_in_world(kin)
                     c.motion_target(kin, b[slot.motion_rows])
                 else:
                     np.negative(c.drift, out=b[slot.motion_rows])
@@ -572,10 +582,27 @@ class WholeBodyController:
     def _update_force_regularization(self) -> None:
         """Gradient of ``w ‖f − f_ref‖²`` (and its diagonal): called when activations, the weight
         or the support point change — at every tick while a balance controller moves its CoM
-        target, so this is float arithmetic and a few scalar writes."""
+        target, so the common case (two fully active contacts, only the point moved) is a few
+        float operations and scalar writes."""
         reg = self.force_regularization
         g = self._g_force
         weight = 0.0 if reg is None else reg.weight
+        lever = self._lever
+        if (
+            lever is not None
+            and reg is not None
+            and weight == self._force_weight
+            and reg.support_point is not None
+            and self._lever_activations == [slot.activation for slot in self._slot_list]
+        ):
+            (i1, i2), (x2, y2, dx, dy, norm) = lever
+            point = reg.support_point
+            alpha = min(max(((point[0] - x2) * dx + (point[1] - y2) * dy) / norm, 0.0), 1.0)
+            scale = -weight * self._weight_force
+            g[i1] = scale * alpha
+            g[i2] = scale * (1.0 - alpha)
+            self._force_version = reg.version
+            return
         if reg is None or reg.version != self._force_version or self._force_weight != weight:
             self._reg_f[:] = weight
             self._force_weight = weight
@@ -588,6 +615,19 @@ class WholeBodyController:
                 g[slot.unit_index[0]] = scale * share
             else:
                 g[slot.unit_index] = (scale * share) * slot.unit_value
+        # Remember the lever geometry for the fast path: two fully active single-entry contacts.
+        self._lever = None
+        activations = [slot.activation for slot in self._slot_list]
+        active = [i for i, value in enumerate(activations) if value > 0.0]
+        if shares is not None and len(active) == 2 and all(activations[i] == 1.0 for i in active):
+            s1, s2 = (self._slot_list[i] for i in active)
+            if len(s1.unit_index) == 1 and len(s2.unit_index) == 1 and s1.contact.reference is not None and s2.contact.reference is not None:
+                p1, p2 = self._contact_xy(s1), self._contact_xy(s2)
+                dx, dy = p1[0] - p2[0], p1[1] - p2[1]
+                norm = dx * dx + dy * dy
+                if norm > 1e-12:
+                    self._lever = ((int(s1.unit_index[0]), int(s2.unit_index[0])), (p2[0], p2[1], dx, dy, norm))
+                    self._lever_activations = activations
 
     def _force_shares(self, reg: ContactForceRegularization) -> list[float]:
         """Weight share of each contact: by activation, or by the lever rule about the support
@@ -613,9 +653,15 @@ class WholeBodyController:
         return shares
 
     def _contact_xy(self, slot: _ContactSlot) -> tuple[float, float]:
+        """Ground position of a contact: where it was made (cached), or where it is now."""
         reference = slot.contact.reference
-        translation = (reference if reference is not None else slot.contact.placement_in_world(self.kin)).translation
-        return float(translation[0]), float(translation[1])
+        if reference is None:
+            translation = slot.contact.placement_in_world(self.kin).translation
+            return float(translation[0]), float(translation[1])
+        if slot.xy_of is not reference:
+            slot.xy = (float(reference.translation[0]), float(reference.translation[1]))
+            slot.xy_of = reference
+        return slot.xy
 
     def _joint_limit_bounds(self, p: QpProblem) -> None:
         """q̈ bounds that stop each joint at its position limit within the horizon ``T``
@@ -675,7 +721,7 @@ class WholeBodyController:
         self.consecutive_failures = 0
         end = time.perf_counter()
         return WbcResult(
-            WbcStatus.OK, tau, x[:nv], x[nv:], wrenches, t, solution.status, solution.iterations, "", self.failures,
+            WbcStatus.OK, tau, x[:nv], x[nv:], wrenches, t, solution.status, solution.iterations, solution.message, self.failures,
             WbcTimings(t_pin - start, t_build - t_pin, t_solve - t_build, end - start),
             q[kin.joint_q].copy(), v[kin.joint_v].copy(), (self.impedance_kp, self.impedance_kd, self.impedance_lookahead, self.fallback_kd),
         )
