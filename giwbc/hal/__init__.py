@@ -41,7 +41,26 @@ from giwbc.hal.protocols import (
     UnknownMotorError,
 )
 
+from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, CycleReport, ImuChannel, NonFiniteCommand
+from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
+from giwbc.hal.runlog import RunLogWriter, read_log
+from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor
+
 __all__ = [
+    "ActuatorEmulator",
+    "BaseStateUnavailable",
+    "CanRobot",
+    "CycleReport",
+    "EmulatorConfig",
+    "Fault",
+    "FaultInjection",
+    "FaultKind",
+    "ImuChannel",
+    "NonFiniteCommand",
+    "RunLogWriter",
+    "SafetyConfig",
+    "SafetySupervisor",
+    "read_log",
     "DEFAULT_MAX_LOAD",
     "MOTOR_PRESETS",
     "PROTOCOLS",

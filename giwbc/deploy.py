@@ -1,0 +1,422 @@
+"""``giwbc deploy``: run a controller (and optionally a policy) on CAN actuators, or rehearse it on
+the actuator emulator.
+
+Procedure (:func:`deploy`):
+
+1. load the robot description and, with ``--policy``, the policy's metadata; check it against the
+   robot (joint names and order, rates: :func:`check_policy_metadata`, a plain-dict check);
+2. load the hardware plan and check it (motors for exactly the robot's joints, torque ranges,
+   bus capacity at the control rate); print the bus loads;
+3. ``--emulate``: start the :class:`~giwbc.hal.emulator.ActuatorEmulator` on ``virtual`` buses;
+   otherwise open the configured buses;
+4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
+   (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
+   run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``;
+5. report: exit code 0 on a clean run, non-zero with the cause on a fault (130/143 for
+   SIGINT/SIGTERM, 1 for other faults, 2 for configuration errors).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+if TYPE_CHECKING:
+    import mujoco
+
+    from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
+    from giwbc.hal.safety import SafetyConfig
+    from giwbc.robot.description import RobotDescription
+    from giwbc.runtimes.realtime import RunResult, StartupConfig
+
+TASKS = ("stand", "balance")
+CONTROLLERS = ("wbc", "pd")
+RUNTIME_KEYS = frozenset({"robot", "agent_rate", "controller_rate", "model", "real_time_factor", "render_mode", "sim2real", "render_size"})
+
+
+class DeployError(RuntimeError):
+    """A deployment that cannot start: configuration, policy or hardware mismatch (exit code 2)."""
+
+
+# ----------------------------------------------------------------------------- policy metadata
+def check_policy_metadata(metadata: Mapping[str, Any], description: RobotDescription, control_rate: float) -> float:
+    """Check a policy's metadata (a plain dict, as exported with the policy) against the robot and
+    the control rate; returns the policy's agent rate. Raises :class:`DeployError` listing every
+    mismatch: joint names or order, controller rate, agent rate not dividing it, action and
+    observation names missing."""
+    problems: list[str] = []
+    joints = list(metadata.get("joint_names") or [])
+    if joints != list(description.joint_names):
+        if sorted(joints) == sorted(description.joint_names):
+            problems.append("joint order differs from the robot's (same names): the policy's arrays would be permuted")
+        else:
+            missing = [j for j in description.joint_names if j not in joints]
+            extra = [j for j in joints if j not in description.joint_names]
+            problems.append(f"joint names differ from the robot's: missing {missing}, unknown {extra}")
+    rates = metadata.get("rates")
+    agent = math.nan
+    if not isinstance(rates, Mapping):
+        problems.append("no rates in the metadata (agent_hz, controller_hz)")
+    else:
+        agent = float(rates.get("agent_hz", math.nan))
+        controller = float(rates.get("controller_hz", math.nan))
+        if not math.isclose(controller, control_rate, rel_tol=1e-9):
+            problems.append(f"trained with the controller at {controller:g} Hz, deploying at {control_rate:g} Hz")
+        if not (agent > 0 and abs(control_rate / agent - round(control_rate / agent)) < 1e-9):
+            problems.append(f"agent rate {agent:g} Hz does not divide the control rate {control_rate:g} Hz")
+    for key in ("action_names", "observation_names"):
+        if not metadata.get(key):
+            problems.append(f"no {key} in the metadata")
+    if problems:
+        raise DeployError("policy does not match the robot: " + "; ".join(problems))
+    return agent
+
+
+def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], dict[str, Any]]:
+    """A policy callable and its metadata: an exported ``.onnx`` (:class:`giwbc.policy.OnnxPolicy`)
+    or a ``.json`` holding metadata only (a rehearsal with zero actions)."""
+    path = Path(path)
+    if not path.is_file():
+        raise DeployError(f"no policy file at {path}")
+    if path.suffix == ".json":
+        metadata = json.loads(path.read_text())
+        size = len(metadata.get("action_names") or [])
+        return (lambda observation: np.zeros(size, dtype=np.float32)), metadata
+    from giwbc.policy import OnnxPolicy, PolicyFormatError
+
+    try:
+        policy = OnnxPolicy(path)
+    except (PolicyFormatError, ImportError) as error:
+        raise DeployError(f"cannot load the policy: {error}") from error
+    return policy, dict(policy.metadata)
+
+
+# ----------------------------------------------------------------------------- controllers
+class PdHold:
+    """The joint-PD hold of the description's default pose (evaluated by the actuators)."""
+
+    def __init__(self, description: RobotDescription) -> None:
+        from giwbc.robot.standing import pd_hold_command
+
+        self.command = pd_hold_command(description)
+
+    def __call__(self, robot: Any) -> Any:
+        return self.command
+
+
+class WbcHold:
+    """The QP standing balance controller (:mod:`giwbc.control.balance`): its impedance output
+    (feed-forward torque plus joint damping) from the estimated Pinocchio state."""
+
+    def __init__(self, description: RobotDescription, **options: Any) -> None:
+        from giwbc.control.balance import make_balance_controller
+
+        self.balance = make_balance_controller(description, **options)
+        self._anchor = True
+        self.last: Any = None
+
+    def reset(self) -> None:
+        """Re-anchor the references (CoM, heading) at the next tick's measured state."""
+        self._anchor = True
+
+    def __call__(self, robot: Any) -> Any:
+        q, v = robot.generalized_state()
+        if self._anchor:
+            self.balance.reset(q)
+            self._anchor = False
+        self.last = self.balance.update(q, v, robot.time())
+        return self.last.impedance
+
+
+def make_controller(name: str, description: RobotDescription) -> Any:
+    if name == "pd":
+        return PdHold(description)
+    if name == "wbc":
+        return WbcHold(description)
+    raise DeployError(f"unknown controller {name!r}; choose from {', '.join(CONTROLLERS)}")
+
+
+# ----------------------------------------------------------------------------- the procedure
+@dataclass(frozen=True)
+class DeployOptions:
+    """What ``giwbc deploy`` does (see the module docstring)."""
+
+    robot: str = "g1"
+    policy: str | None = None
+    task: str | None = None  # default: "balance" with a policy, "stand" without
+    controller: str = "wbc"
+    hardware: str | None = None  # default: the robot folder's hardware.toml
+    emulate: bool = False
+    seconds: float = 10.0
+    control_rate: float = 500.0
+    agent_rate: float = 50.0
+    log: str | None = None  # default: runs/deploy-<robot>-<time>.mcap
+    log_every: int = 1
+    realtime: bool = True
+    estimator: bool | None = None  # None: only when the controller needs the base state (wbc, balance)
+    startup: StartupConfig | None = None
+    safety: SafetyConfig | None = None
+    emulator: EmulatorConfig | None = None
+    faults: tuple[FaultInjection, ...] = ()  # injected into the emulator (rehearsals, tests)
+    reply_timeout: float = 0.8e-3
+    rt_priority: int | None = None  # SCHED_FIFO priority of the control loop (None: the default scheduler)
+
+
+@dataclass
+class DeployOutcome:
+    """What happened: the runtime's result, the exit code and message, the log, and (emulated)
+    the ground-truth standing summary of the running phase."""
+
+    exit_code: int
+    message: str
+    result: RunResult | None = None
+    log_path: str | None = None
+    bus_loads: list[str] = field(default_factory=list)
+    standing: dict[str, float] | None = None
+    emulator: ActuatorEmulator | None = None
+
+
+def deploy(
+    options: DeployOptions,
+    *,
+    policy: Callable[[np.ndarray], np.ndarray] | None = None,
+    policy_metadata: Mapping[str, Any] | None = None,
+    model: mujoco.MjModel | None = None,
+    description: RobotDescription | None = None,
+    out: Callable[[str], None] | None = print,
+) -> DeployOutcome:
+    """Run a deployment (see the module docstring). ``policy``/``policy_metadata`` give a policy
+    directly instead of ``options.policy``; ``model``: the MjModel the emulator uses (a copy is
+    taken; tests pass a cached one). Never raises for faults or configuration errors."""
+    say = out or (lambda message: None)
+    try:
+        return _deploy(options, policy, policy_metadata, model, description, say)
+    except DeployError as error:
+        say(f"giwbc deploy: error: {error}")
+        return DeployOutcome(2, str(error))
+    except Exception as error:  # noqa: BLE001 - setup bugs: reported, never a traceback at the operator
+        import traceback
+
+        message = f"internal error before or after the run: {type(error).__name__}: {error}"
+        say(f"giwbc deploy: {message}\n{traceback.format_exc(limit=6)}")
+        return DeployOutcome(1, message)
+
+
+def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, description: Any, say: Callable[[str], None]) -> DeployOutcome:
+    import copy
+
+    from giwbc.hal.can_robot import CanRobot, imu_source_for
+    from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig
+    from giwbc.hal.hardware import HardwareConfigError, load_hardware
+    from giwbc.hal.runlog import RunLogWriter
+    from giwbc.robot.description import RobotDescriptionError, load
+    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
+
+    try:
+        description = description or load(options.robot)
+    except RobotDescriptionError as error:
+        raise DeployError(str(error)) from error
+
+    agent_rate = options.agent_rate
+    if options.policy is not None and policy is None:
+        policy, metadata = load_policy(options.policy)
+    if metadata is not None:
+        agent_rate = check_policy_metadata(metadata, description, options.control_rate)
+    task_name = options.task or ("balance" if metadata is not None else "stand")
+    if task_name not in TASKS:
+        raise DeployError(f"unknown task {task_name!r}; choose from {', '.join(TASKS)}")
+    if task_name == "stand" and policy is not None:
+        raise DeployError("the 'stand' task takes no action: a policy needs --task balance")
+
+    hardware = Path(options.hardware) if options.hardware else description.folder / "hardware.toml"
+    names = description.joint_names
+    try:
+        plan = load_hardware(
+            hardware, options.control_rate, joint_names=names,
+            effort_limits=dict(zip(names, description.effort_limits)), interface="virtual" if options.emulate else None,
+        )  # fmt: skip
+    except HardwareConfigError as error:
+        raise DeployError(str(error)) from error
+    loads = [str(load_) for load_ in plan.loads.values()]
+    say(f"hardware {hardware}: {len(plan.motors)} motors on {len(plan.buses)} buses at {options.control_rate:g} Hz")
+    for line in loads:
+        say(f"  {line}")
+
+    emulator = None
+    robot = None
+    log = None
+    try:
+        if options.emulate:
+            config = options.emulator or EmulatorConfig()
+            if options.faults:
+                from dataclasses import replace
+
+                config = replace(config, faults=tuple(config.faults) + tuple(options.faults))
+            emulator = ActuatorEmulator(plan, description, config, model=copy.copy(model) if model is not None else None)
+            host_plan, peer = emulator.host_plan(), emulator
+            imu = imu_source_for(plan.imu, emulator.imu_channel)
+            say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
+        else:
+            host_plan, peer = plan, None
+            try:
+                imu = imu_source_for(plan.imu)
+            except (NotImplementedError, ValueError) as error:
+                raise DeployError(str(error)) from error
+        estimator = None
+        wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
+        if wants_estimator and description.floating_base:
+            from giwbc.robot.estimator import StateEstimator
+
+            estimator = StateEstimator(description)
+        try:
+            robot = CanRobot(description, host_plan, imu=imu, estimator=estimator, peer=peer, reply_timeout=options.reply_timeout)
+        except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
+            raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
+
+        if task_name == "stand":
+            task: Any = StandingTask(make_controller(options.controller, description), description.default_positions)
+        else:
+            task = _balance_task(description, metadata, options.controller)
+        log_path = Path(options.log) if options.log else Path("runs") / f"deploy-{description.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
+        log = RunLogWriter(log_path, names, {
+            "robot": description.name, "hardware": str(hardware), "emulate": options.emulate, "task": task_name,
+            "controller": options.controller, "policy": options.policy, "control_rate": options.control_rate,
+            "agent_rate": agent_rate, "seconds": options.seconds, "bus_loads": loads,
+        })  # fmt: skip
+        runtime = RealtimeRuntime(
+            task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=options.safety,
+            startup=options.startup, log=log, log_every=options.log_every, realtime=options.realtime,
+            rt_priority=options.rt_priority,
+        )  # fmt: skip
+        if metadata is not None:
+            _check_layout(metadata, task)
+        say(f"running {task_name} ({options.controller}) for {options.seconds:g} s" + (" with the policy" if policy else ""))
+        result = runtime.run(policy, options.seconds)
+    finally:
+        if robot is not None:
+            robot.close()
+        if emulator is not None:
+            emulator.close()
+        if log is not None:
+            log.close()
+
+    standing = None
+    if emulator is not None and description.floating_base:
+        standing = _standing(emulator, result)
+    timing = result.timing
+    pacing = (
+        f"period error p50 {_us(timing['period_error_us']['p50'])} p99 {_us(timing['period_error_us']['p99'])}, "
+        f"overruns {timing['overruns']}, skipped slots {timing['skipped_slots']}"
+        if options.realtime else "not paced (as fast as possible)"
+    )  # fmt: skip
+    say(f"{result.cycles} cycles, {result.robot_time:.2f} s robot time in {result.wall_time:.2f} s; {pacing}")
+    if standing is not None:
+        say(
+            f"emulated robot while running: base height {standing['min_height']:.3f}..{standing['max_height']:.3f} m, "
+            f"max tilt {math.degrees(standing['max_tilt']):.1f} deg ({'stood' if standing['stood'] else 'FELL'})"
+        )
+    say(f"log: {log.path}")
+    if result.ok:
+        message = "clean run: motors ramped to damping and switched off"
+    else:
+        message = f"stopped by a fault: {result.fault}; motors in damping then off"
+    say(message)
+    return DeployOutcome(result.exit_code, message, result, str(log.path), loads, standing, emulator)
+
+
+def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
+    from giwbc.tasks.balance import G1Balance
+
+    kwargs = {k: v for k, v in dict((metadata or {}).get("env_kwargs") or {}).items() if k not in RUNTIME_KEYS}
+    kwargs.setdefault("controller", controller)
+    try:
+        return G1Balance(description, **kwargs)
+    except (TypeError, ValueError) as error:
+        raise DeployError(f"cannot build the policy's task: {error}") from error
+
+
+def _check_layout(metadata: Mapping[str, Any], task: Any) -> None:
+    for key, names in (("observation_names", task.observation_names()), ("action_names", task.action_names())):
+        if list(metadata.get(key) or []) != list(names):
+            raise DeployError(f"the policy's {key} differ from the task's ({len(metadata.get(key) or [])} vs {len(names)} entries)")
+
+
+def _standing(emulator: ActuatorEmulator, result: RunResult) -> dict[str, float] | None:
+    """Ground truth over the running phase: did the emulated robot stay up?"""
+    start = result.phase_times.get("running")
+    if start is None:
+        return None
+    stop = result.phase_times.get("shutdown", result.phase_times.get("damping", math.inf))
+    rows = emulator.truth_between(start, stop)
+    if not len(rows):
+        return None
+    heights, tilts = rows[:, 1], rows[:, 2]
+    stood = bool(tilts.max() < math.radians(10.0) and heights.min() > 0.8 * heights[0])
+    return {"min_height": float(heights.min()), "max_height": float(heights.max()), "max_tilt": float(tilts.max()),
+            "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood}  # fmt: skip
+
+
+def _us(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.0f} us"
+
+
+# ----------------------------------------------------------------------------- command line
+def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
+    """Add ``giwbc deploy`` to an argparse subparsers object."""
+    parser = commands.add_parser("deploy", help="run on CAN actuators, or rehearse on the emulator (--emulate)")
+    parser.add_argument("--robot", default="g1")
+    parser.add_argument("--policy", default=None, help="policy .onnx (or its metadata .json); optional")
+    parser.add_argument("--task", choices=TASKS, default=None, help="default: balance with a policy, stand without")
+    parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP or joint-PD hold")
+    parser.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")
+    parser.add_argument("--emulate", action="store_true", help="actuator emulator on python-can virtual buses")
+    parser.add_argument("--seconds", type=float, default=10.0, help="seconds of control after the start-up ramp")
+    parser.add_argument("--rate", type=float, default=500.0, help="control rate, Hz")
+    parser.add_argument("--log", default=None, help="run log (.mcap); default runs/deploy-<robot>-<time>.mcap")
+    parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
+    parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
+    parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    parser.set_defaults(run=run_deploy_command)
+    return parser
+
+
+def run_deploy_command(args: argparse.Namespace) -> int:
+    from giwbc.runtimes.realtime import StartupConfig
+
+    options = DeployOptions(
+        robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
+        emulate=args.emulate, seconds=args.seconds, control_rate=args.rate, log=args.log,
+        startup=StartupConfig(ramp_time=args.ramp), rt_priority=args.rt_priority,
+    )  # fmt: skip
+    outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
+    if args.json:
+        result = outcome.result
+        print(json.dumps({
+            "exit_code": outcome.exit_code, "message": outcome.message, "log": outcome.log_path,
+            "fault": None if result is None or result.fault is None else result.fault.as_dict(),
+            "timing": None if result is None else result.timing, "standing": outcome.standing,
+        }))  # fmt: skip
+    elif outcome.exit_code:
+        print(f"giwbc deploy: {outcome.message}", file=sys.stderr)
+    return outcome.exit_code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m giwbc.deploy ...`` (the same as ``giwbc deploy ...``)."""
+    parser = argparse.ArgumentParser(prog="giwbc")
+    add_deploy_command(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["deploy", *(sys.argv[1:] if argv is None else argv)])
+    return int(args.run(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
