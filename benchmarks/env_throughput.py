@@ -1,10 +1,13 @@
-"""Environment throughput: steps/s, real-time factor, where the time goes, and 2-process scaling (one JSON object).
+"""Environment throughput on MuJoCo and PyBullet: steps/s, real-time factor, where the time goes, and
+2-process scaling (one JSON object).
 
 Each environment steps with zero actions (episodes reset on termination) in this process, pinned
-to one thread; the share of wall time in MuJoCo, in the controller (the WBC for G1Balance) and in
-everything else comes from the runtime's own timers. G1Balance-v0 runs as registered (random
-pushes) and without pushes (quiet standing: the WBC's warm-started best case). Scaling: the same
-seeded work (two jobs) run by 1 worker process in turn, then by 2 worker processes at once (fork).
+to one thread; the share of wall time in the physics engine, in the controller (the WBC for
+G1Balance) and in everything else comes from the runtime's own timers. Every case runs on both
+engines (the ``*_pybullet`` entries: same task, same description, ``engine="pybullet"``).
+G1Balance-v0 runs as registered (random pushes) and without pushes (quiet standing: the WBC's
+warm-started best case). Scaling: the same seeded work (two jobs) run by 1 worker process in
+turn, then by 2 worker processes at once (fork).
 """
 
 from __future__ import annotations
@@ -26,11 +29,16 @@ import numpy as np  # noqa: E402
 
 import giwbc.envs  # noqa: E402,F401
 
-CASES: dict[str, tuple[str, dict[str, Any]]] = {
+BASE_CASES: dict[str, tuple[str, dict[str, Any]]] = {
     "cartpole": (giwbc.envs.CARTPOLE_BALANCE, {}),
     "g1_balance_wbc": (giwbc.envs.G1_BALANCE, {"controller_rate": 500.0}),
     "g1_balance_wbc_no_pushes": (giwbc.envs.G1_BALANCE, {"controller_rate": 500.0, "sim2real": {"pushes": None}}),
     "g1_balance_pd": (giwbc.envs.G1_BALANCE, {"controller": "pd", "controller_rate": 50.0}),
+}
+# Every case on MuJoCo (its name) and on PyBullet (its name + "_pybullet").
+CASES: dict[str, tuple[str, dict[str, Any]]] = {
+    **BASE_CASES,
+    **{f"{name}_pybullet": (env_id, {**kwargs, "engine": "pybullet"}) for name, (env_id, kwargs) in BASE_CASES.items()},
 }
 
 
@@ -51,11 +59,12 @@ def measure(env_id: str, kwargs: dict[str, Any], steps: int) -> dict[str, Any]:
     _run(env, max(1, steps // 10))  # warm up: caches, solver workspaces
     env.timings.clear()
     wall = _run(env, steps)
-    timings, rates = env.timings, env.rates
+    timings, rates, engine = env.timings, env.rates, env.engine
     simulated = timings.physics_steps * rates.physics_dt
     env.close()
     return {
         "env": env_id,
+        "engine": engine,
         "agent_hz": rates.agent,
         "controller_hz": rates.controller,
         "physics_hz": rates.physics,
@@ -63,12 +72,12 @@ def measure(env_id: str, kwargs: dict[str, Any], steps: int) -> dict[str, Any]:
         "steps_per_s": steps / wall,
         "real_time_factor": simulated / wall,
         "time_share": {
-            "mujoco": timings.physics / wall,
+            "physics": timings.physics / wall,
             "controller": timings.controller / wall,
             "other": 1.0 - (timings.physics + timings.controller) / wall,
         },
         "us_per_physics_step": {
-            "mujoco": 1e6 * timings.physics / timings.physics_steps,
+            "physics": 1e6 * timings.physics / timings.physics_steps,
             "controller": 1e6 * timings.controller / timings.physics_steps,
         },
     }
@@ -128,6 +137,15 @@ def main() -> None:
     for name in args.cases:
         env_id, kwargs = CASES[name]
         result[name] = measure(env_id, kwargs, args.steps)
+    result["pybullet_vs_mujoco"] = {
+        name: {
+            "mujoco_steps_per_s": result[name]["steps_per_s"],
+            "pybullet_steps_per_s": result[f"{name}_pybullet"]["steps_per_s"],
+            "pybullet_over_mujoco": result[f"{name}_pybullet"]["steps_per_s"] / result[name]["steps_per_s"],
+        }
+        for name in BASE_CASES
+        if name in result and f"{name}_pybullet" in result
+    }
     env_id, kwargs = CASES[args.scaling_case]
     one = scaling(env_id, kwargs, args.scaling_steps, 1)
     two = scaling(env_id, kwargs, args.scaling_steps, 2)

@@ -14,6 +14,7 @@ from giwbc.deploy import add_deploy_command
 from giwbc.policy import add_play_command
 from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
+from giwbc.sim_to_sim import add_sim_to_sim_command
 from giwbc.training import add_train_command
 
 GRAVITY = 9.81
@@ -97,6 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(run=cmd_demo)
     add_train_command(commands)
     add_play_command(commands)
+    add_sim_to_sim_command(commands)
     add_deploy_command(commands)
     return parser
 

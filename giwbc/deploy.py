@@ -40,7 +40,11 @@ if TYPE_CHECKING:
 
 TASKS = ("stand", "balance")
 CONTROLLERS = ("wbc", "pd")
-RUNTIME_KEYS = frozenset({"robot", "agent_rate", "controller_rate", "model", "real_time_factor", "render_mode", "sim2real", "render_size"})
+def _runtime_keys() -> frozenset[str]:
+    """Env kwargs that configure the simulated runtime, not the task: the deployment drops them."""
+    from giwbc.envs import RUNTIME_OPTIONS
+
+    return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS})
 
 
 class DeployError(RuntimeError):
@@ -336,7 +340,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
     from giwbc.tasks.balance import G1Balance
 
-    kwargs = {k: v for k, v in dict((metadata or {}).get("env_kwargs") or {}).items() if k not in RUNTIME_KEYS}
+    kwargs = {k: v for k, v in dict((metadata or {}).get("env_kwargs") or {}).items() if k not in _runtime_keys()}
     kwargs.setdefault("controller", controller)
     try:
         return G1Balance(description, **kwargs)

@@ -1,10 +1,20 @@
 """Registered environments: ``gymnasium.make("giwbc/<Id>")`` after ``import giwbc.envs``
 (or, with nothing imported, ``gymnasium.make("giwbc.envs:giwbc/<Id>")``).
 
-Each id is a factory building a Robot from a description, a Task and a :class:`SimulatedRuntime`.
+Each id is a factory building a Task and a :class:`SimulatedRuntime` over a robot description.
 Keyword arguments of ``gymnasium.make`` reach the factory: rates, ``real_time_factor``,
-``render_mode``, ``sim2real`` (a :class:`SimToReal` or a dict of its fields), ``model`` (a modified
-``mujoco.MjModel`` to simulate instead of the description's; it is copied) and the task's own options.
+``render_mode``, ``sim2real`` (a :class:`SimToReal` or a dict of its fields), and
+
+* ``engine``: ``"mujoco"`` (default), ``"pybullet"``, or a per-episode random choice
+  (an :class:`~giwbc.randomization.EngineChoice` or ``{"mujoco": 0.5, "pybullet": 0.5}``);
+* ``randomization``: domain randomization applied at every reset: a config dict, a TOML path,
+  ``"default"`` (the robot's ``randomization.toml``), a RandomizationConfig or a DomainRandomizer;
+* ``engine_options``: constructor keywords per engine (``{"pybullet": {"solver_iterations": 50}}``);
+* ``model``: a modified ``mujoco.MjModel`` to simulate instead of the description's (MuJoCo
+  only; it is copied);
+
+and the task's own options. Every option is JSON-friendly in its plain form, so a policy's
+metadata can carry it.
 """
 
 from __future__ import annotations
@@ -45,33 +55,41 @@ def simulated_env(
     render_mode: str | None = None,
     sim2real: Any = None,
     render_size: tuple[int, int] = (480, 640),
+    engine: Any = None,
+    engine_options: dict[str, dict[str, Any]] | None = None,
+    randomization: Any = None,
 ) -> "SimulatedRuntime":
-    """A MuJoCo runtime for ``task`` on the robot ``description`` (a name, a path or a description)."""
-    from giwbc.robot import MujocoRobot, RobotDescription, load
-    from giwbc.runtimes import SimToReal, SimulatedRuntime
+    """A simulated runtime for ``task`` on the robot ``description`` (a name, a path or a description)."""
+    from giwbc.robot import RobotDescription, load
+    from giwbc.runtimes import SimulatedRuntime
 
     if not isinstance(description, RobotDescription):
         description = load(description)
-    if isinstance(sim2real, dict):
-        sim2real = SimToReal.from_dict(sim2real)
-    robot = MujocoRobot(description, copy.copy(model) if model is not None else None)
+    options = {name: dict(values) for name, values in (engine_options or {}).items()}
+    if model is not None:
+        options.setdefault("mujoco", {})["model"] = copy.copy(model)
     return SimulatedRuntime(
         task,
-        robot,
+        description,
         agent_rate=agent_rate,
         controller_rate=controller_rate,
         real_time_factor=real_time_factor,
         render_mode=render_mode,
         sim2real=sim2real,
         render_size=render_size,
+        engine=engine,
+        engine_options=options,
+        randomizer=randomization,
     )
 
 
-_RUNTIME_OPTIONS = ("model", "controller_rate", "real_time_factor", "render_mode", "sim2real", "render_size")
+# What gymnasium.make options go to the runtime rather than the task (a deployment drops them too).
+RUNTIME_OPTIONS = ("model", "controller_rate", "real_time_factor", "render_mode", "sim2real", "render_size",
+                   "engine", "engine_options", "randomization")
 
 
 def _split(kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
-    runtime = {k: kwargs.pop(k) for k in _RUNTIME_OPTIONS if k in kwargs}
+    runtime = {k: kwargs.pop(k) for k in RUNTIME_OPTIONS if k in kwargs}
     return runtime, kwargs
 
 
@@ -103,20 +121,24 @@ def g1_balance(
 
     The WBC runs at 500 Hz unless ``controller_rate`` says otherwise (the ``controller="pd"``
     baseline at the agent rate: the actuators evaluate its impedance every physics step). Pushes
-    are on by default (:class:`PushConfig`); ``sim2real={"pushes": None}`` turns them off.
+    are on by default (:class:`PushConfig`) unless the ``randomization`` config draws its own;
+    ``sim2real={"pushes": None}`` turns them off.
     """
+    from giwbc.randomization import make_randomizer
     from giwbc.robot import RobotDescription, load
     from giwbc.runtimes import PushConfig
     from giwbc.tasks.balance import G1Balance
 
     description = robot if isinstance(robot, RobotDescription) else load(robot)
-    if sim2real is None or isinstance(sim2real, dict):
+    randomizer = make_randomizer(kwargs.pop("randomization", None), description)  # validated once, here
+    own_pushes = randomizer is not None and "push_force" in randomizer.config.parameters
+    if (sim2real is None or isinstance(sim2real, dict)) and not own_pushes:
         sim2real = {"pushes": PushConfig(), **(sim2real or {})}
     if controller_rate is None:
         controller_rate = 500.0 if kwargs.get("controller", "wbc") == "wbc" else agent_rate
     runtime, task = _split(kwargs)
     return simulated_env(G1Balance(description, **task), description, agent_rate=agent_rate, controller_rate=controller_rate,
-                         sim2real=sim2real, **runtime)
+                         sim2real=sim2real, randomization=randomizer, **runtime)
 
 
 def register_envs() -> None:

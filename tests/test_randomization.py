@@ -419,14 +419,15 @@ def test_sensor_noise_bias_and_imu_latency(g1: RobotDescription) -> None:
     history, noise = [], []
     for _ in range(40):
         robot.step(1)
-        history.append(robot.inner.imu().angular_velocity)
+        history.append(robot.inner.imu())
         np.testing.assert_array_equal(robot.joint_positions(), robot.inner.joint_positions() + 0.01)
         first = robot.joint_velocities()
         np.testing.assert_array_equal(first, robot.joint_velocities())  # one draw per physics step
         noise.append(first - robot.inner.joint_velocities())
     assert np.std(noise) == pytest.approx(0.05, rel=0.1)
-    np.testing.assert_allclose(robot.imu().angular_velocity, history[-3] + [0.1, -0.1, 0.0], atol=1e-12)  # 2 steps old
-    delayed = robot._imu_history[0]
+    delayed = history[-3]  # 2 physics steps old
+    np.testing.assert_allclose(robot.imu().angular_velocity, delayed.angular_velocity + [0.1, -0.1, 0.0], atol=1e-12)
+    assert robot.imu().time == delayed.time
     np.testing.assert_allclose(robot.imu().linear_acceleration, delayed.linear_acceleration + [0.0, 0.0, 0.5], atol=1e-12)
     tilt = np.degrees(2 * np.arccos(min(1.0, abs(float(np.dot(robot.imu().quaternion, delayed.quaternion))))))
     assert 0.05 < tilt < 10.0  # orientation noise of 0.02 rad per axis: a small, nonzero rotation

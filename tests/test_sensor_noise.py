@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
-from giwbc.robot.noise import NoisyRobot, NotMeasuredError, SensorNoiseConfig
+from giwbc.robot.noise import NoisyRobot, NotMeasuredError, SensorErrors, SensorModel, SensorNoiseConfig
 
 DOFS = 4
 
@@ -207,3 +207,20 @@ def test_invalid_configs_are_rejected() -> None:
         SensorNoiseConfig(imu_dropout=1.0)
     with pytest.raises(ValueError, match="Generator"):
         NoisyRobot(ScriptedRobot(), SensorNoiseConfig())
+
+
+def test_one_sensor_model_takes_per_joint_errors_too() -> None:
+    """The model NoisyRobot uses is the one PerturbedRobot builds from a randomization sample:
+    per-joint noise and bias, no error at all when ideal."""
+    assert SensorErrors().is_ideal() and SensorNoiseConfig.ideal().errors(np.random.default_rng(0)).is_ideal()
+    assert not SensorNoiseConfig().errors(np.random.default_rng(0)).is_ideal()
+    truth = ScriptedRobot()
+    std, bias = np.array([0.0, 0.01, 0.02, 0.0]), np.array([0.1, 0.0, -0.1, 0.0])
+    model = SensorModel(truth, SensorErrors(joint_position_noise=std, joint_position_bias=bias), np.random.default_rng(4), imu=False)
+    errors = []
+    for _ in range(2000):
+        errors.append(model.joint_positions() - truth.joint_positions())
+        truth.step()
+    np.testing.assert_allclose(np.mean(errors, axis=0), bias, atol=2e-3)
+    np.testing.assert_allclose(np.std(errors, axis=0), std, rtol=0.1, atol=1e-12)
+    np.testing.assert_array_equal(model.imu().angular_velocity, truth.imu().angular_velocity)  # imu=False: the robot's own

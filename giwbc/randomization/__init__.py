@@ -1,6 +1,8 @@
 """Domain randomization: physics parameters, sensors, actuators, pushes, and the engine itself.
 
-Usage, in a simulated runtime (see :class:`DomainRandomizer`)::
+In an environment: ``gymnasium.make(env_id, randomization=config, engine=...)`` (a config dict, a
+TOML path, ``"default"`` for the robot's ``randomization.toml``); the simulated runtime samples
+and applies it at every reset from its seeded generator. By hand (see :class:`DomainRandomizer`)::
 
     randomizer = DomainRandomizer(config_dict, description)   # validated here, errors name the entry
     robot = PerturbedRobot(MujocoRobot(description))           # or PybulletRobot(description)
@@ -19,7 +21,7 @@ from giwbc.randomization.engine import ENGINES, EngineChoice, build_robot
 from giwbc.randomization.parameters import PARAMETERS, Nominal, ParameterSpec
 from giwbc.randomization.perturbed import PerturbedRobot
 from giwbc.randomization.pinocchio import randomized_pinocchio_model
-from giwbc.randomization.randomizer import DomainRandomizer, Randomization, make_applier
+from giwbc.randomization.randomizer import DomainRandomizer, Randomization, default_config_path, make_applier, make_randomizer
 from giwbc.randomization.sampling import Push, Sample, sample_group
 
 
@@ -39,7 +41,9 @@ __all__ = [
     "Randomization",
     "Sample",
     "build_robot",
+    "default_config_path",
     "make_applier",
+    "make_randomizer",
     "randomized_pinocchio_model",
     "sample_group",
 ]

@@ -1,15 +1,20 @@
 """Robot-level randomization: a Robot wrapper that any simulated robot (MuJoCo or PyBullet) runs through.
 
-:class:`PerturbedRobot` adds what a physics model does not hold: actuator latency (commands reach
-the engine ``actuator_latency`` physics steps late), PD gain scales (on impedance commands),
-sensor noise and bias (joint encoders, gyro, accelerometer, IMU orientation), IMU latency, and a
-push schedule. It is a ``SimulatedRobot`` itself (``step``, ``reset``, ``set_external_wrench``), so a
-runtime steps it exactly as it steps the engine robot; ``step(n)`` splits at the physics steps
-where a delayed command, a push start or end falls due (and steps one by one while the IMU is
-delayed, to record its history). Noise is drawn from a generator seeded by the episode sample, once
-per physics step: reading twice in the same step gives the same value. Base state, link poses and
-contact wrenches pass through untouched (ground truth, for rewards and estimators), and so do the
-engine's raw ``sensor(name)`` channels.
+:class:`PerturbedRobot` adds what a physics model does not hold, and is the one place giwbc
+implements each of these effects (the runtime's ``SimToReal`` knobs for actuator delay and pushes
+are turned into randomization entries applied here):
+
+* actuator latency: commands reach the engine ``actuator_latency`` physics steps late;
+* PD gain scales on impedance commands;
+* sensor noise, bias and IMU latency, through a :class:`~giwbc.robot.noise.SensorModel` built
+  from the episode sample (the same model :class:`~giwbc.robot.noise.NoisyRobot` uses);
+* a push schedule (world forces on a link, drawn per episode).
+
+It is a ``SimulatedRobot`` itself (``step``, ``reset``, ``set_external_wrench``), so a runtime steps
+it exactly as it steps the engine robot; ``step(n)`` splits at the physics steps where a delayed
+command, a push start or end falls due (and steps one by one while the IMU is delayed, to sample
+it at every step). Base state, link poses and contact wrenches pass through untouched (ground
+truth, for rewards), and so do the engine's raw ``sensor(name)`` channels.
 """
 
 from __future__ import annotations
@@ -23,28 +28,7 @@ import numpy as np
 
 from giwbc.randomization.sampling import Push, Sample
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
-
-
-def _rotation_quaternion(rotation_vector: np.ndarray) -> np.ndarray:
-    """``(x, y, z, w)`` of a rotation vector (axis * angle)."""
-    angle = float(np.linalg.norm(rotation_vector))
-    if angle < 1e-12:
-        return np.array([*(0.5 * rotation_vector), 1.0]) / np.sqrt(1 + 0.25 * angle**2)
-    axis = rotation_vector / angle
-    return np.array([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
-
-
-def _quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
+from giwbc.robot.noise import SensorErrors, SensorModel
 
 
 class PerturbedRobot(Robot):
@@ -58,21 +42,18 @@ class PerturbedRobot(Robot):
         n = robot.dofs
         self.latency = 0
         self.kp_scale, self.kd_scale = np.ones(n), np.ones(n)
-        self.position_noise, self.position_bias, self.velocity_noise = np.zeros(n), np.zeros(n), np.zeros(n)
-        self.gyro_noise, self.accelerometer_noise, self.orientation_noise = 0.0, 0.0, 0.0
-        self.gyro_bias, self.accelerometer_bias = np.zeros(3), np.zeros(3)
-        self.imu_latency = 0
+        self.sensors: SensorModel | None = None  # None: readings are the engine's
         self.pushes: tuple[Push, ...] = ()
-        self._rng = np.random.default_rng(0)
+        description = getattr(robot, "description", None)
+        self._has_imu = description is None or getattr(description, "imu_frame", None) is not None
         self._tick = 0
         self._queue: deque[tuple[int, str, Any]] = deque()
-        self._events: list[tuple[int, str, np.ndarray]] = []  # (tick, link, force): push starts and ends
+        self._events: list[tuple[int, str, np.ndarray, bool]] = []  # (tick, link, force, is_start)
         self._event_index = 0
+        self._push_starts = np.zeros(0, dtype=int)
         self._user_wrenches: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        self._push_force: dict[str, np.ndarray] = {}
-        self._imu_history: deque[ImuReading] = deque(maxlen=1)
-        self._noise_tick = -1
-        self._noise: dict[str, np.ndarray] = {}
+        self._push_force: dict[str, np.ndarray] = {}  # applied from now on
+        self._acting: dict[str, np.ndarray] = {}  # applied over the last physics step
 
     def __getattr__(self, name: str) -> Any:
         """Everything else (``model``, ``data``, ``description``, ``sensor``, ``client``...) is the engine's."""
@@ -89,28 +70,14 @@ class PerturbedRobot(Robot):
             self.kp_scale, self.kd_scale = physics["kp_scale"].copy(), physics["kd_scale"].copy()
         else:
             self.latency, self.kp_scale, self.kd_scale = 0, np.ones(n), np.ones(n)
+        self.sensors = None
+        self.pushes = ()
         if episode is not None:
-            self.position_noise = episode["joint_position_noise"].copy()
-            self.position_bias = episode["joint_position_bias"].copy()
-            self.velocity_noise = episode["joint_velocity_noise"].copy()
-            self.gyro_noise, self.gyro_bias = episode.scalar("gyro_noise"), episode["gyro_bias"].copy()
-            self.accelerometer_noise = episode.scalar("accelerometer_noise")
-            self.accelerometer_bias = episode["accelerometer_bias"].copy()
-            self.orientation_noise = episode.scalar("imu_orientation_noise")
-            self.imu_latency = int(episode.scalar("imu_latency"))
+            errors = SensorErrors.from_sample(episode)
+            if not errors.is_ideal():
+                self.sensors = SensorModel(self.inner, errors, np.random.default_rng(episode.noise_seed), imu=self._has_imu)
             self.pushes = episode.pushes
-            self._rng = np.random.default_rng(episode.noise_seed)
-        else:
-            self.position_noise, self.position_bias, self.velocity_noise = np.zeros(n), np.zeros(n), np.zeros(n)
-            self.gyro_noise = self.accelerometer_noise = self.orientation_noise = 0.0
-            self.gyro_bias, self.accelerometer_bias = np.zeros(3), np.zeros(3)
-            self.imu_latency, self.pushes = 0, ()
         self._schedule_pushes()
-        self._start_imu_history()
-
-    def _start_imu_history(self) -> None:
-        """Readings of the last ``imu_latency + 1`` physics steps (only kept while the IMU is delayed)."""
-        self._imu_history = deque([self.inner.imu()] if self.imu_latency else [], maxlen=self.imu_latency + 1)
 
     def _schedule_pushes(self) -> None:
         dt = self.timestep
@@ -118,9 +85,10 @@ class PerturbedRobot(Robot):
         for push in self.pushes:
             start = max(0, int(round(push.start / dt)))
             end = start + max(1, int(round(push.duration / dt)))
-            events += [(start, push.link, push.force), (end, push.link, np.zeros(3))]
+            events += [(start, push.link, push.force, True), (end, push.link, np.zeros(3), False)]
         self._events = sorted(events, key=lambda event: event[0])
         self._event_index = 0
+        self._push_starts = np.array(sorted(tick for tick, _, _, start in events if start), dtype=int)
 
     @property
     def timestep(self) -> float:
@@ -134,6 +102,10 @@ class PerturbedRobot(Robot):
         """Physics steps since the last reset."""
         return self._tick
 
+    @property
+    def _records_every_step(self) -> bool:
+        return self.sensors is not None and self.sensors.errors.latency > 0
+
     # --- simulation -----------------------------------------------------------------------------
     def reset(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> None:
         self.inner.reset(q, v)
@@ -141,22 +113,25 @@ class PerturbedRobot(Robot):
         self._queue.clear()
         self._event_index = 0
         self._push_force.clear()
+        self._acting = {}
         self._user_wrenches.clear()  # the engines' reset clears external wrenches too
-        self._start_imu_history()
-        self._noise_tick = -1
+        if self.sensors is not None:
+            self.sensors.restart()
+            if self._records_every_step:
+                self.sensors.record()
         self._release()
 
     def step(self, n: int = 1) -> None:
         """Advance ``n`` physics steps, applying delayed commands and push changes on their step."""
         end = self._tick + int(n)
+        every_step = self._records_every_step
         while self._tick < end:
-            following = min(end, self._next_event())
-            if self.imu_latency:
-                following = self._tick + 1
+            following = self._tick + 1 if every_step else min(end, self._next_event())
+            self._acting = dict(self._push_force)
             self.inner.step(following - self._tick)
             self._tick = following
-            if self.imu_latency:
-                self._imu_history.append(self.inner.imu())
+            if every_step:
+                self.sensors.record()
             self._release()
 
     def _next_event(self) -> float:
@@ -170,7 +145,7 @@ class PerturbedRobot(Robot):
             _, kind, payload = self._queue.popleft()
             self._forward(kind, payload)
         while self._event_index < len(self._events) and self._events[self._event_index][0] <= self._tick:
-            _, link, force = self._events[self._event_index]
+            _, link, force, _ = self._events[self._event_index]
             self._push_force[link] = force
             self._apply_wrench(link)
             self._event_index += 1
@@ -186,8 +161,18 @@ class PerturbedRobot(Robot):
 
     @property
     def push_force(self) -> dict[str, np.ndarray]:
-        """The push currently applied, per link."""
+        """The push applied from now on, per link."""
         return {link: force.copy() for link, force in self._push_force.items() if force.any()}
+
+    @property
+    def acting_push_force(self) -> np.ndarray:
+        """The total push force that acted over the last physics step (world frame, N)."""
+        return sum((force for force in self._acting.values()), np.zeros(3))
+
+    @property
+    def pushes_applied(self) -> int:
+        """Pushes that have acted on the robot since the reset (started before the current physics step)."""
+        return int(np.searchsorted(self._push_starts, self._tick, side="left"))
 
     # --- commands -------------------------------------------------------------------------------
     def set_joint_torques(self, torques: np.ndarray) -> None:
@@ -223,51 +208,28 @@ class PerturbedRobot(Robot):
             self.inner.set_joint_impedance(payload)
 
     # --- reads ----------------------------------------------------------------------------------
-    def _draw(self) -> dict[str, np.ndarray]:
-        """This physics step's noise (drawn once per step, in a fixed order)."""
-        if self._noise_tick != self._tick:
-            rng, n = self._rng, self.dofs
-            self._noise = {
-                "position": rng.standard_normal(n) * self.position_noise,
-                "velocity": rng.standard_normal(n) * self.velocity_noise,
-                "gyro": rng.standard_normal(3) * self.gyro_noise,
-                "accelerometer": rng.standard_normal(3) * self.accelerometer_noise,
-                "orientation": rng.standard_normal(3) * self.orientation_noise,
-            }
-            self._noise_tick = self._tick
-        return self._noise
-
     def joint_positions(self) -> np.ndarray:
-        return self.inner.joint_positions() + self.position_bias + self._draw()["position"]
+        return self.inner.joint_positions() if self.sensors is None else self.sensors.joint_positions()
 
     def joint_velocities(self) -> np.ndarray:
-        return self.inner.joint_velocities() + self._draw()["velocity"]
+        return self.inner.joint_velocities() if self.sensors is None else self.sensors.joint_velocities()
 
     def joint_efforts(self) -> np.ndarray:
-        return self.inner.joint_efforts()
+        return self.inner.joint_efforts() if self.sensors is None else self.sensors.joint_efforts()
 
     def imu(self) -> ImuReading:
         """The IMU reading ``imu_latency`` physics steps old, with bias and noise."""
-        true = self._imu_history[0] if self.imu_latency else self.inner.imu()
-        noise = self._draw()
-        quaternion = true.quaternion
-        if self.orientation_noise:
-            quaternion = _quat_multiply(quaternion, _rotation_quaternion(noise["orientation"]))
-        return ImuReading(
-            quaternion,
-            true.angular_velocity + self.gyro_bias + noise["gyro"],
-            true.linear_acceleration + self.accelerometer_bias + noise["accelerometer"],
-            true.time,
-        )
+        return self.inner.imu() if self.sensors is None else self.sensors.imu()
 
     def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """Engine base state (ground truth) with the noisy joint readings."""
+        """Engine base state (ground truth) with the measured joint readings."""
         q, v = self.inner.generalized_state()
+        if self.sensors is None:
+            return q, v
         n = self.dofs
         q, v = q.copy(), v.copy()
-        noise = self._draw()
-        q[-n:] += self.position_bias + noise["position"]
-        v[-n:] += noise["velocity"]
+        q[-n:] = self.sensors.joint_positions()
+        v[-n:] = self.sensors.joint_velocities()
         return q, v
 
     def base_state(self) -> BaseState:
@@ -294,4 +256,3 @@ class PerturbedRobot(Robot):
 
     def time(self) -> float:
         return self.inner.time()
-

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import weakref
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, Union
 
 import numpy as np
 
@@ -14,6 +16,10 @@ from giwbc.randomization.perturbed import PerturbedRobot
 from giwbc.randomization.sampling import Sample, sample_group
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
+
+DEFAULT_CONFIG_NAME = "randomization.toml"  # in a robot's folder: what ``"default"`` names
+
+RandomizerSpec = Union["DomainRandomizer", RandomizationConfig, dict, str, os.PathLike, None]
 
 
 @dataclass(frozen=True)
@@ -98,3 +104,29 @@ def make_applier(engine: Robot, config: RandomizationConfig) -> Any:
 
         return PybulletApplier(engine, config.nominal)
     raise RandomizationError(f"cannot randomize the physics of {type(engine).__name__}: not a MuJoCo or PyBullet robot")
+
+
+def default_config_path(description: RobotDescription) -> Path:
+    """The robot's shipped randomization config (``robots/<name>/randomization.toml``)."""
+    return Path(description.folder) / DEFAULT_CONFIG_NAME
+
+
+def make_randomizer(spec: RandomizerSpec, description: RobotDescription) -> DomainRandomizer | None:
+    """A randomizer from what a user gives: a DomainRandomizer (as is), a RandomizationConfig, a config
+    dict, a TOML file path (or TOML text), ``"default"`` (the robot's shipped config), or ``None``."""
+    if spec is None or isinstance(spec, DomainRandomizer):
+        return spec
+    if isinstance(spec, (RandomizationConfig, dict)):
+        return DomainRandomizer(spec, description)
+    if isinstance(spec, (str, os.PathLike)):
+        if spec == "default":
+            spec = default_config_path(description)
+            if not spec.is_file():
+                raise RandomizationError(f"robot {description.name!r} ships no default randomization config ({spec} is missing)")
+        text = str(spec)
+        if "\n" not in text and "=" not in text and not Path(text).is_file():
+            raise RandomizationError(f"randomization config file {text!r} does not exist")
+        return DomainRandomizer(RandomizationConfig.from_toml(spec, description), description)
+    raise RandomizationError(
+        f"randomization must be a config dict, a TOML path, 'default', a RandomizationConfig or a DomainRandomizer, got {type(spec).__name__}"
+    )

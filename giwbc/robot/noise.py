@@ -1,20 +1,24 @@
 """Sensor noise and latency: what a real robot's IMU, encoders and torque estimates add to the truth.
 
-:class:`NoisyRobot` wraps any :class:`~giwbc.robot.interface.Robot` (a ``MujocoRobot`` in
-simulation) and reports only what a robot on a CAN bus measures, corrupted by a
-:class:`SensorNoiseConfig`: the IMU (orientation, gyro, accelerometer) and the joints (positions,
-velocities, efforts). Commands pass through unchanged.
+The one implementation of sensor errors in giwbc is :class:`SensorModel`: bias (constant plus
+random walk), white noise, encoder quantization, saturation, IMU dropout and latency, applied to
+true readings sampled from a robot. Two wrappers use it:
 
-What it does *not* report: the base pose and twist, link poses and contact wrenches. On hardware
-nothing measures them, so :meth:`NoisyRobot.base_state`, :meth:`~NoisyRobot.link_pose`,
-:meth:`~NoisyRobot.contact_wrench` (and hence ``generalized_state``) raise
-:class:`NotMeasuredError`; a state estimator (:mod:`giwbc.robot.estimator`) provides them, and
-the truth stays reachable for evaluation as :attr:`NoisyRobot.ground_truth`.
+* :class:`NoisyRobot` wraps any :class:`~giwbc.robot.interface.Robot` (a ``MujocoRobot`` in
+  simulation) and reports only what a robot on a CAN bus measures, with the errors of a
+  :class:`SensorNoiseConfig` (noise densities, turn-on biases drawn once): the IMU and the joints.
+  It does *not* report the base pose and twist, link poses and contact wrenches: on hardware
+  nothing measures them, so :meth:`NoisyRobot.base_state`, :meth:`~NoisyRobot.link_pose`,
+  :meth:`~NoisyRobot.contact_wrench` (and hence ``generalized_state``) raise
+  :class:`NotMeasuredError`; a state estimator (:mod:`giwbc.robot.estimator`) provides them, and
+  the truth stays reachable for evaluation as :attr:`NoisyRobot.ground_truth`.
+* :class:`~giwbc.randomization.PerturbedRobot` builds a :class:`SensorModel` from each episode's
+  randomized noise and bias (:meth:`SensorErrors.from_sample`) and passes the ground truth through.
 
-Sampling: the wrapper takes one sample of every channel per distinct ``robot.time()`` it is read
-at; latency counts those samples. Every random draw goes through the ``numpy.random.Generator``
-given to it, in a fixed order per sample, so the same seed and the same read times give the same
-noise.
+Sampling: a model takes one sample of every channel per distinct ``robot.time()`` it is read at
+(or per physics step, when its owner records every step); latency counts those samples. Every
+random draw goes through the ``numpy.random.Generator`` given to it, in a fixed order per sample,
+so the same seed and the same read times give the same noise.
 """
 
 from __future__ import annotations
@@ -22,17 +26,76 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import asdict, dataclass, fields
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from giwbc.robot.estimation.so3 import quat_multiply
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
 
-__all__ = ["NoisyRobot", "NotMeasuredError", "SensorNoiseConfig"]
+if TYPE_CHECKING:
+    from giwbc.randomization.sampling import Sample
+
+__all__ = ["NoisyRobot", "NotMeasuredError", "SensorErrors", "SensorModel", "SensorNoiseConfig"]
 
 
 class NotMeasuredError(RuntimeError):
     """A quantity a real robot does not measure (base pose/twist, link poses, contact wrenches)."""
+
+
+@dataclass(frozen=True)
+class SensorErrors:
+    """Per-sample error parameters of every channel: standard deviations, biases, ranges, latencies.
+
+    Joint entries are scalars or one value per joint; IMU biases are 3-vectors (the initial bias,
+    which then random-walks by ``*_bias_walk`` per sqrt(second) of elapsed time).
+    """
+
+    joint_position_noise: np.ndarray | float = 0.0  # rad
+    joint_position_bias: np.ndarray | float = 0.0  # rad
+    joint_velocity_noise: np.ndarray | float = 0.0  # rad/s
+    joint_effort_noise: np.ndarray | float = 0.0  # N m
+    encoder_resolution: float = 0.0  # rad (0: no quantization)
+    gyro_noise: float = 0.0  # rad/s
+    gyro_bias: np.ndarray | float = 0.0  # rad/s
+    gyro_bias_walk: float = 0.0  # rad/s/sqrt(s)
+    accel_noise: float = 0.0  # m/s^2
+    accel_bias: np.ndarray | float = 0.0  # m/s^2
+    accel_bias_walk: float = 0.0  # m/s^2/sqrt(s)
+    orientation_noise: float = 0.0  # rad per axis
+    gyro_range: float = math.inf  # rad/s, per-axis saturation
+    accel_range: float = math.inf  # m/s^2
+    imu_dropout: float = 0.0  # probability a sample repeats the previous IMU sample
+    imu_latency: int = 0  # samples
+    joint_latency: int = 0  # samples
+
+    @classmethod
+    def from_sample(cls, episode: "Sample") -> "SensorErrors":
+        """The sensor part of a randomization episode sample (per-joint noise and bias, IMU latency)."""
+        return cls(
+            joint_position_noise=episode["joint_position_noise"].copy(),
+            joint_position_bias=episode["joint_position_bias"].copy(),
+            joint_velocity_noise=episode["joint_velocity_noise"].copy(),
+            gyro_noise=episode.scalar("gyro_noise"),
+            gyro_bias=episode["gyro_bias"].copy(),
+            accel_noise=episode.scalar("accelerometer_noise"),
+            accel_bias=episode["accelerometer_bias"].copy(),
+            orientation_noise=episode.scalar("imu_orientation_noise"),
+            imu_latency=int(episode.scalar("imu_latency")),
+        )
+
+    @property
+    def latency(self) -> int:
+        return int(max(self.imu_latency, self.joint_latency))
+
+    def is_ideal(self) -> bool:
+        """No error at all: readings are the truth (a wrapper may then skip the model)."""
+        arrays = (self.joint_position_noise, self.joint_position_bias, self.joint_velocity_noise, self.joint_effort_noise,
+                  self.gyro_bias, self.accel_bias)
+        scalars = (self.encoder_resolution, self.gyro_noise, self.gyro_bias_walk, self.accel_noise, self.accel_bias_walk,
+                   self.orientation_noise, self.imu_dropout, self.latency)
+        ranges = (self.gyro_range, self.accel_range)
+        return not any(np.any(a) for a in arrays) and not any(scalars) and all(r == math.inf for r in ranges)
 
 
 @dataclass(frozen=True)
@@ -84,40 +147,39 @@ class SensorNoiseConfig:
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
 
+    def errors(self, rng: np.random.Generator) -> SensorErrors:
+        """Per-sample errors: densities over the sample period; turn-on biases drawn now (gyro, then accelerometer)."""
+        root = 1.0 / math.sqrt(self.sample_period)
+        gyro_bias = self.gyro_bias * rng.standard_normal(3)
+        accel_bias = self.accel_bias * rng.standard_normal(3)
+        return SensorErrors(
+            joint_position_noise=self.joint_position_noise,
+            joint_velocity_noise=self.joint_velocity_noise,
+            joint_effort_noise=self.joint_effort_noise,
+            encoder_resolution=self.encoder_resolution,
+            gyro_noise=self.gyro_noise_density * root,
+            gyro_bias=gyro_bias,
+            gyro_bias_walk=self.gyro_bias_random_walk,
+            accel_noise=self.accel_noise_density * root,
+            accel_bias=accel_bias,
+            accel_bias_walk=self.accel_bias_random_walk,
+            orientation_noise=self.orientation_noise,
+            gyro_range=self.gyro_range,
+            accel_range=self.accel_range,
+            imu_dropout=self.imu_dropout,
+            imu_latency=int(self.imu_latency),
+            joint_latency=int(self.joint_latency),
+        )
+
 
 @dataclass(frozen=True)
 class _Sample:
     """Every measured channel at one time: what one read of the sensors returns."""
 
-    imu: ImuReading
+    imu: ImuReading | None
     positions: np.ndarray
     velocities: np.ndarray
     efforts: np.ndarray
-
-
-class _ImuNoise:
-    """Turns a true IMU reading into a measured one: bias, white noise, saturation."""
-
-    def __init__(self, config: SensorNoiseConfig, rng: np.random.Generator) -> None:
-        self.config = config
-        self.gyro_bias = config.gyro_bias * rng.standard_normal(3)
-        self.accel_bias = config.accel_bias * rng.standard_normal(3)
-        root = 1.0 / math.sqrt(config.sample_period)
-        self._gyro_std, self._accel_std = config.gyro_noise_density * root, config.accel_noise_density * root
-
-    def measure(self, truth: ImuReading, elapsed: float, draws: np.ndarray) -> ImuReading:
-        """``draws``: 15 standard normals (gyro, gyro walk, accel, accel walk, orientation)."""
-        c, walk = self.config, math.sqrt(max(elapsed, 0.0))
-        self.gyro_bias = self.gyro_bias + c.gyro_bias_random_walk * walk * draws[3:6]
-        self.accel_bias = self.accel_bias + c.accel_bias_random_walk * walk * draws[9:12]
-        gyro = np.asarray(truth.angular_velocity, float) + self.gyro_bias + self._gyro_std * draws[0:3]
-        accel = np.asarray(truth.linear_acceleration, float) + self.accel_bias + self._accel_std * draws[6:9]
-        return ImuReading(
-            _perturb(np.asarray(truth.quaternion, float), c.orientation_noise * draws[12:15]),
-            np.minimum(np.maximum(gyro, -c.gyro_range), c.gyro_range),
-            np.minimum(np.maximum(accel, -c.accel_range), c.accel_range),
-            truth.time,
-        )
 
 
 def _perturb(quaternion: np.ndarray, rotation_vector: np.ndarray) -> np.ndarray:
@@ -128,6 +190,101 @@ def _perturb(quaternion: np.ndarray, rotation_vector: np.ndarray) -> np.ndarray:
     half = 0.5 * angle
     delta = np.concatenate([math.sin(half) / angle * rotation_vector, [math.cos(half)]])
     return quat_multiply(quaternion, delta)
+
+
+class SensorModel:
+    """Turns a robot's true readings into measured ones, one sample per distinct robot time.
+
+    ``imu=False`` for a robot without an IMU (its joints are still measured). A time going
+    backwards (a reset) restarts the latency buffer; biases persist, as they would across a
+    controller restart. :meth:`record` forces a sample now (an owner calling it after every physics
+    step makes latency count physics steps).
+    """
+
+    def __init__(self, robot: Robot, errors: SensorErrors, rng: np.random.Generator, *, imu: bool = True) -> None:
+        self.robot = robot
+        self.errors = errors
+        self._rng = rng
+        self._imu = imu
+        self._dofs = robot.dofs
+        self.gyro_bias = np.broadcast_to(np.asarray(errors.gyro_bias, dtype=float), (3,)).copy()
+        self.accel_bias = np.broadcast_to(np.asarray(errors.accel_bias, dtype=float), (3,)).copy()
+        self._buffer: deque[_Sample] = deque(maxlen=errors.latency + 1)
+        self._sample_time: float | None = None
+
+    def restart(self) -> None:
+        """Forget the buffered samples (the robot was reset)."""
+        self._buffer.clear()
+        self._sample_time = None
+
+    # --- reads ------------------------------------------------------------------------------
+    def imu(self) -> ImuReading:
+        reading = self._delayed(self.errors.imu_latency).imu
+        if reading is None:
+            return self.robot.imu()  # the robot's own error: it has no IMU
+        return reading
+
+    def joint_positions(self) -> np.ndarray:
+        return self._delayed(self.errors.joint_latency).positions.copy()
+
+    def joint_velocities(self) -> np.ndarray:
+        return self._delayed(self.errors.joint_latency).velocities.copy()
+
+    def joint_efforts(self) -> np.ndarray:
+        return self._delayed(self.errors.joint_latency).efforts.copy()
+
+    # --- sampling -------------------------------------------------------------------------
+    def _delayed(self, latency: int) -> _Sample:
+        self._refresh()
+        return self._buffer[max(0, len(self._buffer) - 1 - int(latency))]
+
+    def _refresh(self) -> None:
+        """Take a new sample when the robot's time has moved since the last one."""
+        if self._sample_time is None or self.robot.time() != self._sample_time:
+            self.record()
+
+    def record(self) -> None:
+        """Sample every channel now."""
+        now = self.robot.time()
+        if self._sample_time is not None and now < self._sample_time:
+            self._buffer.clear()
+        elapsed = 0.0 if self._sample_time is None or not self._buffer else now - self._sample_time
+        self._sample_time = now
+        self._buffer.append(self._sample(elapsed))
+
+    def _sample(self, elapsed: float) -> _Sample:
+        robot, e, n = self.robot, self.errors, self._dofs
+        draws = self._rng.standard_normal(15 + 3 * n)  # fixed order: IMU (15), positions, velocities, efforts
+        dropped = self._rng.random() < e.imu_dropout
+        imu = None
+        if self._imu:
+            imu = self._measure_imu(robot.imu(), elapsed, draws[:15])
+            if dropped and self._buffer:
+                imu = self._buffer[-1].imu
+        positions = robot.joint_positions() + e.joint_position_bias + e.joint_position_noise * draws[15 : 15 + n]
+        if e.encoder_resolution > 0:
+            positions = np.round(positions / e.encoder_resolution) * e.encoder_resolution
+        velocities = robot.joint_velocities() + e.joint_velocity_noise * draws[15 + n : 15 + 2 * n]
+        efforts = robot.joint_efforts() + e.joint_effort_noise * draws[15 + 2 * n :]
+        return _Sample(imu, positions, velocities, efforts)
+
+    def _measure_imu(self, truth: ImuReading, elapsed: float, draws: np.ndarray) -> ImuReading:
+        """``draws``: 15 standard normals (gyro, gyro walk, accel, accel walk, orientation)."""
+        e, walk = self.errors, math.sqrt(max(elapsed, 0.0))
+        if e.gyro_bias_walk:
+            self.gyro_bias = self.gyro_bias + e.gyro_bias_walk * walk * draws[3:6]
+        if e.accel_bias_walk:
+            self.accel_bias = self.accel_bias + e.accel_bias_walk * walk * draws[9:12]
+        gyro = np.asarray(truth.angular_velocity, float) + self.gyro_bias + e.gyro_noise * draws[0:3]
+        accel = np.asarray(truth.linear_acceleration, float) + self.accel_bias + e.accel_noise * draws[6:9]
+        if e.gyro_range < math.inf:
+            gyro = np.minimum(np.maximum(gyro, -e.gyro_range), e.gyro_range)
+        if e.accel_range < math.inf:
+            accel = np.minimum(np.maximum(accel, -e.accel_range), e.accel_range)
+        quaternion = np.asarray(truth.quaternion, float)
+        if e.orientation_noise:
+            quaternion = _perturb(quaternion, e.orientation_noise * draws[12:15])
+        return ImuReading(quaternion, gyro, accel, truth.time)
 
 
 class NoisyRobot(Robot):
@@ -143,11 +300,7 @@ class NoisyRobot(Robot):
             raise ValueError("NoisyRobot needs a seeded numpy.random.Generator (rng=np.random.default_rng(seed))")
         self.ground_truth = robot
         self.config = config if config is not None else SensorNoiseConfig()
-        self._rng = rng
-        self._imu_noise = _ImuNoise(self.config, rng)
-        self._dofs = robot.dofs
-        self._buffer: deque[_Sample] = deque(maxlen=int(max(self.config.imu_latency, self.config.joint_latency)) + 1)
-        self._sample_time: float | None = None
+        self.sensors = SensorModel(robot, self.config.errors(rng), rng)
 
     # --- identity -------------------------------------------------------------------------
     @property
@@ -167,16 +320,16 @@ class NoisyRobot(Robot):
 
     # --- measured ---------------------------------------------------------------------------
     def imu(self) -> ImuReading:
-        return self._delayed(self.config.imu_latency).imu
+        return self.sensors.imu()
 
     def joint_positions(self) -> np.ndarray:
-        return self._delayed(self.config.joint_latency).positions.copy()
+        return self.sensors.joint_positions()
 
     def joint_velocities(self) -> np.ndarray:
-        return self._delayed(self.config.joint_latency).velocities.copy()
+        return self.sensors.joint_velocities()
 
     def joint_efforts(self) -> np.ndarray:
-        return self._delayed(self.config.joint_latency).efforts.copy()
+        return self.sensors.joint_efforts()
 
     # --- not measured on hardware -------------------------------------------------------------
     def base_state(self) -> BaseState:
@@ -197,33 +350,3 @@ class NoisyRobot(Robot):
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
         self.ground_truth.set_joint_impedance(command)
-
-    # --- sampling -------------------------------------------------------------------------
-    def _delayed(self, latency: int) -> _Sample:
-        self._refresh()
-        return self._buffer[max(0, len(self._buffer) - 1 - int(latency))]
-
-    def _refresh(self) -> None:
-        """Take a new sample when the wrapped robot's time has moved since the last one."""
-        now = self.ground_truth.time()
-        if self._sample_time is not None and now == self._sample_time:
-            return
-        if self._sample_time is not None and now < self._sample_time:
-            self._buffer.clear()
-        elapsed = 0.0 if self._sample_time is None or not self._buffer else now - self._sample_time
-        self._sample_time = now
-        self._buffer.append(self._sample(elapsed))
-
-    def _sample(self, elapsed: float) -> _Sample:
-        robot, c, n = self.ground_truth, self.config, self._dofs
-        draws = self._rng.standard_normal(15 + 3 * n)
-        dropped = self._rng.random() < c.imu_dropout
-        imu = self._imu_noise.measure(robot.imu(), elapsed, draws[:15])
-        if dropped and self._buffer:
-            imu = self._buffer[-1].imu
-        positions = robot.joint_positions() + c.joint_position_noise * draws[15 : 15 + n]
-        if c.encoder_resolution > 0:
-            positions = np.round(positions / c.encoder_resolution) * c.encoder_resolution
-        velocities = robot.joint_velocities() + c.joint_velocity_noise * draws[15 + n : 15 + 2 * n]
-        efforts = robot.joint_efforts() + c.joint_effort_noise * draws[15 + 2 * n :]
-        return _Sample(imu, positions, velocities, efforts)

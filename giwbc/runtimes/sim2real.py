@@ -1,22 +1,33 @@
 """Sim-to-real knobs of a simulated runtime: observation noise, action latency, actuator delay, pushes.
 
+Where each effect lives (one implementation each):
+
+* ``observation_noise`` and ``action_latency`` act between the agent and the task (on the policy's
+  observation and action), so the runtime applies them (:class:`ActionQueue` here);
+* ``actuator_delay`` and ``pushes`` act on the robot, like the domain randomizer's
+  ``actuator_latency`` and push schedule: they are turned into fixed randomization entries
+  (:meth:`SimToReal.robot_entries`) that :class:`~giwbc.randomization.PerturbedRobot` applies,
+  on either physics engine. Sensor noise is the robot's too (:mod:`giwbc.robot.noise`).
+
 Every knob counts time in physics steps, the only clock a simulation has, and every random draw
 goes through the runtime's seeded ``numpy.random.Generator`` so that seeded runs stay bit-identical.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
-
 if TYPE_CHECKING:
-    from giwbc.robot.mujoco_robot import MujocoRobot
+    from giwbc.randomization import RandomizationConfig
+    from giwbc.robot.description import RobotDescription
+
+ROBOT_SIDE = frozenset({"actuator_latency", "push_interval", "push_force", "push_duration"})
 
 
 @dataclass(frozen=True)
@@ -25,13 +36,15 @@ class PushConfig:
 
     A push lasts ``duration`` s with a magnitude uniform in ``force`` (N) and a uniform random
     direction in the horizontal plane; the wait before each push is uniform in ``interval`` (s),
-    counted from the end of the previous one (from the reset for the first).
+    counted from the end of the previous one (from the reset for the first). Pushes are drawn at
+    reset for the first ``horizon`` seconds of the episode.
     """
 
     interval: tuple[float, float] = (1.0, 3.0)
     duration: float = 0.1
     force: tuple[float, float] = (40.0, 120.0)
     link: str | None = None
+    horizon: float = 60.0
 
     def __post_init__(self) -> None:
         low, high = self.interval
@@ -41,6 +54,17 @@ class PushConfig:
             raise ValueError(f"push force must satisfy 0 <= low <= high, got {self.force}")
         if not (0 < self.duration < math.inf):
             raise ValueError(f"push duration must be positive, got {self.duration}")
+        if not (0 < self.horizon < math.inf):
+            raise ValueError(f"push horizon must be a positive number of seconds, got {self.horizon}")
+
+    def entries(self) -> list[dict[str, Any]]:
+        """The same pushes as randomization config entries."""
+        link = {"link": self.link} if self.link is not None else {}
+        return [
+            {"parameter": "push_interval", "distribution": "uniform", "low": self.interval[0], "high": self.interval[1], "operation": "absolute"},
+            {"parameter": "push_duration", "distribution": "uniform", "low": self.duration, "high": self.duration, "operation": "absolute"},
+            {"parameter": "push_force", "distribution": "uniform", "low": self.force[0], "high": self.force[1], "operation": "absolute", **link},
+        ]
 
 
 @dataclass(frozen=True)
@@ -67,6 +91,8 @@ class SimToReal:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
                 raise ValueError(f"{name} is a number of physics steps (int >= 0), got {value!r}")
+        if self.pushes is not None and not isinstance(self.pushes, PushConfig):
+            raise ValueError(f"pushes must be a PushConfig (or a dict of its fields) or None, got {self.pushes!r}")
 
     def noise_std(self, size: int) -> np.ndarray:
         """The noise standard deviation per observation entry."""
@@ -86,6 +112,45 @@ class SimToReal:
             pushes = PushConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in pushes.items()})
         noise = values.pop("observation_noise", 0.0)
         return cls(observation_noise=tuple(noise) if isinstance(noise, (list, np.ndarray)) else noise, pushes=pushes, **values)
+
+    def robot_entries(self) -> list[dict[str, Any]]:
+        """The robot-side knobs (actuator delay, pushes) as fixed randomization config entries."""
+        entries = []
+        if self.actuator_delay:
+            delay = float(self.actuator_delay)
+            entries.append({"parameter": "actuator_latency", "distribution": "uniform", "low": delay, "high": delay, "operation": "absolute"})
+        if self.pushes is not None:
+            entries += self.pushes.entries()
+        return entries
+
+    def merged_into(self, config: "RandomizationConfig | None", description: "RobotDescription") -> "RandomizationConfig | None":
+        """``config`` with the robot-side knobs added in front (``None`` if neither has anything).
+
+        A robot-side effect is set in one place: a config that also randomizes the actuator latency
+        (with ``actuator_delay`` set) or pushes (with ``pushes`` set) is an error.
+        """
+        from giwbc.randomization import RandomizationConfig, RandomizationError
+
+        entries = self.robot_entries()
+        if not entries:
+            return config
+        horizon = self.pushes.horizon if self.pushes is not None else 60.0
+        knobs = RandomizationConfig.from_dict({"parameters": entries, "push_horizon": horizon}, description)
+        if config is None:
+            return knobs
+        clashes = []
+        if self.actuator_delay and "actuator_latency" in config.parameters:
+            clashes.append("actuator_delay vs actuator_latency")
+        push_entries = sorted(config.parameters & {"push_interval", "push_force", "push_duration"})
+        if self.pushes is not None and push_entries:
+            clashes.append(f"pushes vs {', '.join(push_entries)}")
+        if clashes:
+            raise RandomizationError(
+                f"sim2real and the randomization config both set a robot-side effect ({'; '.join(clashes)}): "
+                "set each in one place (e.g. sim2real={'pushes': None} to keep the config's pushes)"
+            )
+        push_horizon = horizon if self.pushes is not None else config.push_horizon
+        return dataclasses.replace(config, entries=knobs.entries + config.entries, push_horizon=push_horizon)
 
 
 @dataclass
@@ -110,134 +175,3 @@ class ActionQueue:
 
     def next_tick(self) -> float:
         return self._pending[0][0] if self._pending else math.inf
-
-
-def _copy_impedance(command: ImpedanceCommand) -> ImpedanceCommand:
-    return replace(command, **{name: np.array(getattr(command, name), dtype=float) for name in ("q_ref", "v_ref", "kp", "kd", "tau_ff")})
-
-
-class DelayedCommandRobot(Robot):
-    """A Robot whose commands reach the wrapped robot ``delay`` physics steps late; reads pass through.
-
-    The runtime calls :meth:`release` at every physics step a command falls due (see :meth:`next_tick`),
-    so a task or controller commanding it sees the actuator delay of a real bus and driver.
-    """
-
-    def __init__(self, robot: Robot, delay: int) -> None:
-        self.inner = robot
-        self.delay = int(delay)
-        self._tick = 0
-        self._pending: deque[tuple[int, str, Any]] = deque()
-
-    def clear(self) -> None:
-        self._pending.clear()
-        self._tick = 0
-
-    def set_tick(self, tick: int) -> None:
-        """The physics step at which commands given from now on are issued."""
-        self._tick = tick
-
-    def release(self, tick: int) -> None:
-        """Apply to the wrapped robot every command due at or before ``tick``, in order."""
-        while self._pending and self._pending[0][0] <= tick:
-            _, kind, payload = self._pending.popleft()
-            if kind == "torques":
-                self.inner.set_joint_torques(payload)
-            else:
-                self.inner.set_joint_impedance(payload)
-
-    def next_tick(self) -> float:
-        return self._pending[0][0] if self._pending else math.inf
-
-    # --- commands: queued ---------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        torques = np.array(torques, dtype=float)
-        if torques.shape != (self.dofs,) or not np.all(np.isfinite(torques)):
-            raise ValueError(f"expected {self.dofs} finite joint torques, got {torques}")
-        self._pending.append((self._tick + self.delay, "torques", torques))
-
-    def set_joint_impedance(self, command: ImpedanceCommand) -> None:
-        command.validate(self.dofs)
-        self._pending.append((self._tick + self.delay, "impedance", _copy_impedance(command)))
-
-    # --- reads: pass through ------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return self.inner.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.inner.joint_names
-
-    @property
-    def floating_base(self) -> bool:
-        return self.inner.floating_base
-
-    def time(self) -> float:
-        return self.inner.time()
-
-    def joint_positions(self) -> np.ndarray:
-        return self.inner.joint_positions()
-
-    def joint_velocities(self) -> np.ndarray:
-        return self.inner.joint_velocities()
-
-    def joint_efforts(self) -> np.ndarray:
-        return self.inner.joint_efforts()
-
-    def base_state(self) -> BaseState:
-        return self.inner.base_state()
-
-    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
-        return self.inner.link_pose(link)
-
-    def contact_wrench(self, link: str) -> ContactWrench:
-        return self.inner.contact_wrench(link)
-
-    def imu(self) -> ImuReading:
-        return self.inner.imu()
-
-    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
-        return self.inner.generalized_state()
-
-
-class PushSchedule:
-    """Draws push times, directions and magnitudes and applies them through ``set_external_wrench``."""
-
-    def __init__(self, config: PushConfig, link: str, physics_dt: float) -> None:
-        self.config = config
-        self.link = link
-        self.dt = physics_dt
-        self.force = np.zeros(3)
-        self._start = math.inf
-        self._end = math.inf
-        self.count = 0
-
-    def reset(self, rng: np.random.Generator, robot: "MujocoRobot") -> None:
-        self.force = np.zeros(3)
-        self.count = 0
-        robot.set_external_wrench(self.link, self.force)
-        self._end = math.inf
-        self._start = self._ticks(rng.uniform(*self.config.interval))
-
-    def _ticks(self, seconds: float) -> int:
-        return max(1, int(round(seconds / self.dt)))
-
-    def next_tick(self) -> float:
-        return min(self._start, self._end)
-
-    def update(self, tick: int, rng: np.random.Generator, robot: "MujocoRobot") -> None:
-        """Start or end a push falling due at ``tick``."""
-        if tick >= self._end:
-            self.force = np.zeros(3)
-            robot.set_external_wrench(self.link, self.force)
-            self._end = math.inf
-            self._start = tick + self._ticks(rng.uniform(*self.config.interval))
-        if tick >= self._start:
-            angle = rng.uniform(0.0, 2.0 * np.pi)
-            magnitude = rng.uniform(*self.config.force)
-            self.force = magnitude * np.array([np.cos(angle), np.sin(angle), 0.0])
-            robot.set_external_wrench(self.link, self.force)
-            self.count += 1
-            self._start = math.inf
-            self._end = tick + self._ticks(self.config.duration)

@@ -1,4 +1,4 @@
-"""The simulated runtime: a ``gymnasium.Env`` running a Task on a simulated robot (MuJoCo).
+"""The simulated runtime: a ``gymnasium.Env`` running a Task on a simulated robot (MuJoCo or PyBullet).
 
 One agent step, as in Gym-Ignition, with ``n = physics / agent`` physics steps::
 
@@ -8,9 +8,15 @@ One agent step, as in Gym-Ignition, with ``n = physics / agent`` physics steps::
         robot.step()
     observation (+ noise), reward, terminated, truncated, info
 
-Physics runs in chunks between events (controller ticks, delayed actions and commands, pushes),
-so a task without a fast controller costs one ``mj_step`` call per agent step. The runtime is
-accelerated by default, or paced to ``real_time_factor``; headless unless a render mode is set.
+At reset, before the task picks its initial state: the episode's engine is drawn (when an
+:class:`~giwbc.randomization.EngineChoice` is given), then the domain randomizer samples and
+applies its parameters (the engine's model in place, robot-level perturbations in a
+:class:`~giwbc.randomization.PerturbedRobot`), all from the seeded ``np_random``.
+
+Physics runs in chunks between events (controller ticks, delayed actions; the perturbed robot
+splits further at delayed commands and pushes), so a task without a fast controller costs one
+engine call per agent step. The runtime is accelerated by default, or paced to
+``real_time_factor``; headless unless a render mode is set (rendering needs MuJoCo).
 """
 
 from __future__ import annotations
@@ -24,9 +30,13 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import gymnasium
 import numpy as np
 
+from giwbc.randomization import DomainRandomizer, PerturbedRobot, Randomization, RandomizationError, make_randomizer
+from giwbc.randomization.randomizer import RandomizerSpec
+from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
+from giwbc.runtimes.engines import EnginePool, EngineSpec
 from giwbc.runtimes.rates import Rates
-from giwbc.runtimes.sim2real import ActionQueue, DelayedCommandRobot, PushSchedule, SimToReal
+from giwbc.runtimes.sim2real import ActionQueue, SimToReal
 
 if TYPE_CHECKING:
     import mujoco
@@ -67,12 +77,19 @@ class StepTimings:
 
 
 class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
-    """Runs ``task`` on a simulated ``robot`` at the given agent and controller rates.
+    """Runs ``task`` on a simulated robot at the given agent and controller rates.
+
+    ``robot``: a simulated Robot (the runtime runs on it alone), or a RobotDescription, from which
+    the runtime builds a robot per ``engine`` on first use: ``"mujoco"`` (default), ``"pybullet"``,
+    or an :class:`~giwbc.randomization.EngineChoice` (or ``{engine: probability}``) drawn at every
+    reset; ``engine_options`` are constructor keywords per engine (``{"mujoco": {"model": m}}``).
+    ``randomizer``: a DomainRandomizer, a RandomizationConfig, a config dict, a TOML path or
+    ``"default"`` (the robot's shipped ``randomization.toml``), applied at every reset.
 
     The physics rate is the robot's (the description's timestep). ``real_time_factor=None`` runs as
     fast as possible; a number paces simulated time to wall time times that factor. Every random draw
-    (the task's initial state, observation noise, pushes) comes from the seeded ``np_random``, so the
-    same seed gives bit-identical episodes.
+    (the engine, the randomization, the task's initial state, observation noise) comes from the
+    seeded ``np_random``, so the same seed gives bit-identical episodes.
     """
 
     metadata: dict[str, Any] = {"render_modes": list(RENDER_MODES), "render_fps": 50}
@@ -80,47 +97,53 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     def __init__(
         self,
         task: Task,
-        robot: Robot,
+        robot: Robot | RobotDescription,
         *,
         agent_rate: float,
         controller_rate: float | None = None,
         real_time_factor: float | None = None,
         render_mode: str | None = None,
-        sim2real: SimToReal | None = None,
+        sim2real: SimToReal | dict[str, Any] | None = None,
         render_size: tuple[int, int] = (480, 640),
+        engine: EngineSpec | None = None,
+        engine_options: dict[str, dict[str, Any]] | None = None,
+        randomizer: RandomizerSpec = None,
     ) -> None:
-        if not isinstance(robot, SimulatedRobot):
-            raise TypeError(f"{type(robot).__name__} cannot be simulated: it needs step(), reset() and set_external_wrench()")
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
         if real_time_factor is not None and not (real_time_factor > 0 and math.isfinite(real_time_factor)):
             raise ValueError(f"real_time_factor must be a positive number or None, got {real_time_factor!r}")
-        self.rates = Rates.from_timestep(_timestep(robot), agent_rate, controller_rate)
-        self.sim_robot = robot
+        given = None if isinstance(robot, RobotDescription) else robot
+        if given is not None and not isinstance(given, SimulatedRobot):
+            raise TypeError(f"{type(robot).__name__} cannot be simulated: it needs step(), reset() and set_external_wrench()")
+        description = robot if given is None else getattr(given, "description", None)
+        self.sim2real = SimToReal.from_dict(sim2real) if isinstance(sim2real, dict) else sim2real or SimToReal()
+        self.randomizer = _randomizer(randomizer, self.sim2real, description)
+        self.engines = EnginePool(description, engine, options=engine_options, robot=given, perturbed=self.randomizer is not None)
+        if render_mode is not None and set(self.engines.engines) != {"mujoco"}:
+            raise ValueError(f"rendering needs the MuJoCo engine; this runtime runs on {list(self.engines.engines)}")
+        self.engine = self.engines.engines[0]
+        self.sim_robot = self.engines.robot(self.engine)  # the robot the task commands (perturbed or not)
+        self.engine_robot = self.engines.engine_robot(self.engine)  # the bare engine robot (ground truth)
+        self.randomization: Randomization | None = None  # what the last reset drew
+        self.rates = Rates.from_timestep(_timestep(self.sim_robot), agent_rate, controller_rate)
         self.task = task
-        self.sim2real = sim2real or SimToReal()
         self.render_mode = render_mode
         self.real_time_factor = 1.0 if real_time_factor is None and render_mode == "human" else real_time_factor
         self.render_size = render_size
         self.metadata = {**type(self).metadata, "render_fps": self.rates.agent}
 
-        # The task commands the robot through the actuator-delay line when there is one.
-        self._delay = DelayedCommandRobot(robot, self.sim2real.actuator_delay) if self.sim2real.actuator_delay else None
-        task.bind(self._delay or robot, self.rates)
+        task.bind(self.sim_robot, self.rates)
         self.action_space = task.action_space
         self.observation_space = task.observation_space
         self._noise_std = self.sim2real.noise_std(int(np.prod(self.observation_space.shape)))
         self._noisy = bool(np.any(self._noise_std > 0))
         self._observation_low = self.observation_space.low.astype(np.float64)
         self._observation_high = self.observation_space.high.astype(np.float64)
-        self._warnings_of = _divergence_counter(robot)
+        self._warnings_of = _divergence_counter(self.engine_robot)
         self._actions = ActionQueue(self.sim2real.action_latency)
-        pushes = self.sim2real.pushes
-        self._pushes = PushSchedule(pushes, pushes.link or _base_link(robot), self.rates.physics_dt) if pushes else None
-        # What can fall due between controller ticks: physics is stepped in chunks between them.
-        self._event_sources = tuple(
-            source for source in (self._actions if self._actions.latency else None, self._delay, self._pushes) if source is not None
-        )
+        config = self.randomizer.config if self.randomizer is not None else None
+        self._reports_pushes = config is not None and "push_force" in config.parameters
 
         self.timings = StepTimings()
         self._tick = 0
@@ -135,7 +158,13 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     # --- gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         super().reset(seed=seed)
+        engine = self.engines.choose(self.np_random)
+        if engine != self.engine:
+            self._use_engine(engine)
         task, robot = self.task, self.sim_robot
+        if self.randomizer is not None:  # before robot.reset: PyBullet may reload the robot
+            self.randomization = self.randomizer.randomize(robot, self.np_random)
+            task.randomized(self.randomization)
         task.np_random = self.np_random
         state = task.initial_state()
         if state is None:
@@ -144,10 +173,6 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             robot.reset(*state)
         self._tick = 0
         self._actions.clear()
-        if self._delay is not None:
-            self._delay.clear()
-        if self._pushes is not None:
-            self._pushes.reset(self.np_random, robot)
         self._diverged = False
         self._warnings = self._warnings_of()
         task.reset_task()
@@ -164,23 +189,18 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         started = time.perf_counter()
         task, robot = self.task, self.sim_robot
         action = task.validate_action(action)  # raises before anything changes
-        delay, pushes, actions = self._delay, self._pushes, self._actions
+        actions = self._actions
         latency = actions.latency
         if latency:
             actions.push(self._tick, action)
         else:
-            if delay is not None:
-                delay.set_tick(self._tick)
             task.set_action(action)
-        events = self._event_sources
         period = self.rates.physics_per_controller
         tick = self._tick
         end = tick + self.rates.physics_per_agent
         physics_time = controller_time = 0.0
         clock = time.perf_counter
         while tick < end:
-            if delay is not None:
-                delay.set_tick(tick)
             if latency:
                 for due in actions.pop_due(tick):
                     task.set_action(due)
@@ -188,13 +208,7 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                 t0 = clock()
                 task.apply_command()
                 controller_time += clock() - t0
-            if delay is not None:
-                delay.release(tick)
-            if pushes is not None:
-                pushes.update(tick, self.np_random, robot)
-            following = min(end, tick - tick % period + period)
-            for source in events:
-                following = min(following, source.next_tick())
+            following = min(end, tick - tick % period + period, actions.next_tick())
             t0 = clock()
             robot.step(int(following) - tick)
             physics_time += clock() - t0
@@ -228,12 +242,14 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         return None
 
     def close(self) -> None:
+        """Close the renderer and viewer, and the engine robots this runtime built (PyBullet servers)."""
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
         if self._viewer is not None:
             self._viewer.close()
             self._viewer = None
+        self.engines.close()
 
     # --- runtime state ------------------------------------------------------------------------
     @property
@@ -241,13 +257,9 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         """Simulated seconds since the last reset."""
         return self._tick * self.rates.physics_dt
 
-    @property
-    def pushes(self) -> PushSchedule | None:
-        return self._pushes
-
     def describe(self) -> dict[str, Any]:
-        """The task's deployment metadata plus this runtime's rates and sim-to-real settings."""
-        return {**self.task.describe(), "rates": self.rates.as_dict(), "robot": self.sim_robot.name}
+        """The task's deployment metadata plus this runtime's rates, robot and engine."""
+        return {**self.task.describe(), "rates": self.rates.as_dict(), "robot": self.sim_robot.name, "engine": self.engine}
 
     # --- internals ----------------------------------------------------------------------------
     def _observe(self) -> np.ndarray:
@@ -258,11 +270,23 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         clipped = np.minimum(np.maximum(observation, self._observation_low), self._observation_high)
         return clipped.astype(self.observation_space.dtype)
 
+    def _use_engine(self, engine: str) -> None:
+        """Run the task on ``engine``'s robot from now on (same description: same rates and spaces)."""
+        robot = self.engines.robot(engine)
+        if _timestep(robot) != self.rates.physics_dt:
+            raise ValueError(f"the {engine} robot steps {_timestep(robot)} s, the runtime {self.rates.physics_dt} s")
+        self.task.bind(robot, self.rates)
+        if self.task.action_space != self.action_space or self.task.observation_space != self.observation_space:
+            raise ValueError(f"the task's spaces on {engine} differ from those on {self.engine}")
+        self.engine, self.sim_robot, self.engine_robot = engine, robot, self.engines.engine_robot(engine)
+        self._warnings_of = _divergence_counter(self.engine_robot)
+
     def _info(self) -> dict[str, Any]:
         info: dict[str, Any] = {"time": self.time, **self.task.get_info()}
-        if self._pushes is not None:
-            info["push_force"] = self._pushes.force.copy()
-            info["pushes"] = self._pushes.count
+        if self._reports_pushes:
+            assert isinstance(self.sim_robot, PerturbedRobot)
+            info["push_force"] = self.sim_robot.acting_push_force
+            info["pushes"] = self.sim_robot.pushes_applied
         if self._diverged:
             info["physics_diverged"] = True
         return info
@@ -330,10 +354,21 @@ def _timestep(robot: Robot) -> float:
     raise ValueError(f"cannot tell the physics timestep of {type(robot).__name__}: give it a `timestep` attribute")
 
 
+def _randomizer(spec: RandomizerSpec, sim2real: SimToReal, description: RobotDescription | None) -> DomainRandomizer | None:
+    """The runtime's own randomizer: the user's config with the robot-side sim2real knobs in front."""
+    if spec is None and not sim2real.robot_entries():
+        return None
+    if description is None:
+        raise RandomizationError("domain randomization, actuator delay and pushes need a robot with a description")
+    base = make_randomizer(spec, description)
+    config = sim2real.merged_into(base.config if base is not None else None, description)
+    return DomainRandomizer(config, description)
+
+
 def _base_link(robot: Robot) -> str:
     description = getattr(robot, "description", None)
     if description is None:
-        raise ValueError("pushes need PushConfig(link=...) for a robot without a description")
+        raise ValueError(f"{type(robot).__name__} has no description: cannot tell its base link")
     return description.base_link
 
 

@@ -8,6 +8,10 @@ Two controllers can sit beneath the action (``controller=``):
 - ``"pd"``: the joint-PD hold of the description's gains, evaluated by the actuators. Action:
   posture offsets only. A baseline, and the fastest way to run the task.
 
+Under domain randomization the WBC keeps the description's nominal Pinocchio model (it must be
+robust to the mismatch, as on hardware) unless ``controller_model="randomized"`` asks for the
+sampled one.
+
 The residuals are the action (in [-1, 1]) times per-block scales, clipped. Observation
 (proprioception only, what the real robot measures): gravity in the IMU frame, IMU angular rate,
 joint positions minus the default pose, joint velocities, the previous action.
@@ -148,8 +152,14 @@ class G1Balance(Task):
         min_height_ratio: float = 0.7,
         max_tilt: float = 0.7,
         wbc_options: dict[str, Any] | None = None,
+        controller_model: str = "nominal",
     ) -> None:
         super().__init__()
+        if controller_model not in ("nominal", "randomized"):
+            raise ValueError(f"controller_model must be 'nominal' or 'randomized', got {controller_model!r}")
+        if controller_model == "randomized" and controller != "wbc":
+            raise ValueError("controller_model='randomized' gives the WBC the sampled dynamics: it needs controller='wbc'")
+        self.controller_model = controller_model
         if not description.floating_base or not description.contacts:
             raise ValueError(f"G1Balance needs a floating-base robot with feet, got {description.name!r}")
         self.description = description
@@ -167,6 +177,7 @@ class G1Balance(Task):
             raise ValueError(f"controller must be 'wbc' or 'pd', got {controller!r}")
         self.controller_name = controller
         self.layout: ResidualLayout = self.controller.layout
+        self._nominal: Any = None  # randomization nominal values, for controller_model="randomized"
         self.q0 = description.default_configuration()
         self.nominal_height = float(self.q0[2])
         self.min_height = min_height_ratio * self.nominal_height
@@ -201,6 +212,17 @@ class G1Balance(Task):
         return self.layout.entry_names()
 
     # --- episode --------------------------------------------------------------------------
+    def randomized(self, drawn: Any) -> None:
+        """With ``controller_model="randomized"``, give the WBC the sampled masses, CoMs and armature
+        (an oracle, for studies); by default it keeps the nominal model, as on hardware."""
+        if self.controller_model != "randomized" or not drawn.resampled:
+            return
+        from giwbc.randomization import Nominal, randomized_pinocchio_model
+
+        if self._nominal is None:
+            self._nominal = Nominal.from_description(self.description)
+        self.controller.pin_model = randomized_pinocchio_model(self._pin_model, drawn.physics, self._nominal)
+
     def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
         q = self.q0.copy()
         noise = self.np_random.uniform(-self.initial_joint_noise, self.initial_joint_noise, self.robot.dofs)

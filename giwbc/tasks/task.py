@@ -8,8 +8,9 @@ so the same task object runs in any simulated runtime or on the real robot.
 The runtime drives it:
 
 - once: :meth:`Task.bind` (robot, rates) creates the spaces;
-- at reset: sets ``np_random`` (the runtime's seeded generator), asks :meth:`initial_state`, puts the
-  robot there, then calls :meth:`reset_task`;
+- at reset: (a simulated runtime) draws the engine and the domain randomization and tells
+  :meth:`randomized`; sets ``np_random`` (the runtime's seeded generator), asks
+  :meth:`initial_state`, puts the robot there, then calls :meth:`reset_task`;
 - at each agent step: :meth:`validate_action`, then :meth:`set_action` (after any action latency);
   :meth:`apply_command` at every controller tick; physics; then :meth:`get_observation`,
   :meth:`get_reward`, :meth:`is_terminated`, :meth:`is_truncated`, :meth:`get_info`.
@@ -144,6 +145,13 @@ class Task(abc.ABC):
     @abc.abstractmethod
     def create_spaces(self) -> tuple[spaces.Box, spaces.Box]:
         """``(action_space, observation_space)``, once the robot and rates are known."""
+
+    def randomized(self, drawn: Any) -> None:
+        """The runtime applied a domain randomization (a :class:`~giwbc.randomization.Randomization`).
+
+        Default: nothing. A task's own models (e.g. the WBC's Pinocchio model) stay nominal, as on
+        hardware, where the true parameters are unknown; a task may opt in to use the sample.
+        """
 
     def initial_state(self) -> tuple[np.ndarray, np.ndarray] | None:
         """Where a simulated episode starts, ``(q, v)`` in Pinocchio's convention; ``None``: the default pose.

@@ -1,0 +1,252 @@
+"""Sim-to-sim evaluation: the same controllers on MuJoCo nominal, MuJoCo randomized and PyBullet.
+
+The first check of a policy before hardware, as Gym-Ignition suggests: a controller that only
+works on the engine and parameters it was tuned on will not survive the real robot. Each
+controller -- the WBC alone (zero residual) and, when given, a residual ONNX policy trained on
+``G1Balance-v0`` -- runs the same seeded episodes under the same pushes on three conditions:
+
+* ``mujoco_nominal``: the description's parameters;
+* ``mujoco_randomized``: the robot's shipped domain randomization (``robots/g1/randomization.toml``);
+* ``pybullet``: the other engine, nominal parameters.
+
+Success: the episode ran its full length without terminating (fall or excessive tilt). Episodes
+are grouped in fixed chunks of seeds, each chunk run by one worker process on one environment, so
+the result does not depend on the number of workers. Prints a markdown table and one JSON object::
+
+    python examples/sim_to_sim.py --episodes 50 --seconds 10 --push-force 90 --workers 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing as mp
+import os
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ENV_ID = "giwbc/G1Balance-v0"
+DEFAULT_POLICY = Path("policies/g1_balance_residual.onnx")
+CONDITIONS: dict[str, dict[str, Any]] = {
+    "mujoco_nominal": {"engine": "mujoco"},
+    "mujoco_randomized": {"engine": "mujoco", "randomization": "default"},
+    "pybullet": {"engine": "pybullet"},
+}
+CONTROLLERS = ("wbc_only", "residual_policy")
+CHUNK = 5  # episodes per job: one environment build per job
+
+
+@dataclass(frozen=True)
+class PushSetting:
+    """The fixed pushes of every condition: a magnitude, a duration and a random wait between pushes."""
+
+    force: float = 90.0  # where the WBC alone starts to fail on nominal MuJoCo (~70-80 % success at 10 s)
+    duration: float = 0.1
+    interval: tuple[float, float] = (1.0, 2.0)
+
+    def sim2real(self) -> dict[str, Any]:
+        return {"pushes": {"force": [self.force, self.force], "duration": self.duration, "interval": list(self.interval)}}
+
+
+@dataclass(frozen=True)
+class Job:
+    """A chunk of seeded episodes of one controller on one condition."""
+
+    controller: str
+    condition: str
+    seeds: tuple[int, ...]
+    seconds: float
+    pushes: PushSetting
+    policy: str | None
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Cell:
+    """The results of one controller on one condition."""
+
+    episodes: int = 0
+    successes: int = 0
+    simulated_s: float = 0.0
+    wall_s: float = 0.0
+    failed_seeds: list[int] = field(default_factory=list)
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / self.episodes if self.episodes else float("nan")
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "episodes": self.episodes,
+            "successes": self.successes,
+            "success_rate": self.success_rate,
+            "mean_survival_s": self.simulated_s / self.episodes if self.episodes else None,
+            "wall_s_per_episode": self.wall_s / self.episodes if self.episodes else None,
+            "failed_seeds": sorted(self.failed_seeds),
+        }
+
+
+def _task_kwargs(policy: Any) -> dict[str, Any]:
+    """The task options the policy was trained with (layout, scales, controller), runtime options dropped."""
+    from giwbc.envs import RUNTIME_OPTIONS
+
+    if policy is None:
+        return {}
+    kwargs = dict(policy.metadata.get("env_kwargs") or {})
+    return {key: value for key, value in kwargs.items() if key not in RUNTIME_OPTIONS and key not in ("robot", "agent_rate")}
+
+
+def run_job(job: Job) -> tuple[Job, list[tuple[int, bool, float]], float]:
+    """Run one chunk: ``[(seed, success, simulated seconds)]`` and the wall time of its episodes."""
+    import gymnasium
+
+    import giwbc.envs  # noqa: F401  (registers the ids)
+    from giwbc.policy import OnnxPolicy, check_compatible
+
+    policy = OnnxPolicy(job.policy) if job.controller == "residual_policy" else None
+    task_policy = OnnxPolicy(job.policy) if job.policy is not None else None
+    kwargs = {**_task_kwargs(task_policy), **CONDITIONS[job.condition], "sim2real": job.pushes.sim2real(), **job.env_kwargs}
+    env = gymnasium.make(ENV_ID, **kwargs).unwrapped
+    try:
+        if policy is not None:
+            check_compatible(policy.metadata, env.describe())
+        zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+        steps = int(round(job.seconds * env.rates.agent))
+        results = []
+        started = time.perf_counter()
+        for seed in job.seeds:
+            observation, _ = env.reset(seed=seed)
+            terminated = False
+            for _ in range(steps):
+                action = zero if policy is None else policy(observation)
+                observation, _, terminated, _, _ = env.step(action)
+                if terminated:
+                    break
+            results.append((seed, not terminated, env.time))
+        return job, results, time.perf_counter() - started
+    finally:
+        env.close()
+
+
+def evaluate(
+    *,
+    policy: str | os.PathLike[str] | None = None,
+    episodes: int = 50,
+    seconds: float = 10.0,
+    pushes: PushSetting = PushSetting(),
+    workers: int = 2,
+    seed: int = 0,
+    conditions: Sequence[str] = tuple(CONDITIONS),
+    env_kwargs: dict[str, Any] | None = None,
+) -> dict[str, dict[str, Cell]]:
+    """Success of each controller on each condition over ``episodes`` seeded episodes (``seed``, ``seed + 1``, ...).
+
+    ``policy``: a residual ONNX policy for ``G1Balance-v0``, or ``None`` (WBC only). ``workers``:
+    processes (0: run in this process). ``env_kwargs``: extra ``gymnasium.make`` options for every
+    environment (e.g. ``wbc_options``).
+    """
+    if episodes < 1 or not seconds > 0:
+        raise ValueError(f"episodes must be >= 1 and seconds > 0, got {episodes}, {seconds}")
+    unknown = set(conditions) - set(CONDITIONS)
+    if unknown:
+        raise ValueError(f"unknown conditions {sorted(unknown)}; known: {list(CONDITIONS)}")
+    policy_path = str(policy) if policy is not None else None
+    controllers = CONTROLLERS if policy_path is not None else CONTROLLERS[:1]
+    seeds = list(range(seed, seed + episodes))
+    chunks = [tuple(seeds[i : i + CHUNK]) for i in range(0, len(seeds), CHUNK)]
+    jobs = [Job(controller, condition, chunk, seconds, pushes, policy_path, dict(env_kwargs or {}))
+            for condition in conditions for controller in controllers for chunk in chunks]
+    cells = {controller: {condition: Cell() for condition in conditions} for controller in controllers}
+    if workers > 0:
+        with mp.get_context("fork").Pool(workers) as pool:
+            outcomes = list(pool.imap_unordered(run_job, jobs))
+    else:
+        outcomes = [run_job(job) for job in jobs]
+    for job, results, wall in outcomes:
+        cell = cells[job.controller][job.condition]
+        cell.wall_s += wall
+        for episode_seed, success, survived in results:
+            cell.episodes += 1
+            cell.successes += success
+            cell.simulated_s += survived
+            if not success:
+                cell.failed_seeds.append(episode_seed)
+    return cells
+
+
+def markdown_table(cells: dict[str, dict[str, Cell]], policy_missing: bool) -> str:
+    """Rows: controllers; columns: conditions; entries: successes / episodes (rate)."""
+    conditions = list(next(iter(cells.values())))
+    lines = ["| controller | " + " | ".join(conditions) + " |", "|---|" + "---|" * len(conditions)]
+    for controller in CONTROLLERS:
+        if controller in cells:
+            row = [f"{c.successes}/{c.episodes} ({100 * c.success_rate:.0f} %)" for c in cells[controller].values()]
+        elif policy_missing:
+            row = ["missing"] * len(conditions)
+        else:
+            continue
+        lines.append(f"| {controller} | " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def add_sim_to_sim_command(commands: Any) -> None:
+    """Add ``giwbc sim-to-sim`` to an argparse subparsers object."""
+    parser = commands.add_parser("sim-to-sim", help="WBC and residual policy on MuJoCo nominal, randomized and PyBullet")
+    add_arguments(parser)
+    parser.set_defaults(run=run_sim_to_sim_command)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--policy", default=None, help=f"residual ONNX policy (default: {DEFAULT_POLICY} if present)")
+    parser.add_argument("--episodes", type=int, default=50, help="seeded episodes per controller and condition")
+    parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per episode")
+    parser.add_argument("--push-force", type=float, default=PushSetting.force, help="push magnitude, N")
+    parser.add_argument("--push-duration", type=float, default=PushSetting.duration, help="push duration, s")
+    parser.add_argument("--push-interval", type=float, nargs=2, default=list(PushSetting.interval), metavar=("MIN", "MAX"),
+                        help="wait between pushes, s")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes (0: in this process)")
+    parser.add_argument("--seed", type=int, default=0, help="first episode seed")
+    parser.add_argument("--conditions", nargs="*", default=list(CONDITIONS), choices=list(CONDITIONS))
+
+
+def run_sim_to_sim_command(args: argparse.Namespace) -> int:
+    policy = args.policy
+    if policy is None and DEFAULT_POLICY.is_file():
+        policy = str(DEFAULT_POLICY)
+    missing = policy is None or not Path(policy).is_file()
+    if missing:
+        print(f"no residual policy ({policy or DEFAULT_POLICY} not found): evaluating the WBC alone; the policy row is missing",
+              file=sys.stderr)
+        policy = None
+    pushes = PushSetting(args.push_force, args.push_duration, tuple(args.push_interval))
+    started = time.perf_counter()
+    cells = evaluate(policy=policy, episodes=args.episodes, seconds=args.seconds, pushes=pushes, workers=args.workers,
+                     seed=args.seed, conditions=args.conditions)
+    wall = time.perf_counter() - started
+    print(markdown_table(cells, missing))
+    print(json.dumps({
+        "benchmark": "sim_to_sim",
+        "env": ENV_ID,
+        "policy": policy,
+        "policy_missing": missing,
+        "episodes": args.episodes,
+        "seconds_per_episode": args.seconds,
+        "pushes": asdict(pushes),
+        "workers": args.workers,
+        "seed": args.seed,
+        "wall_s": wall,
+        "results": {controller: {condition: cell.summary() for condition, cell in row.items()} for controller, row in cells.items()},
+    }))
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="sim_to_sim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    return run_sim_to_sim_command(parser.parse_args(argv))

@@ -1,0 +1,70 @@
+"""The sim-to-sim evaluation: both controllers on the three conditions, table and JSON, missing policy."""
+
+from __future__ import annotations
+
+import json
+
+import gymnasium
+import numpy as np
+import pytest
+
+import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
+from giwbc.sim_to_sim import CONDITIONS, PushSetting, evaluate, main, markdown_table
+
+pytest.importorskip("pybullet")
+pytest.importorskip("onnx")
+
+
+@pytest.fixture(scope="module")
+def g1_model(g1):
+    return g1.build_mujoco()
+
+
+@pytest.fixture
+def residual_policy(tmp_path, g1_model):
+    """A small random residual policy for G1Balance-v0, exported with the environment's metadata."""
+    from giwbc.policy import MlpWeights, export_onnx
+
+    env = gymnasium.make("giwbc/G1Balance-v0", model=g1_model).unwrapped
+    described = env.describe()
+    rng = np.random.default_rng(0)
+    sizes = (env.observation_space.shape[0], 16, env.action_space.shape[0])
+    mlp = MlpWeights(tuple((rng.normal(0, 0.02, (o, i)), np.zeros(o)) for i, o in zip(sizes[:-1], sizes[1:])))
+    metadata = {**described, "env_id": "giwbc/G1Balance-v0", "env_kwargs": {"wbc_options": {"solver": "osqp"}}}
+    return export_onnx(tmp_path / "residual.onnx", mlp, metadata, action_low=env.action_space.low, action_high=env.action_space.high)
+
+
+def test_both_controllers_on_every_condition(residual_policy, g1_model) -> None:
+    cells = evaluate(policy=residual_policy, episodes=2, seconds=0.3, pushes=PushSetting(force=60.0, interval=(0.1, 0.2)),
+                     workers=0, env_kwargs={"model": g1_model})
+    assert set(cells) == {"wbc_only", "residual_policy"}
+    for row in cells.values():
+        assert list(row) == list(CONDITIONS)
+        for cell in row.values():
+            assert cell.episodes == 2 and cell.successes == 2 and cell.simulated_s == pytest.approx(0.6)
+    table = markdown_table(cells, policy_missing=False)
+    assert table.splitlines()[0] == "| controller | mujoco_nominal | mujoco_randomized | pybullet |"
+    assert "| residual_policy | 2/2 (100 %) | 2/2 (100 %) | 2/2 (100 %) |" in table
+
+
+def test_command_without_a_policy_reports_the_missing_column(capsys) -> None:
+    assert main(["--episodes", "1", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet",
+                 "--policy", "no/such/policy.onnx", "--push-force", "50"]) == 0
+    captured = capsys.readouterr()
+    assert "the policy row is missing" in captured.err
+    assert "| residual_policy | missing |" in captured.out
+    result = json.loads(captured.out.strip().splitlines()[-1])
+    assert result["policy_missing"] and result["pushes"]["force"] == 50.0
+    assert result["results"]["wbc_only"]["pybullet"]["success_rate"] == 1.0
+
+
+def test_subcommand_for_the_giwbc_cli() -> None:
+    import argparse
+
+    from giwbc.sim_to_sim import add_sim_to_sim_command, run_sim_to_sim_command
+
+    parser = argparse.ArgumentParser(prog="giwbc")
+    add_sim_to_sim_command(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["sim-to-sim", "--episodes", "3", "--push-interval", "0.5", "1.5", "--conditions", "pybullet"])
+    assert args.run is run_sim_to_sim_command and args.episodes == 3 and args.push_interval == [0.5, 1.5]
+    assert args.conditions == ["pybullet"] and args.push_force == PushSetting.force
