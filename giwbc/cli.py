@@ -11,6 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from giwbc.deploy import add_deploy_command
+from giwbc.evaluation import add_evaluate_command
 from giwbc.policy import add_play_command
 from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
@@ -98,6 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(run=cmd_demo)
     add_train_command(commands)
     add_play_command(commands)
+    add_evaluate_command(commands)
     add_sim_to_sim_command(commands)
     add_deploy_command(commands)
     return parser

@@ -121,4 +121,7 @@ def run_demo(seconds: float = 10.0) -> int:
     print("results (QP whole-body controller vs joint-PD hold):")
     _print_report(wbc)
     _print_report(pd)
+    from giwbc.evaluation import demo_residual
+
+    demo_residual(episodes=6, force=100.0)  # the shipped residual policy (policies/) over the same WBC
     return 0 if wbc.stood else 1

@@ -43,6 +43,7 @@ class TrainConfig:
     normalize_rewards: bool = True
     net_arch: tuple[int, ...] = (64, 64)
     activation: str = "tanh"
+    log_std_init: float = 0.0  # initial log std of the Gaussian actor: < 0 explores less (residual policies)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     ppo: dict[str, Any] = field(default_factory=dict)
     progress_bar: bool = True
@@ -181,7 +182,7 @@ def train(config: TrainConfig) -> TrainResult:
     model = PPO(
         "MlpPolicy", venv, seed=config.seed, device="cpu", verbose=0,
         policy_kwargs={"net_arch": {"pi": list(config.net_arch), "vf": list(config.net_arch)},
-                       "activation_fn": _activation(config.activation)},
+                       "activation_fn": _activation(config.activation), "log_std_init": config.log_std_init},
         **ppo_kwargs,
     )
     training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
@@ -199,16 +200,29 @@ def train(config: TrainConfig) -> TrainResult:
                                  extra={"training": {**training_info, "timesteps": steps}})
 
     class Checkpoints(BaseCallback):
-        """Model, normalizer and ONNX policy every ``checkpoint_every`` environment steps."""
+        """Model, normalizer and ONNX policy every ``checkpoint_every`` environment steps.
+
+        Saved at the start of a rollout, after the previous update: a checkpoint at ``N`` steps is
+        then exactly the final policy of the same run with ``total_timesteps=N`` (constant schedules).
+        """
 
         def __init__(self, every: int) -> None:
             super().__init__()
             self.every, self.next = every, every
 
-        def _on_step(self) -> bool:
+        def _checkpoint(self) -> None:
             if self.every and self.num_timesteps >= self.next:
-                self.next += self.every
+                while self.next <= self.num_timesteps:
+                    self.next += self.every
                 checkpoints.append(save(out / "checkpoints", f"step_{self.num_timesteps}", self.num_timesteps))
+
+        def _on_rollout_start(self) -> None:
+            self._checkpoint()
+
+        def _on_training_end(self) -> None:
+            self._checkpoint()
+
+        def _on_step(self) -> bool:
             return True
 
     try:
@@ -235,6 +249,9 @@ def add_train_command(commands: Any) -> None:
     parser.add_argument("--vectorization", choices=("subproc", "dummy"), default="subproc")
     parser.add_argument("--env-kwargs", default="{}", help='JSON options for gymnasium.make, e.g. \'{"controller": "pd"}\'')
     parser.add_argument("--ppo", default="{}", help='JSON PPO overrides, e.g. \'{"n_steps": 1024}\'')
+    parser.add_argument("--net-arch", type=int, nargs="+", default=list(TrainConfig.net_arch), help="hidden layer sizes")
+    parser.add_argument("--log-std-init", type=float, default=TrainConfig.log_std_init,
+                        help="initial log std of the actor (e.g. -1 for residual policies over a working controller)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.set_defaults(run=run_train_command)
 
@@ -243,7 +260,8 @@ def run_train_command(args: Any) -> int:
     out = args.out or f"runs/{args.env.split('/')[-1]}"
     config = TrainConfig(env_id=args.env, total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed, out_dir=out,
                          checkpoint_every=args.checkpoint_every, vectorization=args.vectorization,
-                         env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress)
+                         env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
+                         net_arch=tuple(args.net_arch), log_std_init=args.log_std_init)
     result = train(config)
     print(f"policy: {result.policy}")
     if result.evaluation is not None:

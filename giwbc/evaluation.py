@@ -1,0 +1,446 @@
+"""Seeded push-recovery evaluation: a residual policy against the controller alone (zero residual).
+
+Both arms run the same environment (the one the policy's metadata names, with its options) over
+the same seeds, so each episode has the same initial state and the same push (time, direction,
+magnitude) in both arms; :attr:`Comparison.same_pushes` checks that from what the runtime reports.
+The push protocol (:class:`PushProtocol`) replaces the environment's pushes: one push of ``force``
+N in a uniform random horizontal direction for ``duration`` s, starting at a uniform time in
+``interval`` s, in an episode of ``episode_seconds`` (short enough that a second push cannot start).
+An episode *survives* if it is not terminated (pelvis too low or tilted past the task's limit) before
+the time limit, and *succeeds* if it survives with the pelvis tilt at the end under ``upright_tilt``
+(a robot falling over at the time limit is not a success).
+
+Episodes are split over worker processes (fork); results do not depend on the number of workers.
+Needs onnxruntime for a policy arm, not torch.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
+# The reproducible WBC configuration (bit-deterministic solver): what the shipped policy was trained on.
+DEFAULT_ENV_KWARGS: dict[str, Any] = {"wbc_options": {"solver": "osqp"}}
+EVAL_SEED = 1000  # evaluation episodes use seeds 1000.. (training resets draw from seeds 0..n_envs-1)
+
+
+@dataclass(frozen=True)
+class PushProtocol:
+    """One push per episode (see the module docstring)."""
+
+    force: float = 80.0
+    duration: float = 0.2
+    interval: tuple[float, float] = (1.2, 1.6)
+    episode_seconds: float = 2.6
+    upright_tilt: float = 0.35
+
+    def __post_init__(self) -> None:
+        low, high = self.interval
+        if not (0 < low <= high) or self.duration <= 0 or self.force < 0:
+            raise ValueError(f"bad push protocol {self}")
+        if self.episode_seconds <= high + self.duration:
+            raise ValueError("the episode must outlast the latest push")
+        if self.episode_seconds > 2 * low + self.duration + 1e-9:
+            raise ValueError(
+                f"a second push could start before the end of the episode: episode_seconds must be <= 2*interval[0] + duration "
+                f"= {2 * low + self.duration:.2f} s"
+            )
+
+    def env_overrides(self, base_kwargs: dict[str, Any], agent_hz: float) -> dict[str, Any]:
+        """``gymnasium.make`` options: the environment's own, with this protocol's pushes and time limit."""
+        sim2real = dict(base_kwargs.get("sim2real") or {})
+        sim2real["pushes"] = {"interval": list(self.interval), "duration": self.duration, "force": [self.force, self.force]}
+        return {**base_kwargs, "sim2real": sim2real, "max_episode_steps": int(round(self.episode_seconds * agent_hz))}
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    seed: int
+    survived: bool
+    success: bool
+    survival_time: float  # s (the episode length if it survived)
+    final_tilt: float  # rad
+    max_tilt: float  # rad
+    push_time: float  # s, first agent step at which the push was on (nan: none)
+    push_force: tuple[float, float, float]
+    episode_return: float
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """95 % Wilson score interval of a success rate."""
+    if n == 0:
+        return (0.0, 1.0)
+    p = successes / n
+    center = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return (max(0.0, center - half), min(1.0, center + half))
+
+
+@dataclass(frozen=True)
+class ArmResult:
+    """One controller (``"wbc"`` alone or a policy) over seeded episodes."""
+
+    name: str
+    protocol: PushProtocol
+    episodes: tuple[EpisodeResult, ...]
+
+    @property
+    def n(self) -> int:
+        return len(self.episodes)
+
+    @property
+    def successes(self) -> int:
+        return sum(e.success for e in self.episodes)
+
+    @property
+    def success_rate(self) -> float:
+        return self.successes / max(1, self.n)
+
+    @property
+    def survival_rate(self) -> float:
+        return sum(e.survived for e in self.episodes) / max(1, self.n)
+
+    @property
+    def mean_survival_time(self) -> float:
+        return float(np.mean([e.survival_time for e in self.episodes]))
+
+    def summary(self) -> dict[str, Any]:
+        low, high = wilson_interval(self.successes, self.n)
+        return {
+            "arm": self.name,
+            "episodes": self.n,
+            "success_rate": self.success_rate,
+            "success_rate_95ci": [low, high],
+            "survival_rate": self.survival_rate,
+            "mean_survival_time_s": self.mean_survival_time,
+            "mean_return": float(np.mean([e.episode_return for e in self.episodes])),
+            "mean_max_tilt_rad": float(np.mean([e.max_tilt for e in self.episodes])),
+        }
+
+
+@dataclass(frozen=True)
+class Comparison:
+    wbc: ArmResult
+    residual: ArmResult
+    env_id: str
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def same_pushes(self) -> bool:
+        """Both arms saw the same push (direction, magnitude, time) in every episode."""
+        return all(
+            np.allclose(a.push_force, b.push_force) and (a.push_time == b.push_time or not (a.survived and b.survived))
+            for a, b in zip(self.wbc.episodes, self.residual.episodes)
+        )
+
+    def summary(self) -> dict[str, Any]:
+        return {
+            "env_id": self.env_id,
+            "protocol": asdict(self.wbc.protocol),
+            "wbc": self.wbc.summary(),
+            "residual": self.residual.summary(),
+            "same_pushes": self.same_pushes,
+        }
+
+
+# --- running episodes ---------------------------------------------------------------------------
+def _tilt(env: Any) -> float:
+    return float(env.unwrapped.task.tilt())
+
+
+def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[int]]) -> list[EpisodeResult]:
+    """Episodes ``seeds`` in one process (one environment, reset per seed)."""
+    policy_path, env_id, env_kwargs, protocol, seeds = job
+    import gymnasium
+
+    import giwbc.envs  # noqa: F401  (registers the ids)
+
+    try:
+        import torch
+
+        torch.set_num_threads(1)
+    except ImportError:
+        pass
+    policy = None
+    if policy_path is not None:
+        from giwbc.policy import OnnxPolicy
+
+        policy = OnnxPolicy(policy_path)
+    probe = gymnasium.make(env_id, **env_kwargs)
+    agent_hz = float(probe.unwrapped.describe()["rates"]["agent_hz"])
+    probe.close()
+    env = gymnasium.make(env_id, **protocol.env_overrides(env_kwargs, agent_hz))
+    if policy is not None:
+        from giwbc.policy import check_compatible
+
+        check_compatible(policy.metadata, env.unwrapped.describe())
+    zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    results = []
+    try:
+        for seed in seeds:
+            observation, _ = env.reset(seed=seed)
+            total, max_tilt, push_time, push_force = 0.0, 0.0, math.nan, (0.0, 0.0, 0.0)
+            terminated = truncated = False
+            info: dict[str, Any] = {}
+            while not (terminated or truncated):
+                action = policy(observation) if policy is not None else zero
+                observation, reward, terminated, truncated, info = env.step(action)
+                total += float(reward)
+                max_tilt = max(max_tilt, _tilt(env))
+                if math.isnan(push_time) and info.get("pushes", 0) > 0:
+                    push_time = float(info["time"])
+                    push_force = tuple(float(f) for f in info["push_force"])
+            final_tilt = _tilt(env)
+            survived = not terminated
+            results.append(EpisodeResult(
+                seed=seed, survived=survived, success=survived and final_tilt < protocol.upright_tilt,
+                survival_time=float(info.get("time", 0.0)), final_tilt=final_tilt, max_tilt=max_tilt,
+                push_time=push_time, push_force=push_force, episode_return=total,
+            ))
+    finally:
+        env.close()
+    return results
+
+
+def run_episodes(
+    policy_path: str | os.PathLike[str] | None,
+    *,
+    env_id: str = DEFAULT_ENV_ID,
+    env_kwargs: dict[str, Any] | None = None,
+    protocol: PushProtocol = PushProtocol(),
+    episodes: int = 50,
+    seed: int = 0,
+    workers: int = 2,
+) -> ArmResult:
+    """``episodes`` seeded episodes (seeds ``seed .. seed+episodes-1``) of a policy, or of the zero residual if ``None``."""
+    env_kwargs = dict(DEFAULT_ENV_KWARGS if env_kwargs is None else env_kwargs)
+    seeds = list(range(seed, seed + episodes))
+    workers = max(1, min(workers, episodes))
+    chunks = [seeds[i::workers] for i in range(workers)]
+    path = None if policy_path is None else str(policy_path)
+    jobs = [(path, env_id, env_kwargs, protocol, chunk) for chunk in chunks if chunk]
+    if len(jobs) == 1:
+        results = _run_chunk(jobs[0])
+    else:
+        import multiprocessing
+
+        context = multiprocessing.get_context("fork" if os.name == "posix" else "spawn")
+        with context.Pool(len(jobs)) as pool:
+            results = [r for chunk in pool.map(_run_chunk, jobs) for r in chunk]
+    results.sort(key=lambda r: r.seed)
+    name = "wbc" if policy_path is None else os.path.basename(str(policy_path))
+    return ArmResult(name, protocol, tuple(results))
+
+
+def policy_env(policy_path: str | os.PathLike[str]) -> tuple[str, dict[str, Any]]:
+    """The environment id and options a policy file was trained on (from its metadata)."""
+    from giwbc.policy import OnnxPolicy
+
+    metadata = OnnxPolicy(policy_path).metadata
+    env_id = metadata["env_id"]
+    return (env_id if ":" in env_id else f"giwbc.envs:{env_id}"), dict(metadata["env_kwargs"])
+
+
+def _strip_time_limit(env_kwargs: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in env_kwargs.items() if k != "max_episode_steps"}
+
+
+def compare(
+    policy_path: str | os.PathLike[str],
+    *,
+    protocol: PushProtocol = PushProtocol(),
+    episodes: int = 50,
+    seed: int = 0,
+    workers: int = 2,
+) -> Comparison:
+    """The policy against the zero residual on the policy's own environment, same seeds, same pushes."""
+    env_id, env_kwargs = policy_env(policy_path)
+    env_kwargs = _strip_time_limit(env_kwargs)
+    common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": episodes, "seed": seed, "workers": workers}
+    wbc = run_episodes(None, **common)
+    residual = run_episodes(policy_path, **common)
+    return Comparison(wbc, residual, env_id, env_kwargs)
+
+
+def sweep(
+    forces: Sequence[float],
+    *,
+    env_id: str = DEFAULT_ENV_ID,
+    env_kwargs: dict[str, Any] | None = None,
+    protocol: PushProtocol = PushProtocol(),
+    episodes: int = 50,
+    seed: int = 0,
+    workers: int = 2,
+    policy_path: str | os.PathLike[str] | None = None,
+) -> list[ArmResult]:
+    """Success rate against push magnitude (the zero residual unless ``policy_path``): to pick a force that discriminates."""
+    if policy_path is not None:
+        env_id, env_kwargs = policy_env(policy_path)
+        env_kwargs = _strip_time_limit(env_kwargs)
+    from dataclasses import replace
+
+    return [
+        run_episodes(policy_path, env_id=env_id, env_kwargs=env_kwargs, protocol=replace(protocol, force=float(force)),
+                     episodes=episodes, seed=seed, workers=workers)
+        for force in forces
+    ]
+
+
+def format_table(rows: Sequence[ArmResult]) -> str:
+    lines = [f"{'arm':<28}{'push N':>8}{'episodes':>10}{'success':>10}{'95% CI':>16}{'survived':>10}{'mean surv. s':>14}"]
+    for arm in rows:
+        low, high = wilson_interval(arm.successes, arm.n)
+        lines.append(
+            f"{arm.name:<28}{arm.protocol.force:>8.0f}{arm.n:>10}{arm.success_rate:>10.0%}{f'[{low:.2f}, {high:.2f}]':>16}"
+            f"{arm.survival_rate:>10.0%}{arm.mean_survival_time:>14.2f}"
+        )
+    return "\n".join(lines)
+
+
+# --- command line ------------------------------------------------------------------------------
+def add_evaluate_command(commands: Any) -> None:
+    """Add ``giwbc evaluate`` to an argparse subparsers object."""
+    parser = commands.add_parser("evaluate", help="seeded push-recovery evaluation: a residual policy vs the WBC alone")
+    parser.add_argument("--policy", default=None, help="policy .onnx (default: only the WBC alone, on --env/--env-kwargs)")
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=EVAL_SEED,
+                        help="episode seeds are seed .. seed+episodes-1, the same in both arms (default: held out from training)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--force", type=float, nargs="+", default=[PushProtocol.force], help="push magnitude(s), N")
+    parser.add_argument("--duration", type=float, default=PushProtocol.duration)
+    parser.add_argument("--interval", type=float, nargs=2, default=list(PushProtocol.interval), help="push start window, s")
+    parser.add_argument("--episode-seconds", type=float, default=PushProtocol.episode_seconds)
+    parser.add_argument("--upright-tilt", type=float, default=PushProtocol.upright_tilt, help="success: final tilt below this, rad")
+    parser.add_argument("--env", default=DEFAULT_ENV_ID, help="environment of the WBC-alone arm when no --policy is given")
+    parser.add_argument("--env-kwargs", default=json.dumps(DEFAULT_ENV_KWARGS), help="JSON options of --env")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.set_defaults(run=run_evaluate_command)
+
+
+def run_evaluate_command(args: Any) -> int:
+    import sys
+
+    from giwbc.policy import PolicyFormatError
+
+    try:
+        protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval),
+                                episode_seconds=args.episode_seconds, upright_tilt=args.upright_tilt)
+        common = {"episodes": args.episodes, "seed": args.seed, "workers": args.workers}
+        rows: list[ArmResult] = []
+        summary: dict[str, Any]
+        if args.policy is None:
+            rows = sweep(args.force, env_id=args.env, env_kwargs=json.loads(args.env_kwargs), protocol=protocol, **common)
+            summary = {"env_id": args.env, "arms": [r.summary() | {"force": r.protocol.force} for r in rows]}
+        else:
+            comparisons = []
+            from dataclasses import replace
+
+            for force in args.force:
+                comparison = compare(args.policy, protocol=replace(protocol, force=force), **common)
+                comparisons.append(comparison)
+                rows += [comparison.wbc, comparison.residual]
+            summary = {"comparisons": [c.summary() for c in comparisons]}
+    except (PolicyFormatError, FileNotFoundError, ValueError) as error:
+        print(f"giwbc evaluate: error: {error}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"one push per episode: {protocol.duration} s, random horizontal direction, start uniform in "
+              f"{list(protocol.interval)} s; episodes of {protocol.episode_seconds} s; success = standing with tilt < "
+              f"{protocol.upright_tilt} rad at the end; seeds {args.seed}..{args.seed + args.episodes - 1}")
+        print(format_table(rows))
+        if args.policy is not None:
+            print("same pushes in both arms: " + ", ".join(str(c.same_pushes) for c in comparisons))
+    return 0
+
+
+# --- any policy, any env: return and a per-step predicate (e.g. CartPole swing-up) --------------------
+@dataclass(frozen=True)
+class UprightResult:
+    """Mean return and fraction of agent steps with the pole within ``upright_angle`` of vertical."""
+
+    arm: str
+    returns: tuple[float, ...]
+    upright_fractions: tuple[float, ...]
+
+    def summary(self) -> dict[str, Any]:
+        return {"arm": self.arm, "episodes": len(self.returns), "mean_return": float(np.mean(self.returns)),
+                "min_return": float(np.min(self.returns)), "mean_upright_fraction": float(np.mean(self.upright_fractions))}
+
+
+def evaluate_swing_up(
+    arm: str,
+    *,
+    env_id: str = "giwbc/CartPoleSwingUp-v0",
+    env_kwargs: dict[str, Any] | None = None,
+    episodes: int = 20,
+    seed: int = 0,
+    upright_angle: float = 0.2,
+) -> UprightResult:
+    """``arm``: a policy file, ``"zero"`` (no force) or ``"random"`` (uniform actions, seeded per episode)."""
+    import gymnasium
+
+    import giwbc.envs  # noqa: F401
+
+    policy = None
+    if arm not in ("zero", "random"):
+        from giwbc.policy import OnnxPolicy
+
+        policy = OnnxPolicy(arm)
+        env = policy.make_env(**(env_kwargs or {}))
+    else:
+        env = gymnasium.make(env_id, **(env_kwargs or {}))
+    returns, fractions = [], []
+    try:
+        for episode in range(episodes):
+            observation, _ = env.reset(seed=seed + episode)
+            env.action_space.seed(seed + episode)
+            total, upright, steps, done = 0.0, 0, 0, False
+            while not done:
+                if policy is not None:
+                    action = policy(observation)
+                elif arm == "zero":
+                    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+                else:
+                    action = env.action_space.sample()
+                observation, reward, terminated, truncated, _ = env.step(action)
+                theta = env.unwrapped.task.state()[2]
+                upright += abs(math.remainder(theta, 2 * math.pi)) < upright_angle
+                total += float(reward)
+                steps += 1
+                done = terminated or truncated
+            returns.append(total)
+            fractions.append(upright / steps)
+    finally:
+        env.close()
+    return UprightResult(os.path.basename(arm), tuple(returns), tuple(fractions))
+
+
+SHIPPED_POLICY = str(Path(__file__).resolve().parents[1] / "policies" / "g1_balance_residual.onnx")
+
+
+def demo_residual(policy_path: str | os.PathLike[str] = SHIPPED_POLICY, *, episodes: int = 6, force: float = 80.0,
+                  seed: int = EVAL_SEED, workers: int = 2) -> Comparison | None:
+    """For ``make demo``: the shipped residual policy vs the WBC alone, a few seeded pushes each (~10-20 s)."""
+    from pathlib import Path
+
+    path = Path(policy_path)
+    if not path.is_file():
+        print(f"  no residual policy at {path}: skipped (train one with `giwbc train`, see policies/README.md)")
+        return None
+    protocol = PushProtocol(force=force)
+    comparison = compare(path, protocol=protocol, episodes=episodes, seed=seed, workers=workers)
+    print(f"residual RL ({path.name}) vs the WBC alone: one {force:.0f} N push for {protocol.duration} s in a random horizontal "
+          f"direction per {protocol.episode_seconds} s episode, seeds {seed}..{seed + episodes - 1}, same pushes in both arms:")
+    for line in format_table([comparison.wbc, comparison.residual]).splitlines():
+        print("  " + line)
+    return comparison

@@ -1,0 +1,105 @@
+"""Push-recovery evaluation: a couple of short G1 episodes (the full 50-episode evaluation is not a test)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx")
+
+from giwbc.evaluation import (  # noqa: E402
+    DEFAULT_ENV_KWARGS,
+    PushProtocol,
+    add_evaluate_command,
+    compare,
+    run_episodes,
+    wilson_interval,
+)
+from giwbc.policy import MlpWeights, export_onnx  # noqa: E402
+
+# A short protocol: one 0.1 s push starting in [0.2, 0.3] s of a 0.5 s episode.
+SHORT = PushProtocol(force=30.0, duration=0.1, interval=(0.2, 0.3), episode_seconds=0.5)
+
+
+def test_protocol_rejects_a_second_push_or_a_push_after_the_end() -> None:
+    with pytest.raises(ValueError, match="second push"):
+        PushProtocol(interval=(0.5, 1.0), episode_seconds=2.0)
+    with pytest.raises(ValueError, match="outlast"):
+        PushProtocol(interval=(1.2, 1.6), episode_seconds=1.7)
+    overrides = PushProtocol().env_overrides({"sim2real": {"observation_noise": 0.01}, "controller": "wbc"}, 50.0)
+    assert overrides["max_episode_steps"] == 130
+    assert overrides["sim2real"] == {"observation_noise": 0.01, "pushes": {"interval": [1.2, 1.6], "duration": 0.2, "force": [80.0, 80.0]}}
+    assert overrides["controller"] == "wbc"
+
+
+def test_wilson_interval() -> None:
+    low, high = wilson_interval(25, 50)
+    assert low < 0.5 < high and high - low < 0.3
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+
+
+def _zero_policy(tmp_path, env_kwargs):
+    """A policy file whose network outputs exactly zero: it must reproduce the WBC arm."""
+    from giwbc.training import describe_env
+
+    described = describe_env("giwbc/G1Balance-v0", env_kwargs)
+    n_obs, n_act = len(described["observation_names"]), len(described["action_names"])
+    weights = MlpWeights(((np.zeros((8, n_obs)), np.zeros(8)), (np.zeros((n_act, 8)), np.zeros(n_act))))
+    metadata = {**described, "env_id": "giwbc/G1Balance-v0", "env_kwargs": env_kwargs}
+    return export_onnx(tmp_path / "zero.onnx", weights, metadata)
+
+
+def test_zero_policy_matches_the_wbc_arm_episode_for_episode(tmp_path) -> None:
+    env_kwargs = {**DEFAULT_ENV_KWARGS, "max_episode_steps": 1000}  # the evaluation replaces the time limit
+    policy = _zero_policy(tmp_path, env_kwargs)
+    comparison = compare(policy, protocol=SHORT, episodes=2, seed=7, workers=2)
+    assert comparison.same_pushes
+    assert [e.seed for e in comparison.wbc.episodes] == [7, 8]
+    for wbc, residual in zip(comparison.wbc.episodes, comparison.residual.episodes):
+        assert wbc.survived and wbc.success  # 30 N is nothing for the WBC
+        assert wbc.survival_time == pytest.approx(SHORT.episode_seconds)
+        assert 0.2 <= wbc.push_time <= 0.34
+        assert np.linalg.norm(wbc.push_force) == pytest.approx(30.0)
+        assert wbc == residual  # same pushes, same states, bit for bit
+    summary = comparison.summary()
+    assert summary["wbc"]["success_rate"] == 1.0 and summary["residual"]["episodes"] == 2
+    json.dumps(summary)
+
+
+def test_results_do_not_depend_on_the_number_of_workers() -> None:
+    one = run_episodes(None, protocol=SHORT, episodes=2, seed=3, workers=1)
+    two = run_episodes(None, protocol=SHORT, episodes=2, seed=3, workers=2)
+    assert one.episodes == two.episodes
+
+
+def test_evaluate_command(capsys) -> None:
+    parser = argparse.ArgumentParser()
+    add_evaluate_command(parser.add_subparsers())
+    args = parser.parse_args(["evaluate", "--episodes", "1", "--workers", "1", "--force", "30", "--duration", "0.1",
+                              "--interval", "0.2", "0.3", "--episode-seconds", "0.5", "--json"])
+    assert args.run(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    (arm,) = summary["arms"]
+    assert arm["force"] == 30.0 and arm["episodes"] == 1 and arm["success_rate"] == 1.0
+
+
+def test_training_is_reproducible_and_a_checkpoint_is_the_final_policy_of_a_shorter_run(tmp_path) -> None:
+    """Same seed => same policy file, bit for bit; ``step_N`` of a longer run == the policy of ``--timesteps N``."""
+    pytest.importorskip("stable_baselines3")
+    from giwbc.training import TrainConfig, train
+
+    def run(name: str, steps: int, every: int):
+        return train(TrainConfig(total_timesteps=steps, n_envs=2, seed=3, out_dir=str(tmp_path / name), vectorization="dummy",
+                                 checkpoint_every=every, progress_bar=False, eval_episodes=0, net_arch=(8, 8), log_std_init=-1.0,
+                                 ppo={"n_steps": 32, "batch_size": 32, "n_epochs": 1}))
+
+    long = run("long", 192, 64)
+    assert [p.name for p in long.checkpoints] == ["step_64.onnx", "step_128.onnx", "step_192.onnx"]
+    short = run("short", 128, 0)
+    again = run("again", 128, 0)
+    assert short.policy.read_bytes() == again.policy.read_bytes()
+    assert (tmp_path / "long" / "checkpoints" / "step_128.onnx").read_bytes() == short.policy.read_bytes()
