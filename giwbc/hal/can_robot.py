@@ -34,7 +34,7 @@ from giwbc.hal.bus import CanBusLink
 from giwbc.hal.hardware import HardwarePlan, ImuConfig
 from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import CanProtocolError, MitProtocol, UnknownMotorError
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
+from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
@@ -168,7 +168,7 @@ class CycleReport:
         return not bool(self.missing.any())
 
 
-class CanRobot(Robot):
+class CanRobot(DescribedRobot):
     """A robot whose joints are the CAN actuators of ``plan`` (see the module docstring).
 
     ``links``: open :class:`CanBusLink` per bus in plan order (default: opened from the plan).
@@ -233,18 +233,6 @@ class CanRobot(Robot):
         self._pin: Any = None
 
     # --- identity -------------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return self.description.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.description.joint_names
-
-    @property
-    def floating_base(self) -> bool:
-        return self.description.floating_base
-
     def time(self) -> float:
         """The time of the last exchange (the cycle time the runtime gave it), s."""
         return self._time

@@ -8,13 +8,14 @@ from giwbc.robot.description import (
     available_robots,
     load,
 )
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
+from giwbc.robot.interface import BaseState, ContactWrench, DescribedRobot, ImpedanceCommand, ImuReading, Robot
 from giwbc.robot.mujoco_robot import MujocoRobot
 
 __all__ = [
     "BaseState",
     "ContactRectangle",
     "ContactWrench",
+    "DescribedRobot",
     "ImpedanceCommand",
     "ImuReading",
     "JointSpec",

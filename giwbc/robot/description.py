@@ -93,11 +93,11 @@ class RobotDescription:
     description: str = ""
 
     # --- joint arrays, in description order -------------------------------------------------
-    @property
+    @cached_property
     def joint_names(self) -> tuple[str, ...]:
         return tuple(j.name for j in self.joints)
 
-    @property
+    @cached_property
     def dofs(self) -> int:
         return len(self.joints)
 

@@ -18,8 +18,12 @@ from __future__ import annotations
 
 import abc
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from giwbc.robot.description import RobotDescription
 
 
 def quat_to_matrix(quat_xyzw: np.ndarray) -> np.ndarray:
@@ -171,6 +175,28 @@ class Robot(abc.ABC):
         base = self.base_state()
         v_base = base_velocity_local(base)
         return np.concatenate([base.position, base.quaternion, qj]), np.concatenate([v_base, vj])
+
+
+class DescribedRobot(Robot):
+    """A Robot built from a :class:`RobotDescription`: its identity comes from the description."""
+
+    description: "RobotDescription"
+
+    @property
+    def name(self) -> str:
+        return self.description.name
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.description.joint_names
+
+    @property
+    def dofs(self) -> int:
+        return self.description.dofs
+
+    @property
+    def floating_base(self) -> bool:
+        return self.description.floating_base
 
 
 def base_velocity_local(base: BaseState) -> np.ndarray:

@@ -7,7 +7,7 @@ import numpy as np
 
 from giwbc.robot.conventions import wxyz_to_xyzw
 from giwbc.robot.description import RobotDescription
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot, quat_to_matrix
+from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading, quat_to_matrix
 from giwbc.robot.mujoco_model import imu_sensor_names
 
 _BIAS_POSITION, _BIAS_VELOCITY = 1, 2  # columns of actuator_biasprm (affine bias: b0 + b1*q + b2*qdot)
@@ -20,7 +20,7 @@ def _as_slice(indices: np.ndarray) -> slice | np.ndarray:
     return indices
 
 
-class MujocoRobot(Robot):
+class MujocoRobot(DescribedRobot):
     """A robot simulated by MuJoCo, built from a :class:`RobotDescription`.
 
     Commands are held and evaluated by MuJoCo's actuators at every physics step, the way a
@@ -45,29 +45,11 @@ class MujocoRobot(Robot):
         self._sensor_slices = {
             m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i])) for i in range(m.nsensor)
         }
-        self._dofs = description.dofs
-        self._joint_names = description.joint_names
         self._impedance_active = True  # biasprm may hold gains until the first torque command clears them
         self._wrench = np.zeros(6)
         self.reset()
 
     # --- identity -------------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return self.description.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self._joint_names
-
-    @property
-    def dofs(self) -> int:
-        return self._dofs
-
-    @property
-    def floating_base(self) -> bool:
-        return self.description.floating_base
-
     def time(self) -> float:
         return float(self.data.time)
 

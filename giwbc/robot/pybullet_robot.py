@@ -40,7 +40,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from giwbc.robot.description import RobotDescription
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot, quat_to_matrix
+from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading, quat_to_matrix
 from giwbc.robot.mujoco_model import foot_sensor_names, imu_sensor_names
 from giwbc.robot.pybullet_model import LinkInertial, PybulletClient, add_floor, load_robot, pybullet_urdf, require_pybullet
 
@@ -79,7 +79,7 @@ def _urdf_link_mass(urdf: str, link: str) -> float:
     return 0.0
 
 
-class PybulletRobot(Robot):
+class PybulletRobot(DescribedRobot):
     """A robot simulated by PyBullet (one DIRECT server per instance unless ``client`` is given).
 
     ``armature``: ``"link"`` (default) adds each joint's armature to the child link's inertia about
@@ -262,18 +262,6 @@ class PybulletRobot(Robot):
             pass
 
     # --- identity -------------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return self.description.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.description.joint_names
-
-    @property
-    def floating_base(self) -> bool:
-        return self.description.floating_base
-
     def time(self) -> float:
         return self._steps * self.dt
 
