@@ -154,9 +154,16 @@ class BalanceController:
 
     # --- references ------------------------------------------------------------------------------
     def reset(self, q: np.ndarray | None = None) -> None:
-        """Re-anchor the references at configuration ``q`` (default: the description's standing
-        pose): CoM target = its CoM, base upright with its heading, posture = default pose."""
+        """Back to the freshly constructed state, references anchored at configuration ``q``
+        (default: the description's standing pose): CoM target = its CoM, base upright with its
+        heading, posture = default pose, no momentum reference. Nothing of past ticks survives
+        (:meth:`WholeBodyController.reset`: clock, last torque, failure counts, contact ramps,
+        solver warm start, active set): a used controller after ``reset(q)`` gives bit-identical
+        torques to a new one."""
         q = self.description.default_configuration() if q is None else np.asarray(q, dtype=float)
+        self.wbc.reset()
+        for contact in self.contacts:  # as made at construction (whatever was removed or re-made since)
+            self.wbc.add_contact(contact, ramp_time=self.config.contact_ramp_time)
         kin = self.wbc.kin
         kin.update(q, np.zeros(kin.nv))
         self.nominal_com = np.array(kin.com)
@@ -164,7 +171,8 @@ class BalanceController:
         base = kin.frame_placement(kin.frame_id(self.description.base_link))
         self.base_task.set_reference(pin.SE3(_heading(base.rotation), base.translation))
         self.posture_task.set_reference(self.description.default_positions)
-        self.wbc.solver.reset()
+        if self.momentum_task is not None:
+            self.momentum_task.set_reference(np.zeros(3))
 
     def set_com_target(self, position: np.ndarray, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
         """Absolute CoM target (world), with optional feed-forward velocity and acceleration."""

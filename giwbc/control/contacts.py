@@ -46,6 +46,9 @@ from scipy.optimize import nnls
 
 from giwbc.control.kinodynamics import LOCAL, Kinodynamics
 
+_frame_jacobian = pin.getFrameJacobian
+_classical_acceleration = pin.getFrameClassicalAcceleration
+
 DEFAULT_FRICTION = 0.8
 DEFAULT_MAX_NORMAL_FORCE = 2000.0  # N, per contact (SurfaceContact) or per corner (CornerContact)
 
@@ -168,6 +171,7 @@ class Contact(abc.ABC):
         self.drift = np.zeros(6)
         self._friction = self.friction_matrix()
         self.phi = self.wrench_map()  # constant: None (identity) or (6, n_force)
+        self._twist = np.zeros(6)
 
     @property
     def feedback(self) -> bool:
@@ -215,6 +219,31 @@ class Contact(abc.ABC):
         model, data = kin.model, kin.data
         self.jacobian = pin.getFrameJacobian(model, data, self.joint_id, self.placement, LOCAL)
         self.drift = pin.getFrameClassicalAcceleration(model, data, self.joint_id, self.placement, LOCAL).vector
+
+    def assemble(self, kin: Kinodynamics, motion: np.ndarray, rhs: np.ndarray, columns: np.ndarray) -> None:
+        """The controller's hot path, :meth:`update` and :meth:`motion_target` in one: the
+        contact-frame Jacobian into ``motion`` (6, nv), ``−J̇ v − Kp e − Kd J v`` into ``rhs`` (6,)
+        and ``−JᵀΦ`` into ``columns`` (nv, n_force). The twist is ``J v`` (one product instead of
+        a third Pinocchio call)."""
+        model, data = kin.model, kin.data
+        J = self.jacobian = _frame_jacobian(model, data, self.joint_id, self.placement, LOCAL)
+        drift = self.drift = _classical_acceleration(model, data, self.joint_id, self.placement, LOCAL).vector
+        motion[...] = J
+        if self.kd > 0.0:
+            twist = self._twist
+            np.dot(J, kin.v, out=twist)
+            np.multiply(twist, -self.kd, out=rhs)
+            rhs -= drift
+        else:
+            np.negative(drift, out=rhs)
+        if self.kp > 0.0 and self.reference is not None:
+            rhs -= self.kp * pin.log6(self.reference.actInv(self.placement_in_world(kin))).vector
+        phi = self.phi
+        if phi is None:
+            np.negative(J.T, out=columns)
+        else:
+            np.matmul(J.T, phi, out=columns)
+            np.negative(columns, out=columns)
 
     def motion_target(self, kin: Kinodynamics, out: np.ndarray) -> None:
         """Right-hand side of the motion rows: ``−J̇ v − Kp e − Kd J v`` (call after update)."""

@@ -32,6 +32,8 @@ import pinocchio as pin
 
 from giwbc.control.kinodynamics import LWA, Kinodynamics
 
+_log3 = pin.log3
+
 
 def _row_vector(value: float | np.ndarray, dim: int, what: str) -> np.ndarray:
     array = np.broadcast_to(np.asarray(value, dtype=float), (dim,)).copy()
@@ -67,6 +69,11 @@ class Task(abc.ABC):
 
     constant_jacobian = False
     zero_drift = False
+    constant_gram = False  # JᵀWJ constant although J is not (see TaskStack)
+
+    def constant_gram_matrix(self, nv: int) -> np.ndarray:
+        """``JᵀWJ`` (nv, nv) of a ``constant_gram`` task."""
+        raise NotImplementedError
 
     def __init__(
         self,
@@ -110,6 +117,8 @@ class Task(abc.ABC):
         self._changed()
 
     def _set_rates(self, velocity: np.ndarray | None, acceleration: np.ndarray | None) -> None:
+        if velocity is None and acceleration is None and self.velocity_ref is self._zeros and self.acceleration_ref is self._zeros:
+            return  # no rates before, none now: nothing for the controller to gather again
         self.velocity_ref = self._zeros if velocity is None else _vector(velocity, self.dim, "velocity reference")
         self.acceleration_ref = self._zeros if acceleration is None else _vector(acceleration, self.dim, "acceleration reference")
         self.ref_version += 1
@@ -156,29 +165,41 @@ class TaskStack:
         J_w = √W J,   b_w = √W Kp e − Kd (J_w v) − √W J̇ v + √W ẍ_ref + √W Kd v_ref
 
     (``√W Kd J v = Kd J_w v``): the five signals are the rows of one (5, m) array and
-    ``b_w = Σ_rows(K ⊙ signals)`` is two numpy calls for all tasks. References are copied in only
-    when a task's ``ref_version`` changes, gains and weights gathered only when its ``version``
-    does. The Hessian ``J_wᵀ J_w`` is formed from the rows of the tasks whose Jacobian changes;
-    the constant-Jacobian tasks (posture) contribute ``hessian_constant`` (with ``ε I``).
+    ``−b_w = Σ_rows(K ⊙ signals)`` (gains stored negated) is two numpy calls for all tasks, the
+    gradient ``−J_wᵀ b_w`` one more. References are copied in only when a task's ``ref_version``
+    changes, gains and weights gathered only when its ``version`` does.
+
+    Rows come in three groups: tasks whose Gram matrix ``JᵀWJ`` changes with the state (CoM,
+    momentum, frame positions) — the only rows of the per-tick Hessian product —; tasks whose
+    rows change but whose Gram matrix does not (``constant_gram``: the orientation of the
+    floating base, ``J = [0, R, 0]`` so ``JᵀWJ = w I``); tasks with a constant Jacobian (posture).
+    The last two contribute ``hessian_constant`` (with ``ε I``), added on the diagonal only when
+    it is diagonal (it is for the balance controller).
     """
 
     def __init__(self, tasks: list[Task], nv: int, regularization: float = 0.0) -> None:
-        # Varying-Jacobian tasks first: their rows are the only ones in the Hessian product.
-        self.tasks = [t for t in tasks if not t.constant_jacobian] + [t for t in tasks if t.constant_jacobian]
-        m = sum(task.dim for task in self.tasks)
+        self.groups = [self._group(task) for task in tasks]
+        order = sorted(range(len(tasks)), key=lambda i: self.groups[i])  # stable
+        self.tasks = [tasks[i] for i in order]
+        self.groups = [self.groups[i] for i in order]
+        dims = [task.dim for task in self.tasks]
+        m = sum(dims)
         self.m, self.nv = m, nv
-        self.m_varying = mv = sum(task.dim for task in self.tasks if not task.constant_jacobian)
+        self.m_varying = mv = sum(d for d, grp in zip(dims, self.groups) if grp == 0)
+        self.m_rows = mr = sum(d for d, grp in zip(dims, self.groups) if grp < 2)  # rows written every tick
         self.regularization = float(regularization)
         self.J = np.zeros((m, nv))  # raw Jacobians
         self.Jw = np.zeros((m, nv))  # weighted
         self.signals = np.zeros((5, m))  # rows: e, J_w v, J̇ v, ẍ_ref, v_ref
         self.error, self._jv, self.drift, self._acc_ref, self._vel_ref = self.signals
-        self.b = np.zeros(m)
+        self._nb = np.zeros(m)  # −b_w
         self.hessian_constant = regularization * np.eye(nv)
-        self._gains = np.zeros((5, m))  # rows: √W Kp, −Kd, −√W, √W, √W Kd
+        self._gains = np.zeros((5, m))  # rows, negated: −√W Kp, Kd, √W, −√W, −√W Kd
         self._products = np.zeros((5, m))
         self._sw_col = np.zeros((m, 1))
-        self._J_varying, self._Jw_varying, self._sw_varying = self.J[:mv], self.Jw[:mv], self._sw_col[:mv]
+        self._J_rows, self._Jw_rows, self._sw_rows = self.J[:mr], self.Jw[:mr], self._sw_col[:mr]
+        self._Jw_varying = self.Jw[:mv]
+        self._Jw_varying_T = self._Jw_varying.T
         self.views = []
         start = 0
         for task in self.tasks:
@@ -186,57 +207,89 @@ class TaskStack:
             self.views.append((task, self.J[rows], self.error[rows], self.drift[rows], rows))
             task.rows_stale = True
             start += task.dim
-        self._versions = [(-1, -1)] * len(self.tasks)
+        self._writes = [(task.write, rows, error, drift) for task, rows, error, drift, _ in self.views]
+        self._constant_tasks = [task for task, group in zip(self.tasks, self.groups) if group == 2]
+        self._versions = [-1] * len(self.tasks)
+        self._ref_versions = [-1] * len(self.tasks)
         self._hessian_stale = True
+        self._regrouped = False
         self._constant_diagonal: np.ndarray | None = None
+        self._matmul, self._multiply, self._dot = np.matmul, np.multiply, np.dot
+        self._ones = np.ones(5)
+
+    @staticmethod
+    def _group(task: Task) -> int:
+        if task.constant_jacobian:
+            return 2
+        return 1 if task.constant_gram else 0
+
+    @property
+    def b(self) -> np.ndarray:
+        """``b_w`` (m,) of the last :meth:`evaluate`."""
+        return -self._nb
 
     def _refresh(self) -> None:
         for i, (task, _, _, _, rows) in enumerate(self.views):
-            version, ref_version = self._versions[i]
-            if version != task.version:
+            if self._versions[i] != task.version:
+                if self._group(task) != self.groups[i]:
+                    # A task changed kind (non-uniform weights on the base orientation): regroup.
+                    self.__init__(self.tasks, self.nv, self.regularization)  # type: ignore[misc]
+                    self._regrouped = True
+                    return
                 sw = np.sqrt(task.weight)
                 self._sw_col[rows, 0] = sw
                 gains = self._gains
-                gains[0, rows] = sw * task.kp
-                gains[1, rows] = -task.kd
-                gains[2, rows] = -sw
-                gains[3, rows] = sw
-                gains[4, rows] = sw * task.kd
-                self._hessian_stale = self._hessian_stale or task.constant_jacobian
-            if ref_version != task.ref_version:
+                gains[0, rows] = -sw * task.kp
+                gains[1, rows] = task.kd
+                gains[2, rows] = sw
+                gains[3, rows] = -sw
+                gains[4, rows] = -sw * task.kd
+                self._hessian_stale = self._hessian_stale or self.groups[i] > 0
+                self._versions[i] = task.version
+            if self._ref_versions[i] != task.ref_version:
                 self._acc_ref[rows] = task.acceleration_ref
                 self._vel_ref[rows] = task.velocity_ref
-            self._versions[i] = (task.version, task.ref_version)
+                self._ref_versions[i] = task.ref_version
         if self._hessian_stale:
-            mv = self.m_varying
-            constant = self.Jw[mv:] = self.J[mv:] * self._sw_col[mv:]
-            self.hessian_constant = constant.T @ constant + self.regularization * np.eye(self.nv)
-            diagonal = np.diag(self.hessian_constant)
-            # A diagonal constant part (selection tasks, ε I) is added on the diagonal only.
-            self._constant_diagonal = diagonal.copy() if np.count_nonzero(self.hessian_constant - np.diag(diagonal)) == 0 else None
+            mr = self.m_rows
+            constant = self.Jw[mr:] = self.J[mr:] * self._sw_col[mr:]
+            hessian = constant.T @ constant + self.regularization * np.eye(self.nv)
+            for task, group in zip(self.tasks, self.groups):
+                if group == 1:
+                    hessian += task.constant_gram_matrix(self.nv)
+            self.hessian_constant = hessian
+            diagonal = np.diag(hessian)
+            # A diagonal constant part (selection tasks, ε I, base orientation) is added on the diagonal only.
+            self._constant_diagonal = diagonal.copy() if np.count_nonzero(hessian - np.diag(diagonal)) == 0 else None
             self._hessian_stale = False
 
     def evaluate(self, kin: Kinodynamics) -> None:
-        """Write every task and form ``Jw`` and ``b`` for the current state."""
-        stale = self._hessian_stale
-        versions = self._versions
-        for i, (task, rows, error, drift, _) in enumerate(self.views):
-            if task.rows_stale and task.constant_jacobian:
-                stale = self._hessian_stale = True
-            task.write(kin, rows, error, drift)
-            if versions[i] != (task.version, task.ref_version):
-                stale = True
-        if stale:
+        """Write every task and form ``Jw`` and ``−b_w`` for the current state."""
+        for task in self._constant_tasks:
+            if task.rows_stale:
+                self._hessian_stale = True
+        for write, rows, error, drift in self._writes:
+            write(kin, rows, error, drift)
+        tasks, versions, ref_versions = self.tasks, self._versions, self._ref_versions
+        for i in range(len(tasks)):
+            task = tasks[i]
+            if task.version != versions[i] or task.ref_version != ref_versions[i]:
+                self._refresh()
+                break
+        if self._hessian_stale:
             self._refresh()
-        np.multiply(self._J_varying, self._sw_varying, out=self._Jw_varying)
-        np.matmul(self.Jw, kin.v, out=self._jv)
-        np.multiply(self._gains, self.signals, out=self._products)
-        np.add.reduce(self._products, axis=0, out=self.b)
+        if self._regrouped:  # new buffers: write every task again
+            self._regrouped = False
+            return self.evaluate(kin)
+        self._multiply(self._J_rows, self._sw_rows, out=self._Jw_rows)
+        self._matmul(self.Jw, kin.v, out=self._jv)
+        self._multiply(self._gains, self.signals, out=self._products)
+        self._dot(self._ones, self._products, out=self._nb)  # the column sums (faster than add.reduce)
 
     def hessian(self, out: np.ndarray, diagonal: np.ndarray | None = None) -> None:
         """``out = Σ Jᵀ W J + ε I`` (nv, nv), after :meth:`evaluate`; ``diagonal``, a writable
         view of ``out``'s diagonal, lets a diagonal constant part be added there only."""
-        np.matmul(self._Jw_varying.T, self._Jw_varying, out=out)
+        self._matmul(self._Jw_varying_T, self._Jw_varying, out=out)
         if diagonal is not None and self._constant_diagonal is not None:
             diagonal += self._constant_diagonal
         else:
@@ -244,8 +297,7 @@ class TaskStack:
 
     def gradient(self, out: np.ndarray) -> None:
         """``out = −Σ Jᵀ W (ẍ* − J̇ v)`` (nv,), after :meth:`evaluate`."""
-        np.matmul(self.b, self.Jw, out=out)
-        np.negative(out, out=out)
+        self._matmul(self._nb, self.Jw, out=out)
 
 
 class ComTask(Task):
@@ -263,9 +315,9 @@ class ComTask(Task):
         com = kin.com
         if self.position_ref is None:
             self.position_ref = np.array(com)
-        rows[:] = kin.com_jacobian
+        rows[...] = kin.com_jacobian
         np.subtract(self.position_ref, com, out=error)
-        drift[:] = kin.com_drift
+        kin.com_drift_into(drift)
 
 
 class FramePoseTask(Task):
@@ -300,10 +352,34 @@ class FramePoseTask(Task):
         self.frame_id = -1
         self.reference: pin.SE3 | None = None  # None: hold the pose at the first tick
         self._error6 = np.zeros(6)
+        self._root = False
+        self._angular_rows = slice(0, 3) if len(self.rows) == 3 and self._angular and not self._linear else self.rows[self.rows >= 3] - 3
+        self._all_angular = isinstance(self._angular_rows, slice)
+        self._relative = np.zeros((3, 3))
 
     def bind(self, kin: Kinodynamics) -> None:
         super().bind(kin)
         self.frame_id = kin.frame_id(self.frame)
+        frame = kin.model.frames[self.frame_id]
+        # Orientation of a frame on the floating base itself: its LWA angular rows are
+        # [0, R_base, 0] (the free-flyer's angular velocity is in the base frame) and its drift
+        # is zero, so they are written from the base rotation with no Pinocchio call.
+        self._root = kin.free_flyer and kin.n_base == 6 and int(frame.parentJoint) == 1 and not self._linear
+        rotation = np.array(frame.placement.rotation)
+        self._frame_rotation = None if np.array_equal(rotation, np.eye(3)) else rotation
+        if not self._linear:  # rows of the angular block
+            self._angular_rows = slice(0, 3) if len(self.rows) == 3 else self.rows - 3
+            self._all_angular = len(self.rows) == 3
+
+    @property
+    def constant_gram(self) -> bool:  # type: ignore[override]
+        """The base-orientation task with all three rows and one weight: ``JᵀWJ = w I``."""
+        return bool(getattr(self, "_root", False) and len(self.rows) == 3 and np.all(self.weight == self.weight[0]))
+
+    def constant_gram_matrix(self, nv: int) -> np.ndarray:
+        gram = np.zeros((nv, nv))
+        gram[3:6, 3:6] = self.weight[0] * np.eye(3)
+        return gram
 
     def set_reference(self, placement: pin.SE3, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
         """Reference pose; optional twist and classical acceleration, 6D world axes ``[linear; angular]``."""
@@ -317,20 +393,41 @@ class FramePoseTask(Task):
         self._set_rates(velocity, acceleration)
 
     def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
+        if self._root:
+            rotation = kin.base_rotation
+            if self.rows_stale:
+                rows[...] = 0.0
+                drift[...] = 0.0
+                self.rows_stale = False
+            if self.reference is None:
+                self.set_reference(kin.frame_placement(self.frame_id))
+            angular = self._angular_rows
+            relative = self._relative
+            if self._frame_rotation is None:
+                rows[:, 3:6] = rotation if self._all_angular else rotation[angular]
+                np.dot(self._reference_rotation, rotation.T, out=relative)
+            else:
+                rows[:, 3:6] = rotation[angular]
+                np.dot(self._reference_rotation, (rotation @ self._frame_rotation).T, out=relative)
+            if self._all_angular:
+                error[...] = _log3(relative)
+            else:
+                error[...] = _log3(relative)[angular]
+            return
         placement = kin.frame_placement(self.frame_id)
         if self.reference is None:
             self.set_reference(placement)
         select = self._select
-        rows[:] = kin.frame_jacobian(self.frame_id, LWA)[select]
-        drift[:] = kin.frame_drift(self.frame_id, LWA)[select]
+        rows[...] = kin.frame_jacobian(self.frame_id, LWA)[select]
+        drift[...] = kin.frame_drift(self.frame_id, LWA)[select]
         if not self._linear:  # orientation only: the common base / torso task
-            error[:] = pin.log3(self._reference_rotation @ placement.rotation.T)[select.start - 3 if isinstance(select, slice) else select - 3]
+            error[...] = pin.log3(self._reference_rotation @ placement.rotation.T)[self._angular_rows]
             return
         e = self._error6
         np.subtract(self._reference_translation, placement.translation, out=e[:3])
         if self._angular:
             e[3:] = pin.log3(self._reference_rotation @ placement.rotation.T)
-        error[:] = e[select]
+        error[...] = e[select]
 
 
 class FramePositionTask(FramePoseTask):
@@ -427,6 +524,7 @@ class ContactForceRegularization:
         self.name = name
         self.reference = reference
         self.support_point: np.ndarray | None = None
+        self.support_xy: tuple[float, float] | None = None  # its (x, y), as floats
         self.version = 0
         self.set_weight(weight)
 
@@ -439,6 +537,7 @@ class ContactForceRegularization:
     def set_support_point(self, point: np.ndarray | None) -> None:
         """World point (x, y used) whose static support sets the weight split between two contacts."""
         self.support_point = None if point is None else _vector(point, 3, "support point")
+        self.support_xy = None if point is None else (float(self.support_point[0]), float(self.support_point[1]))
         self.version += 1
 
     def shares(self, positions: list[np.ndarray], activations: list[float]) -> np.ndarray:
