@@ -166,3 +166,37 @@ def test_reset_forgets_the_previous_episode(make) -> None:
         observation, reward, *_ = env.step(actions[5])
         results.append((observation.tobytes(), reward, env.sim_robot.data.qpos.tobytes()))
     assert results[0] == results[1]
+
+
+def test_a_subset_of_residual_blocks(make) -> None:
+    """``residuals=("com", "orientation")``: 6 actions, the posture reference stays the default pose."""
+    env = make(residuals=["orientation", "com"])  # order given: the layout keeps com, orientation
+    env.reset(seed=0)
+    assert env.action_space.shape == (6,) and env.observation_space.shape == (3 + 3 + 2 * 29 + 6,)
+    assert env.describe()["action_names"] == ["com/x", "com/y", "com/z", "orientation/roll", "orientation/pitch", "orientation/yaw"]
+    action = np.zeros(6, np.float32)
+    action[1] = -1.0  # -y, a full CoM residual
+    hold(env, action, 75)
+    task = env.task
+    assert task.com_error()[1] == pytest.approx(-task.scales.com, abs=0.01)
+    assert np.array_equal(task.controller.posture_reference(), task.default_positions)
+    with pytest.raises(ValueError, match="residuals must be distinct names among"):
+        make(residuals=["com", "gains"])
+    with pytest.raises(ValueError, match="residuals must be distinct names among"):
+        make(controller="pd", controller_rate=50.0, residuals=["com"])
+
+
+def test_the_fall_penalty_is_paid_once_at_termination(make) -> None:
+    """Only the fall term is weighted: zero on every step, ``-fall`` on the terminating one."""
+    shove = SimToReal(pushes=PushConfig(interval=(0.2, 0.2), duration=0.5, force=(300.0, 300.0)))
+    weights = BalanceRewards(alive=0, upright=0, com=0, posture=0, effort=0, action_rate=0, fall=7.0)
+    env = make(controller="pd", controller_rate=50.0, sim2real=shove, rewards=weights)
+    env.reset(seed=0)
+    action = np.zeros(29, np.float32)
+    rewards = []
+    for _ in range(200):
+        _, reward, terminated, _, _ = env.step(action)
+        rewards.append(reward)
+        if terminated:
+            break
+    assert terminated and len(rewards) > 10 and rewards[-1] == -7.0 and all(r == 0.0 for r in rewards[:-1])

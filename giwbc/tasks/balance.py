@@ -4,7 +4,8 @@ Two controllers can sit beneath the action (``controller=``):
 
 - ``"wbc"`` (default): the QP whole-body balance controller of :mod:`giwbc.control.balance`, at the
   controller rate, from the measured ``(q, v)``. Action blocks: CoM offset (m), pelvis orientation
-  offset (roll, pitch, yaw, rad), posture offsets (rad).
+  offset (roll, pitch, yaw, rad), posture offsets (rad); ``residuals=`` keeps a subset of them
+  (``("com", "orientation")``: 6 actions, much faster to learn than 35).
 - ``"pd"``: the joint-PD hold of the description's gains, evaluated by the actuators. Action:
   posture offsets only. A baseline, and the fastest way to run the task.
 
@@ -16,13 +17,15 @@ The residuals are the action (in [-1, 1]) times per-block scales, clipped. Obser
 (proprioception only, what the real robot measures): gravity in the IMU frame, IMU angular rate,
 joint positions minus the default pose, joint velocities, the previous action.
 Reward: alive bonus + uprightness + CoM over its reference + posture near the reference,
-minus effort and action-rate penalties. Terminates when the pelvis drops or tilts too far.
+minus effort and action-rate penalties, minus a fall penalty at termination. Terminates when the
+pelvis drops or tilts too far.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -50,6 +53,7 @@ class BalanceRewards:
     posture_width: float = 0.5  # rad, norm over all joints
     effort: float = 0.1  # times the mean squared effort / effort limit
     action_rate: float = 0.05  # times the mean squared action change
+    fall: float = 20.0  # once, at the step that terminates the episode
 
 
 @dataclass(frozen=True)
@@ -61,14 +65,29 @@ class ResidualScales:
     posture: float = 0.1  # rad
 
 
+def _residual_layout(description: RobotDescription, scales: ResidualScales, names: tuple[str, ...], allowed: tuple[str, ...]) -> ResidualLayout:
+    """The action blocks ``names`` (a subset of ``allowed``, kept in ``allowed``'s order)."""
+    unknown = sorted(set(names) - set(allowed))
+    if unknown or not names or len(set(names)) != len(names):
+        raise ValueError(f"residuals must be distinct names among {allowed}, got {list(names)}")
+    labels = tuple(n for n, a in zip(description.joint_names, description.actuated) if a)
+    blocks = {
+        "com": ActionBlock("com", 3, scales.com, ("x", "y", "z")),
+        "orientation": ActionBlock("orientation", 3, scales.orientation, ("roll", "pitch", "yaw")),
+        "posture": ActionBlock("posture", len(labels), scales.posture, labels),
+    }
+    return ResidualLayout([blocks[name] for name in allowed if name in names])
+
+
 class _JointPD:
     """Residual posture over the description's joint-PD hold (impedance evaluated by the actuators)."""
 
-    def __init__(self, description: RobotDescription, scales: ResidualScales) -> None:
+    blocks = ("posture",)
+
+    def __init__(self, description: RobotDescription, scales: ResidualScales, residuals: tuple[str, ...]) -> None:
         self.default = description.default_positions
         self.actuated = description.actuated
-        labels = tuple(n for n, a in zip(description.joint_names, self.actuated) if a)
-        self.layout = ResidualLayout([ActionBlock("posture", len(labels), scales.posture, labels)])
+        self.layout = _residual_layout(description, scales, residuals, self.blocks)
         zeros = np.zeros(description.dofs)
         self.command = ImpedanceCommand(self.default.copy(), zeros.copy(), description.kp, description.kd, zeros.copy())
 
@@ -88,18 +107,18 @@ class _JointPD:
 class _WholeBody:
     """Residual CoM, pelvis orientation and posture references of the QP balance controller."""
 
-    def __init__(self, description: RobotDescription, scales: ResidualScales, options: dict[str, Any], model: pin.Model) -> None:
+    blocks = ("com", "orientation", "posture")
+
+    def __init__(
+        self, description: RobotDescription, scales: ResidualScales, residuals: tuple[str, ...], options: dict[str, Any], model: pin.Model
+    ) -> None:
         self.description, self.options = description, options
         self.pin_model = model  # shared, read-only: each controller makes its own Data
         self.balance = self._new_controller()  # validates the options now
         self.default = description.default_positions
         self.actuated = description.actuated
-        labels = tuple(n for n, a in zip(description.joint_names, self.actuated) if a)
-        self.layout = ResidualLayout([
-            ActionBlock("com", 3, scales.com, ("x", "y", "z")),
-            ActionBlock("orientation", 3, scales.orientation, ("roll", "pitch", "yaw")),
-            ActionBlock("posture", len(labels), scales.posture, labels),
-        ])
+        self.layout = _residual_layout(description, scales, residuals, self.blocks)
+        self._zero = {"com": np.zeros(3), "orientation": np.zeros(3), "posture": np.zeros(int(np.count_nonzero(self.actuated)))}
         self.posture = self.default.copy()
         self.base_reference = pin.SE3.Identity()
         self.result: Any = None
@@ -110,18 +129,18 @@ class _WholeBody:
         return make_balance_controller(self.description, model=self.pin_model, **self.options)
 
     def reset(self, robot: Robot) -> None:
-        """A fresh controller (~1 ms), references at the standing pose.
-
-        Fresh rather than reset: the WBC keeps state across ticks (last torque, tick time, contact
-        ramps, failure counts, warm start) that must not leak from one episode into the next.
-        """
-        self.balance = self._new_controller()
+        """References at the standing pose and nothing of the last episode left: the controller's
+        :meth:`~giwbc.control.balance.BalanceController.reset` gives the torques of a new one, bit
+        for bit. A new controller only when the model changed (``controller_model="randomized"``)."""
+        if self.balance.wbc.kin.model is not self.pin_model:
+            self.balance = self._new_controller()
         self.balance.reset()
         self.base_reference = pin.SE3(self.balance.base_task.reference)
         self.posture = self.default.copy()
         self.result = None
 
     def set_residuals(self, residuals: dict[str, np.ndarray]) -> None:
+        residuals = {**self._zero, **residuals}
         self.balance.set_com_offset(residuals["com"])
         rotation = self.base_reference.rotation @ pin.rpy.rpyToMatrix(residuals["orientation"])
         self.balance.base_task.set_reference(pin.SE3(rotation, self.base_reference.translation))
@@ -146,6 +165,7 @@ class G1Balance(Task):
         description: RobotDescription,
         *,
         controller: str = "wbc",
+        residuals: Sequence[str] | None = None,
         scales: ResidualScales | dict[str, float] | None = None,
         rewards: BalanceRewards | dict[str, float] | None = None,
         initial_joint_noise: float = 0.02,
@@ -169,12 +189,13 @@ class G1Balance(Task):
         self.max_tilt = float(max_tilt)
         self._pin_model = description.build_pinocchio()
         self._pin_data = self._pin_model.createData()
-        if controller == "pd":
-            self.controller: Any = _JointPD(description, self.scales)
-        elif controller == "wbc":
-            self.controller = _WholeBody(description, self.scales, dict(wbc_options or {}), self._pin_model)
-        else:
+        if controller not in ("wbc", "pd"):
             raise ValueError(f"controller must be 'wbc' or 'pd', got {controller!r}")
+        if controller == "pd":
+            self.controller: Any = _JointPD(description, self.scales, tuple(residuals or _JointPD.blocks))
+        else:
+            blocks = tuple(residuals or _WholeBody.blocks)
+            self.controller = _WholeBody(description, self.scales, blocks, dict(wbc_options or {}), self._pin_model)
         self.controller_name = controller
         self.layout: ResidualLayout = self.controller.layout
         self._nominal: Any = None  # randomization nominal values, for controller_model="randomized"
@@ -298,6 +319,7 @@ class G1Balance(Task):
             + w.posture * math.exp(-float(posture_error @ posture_error) / w.posture_width**2)
             - w.effort * float(effort @ effort) / effort.size
             - w.action_rate * float(change @ change) / change.size
+            - (w.fall if self.is_terminated() else 0.0)
         )
 
     def is_terminated(self) -> bool:
