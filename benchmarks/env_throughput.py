@@ -6,8 +6,11 @@ to one thread; the share of wall time in the physics engine, in the controller (
 G1Balance) and in everything else comes from the runtime's own timers. Every case runs on both
 engines (the ``*_pybullet`` entries: same task, same description, ``engine="pybullet"``).
 G1Balance-v0 runs as registered (random pushes) and without pushes (quiet standing: the WBC's
-warm-started best case). Scaling: the same seeded work (two jobs) run by 1 worker process in
-turn, then by 2 worker processes at once (fork).
+warm-started best case). Scaling: the same work (two identical jobs: same env, same seed, same
+number of steps) run by 1 worker process in turn, then by 2 worker processes at once (fork);
+identical jobs so that the two workers finish together and the ratio measures the machine, not
+the spread of episode lengths between seeds. Repeated ``--scaling-repeats`` times (interleaved:
+1, 2, 1, 2, ...); the median speed-up is reported with every repeat's.
 """
 
 from __future__ import annotations
@@ -107,7 +110,7 @@ def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int,
     context = mp.get_context("fork")
     barrier = context.Barrier(workers + 1)
     results = context.Queue()
-    work = [(seed, total_steps // jobs) for seed in range(jobs)]
+    work = [(0, total_steps // jobs) for _ in range(jobs)]
     processes = [context.Process(target=_worker, args=(env_id, kwargs, work[index::workers], barrier, results))
                  for index in range(workers)]
     for process in processes:
@@ -127,7 +130,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=2000, help="agent steps per measurement")
     parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
     parser.add_argument("--scaling-case", default="g1_balance_wbc", choices=list(CASES))
-    parser.add_argument("--scaling-steps", type=int, default=1000, help="total agent steps of the scaling test")
+    parser.add_argument("--scaling-steps", type=int, default=2000, help="total agent steps of the scaling test")
+    parser.add_argument("--scaling-repeats", type=int, default=3, help="1-vs-2-process measurements (median reported)")
     args = parser.parse_args()
 
     result: dict[str, Any] = {
@@ -147,14 +151,16 @@ def main() -> None:
         if name in result and f"{name}_pybullet" in result
     }
     env_id, kwargs = CASES[args.scaling_case]
-    one = scaling(env_id, kwargs, args.scaling_steps, 1)
-    two = scaling(env_id, kwargs, args.scaling_steps, 2)
+    pairs = [(scaling(env_id, kwargs, args.scaling_steps, 1), scaling(env_id, kwargs, args.scaling_steps, 2))
+             for _ in range(max(1, args.scaling_repeats))]
+    speedups = [two / one for one, two in pairs]
     result["scaling"] = {
         "case": args.scaling_case,
         "total_steps": args.scaling_steps,
-        "steps_per_s_1_process": one,
-        "steps_per_s_2_processes": two,
-        "speedup_2_over_1": two / one,
+        "steps_per_s_1_process": float(np.median([one for one, _ in pairs])),
+        "steps_per_s_2_processes": float(np.median([two for _, two in pairs])),
+        "speedup_2_over_1": float(np.median(speedups)),
+        "speedups": speedups,
     }
     print(json.dumps(result))
 
