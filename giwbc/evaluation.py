@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 
 DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
-# The reproducible WBC configuration (bit-deterministic solver): what the shipped policy was trained on.
-DEFAULT_ENV_KWARGS: dict[str, Any] = {"wbc_options": {"solver": "osqp"}}
+# The environment as registered (both WBC solvers give bit-reproducible answers).
+DEFAULT_ENV_KWARGS: dict[str, Any] = {}
 EVAL_SEED = 1000  # evaluation episodes use seeds 1000.. (training resets draw from seeds 0..n_envs-1)
 
 
@@ -141,6 +141,22 @@ class Comparison:
             for a, b in zip(self.wbc.episodes, self.residual.episodes)
         )
 
+    @property
+    def saved(self) -> int:
+        """Episodes the residual policy succeeds in and the WBC alone fails (same seed, same push)."""
+        return sum(b.success and not a.success for a, b in zip(self.wbc.episodes, self.residual.episodes))
+
+    @property
+    def lost(self) -> int:
+        """Episodes the WBC alone succeeds in and the residual policy fails."""
+        return sum(a.success and not b.success for a, b in zip(self.wbc.episodes, self.residual.episodes))
+
+    @property
+    def paired_p_value(self) -> float:
+        """Exact two-sided McNemar test on the discordant pairs (``saved`` vs ``lost``): the
+        probability of a split at least this uneven if neither arm were better."""
+        return mcnemar_exact(self.saved, self.lost)
+
     def summary(self) -> dict[str, Any]:
         return {
             "env_id": self.env_id,
@@ -148,7 +164,17 @@ class Comparison:
             "wbc": self.wbc.summary(),
             "residual": self.residual.summary(),
             "same_pushes": self.same_pushes,
+            "paired": {"saved": self.saved, "lost": self.lost, "mcnemar_exact_p": self.paired_p_value},
         }
+
+
+def mcnemar_exact(b: int, c: int) -> float:
+    """Two-sided exact McNemar p-value for ``b`` and ``c`` discordant pairs (binomial, p = 1/2)."""
+    n = b + c
+    if n == 0:
+        return 1.0
+    tail = sum(math.comb(n, k) for k in range(min(b, c) + 1)) / 2.0**n
+    return min(1.0, 2.0 * tail)
 
 
 # --- running episodes ---------------------------------------------------------------------------
@@ -360,6 +386,9 @@ def run_evaluate_command(args: Any) -> int:
         print(format_table(rows))
         if args.policy is not None:
             print("same pushes in both arms: " + ", ".join(str(c.same_pushes) for c in comparisons))
+            for c in comparisons:
+                print(f"paired at {c.wbc.protocol.force:g} N: the residual saves {c.saved} episodes the WBC alone loses, "
+                      f"loses {c.lost} the WBC alone saves (exact McNemar p = {c.paired_p_value:.3g})")
     return 0
 
 

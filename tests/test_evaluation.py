@@ -16,6 +16,7 @@ from giwbc.evaluation import (  # noqa: E402
     PushProtocol,
     add_evaluate_command,
     compare,
+    mcnemar_exact,
     run_episodes,
     wilson_interval,
 )
@@ -67,7 +68,15 @@ def test_zero_policy_matches_the_wbc_arm_episode_for_episode(tmp_path) -> None:
         assert wbc == residual  # same pushes, same states, bit for bit
     summary = comparison.summary()
     assert summary["wbc"]["success_rate"] == 1.0 and summary["residual"]["episodes"] == 2
+    assert summary["paired"] == {"saved": 0, "lost": 0, "mcnemar_exact_p": 1.0}
     json.dumps(summary)
+
+
+def test_mcnemar_exact_matches_the_binomial_tails() -> None:
+    assert mcnemar_exact(0, 0) == 1.0 and mcnemar_exact(3, 3) == 1.0
+    assert mcnemar_exact(5, 0) == pytest.approx(2 / 32)  # all five discordant pairs one way
+    assert mcnemar_exact(0, 5) == mcnemar_exact(5, 0)
+    assert mcnemar_exact(8, 2) == pytest.approx(2 * (1 + 10 + 45) / 1024)
 
 
 def test_results_do_not_depend_on_the_number_of_workers() -> None:
