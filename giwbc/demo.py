@@ -123,5 +123,5 @@ def run_demo(seconds: float = 10.0) -> int:
     _print_report(pd)
     from giwbc.evaluation import demo_residual
 
-    demo_residual(episodes=6, force=100.0)  # the shipped residual policy (policies/) over the same WBC
+    demo_residual(episodes=12, force=80.0)  # the shipped residual policy (policies/) over the same WBC
     return 0 if wbc.stood else 1

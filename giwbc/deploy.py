@@ -41,10 +41,17 @@ if TYPE_CHECKING:
 TASKS = ("stand", "balance")
 CONTROLLERS = ("wbc", "pd")
 def _runtime_keys() -> frozenset[str]:
-    """Env kwargs that configure the simulated runtime, not the task: the deployment drops them."""
+    """Env kwargs that configure the simulated runtime or ``gymnasium.make``'s wrappers
+    (``max_episode_steps``, ...), not the task: the deployment drops them."""
+    import inspect
+
+    import gymnasium
+
     from giwbc.envs import RUNTIME_OPTIONS
 
-    return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS})
+    named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    make_options = {name for name, p in inspect.signature(gymnasium.make).parameters.items() if p.kind in named} - {"id"}
+    return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS, *make_options})
 
 
 class DeployError(RuntimeError):

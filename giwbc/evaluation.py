@@ -457,7 +457,7 @@ def evaluate_swing_up(
 SHIPPED_POLICY = str(Path(__file__).resolve().parents[1] / "policies" / "g1_balance_residual.onnx")
 
 
-def demo_residual(policy_path: str | os.PathLike[str] = SHIPPED_POLICY, *, episodes: int = 6, force: float = 80.0,
+def demo_residual(policy_path: str | os.PathLike[str] = SHIPPED_POLICY, *, episodes: int = 12, force: float = 80.0,
                   seed: int = EVAL_SEED, workers: int = 2) -> Comparison | None:
     """For ``make demo``: the shipped residual policy vs the WBC alone, a few seeded pushes each (~10-20 s)."""
     from pathlib import Path
@@ -472,4 +472,6 @@ def demo_residual(policy_path: str | os.PathLike[str] = SHIPPED_POLICY, *, episo
           f"direction per {protocol.episode_seconds} s episode, seeds {seed}..{seed + episodes - 1}, same pushes in both arms:")
     for line in format_table([comparison.wbc, comparison.residual]).splitlines():
         print("  " + line)
+    print(f"  paired: the residual saves {comparison.saved} episodes the WBC alone loses and loses {comparison.lost} it saves "
+          "(the 100-episode figures: policies/README.md)")
     return comparison
