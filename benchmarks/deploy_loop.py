@@ -12,8 +12,12 @@ MCAP run log, as ``giwbc deploy --emulate`` runs them. Measured over the running
   and the host's CPU time per CAN frame (one command plus one reply per motor and cycle);
 - the bus loads of the hardware plan at that rate.
 
-The emulator runs in the loop's thread (lockstep): its CPU time is in every cycle. Other processes
-share this machine's cores; the load average is reported with the results.
+``--emulator process`` (default): the emulator runs in its own process on ``giwbc-unix`` channels
+(as motors run on their own hardware), on its own real-time clock; the CAN robot then reads each
+cycle's replies at the next cycle instead of waiting for them (``wait_for_replies=False``), and the
+emulator's CPU time is its process's (``emulator_mean``), not the loop's. ``--emulator lockstep``:
+the emulator in the loop's thread on python-can ``virtual`` buses; its CPU time is in every cycle.
+Other processes share this machine's cores; the load average is reported with the results.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from __future__ import annotations
 import argparse
 import copy
 import json
+import math
 import os
 import sys
 import tempfile
@@ -34,6 +39,7 @@ import numpy as np  # noqa: E402
 from giwbc.deploy import make_controller  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig  # noqa: E402
+from giwbc.hal.emulator_process import EmulatorProcess  # noqa: E402
 from giwbc.hal.hardware import load_hardware  # noqa: E402
 from giwbc.hal.runlog import RunLogWriter  # noqa: E402
 from giwbc.robot import load  # noqa: E402
@@ -43,10 +49,10 @@ from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask, StartupConfig
 class _CpuMeter:
     """Thread CPU time spent inside the emulator's calls and inside the robot's exchanges."""
 
-    def __init__(self, emulator: ActuatorEmulator, robot: CanRobot) -> None:
-        self.total = 0.0  # emulator
+    def __init__(self, emulator: ActuatorEmulator | None, robot: CanRobot) -> None:
+        self.total = 0.0  # emulator (in this thread: lockstep only)
         self.exchange = 0.0  # exchanges, emulator included
-        for name in ("advance", "answer"):
+        for name in ("advance", "answer") if emulator is not None else ():
             method = getattr(emulator, name)
 
             def timed(now: float, method=method) -> None:
@@ -67,16 +73,27 @@ class _CpuMeter:
         robot.exchange = timed_exchange  # type: ignore[method-assign]
 
 
-def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None) -> dict:
+def _child_cpu_seconds(pid: int) -> float:
+    """User + system CPU time of another process so far (Linux ``/proc/<pid>/stat``)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
+             mode: str) -> dict:  # fmt: skip
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
-    emulator = ActuatorEmulator(plan, description, EmulatorConfig(), model=copy.copy(model))
     estimator = None
     if controller == "wbc":
         from giwbc.robot.estimator import StateEstimator
 
         estimator = StateEstimator(description)
-    robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, estimator=estimator)
-    meter = _CpuMeter(emulator, robot)
+    if mode == "process":
+        emulator = EmulatorProcess(plan, description, EmulatorConfig())
+        robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, estimator=estimator, wait_for_replies=False)
+    else:
+        emulator = ActuatorEmulator(plan, description, EmulatorConfig(), model=copy.copy(model))
+        robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, estimator=estimator)
+    meter = _CpuMeter(emulator if mode == "lockstep" else None, robot)
     task = StandingTask(make_controller(controller, description), description.default_positions)
     writer = RunLogWriter(log_dir / f"deploy_loop_{int(rate)}.mcap", description.joint_names, {"benchmark": "deploy_loop"}) if log else None
     runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority,
@@ -85,9 +102,13 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     exchange_cpu_at: dict[str, float] = {}
     original = runtime._set_phase
 
+    child_cpu_at: dict[str, float] = {}
+
     def mark(phase: str) -> None:
         emulator_cpu_at.setdefault(phase, meter.total)
         exchange_cpu_at.setdefault(phase, meter.exchange)
+        if mode == "process" and emulator.pid is not None:
+            child_cpu_at.setdefault(phase, _child_cpu_seconds(emulator.pid))
         original(phase)
 
     runtime._set_phase = mark  # type: ignore[method-assign]
@@ -104,6 +125,8 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     emulator_cpu = (emulator_cpu_at.get("shutdown", meter.total) - emulator_cpu_at.get("running", 0.0)) / cycles
     exchange_cpu = (exchange_cpu_at.get("shutdown", meter.exchange) - exchange_cpu_at.get("running", 0.0)) / cycles
     can_path = exchange_cpu - emulator_cpu  # the host's CAN path: drain, encode, send, receive, decode, IMU
+    if mode == "process":  # the emulator's CPU is its own process's, not this thread's
+        child_cpu = (child_cpu_at.get("shutdown", math.nan) - child_cpu_at.get("running", math.nan)) / cycles
     total_cpu = float(np.mean(stats.cpu)) if stats.cpu else float("nan")
     frames = 2 * len(plan.motors)
     loads = list(plan.loads.values())
@@ -122,7 +145,8 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
             "total_mean": 1e6 * total_cpu,
             "total_p50": summary["cpu_us"]["p50"],
             "total_p99": summary["cpu_us"]["p99"],
-            "emulator_mean": 1e6 * emulator_cpu,
+            "emulator_mean": 1e6 * (emulator_cpu if mode == "lockstep" else child_cpu),
+            "emulator_in_loop_thread": mode == "lockstep",
             "host_mean": 1e6 * (total_cpu - emulator_cpu),
             "host_can_path_mean": 1e6 * can_path,
         },
@@ -145,6 +169,9 @@ def main() -> None:
     parser.add_argument("--controller", choices=("pd", "wbc"), default="pd")
     parser.add_argument("--no-log", action="store_true", help="run without the MCAP log")
     parser.add_argument("--rt-priority", type=int, default=None, help="run the loop under SCHED_FIFO at this priority")
+    parser.add_argument("--emulator", choices=("process", "lockstep"), default="process",
+                        help="the emulator in its own process on giwbc-unix channels (as motors on their own hardware), "
+                             "or in the loop's thread on python-can virtual buses (lockstep)")
     args = parser.parse_args()
 
     description = load(args.robot)
@@ -152,7 +179,7 @@ def main() -> None:
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         results = [
-            run_rate(description, model, rate, args.seconds, args.controller, Path(tmp), not args.no_log, args.rt_priority)
+            run_rate(description, model, rate, args.seconds, args.controller, Path(tmp), not args.no_log, args.rt_priority, args.emulator)
             for rate in args.rates
         ]
     print(json.dumps({
@@ -162,7 +189,8 @@ def main() -> None:
         "controller": args.controller,
         "log": not args.no_log,
         "scheduler": "default (CFS)" if args.rt_priority is None else f"SCHED_FIFO {args.rt_priority}",
-        "transport": "python-can virtual, emulator in the loop thread (lockstep)",
+        "transport": ("giwbc-unix channels (AF_UNIX SOCK_SEQPACKET), emulator in its own process" if args.emulator == "process"
+                      else "python-can virtual, emulator in the loop thread (lockstep)"),
         "machine": {"cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in load_before],
                     "loadavg_after": [round(x, 2) for x in os.getloadavg()], "python": sys.version.split()[0]},
         "results": results,

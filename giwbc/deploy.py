@@ -7,8 +7,12 @@ Procedure (:func:`deploy`):
    robot (joint names and order, rates: :func:`check_policy_metadata`, a plain-dict check);
 2. load the hardware plan and check it (motors for exactly the robot's joints, torque ranges,
    bus capacity at the control rate); print the bus loads;
-3. ``--emulate``: start the :class:`~giwbc.hal.emulator.ActuatorEmulator` on ``virtual`` buses;
-   otherwise open the configured buses;
+3. ``--emulate``: start the :class:`~giwbc.hal.emulator.ActuatorEmulator` on ``virtual`` buses,
+   in lockstep with the control loop (deterministic, can run faster than real time), or with
+   ``--emulator process`` in its own process on ``giwbc-unix`` channels, on its own real-time
+   clock (:mod:`giwbc.hal.emulator_process`: the loop then pays only for its own work, as with
+   real motors, and takes each cycle's replies at the next cycle); otherwise open the configured
+   buses;
 4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
    run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``;
@@ -34,12 +38,14 @@ if TYPE_CHECKING:
     import mujoco
 
     from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
+    from giwbc.hal.emulator_process import EmulatorProcess
     from giwbc.hal.safety import SafetyConfig
     from giwbc.robot.description import RobotDescription
     from giwbc.runtimes.realtime import RunResult, StartupConfig
 
 TASKS = ("stand", "balance")
 CONTROLLERS = ("wbc", "pd")
+EMULATOR_MODES = ("lockstep", "process")
 def _runtime_keys() -> frozenset[str]:
     """Env kwargs that configure the simulated runtime or ``gymnasium.make``'s wrappers
     (``max_episode_steps``, ...), not the task: the deployment drops them."""
@@ -167,6 +173,7 @@ class DeployOptions:
     controller: str = "wbc"
     hardware: str | None = None  # default: the robot folder's hardware.toml
     emulate: bool = False
+    emulator_mode: str = "lockstep"  # or "process": the emulator in its own process (module docstring)
     seconds: float = 10.0
     control_rate: float = 500.0
     agent_rate: float = 50.0
@@ -193,7 +200,7 @@ class DeployOutcome:
     log_path: str | None = None
     bus_loads: list[str] = field(default_factory=list)
     standing: dict[str, float] | None = None
-    emulator: ActuatorEmulator | None = None
+    emulator: ActuatorEmulator | EmulatorProcess | None = None
 
 
 def deploy(
@@ -236,6 +243,10 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         description = description or load(options.robot)
     except RobotDescriptionError as error:
         raise DeployError(str(error)) from error
+    if options.emulator_mode not in EMULATOR_MODES:
+        raise DeployError(f"emulator mode must be one of {', '.join(EMULATOR_MODES)}, got {options.emulator_mode!r}")
+    if options.emulate and options.emulator_mode == "process" and not options.realtime:
+        raise DeployError("the emulator process runs in real time: an unpaced run (realtime=False) needs the lockstep emulator")
 
     agent_rate = options.agent_rate
     if options.policy is not None and policy is None:
@@ -272,10 +283,17 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 from dataclasses import replace
 
                 config = replace(config, faults=tuple(config.faults) + tuple(options.faults))
-            emulator = ActuatorEmulator(plan, description, config, model=copy.copy(model) if model is not None else None)
-            host_plan, peer = emulator.host_plan(), emulator
+            if options.emulator_mode == "process":
+                from giwbc.hal.emulator_process import EmulatorProcess
+
+                emulator = EmulatorProcess(plan, description, config)
+                host_plan, peer = emulator.host_plan(), None
+                say("emulated actuators in their own process on giwbc-unix channels (real time; replies read at the next cycle)")
+            else:
+                emulator = ActuatorEmulator(plan, description, config, model=copy.copy(model) if model is not None else None)
+                host_plan, peer = emulator.host_plan(), emulator
+                say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
             imu = imu_source_for(plan.imu, emulator.imu_channel)
-            say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
         else:
             host_plan, peer = plan, None
             try:
@@ -289,7 +307,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
 
             estimator = StateEstimator(description)
         try:
-            robot = CanRobot(description, host_plan, imu=imu, estimator=estimator, peer=peer, reply_timeout=options.reply_timeout)
+            robot = CanRobot(description, host_plan, imu=imu, estimator=estimator, peer=peer, reply_timeout=options.reply_timeout,
+                             wait_for_replies=not (options.emulate and options.emulator_mode == "process"))
         except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
             raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
 
@@ -361,7 +380,7 @@ def _check_layout(metadata: Mapping[str, Any], task: Any) -> None:
             raise DeployError(f"the policy's {key} differ from the task's ({len(metadata.get(key) or [])} vs {len(names)} entries)")
 
 
-def _standing(emulator: ActuatorEmulator, result: RunResult) -> dict[str, float] | None:
+def _standing(emulator: ActuatorEmulator | EmulatorProcess, result: RunResult) -> dict[str, float] | None:
     """Ground truth over the running phase: did the emulated robot stay up?"""
     start = result.phase_times.get("running")
     if start is None:
@@ -389,7 +408,9 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--task", choices=TASKS, default=None, help="default: balance with a policy, stand without")
     parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP or joint-PD hold")
     parser.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")
-    parser.add_argument("--emulate", action="store_true", help="actuator emulator on python-can virtual buses")
+    parser.add_argument("--emulate", action="store_true", help="rehearse on the actuator emulator instead of the configured buses")
+    parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
+                        help="with --emulate: in the control loop's thread on virtual buses (lockstep), or in its own process (real time)")
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds of control after the start-up ramp")
     parser.add_argument("--rate", type=float, default=500.0, help="control rate, Hz")
     parser.add_argument("--log", default=None, help="run log (.mcap); default runs/deploy-<robot>-<time>.mcap")
@@ -405,7 +426,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
 
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
-        emulate=args.emulate, seconds=args.seconds, control_rate=args.rate, log=args.log,
+        emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
         startup=StartupConfig(ramp_time=args.ramp), rt_priority=args.rt_priority,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)

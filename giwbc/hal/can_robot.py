@@ -173,6 +173,11 @@ class CanRobot(DescribedRobot):
 
     ``links``: open :class:`CanBusLink` per bus in plan order (default: opened from the plan).
     ``reply_timeout``: how long after sending a cycle waits for replies at most (s).
+    ``wait_for_replies=False``: a cycle does not wait; it first takes the frames that arrived
+    since the last one (the replies to the previous cycle's commands: state one period old), then
+    sends. The loop then never blocks on the bus, which suits motors that answer later than a
+    fraction of the period (the emulator in its own process); a reply missing at the next cycle
+    counts as missing.
     """
 
     def __init__(
@@ -185,6 +190,7 @@ class CanRobot(DescribedRobot):
         peer: Peer | None = None,
         links: Sequence[CanBusLink] | None = None,
         reply_timeout: float = 0.8e-3,
+        wait_for_replies: bool = True,
     ) -> None:
         self.description = description
         self.plan = plan
@@ -197,6 +203,9 @@ class CanRobot(DescribedRobot):
         self.estimator = estimator
         self.peer = peer
         self.reply_timeout = float(reply_timeout)
+        self.wait_for_replies = bool(wait_for_replies)
+        if peer is not None and not self.wait_for_replies:
+            raise ValueError("a lockstep peer answers within the cycle: wait_for_replies=False needs motors with a clock of their own")
 
         self.motors = plan.motors
         self.group = MotorGroup(self.motors)
@@ -242,7 +251,8 @@ class CanRobot(DescribedRobot):
         """One cycle at time ``t``: send the held command (or ``enter``/``exit`` frames) to every
         motor, collect replies until all came, ``reply_timeout`` after sending, or ``deadline``
         (absolute ``perf_counter`` seconds, default: 5 ms from now) passed; read the IMU and update
-        the estimator. Never raises for bus trouble: it is in the report."""
+        the estimator. Never raises for bus trouble: it is in the report. (With
+        ``wait_for_replies=False`` the replies are collected first, see the class docstring.)"""
         if kind not in (COMMAND, ENTER, EXIT):
             raise ValueError(f"exchange kind must be command, enter or exit, got {kind!r}")
         peer = self.peer
@@ -251,7 +261,14 @@ class CanRobot(DescribedRobot):
             peer.advance(t)
             if deadline is not None:  # the emulator's work is not the host's: it does not eat the deadline
                 deadline += time.perf_counter() - started
-        late, corrupt_late, unknown_late = self._drain()
+        deferred = not self.wait_for_replies
+        if deferred:  # the replies to the previous cycle: whatever arrived, without waiting
+            received = time.perf_counter()
+            replied, corrupt, unknown = self._collect(received)
+            late, corrupt_late, unknown_late = 0, 0, 0
+            receive_s = time.perf_counter() - received
+        else:
+            late, corrupt_late, unknown_late = self._drain()
         t0 = time.perf_counter()
         if deadline is None:
             deadline = t0 + _SEND_BUDGET
@@ -261,14 +278,15 @@ class CanRobot(DescribedRobot):
             dropped += _send(link, messages[sl], deadline)
         self.send_dropped += dropped
         t1 = sent = time.perf_counter()
-        if peer is not None:
-            peer.answer(t)  # the emulator's work is not reply latency: the timeout starts after it
-            answered = time.perf_counter()
-            deadline += answered - t1
-            t1 = answered
-        limit = min(t1 + self.reply_timeout, deadline)
-        replied, corrupt, unknown = self._collect(limit)
-        t2 = time.perf_counter()
+        if not deferred:
+            if peer is not None:
+                peer.answer(t)  # the emulator's work is not reply latency: the timeout starts after it
+                answered = time.perf_counter()
+                deadline += answered - t1
+                t1 = answered
+            limit = min(t1 + self.reply_timeout, deadline)
+            replied, corrupt, unknown = self._collect(limit)
+            receive_s = time.perf_counter() - t1
 
         missing = ~replied
         self._stale = np.where(replied, 0, self._stale + 1)
@@ -283,7 +301,7 @@ class CanRobot(DescribedRobot):
             self._estimate = self.estimator.update(Measurement(self._imu, self._q.copy(), self._dq.copy(), self._tau.copy()))
         report = CycleReport(
             self.cycle, float(t), kind, missing, self._stale.copy(), self._error.copy(), self._temperature.copy(),
-            late, corrupt, unknown, dropped, clamped, imu_fresh, sent - t0, t2 - t1,
+            late, corrupt, unknown, dropped, clamped, imu_fresh, sent - t0, receive_s,
         )  # fmt: skip
         self.cycle += 1
         return report
@@ -350,12 +368,22 @@ class CanRobot(DescribedRobot):
         for b, link in enumerate(self.links):
             bus, decode, slot = link.bus, link.protocol.decode, self._slot[b]
             waiting = len(slot)
-            while waiting:
-                left = deadline - clock()
+            queued = None
+            drain = getattr(bus, "drain", None)  # a bus that hands over its whole queue at once (giwbc-unix)
+            if drain is not None and deadline <= clock():  # nothing to wait for: take what is there
                 try:
-                    msg = bus.recv(timeout=left if left > 0 else 0.0)
+                    queued = iter(drain())
                 except (can.CanError, OSError):
-                    break
+                    continue
+            while waiting:
+                if queued is not None:
+                    msg = next(queued, None)
+                else:
+                    left = deadline - clock()
+                    try:
+                        msg = bus.recv(timeout=left if left > 0 else 0.0)
+                    except (can.CanError, OSError):
+                        break
                 if msg is None:
                     break
                 if msg.is_error_frame or msg.is_remote_frame:

@@ -204,7 +204,9 @@ class ActuatorEmulator:
     """The motors of ``plan`` on virtual buses, driving a MuJoCo model of ``description``.
 
     ``model``: an ``MjModel`` to use (it is modified: gains live in actuator parameters), e.g. a
-    copy of a cached one; default: built from the description (slow, ~1 s).
+    copy of a cached one; default: built from the description (slow, ~1 s). ``interface`` and
+    ``bus_options``: the python-can interface of its channels (``"giwbc-unix"`` with
+    ``{"serve": True}`` when it runs in its own process, :mod:`giwbc.hal.emulator_process`).
     """
 
     def __init__(
@@ -215,6 +217,8 @@ class ActuatorEmulator:
         *,
         model: mujoco.MjModel | None = None,
         channel_prefix: str | None = None,
+        interface: str = "virtual",
+        bus_options: dict[str, Any] | None = None,
     ) -> None:
         from giwbc.robot.mujoco_robot import MujocoRobot
 
@@ -223,10 +227,10 @@ class ActuatorEmulator:
         names = description.joint_names
         self.plan = plan
         self._routing = plan.routing(names)  # validates the plan against the robot
-        prefix = channel_prefix or f"giwbc-emu-{uuid.uuid4().hex[:12]}"  # virtual channels of its own
+        prefix = channel_prefix or f"giwbc-emu-{uuid.uuid4().hex[:12]}"  # channels of its own
         self._host_plan = replace(
             plan,
-            buses=tuple(replace(b, interface="virtual", channel=f"{prefix}/{b.name}") for b in plan.buses),
+            buses=tuple(replace(b, interface=interface, channel=f"{prefix}/{b.name}") for b in plan.buses),
         )
         self.robot: MujocoRobot = MujocoRobot(description, model)
         period = 1.0 / plan.control_rate
@@ -245,7 +249,7 @@ class ActuatorEmulator:
         first = 0
         for bus in self._host_plan.buses:
             self.protocols.append(bus.make_protocol())
-            self.buses.append(can.Bus(interface="virtual", channel=bus.channel))
+            self.buses.append(can.Bus(interface=interface, channel=bus.channel, **(bus_options or {})))
             self._slot.append({m.can_id: first + i for i, m in enumerate(bus.motors)})
             first += len(bus.motors)
         self._variant = [m.reply for m in self.motors]
@@ -746,6 +750,10 @@ def _byte(x: np.ndarray) -> np.ndarray:
 
 
 def _drain(bus: can.BusABC) -> Iterable[can.Message]:
+    drain = getattr(bus, "drain", None)  # a bus that reads its whole queue at once (giwbc-unix)
+    if drain is not None:
+        yield from drain()
+        return
     while True:
         msg = bus.recv(timeout=0.0)
         if msg is None:

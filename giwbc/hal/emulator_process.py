@@ -1,0 +1,318 @@
+"""The actuator emulator in its own process, as motors run on their own hardware.
+
+In lockstep (:class:`~giwbc.hal.emulator.ActuatorEmulator` as the CAN robot's ``peer``) the
+control loop pays for the emulator's physics and firmware in every cycle, which real motors never
+cost it. :class:`EmulatorProcess` runs the same emulator in a child process instead, on
+:mod:`giwbc.hal.unix_bus` channels, on its own clock:
+
+* it starts when the host's first frame arrives (emulator time 0 is the host's first cycle, so
+  ground-truth times line up with the runtime's to about a period) and then advances physics in
+  real time, one physics step whenever one is due, answering frames as soon as they arrive —
+  what firmware does; the host gets replies asynchronously, late ones are late;
+* the IMU is published through a shared-memory mailbox (:class:`SharedImuChannel`), the
+  cross-process form of the in-process ``emulated`` IMU source;
+* faults are injected from the start (``EmulatorConfig.faults``) or with :meth:`add_fault`;
+* :meth:`close` stops the child and brings back its ground truth, counters and CPU time.
+
+A dry run in this mode is real-time and not bit-reproducible (two clocks); tests that need
+determinism use lockstep. An error in the child is reported by the parent with the child's
+traceback, and a child that dies shows up as motors that stop answering (the safety supervisor
+stops the run).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import multiprocessing
+import os
+import time
+import traceback
+import uuid
+from dataclasses import replace
+from multiprocessing import shared_memory
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from giwbc.hal.hardware import HardwarePlan
+from giwbc.robot.interface import ImuReading
+
+if TYPE_CHECKING:
+    from giwbc.hal.emulator import EmulatorConfig, EmulatorCounters, FaultInjection
+    from giwbc.robot.description import RobotDescription
+
+INTERFACE = "giwbc-unix"
+_IMU_FIELDS = 13  # sequence, time, quaternion (4), angular velocity (3), linear acceleration (3)
+BURST_WAIT = 80e-6  # s from the first frame of a burst of commands to its answer
+
+
+class SharedImuChannel:
+    """IMU mailbox in shared memory: one writer (the emulator process), readers anywhere.
+
+    A sequence lock: the writer makes the sequence odd, writes, makes it even; a reader retries
+    when it saw an odd sequence or a change, so it never returns a torn sample.
+    """
+
+    def __init__(self, name: str | None = None) -> None:
+        self._owner = name is None
+        size = _IMU_FIELDS * 8
+        self._shm = shared_memory.SharedMemory(create=True, size=size) if name is None else shared_memory.SharedMemory(name=name)
+        self._values = np.ndarray((_IMU_FIELDS,), dtype=np.float64, buffer=self._shm.buf)
+        if self._owner:
+            self._values[:] = 0.0
+        self.published = 0
+
+    @property
+    def name(self) -> str:
+        return self._shm.name
+
+    def publish(self, reading: ImuReading) -> None:
+        values = self._values
+        values[0] += 1.0  # odd: writing
+        values[1] = reading.time
+        values[2:6] = reading.quaternion
+        values[6:9] = reading.angular_velocity
+        values[9:12] = reading.linear_acceleration
+        values[0] += 1.0  # even: consistent
+        self.published += 1
+
+    def read(self) -> ImuReading | None:
+        values = self._values
+        for _ in range(1000):
+            before = values[0]
+            if before == 0.0:
+                return None  # nothing published yet
+            if before % 2.0 == 0.0:
+                sample = values.copy()
+                if values[0] == before:
+                    return ImuReading(sample[2:6], sample[6:9], sample[9:12], float(sample[1]))
+        raise RuntimeError("the IMU mailbox is being written continuously: writer stuck")
+
+    def close(self) -> None:
+        del self._values
+        self._shm.close()
+        if self._owner:
+            self._shm.unlink()
+
+
+class EmulatorProcess:
+    """An :class:`~giwbc.hal.emulator.ActuatorEmulator` of ``plan`` in a child process (module docstring)."""
+
+    def __init__(
+        self,
+        plan: HardwarePlan,
+        description: RobotDescription,
+        config: EmulatorConfig | None = None,
+        *,
+        start_timeout: float = 60.0,
+    ) -> None:
+        from giwbc.hal.emulator import EmulatorConfig
+
+        plan.routing(description.joint_names)  # validates here, with a clear error, before spawning
+        self.config = config or EmulatorConfig()
+        prefix = f"giwbc-emu-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        self._host_plan = replace(plan, buses=tuple(replace(b, interface=INTERFACE, channel=f"{prefix}/{b.name}") for b in plan.buses))
+        self.imu_channel = SharedImuChannel()
+        # fork: "spawn" would re-import the user's main script in the child (a script without an
+        # `if __name__ == "__main__"` guard would start a second emulator); nothing of the parent
+        # is used in the child but the arguments.
+        context = multiprocessing.get_context("fork")
+        self._conn, child = context.Pipe()
+        self._process = context.Process(
+            target=_serve, args=(plan, description, self.config, prefix, self.imu_channel.name, child),
+            name="giwbc-emulator", daemon=True,
+        )
+        self._process.start()
+        child.close()
+        self.truth = np.zeros((0, 3))
+        self.counters: EmulatorCounters | None = None
+        self.cpu_seconds: float | None = None  # the child's user + system CPU time, after close()
+        self.physics_dt: float | None = None
+        self.failure: str | None = None  # why the child did not end cleanly (after close())
+        self._closed = False
+        try:
+            kind, payload = self._receive(start_timeout, "start")
+        except BaseException:
+            self.close()
+            raise
+        if kind != "ready":
+            self.close()
+            raise RuntimeError(f"the emulator process failed to start:\n{payload}")
+        self.physics_dt = float(payload)
+
+    def host_plan(self) -> HardwarePlan:
+        """The plan the host opens: the same buses on this emulator's ``giwbc-unix`` channels."""
+        return self._host_plan
+
+    @property
+    def alive(self) -> bool:
+        return self._process.is_alive()
+
+    @property
+    def pid(self) -> int | None:
+        return self._process.pid
+
+    def add_fault(self, fault: FaultInjection) -> None:
+        """Inject a fault (its window is in emulator time: seconds since the host's first frame)."""
+        self._send(("fault", fault))
+
+    def truth_between(self, start: float, stop: float = math.inf) -> np.ndarray:
+        """Ground truth rows (time, base height, tilt rad) with ``start <= time < stop``, after :meth:`close`."""
+        rows = self.truth
+        return rows[(rows[:, 0] >= start) & (rows[:, 0] < stop)]
+
+    def close(self, timeout: float = 10.0) -> None:
+        """Stop the child, collect its results, release the shared memory (idempotent)."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self._process.is_alive():
+                self._send(("stop", None))
+        except OSError:
+            pass  # it is ending by itself (the host closed its buses): its results may be in the pipe
+        try:
+            kind, payload = self._receive(timeout, "stop")
+            if kind == "done":
+                self.truth, self.counters, self.cpu_seconds = payload
+        except (RuntimeError, OSError, EOFError) as error:
+            self.failure = str(error)  # a failed, dead or stuck child: terminated below
+        finally:
+            self._process.join(timeout)
+            if self._process.is_alive():
+                self._process.terminate()
+                self._process.join(1.0)
+            self._conn.close()
+            self.imu_channel.close()
+
+    def __enter__(self) -> EmulatorProcess:
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    def _send(self, message: tuple[str, Any]) -> None:
+        if self._closed and message[0] != "stop":
+            raise RuntimeError("the emulator process is closed")
+        self._conn.send(message)
+
+    def _receive(self, timeout: float, what: str) -> tuple[str, Any]:
+        deadline = time.monotonic() + timeout
+        while not self._conn.poll(0.05):
+            if not self._process.is_alive():
+                raise RuntimeError(f"the emulator process died (exit code {self._process.exitcode}) before {what}")
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"the emulator process did not answer within {timeout:g} s ({what})")
+        try:
+            kind, payload = self._conn.recv()
+        except EOFError:
+            raise RuntimeError(f"the emulator process closed its pipe before {what}") from None
+        if kind == "error":
+            raise RuntimeError(f"the emulator process failed:\n{payload}")
+        return kind, payload
+
+
+# ----------------------------------------------------------------------------- the child
+def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any) -> None:
+    """The child's main: build the emulator, wait for the host, then run in real time until told to stop."""
+    try:
+        _run(plan, description, config, prefix, imu_name, conn)
+    except BaseException:  # noqa: BLE001 - reported to the parent, which decides
+        try:
+            conn.send(("error", traceback.format_exc()))
+        except OSError:
+            pass
+
+
+def _rehearse(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, model: Any, cycles: int = 20) -> None:
+    """A short private lockstep run (enter motor mode, hold the default pose) on a throwaway
+    emulator: the first passes through numpy, MuJoCo and the codecs cost milliseconds each, which
+    the real run's first replies must not pay (they would come cycles late)."""
+    from giwbc.hal.can_robot import ENTER, CanRobot
+    from giwbc.hal.emulator import ActuatorEmulator
+    from giwbc.robot.standing import pd_hold_command
+
+    quiet = replace(config, faults=(), record=False, record_truth=False)
+    with ActuatorEmulator(plan, description, quiet, model=model) as emulator:
+        robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
+        try:
+            period = 1.0 / plan.control_rate
+            robot.exchange(0.0, kind=ENTER)
+            robot.set_joint_impedance(pd_hold_command(description))
+            for k in range(1, cycles):
+                robot.exchange(k * period)
+        finally:
+            robot.close()
+
+
+def _control(conn: Any, emulator: Any) -> bool:
+    """Handle one message from the parent; False when told to stop."""
+    kind, payload = conn.recv()
+    if kind == "fault":
+        emulator.add_fault(payload)
+    return kind != "stop"
+
+
+def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any) -> None:
+    import select
+
+    import can
+
+    from giwbc.hal.emulator import ActuatorEmulator
+
+    model = description.build_mujoco()
+    _rehearse(plan, description, config, copy.copy(model))
+    emulator = ActuatorEmulator(plan, description, config, model=model, channel_prefix=prefix, interface=INTERFACE, bus_options={"serve": True})
+    imu = SharedImuChannel(imu_name)
+    emulator.imu_channel = imu
+    emulator._publish_imu()  # the first sample, at rest, before the host's first cycle
+    conn.send(("ready", emulator.physics_dt))
+    control = conn.fileno()
+    listening = {bus.fileno(): bus for bus in emulator.buses}  # until the host connects each bus
+    connected: list[int] = []
+    start: float | None = None
+    clock = time.perf_counter
+    dt = emulator.physics_dt
+    running = True
+    # select(), not poll(): poll's timeouts are whole milliseconds, select's microseconds.
+    try:
+        while running:
+            timeout = None if start is None else max(0.0, start + emulator.time + dt - clock())
+            ready, _, _ = select.select([control, *listening, *connected], [], [], timeout)
+            frames = False
+            for fd in ready:
+                if fd == control:
+                    running = _control(conn, emulator)
+                elif fd in listening:
+                    bus = listening.pop(fd)
+                    if bus.accept(0.0):
+                        connected.append(bus.fileno())
+                    else:  # a spurious wake-up: keep listening
+                        listening[fd] = bus
+                else:
+                    frames = True
+            if not running:
+                break
+            if frames:
+                # A cycle's frames come as a burst (the host sends every motor's frame at once):
+                # let the burst arrive, then answer it as one batch, not frame by frame.
+                select.select([], [], [], BURST_WAIT)
+            if start is None:
+                if not frames:
+                    continue
+                start = clock()  # emulator time 0: the host's first frame
+            now = clock() - start
+            try:
+                emulator.advance(now)
+                emulator.answer(now)
+            except can.CanOperationError:
+                running = False  # the host closed its buses
+        cpu = os.times()
+        conn.send(("done", (np.array(emulator.truth, dtype=float).reshape(-1, 3), emulator.counters, cpu.user + cpu.system)))
+    finally:
+        emulator.close()
+        imu.close()
+
+
+__all__ = ["EmulatorProcess", "SharedImuChannel"]

@@ -1,0 +1,260 @@
+"""A python-can bus between two processes of one machine: ``can.Bus(interface="giwbc-unix", channel=...)``.
+
+Why: the actuator emulator can run in its own process (as motors run on their own hardware) only
+if the bus crosses processes, and python-can's ``virtual`` interface is in-process while
+SocketCAN/vcan and UDP multicast are not available everywhere. This bus is a Linux ``AF_UNIX``
+``SOCK_SEQPACKET`` connection in the abstract namespace (``"\\0giwbc-can/<channel>"``: no file, no
+network), one datagram per frame in SocketCAN's ``struct can_frame`` layout (32-bit id with the
+EFF/RTR/ERR flags, length, 8 data bytes), so a frame costs one system call each way.
+
+A channel has two ends: the motor side serves (``serve=True``: bind and listen; the host is
+accepted when it connects, at the first send or receive after that) and the host connects
+(retrying for ``connect_timeout`` s, then a clear error naming the channel). Like a real bus with
+no other node, frames sent before the peer is there are lost (counted in :attr:`unsent`).
+
+``send`` waits at most ``timeout`` for room in the socket buffer, then raises
+``can.CanOperationError`` (a full transmit queue); a closed peer raises ``can.CanOperationError``
+on send and receive. Registered with python-can through the ``can.interface`` entry point.
+"""
+
+from __future__ import annotations
+
+import errno
+import select
+import socket
+import struct
+import time
+from typing import Any
+
+import can
+
+from giwbc.hal.can_robot import FastMessage, _new
+
+CAN_EFF_FLAG = 0x80000000
+CAN_RTR_FLAG = 0x40000000
+CAN_ERR_FLAG = 0x20000000
+CAN_EFF_MASK = 0x1FFFFFFF
+_FRAME = struct.Struct("=IB3x8s")  # struct can_frame: can_id, len, pad, data[8]
+_POLL_IN, _POLL_OUT = select.POLLIN, select.POLLOUT
+_PEER_GONE = select.POLLHUP | select.POLLERR
+
+
+def channel_address(channel: str) -> bytes:
+    """The abstract-namespace address of a channel (Linux)."""
+    if not channel or "\0" in channel:
+        raise ValueError(f"a giwbc-unix channel is a non-empty name without NUL bytes, got {channel!r}")
+    return b"\0giwbc-can/" + channel.encode()
+
+
+class UnixCanBus(can.BusABC):
+    """One end of a two-node CAN channel between processes (see the module docstring)."""
+
+    def __init__(
+        self,
+        channel: str,
+        *,
+        serve: bool = False,
+        connect_timeout: float = 5.0,
+        _socket: socket.socket | None = None,
+        **kwargs: Any,
+    ) -> None:
+        self.channel = channel
+        self.channel_info = f"giwbc-unix {channel}" + (" (motor side)" if serve else "")
+        self.unsent = 0
+        self._listener: socket.socket | None = None
+        self._sock: socket.socket | None = None
+        self._closed = False
+        if _socket is not None:
+            self._connected(_socket)
+        elif serve:
+            listener = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+            try:
+                listener.bind(channel_address(channel))
+            except OSError as error:
+                listener.close()
+                raise can.CanInitializationError(f"giwbc-unix channel {channel!r} is already served by another process ({error})") from error
+            listener.listen(1)
+            listener.setblocking(False)
+            self._listener = listener
+        else:
+            self._connected(self._connect(channel, connect_timeout))
+        super().__init__(channel=channel, **kwargs)
+
+    @classmethod
+    def pair(cls, channel: str = "pair") -> tuple[UnixCanBus, UnixCanBus]:
+        """Two connected ends in this process (tests): (host, motor side)."""
+        a, b = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+        return cls(channel, _socket=a), cls(channel, _socket=b)
+
+    @staticmethod
+    def _connect(channel: str, timeout: float) -> socket.socket:
+        address = channel_address(channel)
+        deadline = time.monotonic() + timeout
+        while True:
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+            try:
+                sock.connect(address)
+                return sock
+            except OSError as error:
+                sock.close()
+                if error.errno not in (errno.ECONNREFUSED, errno.ENOENT, errno.EAGAIN) or time.monotonic() >= deadline:
+                    raise can.CanInitializationError(f"no motor side serves giwbc-unix channel {channel!r} ({error})") from error
+                time.sleep(0.01)
+
+    def _connected(self, sock: socket.socket) -> None:
+        sock.setblocking(False)
+        self._sock = sock
+        self._poll = select.poll()
+        self._poll.register(sock, _POLL_IN)
+
+    def accept(self, timeout: float) -> bool:
+        """Accept the host if it is there (waiting at most ``timeout``); True when connected."""
+        listener = self._listener
+        if listener is None:
+            return self._sock is not None
+        if not select.select([listener], [], [], max(0.0, timeout))[0]:
+            return False
+        try:
+            sock, _ = listener.accept()
+        except BlockingIOError:
+            return False
+        self._connected(sock)
+        listener.close()
+        self._listener = None
+        return True
+
+    @property
+    def connected(self) -> bool:
+        return self._sock is not None
+
+    def fileno(self) -> int:
+        """The descriptor to wait on: the connection, or the listening socket before it."""
+        sock = self._sock if self._sock is not None else self._listener
+        if sock is None:
+            raise can.CanOperationError(f"{self.channel_info} is closed")
+        return sock.fileno()
+
+    # ------------------------------------------------------------------ frames
+    def send(self, msg: can.Message, timeout: float | None = None) -> None:
+        sock = self._sock
+        if sock is None and not self.accept(0.0):
+            if self._closed:
+                raise can.CanOperationError(f"{self.channel_info} is closed")
+            self.unsent += 1  # nobody on the bus yet
+            return
+        sock = self._sock
+        assert sock is not None
+        can_id = msg.arbitration_id
+        if msg.is_extended_id:
+            can_id |= CAN_EFF_FLAG
+        if msg.is_remote_frame:
+            can_id |= CAN_RTR_FLAG
+        if msg.is_error_frame:
+            can_id |= CAN_ERR_FLAG
+        frame = _FRAME.pack(can_id, msg.dlc, bytes(msg.data))
+        try:
+            sock.send(frame)
+            return
+        except BlockingIOError:
+            pass
+        except OSError as error:
+            raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
+        # The buffer is full: wait for room, at most `timeout`.
+        if timeout is None or timeout > 0:
+            writable = select.poll()
+            writable.register(sock, _POLL_OUT)
+            if writable.poll(None if timeout is None else timeout * 1e3):
+                try:
+                    sock.send(frame)
+                    return
+                except BlockingIOError:
+                    pass
+                except OSError as error:
+                    raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
+        raise can.CanOperationError(f"{self.channel_info}: transmit buffer full")
+
+    def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
+        sock = self._sock
+        if sock is None:
+            if self._closed:
+                raise can.CanOperationError(f"{self.channel_info} is closed")
+            started = time.perf_counter()
+            if not self.accept(1e9 if timeout is None else timeout):
+                return None, False
+            if timeout is not None:
+                timeout = max(0.0, timeout - (time.perf_counter() - started))
+            sock = self._sock
+            assert sock is not None
+        try:
+            data = sock.recv(16)
+        except BlockingIOError:
+            if timeout is not None and timeout <= 0:
+                return None, False
+            events = self._poll.poll(None if timeout is None else timeout * 1e3)
+            if not events:
+                return None, False
+            try:
+                data = sock.recv(16)
+            except BlockingIOError:
+                return None, False
+            except OSError as error:
+                raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
+        except OSError as error:
+            raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
+        if not data:
+            raise can.CanOperationError(f"{self.channel_info}: the other end closed the channel")
+        return self._message(data), False
+
+    def drain(self) -> list[can.Message]:
+        """Every frame already waiting, without waiting and without python-can's per-call
+        ``recv`` wrapper (no software filters: this bus has none): the emulator's hot path."""
+        sock = self._sock
+        if sock is None and not self.accept(0.0):
+            return []
+        sock = self._sock
+        assert sock is not None
+        out = []
+        recv, message = sock.recv, self._message
+        while True:
+            try:
+                data = recv(16)
+            except BlockingIOError:
+                return out
+            except OSError as error:
+                raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
+            if not data:
+                raise can.CanOperationError(f"{self.channel_info}: the other end closed the channel")
+            out.append(message(data))
+
+    @staticmethod
+    def _message(data: bytes) -> can.Message:
+        if len(data) != _FRAME.size:
+            raise can.CanOperationError(f"giwbc-unix: a {len(data)}-byte datagram is not a CAN frame")
+        can_id, length, payload = _FRAME.unpack(data)
+        m = _new(FastMessage)
+        m.timestamp = time.time()
+        m.is_extended_id = bool(can_id & CAN_EFF_FLAG)
+        m.is_remote_frame = bool(can_id & CAN_RTR_FLAG)
+        m.is_error_frame = bool(can_id & CAN_ERR_FLAG)
+        m.arbitration_id = can_id & CAN_EFF_MASK
+        m.channel = None
+        m.dlc = min(length, 8)
+        m.data = bytearray(payload[: m.dlc])
+        m.is_fd = False
+        m.is_rx = True
+        m.bitrate_switch = False
+        m.error_state_indicator = False
+        return m
+
+    def shutdown(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        for sock in (self._sock, self._listener):
+            if sock is not None:
+                sock.close()
+        self._sock = self._listener = None
+        super().shutdown()
+
+
+__all__ = ["UnixCanBus", "channel_address"]

@@ -1,0 +1,91 @@
+"""The actuator emulator in its own process: a real-time dry run over giwbc-unix channels, a motor
+that stops answering ends in damping, the IMU crosses processes intact, the child's errors surface."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from giwbc.deploy import DeployOptions, deploy
+from giwbc.hal.emulator import EmulatorConfig, FaultInjection
+from giwbc.hal.emulator_process import EmulatorProcess, SharedImuChannel
+from giwbc.hal.hardware import load_hardware
+from giwbc.hal.runlog import read_log
+from giwbc.hal.safety import FaultKind, SafetyConfig
+from giwbc.robot.interface import ImuReading
+from giwbc.runtimes.realtime import StartupConfig
+
+STARTUP = StartupConfig(settle_time=0.05, ramp_time=0.3, shutdown_time=0.1, off_delay=0.05)
+
+
+def _options(tmp_path, **overrides) -> DeployOptions:
+    values = dict(emulate=True, emulator_mode="process", controller="pd", seconds=1.0, log=str(tmp_path / "run.mcap"), startup=STARTUP)
+    return DeployOptions(**{**values, **overrides})
+
+
+def test_dry_run_in_real_time_with_the_emulator_in_its_own_process(g1, tmp_path) -> None:
+    outcome = deploy(_options(tmp_path), description=g1, out=None)
+    assert outcome.exit_code == 0, outcome.message
+    result = outcome.result
+    assert result.ok and result.cycles > 500  # start-up, 1 s of control, shutdown at 500 Hz
+    assert outcome.standing is not None and outcome.standing["stood"] and outcome.standing["seconds"] > 0.9
+    emulator = outcome.emulator
+    assert emulator.failure is None and not emulator.alive
+    frames = emulator.counters.frames
+    assert frames.min() >= result.cycles - 3  # every motor heard (nearly) every cycle's frame
+    assert np.array_equal(emulator.counters.replies, frames)  # and answered each one
+    log = read_log(outcome.log_path)
+    assert not log.faults and log.event_names()[-1] == "motors_off"
+
+
+def test_a_motor_that_stops_answering_ends_in_damping(g1, tmp_path) -> None:
+    dead = FaultInjection("silent", ("right_knee_joint",), start=0.6)
+    outcome = deploy(_options(tmp_path, faults=(dead,), safety=SafetyConfig(damping_time=0.1)), description=g1, out=None)
+    result = outcome.result
+    assert outcome.exit_code == 1 and result.fault is not None
+    fault = result.fault
+    assert fault.kind is FaultKind.MISSING_REPLIES and fault.joints == ("right_knee_joint",)
+    log = read_log(outcome.log_path)
+    assert log.faults[0]["kind"] == FaultKind.MISSING_REPLIES.value
+    commands = [m for m in log.topic("/commands") if m["cycle"] > fault.cycle and m["kind"] == "command"]
+    assert commands and commands[0]["cycle"] <= fault.cycle + 2
+    assert max(commands[0]["kp"]) == 0 and max(abs(x) for x in commands[0]["tau_ff"]) == 0  # damping
+    assert log.event_names()[-1] == "motors_off"
+
+
+def test_an_unpaced_run_needs_the_lockstep_emulator(g1, tmp_path) -> None:
+    outcome = deploy(_options(tmp_path, realtime=False), description=g1, out=None)
+    assert outcome.exit_code == 2 and "lockstep" in outcome.message
+
+
+def test_the_shared_imu_mailbox_round_trips() -> None:
+    writer = SharedImuChannel()
+    reader = SharedImuChannel(writer.name)
+    try:
+        assert reader.read() is None
+        sample = ImuReading(np.array([0.1, -0.2, 0.3, 0.9]), np.array([1.0, 2.0, 3.0]), np.array([0.0, 0.5, 9.81]), 1.25)
+        writer.publish(sample)
+        got = reader.read()
+        assert got.time == 1.25
+        for field in ("quaternion", "angular_velocity", "linear_acceleration"):
+            assert np.array_equal(getattr(got, field), getattr(sample, field))
+    finally:
+        reader.close()
+        writer.close()
+
+
+def test_a_child_that_cannot_start_is_a_clear_error(g1) -> None:
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    bad = EmulatorConfig(initial_joint_positions=(0.0,) * 3)  # wrong length: the emulator raises in the child
+    with pytest.raises(RuntimeError, match="emulator process failed"):
+        EmulatorProcess(plan, g1, bad)
+
+
+def test_deferred_replies_need_motors_with_their_own_clock(g1) -> None:
+    from giwbc.hal.can_robot import CanRobot
+    from giwbc.hal.emulator import ActuatorEmulator
+
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    with ActuatorEmulator(plan, g1) as lockstep:
+        with pytest.raises(ValueError, match="lockstep peer"):
+            CanRobot(g1, lockstep.host_plan(), imu=lockstep.imu_channel, peer=lockstep, wait_for_replies=False)
