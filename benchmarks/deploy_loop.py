@@ -80,7 +80,7 @@ def _child_cpu_seconds(pid: int) -> float:
 
 
 def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
-             mode: str) -> dict:  # fmt: skip
+             mode: str, pin: bool) -> dict:  # fmt: skip
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     estimator = None
     if controller == "wbc":
@@ -88,7 +88,10 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
 
         estimator = StateEstimator(description)
     if mode == "process":
-        emulator = EmulatorProcess(plan, description, EmulatorConfig())
+        cpus = sorted(os.sched_getaffinity(0))
+        split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
+        emulator = EmulatorProcess(plan, description, EmulatorConfig(), rt_priority=None if rt_priority is None else max(1, rt_priority - 1),
+                                   cpu=cpus[-1] if split else None)  # fmt: skip
         robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, estimator=estimator, wait_for_replies=False)
     else:
         emulator = ActuatorEmulator(plan, description, EmulatorConfig(), model=copy.copy(model))
@@ -112,7 +115,11 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         original(phase)
 
     runtime._set_phase = mark  # type: ignore[method-assign]
+    if mode == "process" and split:
+        os.sched_setaffinity(0, {cpus[0]})  # this thread only (the log writer's thread may run anywhere)
     result = runtime.run(None, seconds)
+    if mode == "process" and split:
+        os.sched_setaffinity(0, set(cpus))
     robot.close()
     emulator.close()
     if writer is not None:
@@ -133,6 +140,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     return {
         "rate_hz": rate,
         "seconds": seconds,
+        "emulator_scheduler": emulator.scheduler if mode == "process" else "the loop's thread",
         "ok": result.ok,
         "fault": None if result.fault is None else str(result.fault),
         "cycles": summary["cycles"],
@@ -169,6 +177,8 @@ def main() -> None:
     parser.add_argument("--controller", choices=("pd", "wbc"), default="pd")
     parser.add_argument("--no-log", action="store_true", help="run without the MCAP log")
     parser.add_argument("--rt-priority", type=int, default=None, help="run the loop under SCHED_FIFO at this priority")
+    parser.add_argument("--no-pin", action="store_true",
+                        help="with --emulator process: do not pin the loop's thread and the emulator to different CPUs")
     parser.add_argument("--emulator", choices=("process", "lockstep"), default="process",
                         help="the emulator in its own process on giwbc-unix channels (as motors on their own hardware), "
                              "or in the loop's thread on python-can virtual buses (lockstep)")
@@ -179,7 +189,8 @@ def main() -> None:
     load_before = os.getloadavg()
     with tempfile.TemporaryDirectory() as tmp:
         results = [
-            run_rate(description, model, rate, args.seconds, args.controller, Path(tmp), not args.no_log, args.rt_priority, args.emulator)
+            run_rate(description, model, rate, args.seconds, args.controller, Path(tmp), not args.no_log, args.rt_priority, args.emulator,
+                     not args.no_pin)
             for rate in args.rates
         ]
     print(json.dumps({

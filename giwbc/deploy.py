@@ -286,7 +286,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             if options.emulator_mode == "process":
                 from giwbc.hal.emulator_process import EmulatorProcess
 
-                emulator = EmulatorProcess(plan, description, config)
+                rt = None if options.rt_priority is None else max(1, options.rt_priority - 1)  # just below the loop
+                emulator = EmulatorProcess(plan, description, config, rt_priority=rt)
                 host_plan, peer = emulator.host_plan(), None
                 say("emulated actuators in their own process on giwbc-unix channels (real time; replies read at the next cycle)")
             else:

@@ -23,6 +23,7 @@ stops the run).
 from __future__ import annotations
 
 import copy
+import gc
 import math
 import multiprocessing
 import os
@@ -97,7 +98,13 @@ class SharedImuChannel:
 
 
 class EmulatorProcess:
-    """An :class:`~giwbc.hal.emulator.ActuatorEmulator` of ``plan`` in a child process (module docstring)."""
+    """An :class:`~giwbc.hal.emulator.ActuatorEmulator` of ``plan`` in a child process (module docstring).
+
+    ``rt_priority``: the child runs under ``SCHED_FIFO`` at this priority (Linux, needs
+    CAP_SYS_NICE; refused silently otherwise, see :attr:`scheduler`): motors have hardware of their
+    own, and a host loop at real-time priority must not starve them of the CPU. ``cpu``: pin the
+    child to this CPU (keep the control loop on another one).
+    """
 
     def __init__(
         self,
@@ -105,6 +112,8 @@ class EmulatorProcess:
         description: RobotDescription,
         config: EmulatorConfig | None = None,
         *,
+        rt_priority: int | None = None,
+        cpu: int | None = None,
         start_timeout: float = 60.0,
     ) -> None:
         from giwbc.hal.emulator import EmulatorConfig
@@ -120,7 +129,7 @@ class EmulatorProcess:
         context = multiprocessing.get_context("fork")
         self._conn, child = context.Pipe()
         self._process = context.Process(
-            target=_serve, args=(plan, description, self.config, prefix, self.imu_channel.name, child),
+            target=_serve, args=(plan, description, self.config, prefix, self.imu_channel.name, child, rt_priority, cpu),
             name="giwbc-emulator", daemon=True,
         )
         self._process.start()
@@ -129,6 +138,7 @@ class EmulatorProcess:
         self.counters: EmulatorCounters | None = None
         self.cpu_seconds: float | None = None  # the child's user + system CPU time, after close()
         self.physics_dt: float | None = None
+        self.scheduler = "default"  # the child's scheduling policy, as it could set it
         self.failure: str | None = None  # why the child did not end cleanly (after close())
         self._closed = False
         try:
@@ -139,7 +149,7 @@ class EmulatorProcess:
         if kind != "ready":
             self.close()
             raise RuntimeError(f"the emulator process failed to start:\n{payload}")
-        self.physics_dt = float(payload)
+        self.physics_dt, self.scheduler = float(payload[0]), str(payload[1])
 
     def host_plan(self) -> HardwarePlan:
         """The plan the host opens: the same buses on this emulator's ``giwbc-unix`` channels."""
@@ -214,10 +224,11 @@ class EmulatorProcess:
 
 
 # ----------------------------------------------------------------------------- the child
-def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any) -> None:
+def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any,
+           rt_priority: int | None, cpu: int | None) -> None:  # fmt: skip
     """The child's main: build the emulator, wait for the host, then run in real time until told to stop."""
     try:
-        _run(plan, description, config, prefix, imu_name, conn)
+        _run(plan, description, config, prefix, imu_name, conn, rt_priority, cpu)
     except BaseException:  # noqa: BLE001 - reported to the parent, which decides
         try:
             conn.send(("error", traceback.format_exc()))
@@ -254,7 +265,8 @@ def _control(conn: Any, emulator: Any) -> bool:
     return kind != "stop"
 
 
-def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any) -> None:
+def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any,
+         rt_priority: int | None, cpu: int | None) -> None:  # fmt: skip
     import select
 
     import can
@@ -267,7 +279,21 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
     imu = SharedImuChannel(imu_name)
     emulator.imu_channel = imu
     emulator._publish_imu()  # the first sample, at rest, before the host's first cycle
-    conn.send(("ready", emulator.physics_dt))
+    # As the real-time runtime does: collect the set-up's garbage and freeze what is left, so no
+    # full collection of the heap (tens of ms) stalls the replies later.
+    gc.collect()
+    gc.freeze()
+    scheduler = "default"
+    if cpu is not None:
+        os.sched_setaffinity(0, {cpu})
+        scheduler = f"CPU {cpu}, default"
+    if rt_priority is not None and hasattr(os, "sched_setscheduler"):
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(rt_priority))
+            scheduler = f"SCHED_FIFO {rt_priority}" + ("" if cpu is None else f" on CPU {cpu}")
+        except (OSError, ValueError) as error:
+            scheduler = f"default (SCHED_FIFO refused: {error})"
+    conn.send(("ready", (emulator.physics_dt, scheduler)))
     control = conn.fileno()
     listening = {bus.fileno(): bus for bus in emulator.buses}  # until the host connects each bus
     connected: list[int] = []
