@@ -35,8 +35,6 @@ CAN_RTR_FLAG = 0x40000000
 CAN_ERR_FLAG = 0x20000000
 CAN_EFF_MASK = 0x1FFFFFFF
 _FRAME = struct.Struct("=IB3x8s")  # struct can_frame: can_id, len, pad, data[8]
-_POLL_IN, _POLL_OUT = select.POLLIN, select.POLLOUT
-_PEER_GONE = select.POLLHUP | select.POLLERR
 
 
 def channel_address(channel: str) -> bytes:
@@ -104,8 +102,6 @@ class UnixCanBus(can.BusABC):
     def _connected(self, sock: socket.socket) -> None:
         sock.setblocking(False)
         self._sock = sock
-        self._poll = select.poll()
-        self._poll.register(sock, _POLL_IN)
 
     def accept(self, timeout: float) -> bool:
         """Accept the host if it is there (waiting at most ``timeout``); True when connected."""
@@ -152,26 +148,22 @@ class UnixCanBus(can.BusABC):
         if msg.is_error_frame:
             can_id |= CAN_ERR_FLAG
         frame = _FRAME.pack(can_id, msg.dlc, bytes(msg.data))
+        if self._try_send(sock, frame):
+            return
+        # The buffer is full: wait for room, at most `timeout` (select: microsecond timeouts).
+        if (timeout is None or timeout > 0) and select.select([], [sock], [], timeout)[1] and self._try_send(sock, frame):
+            return
+        raise can.CanOperationError(f"{self.channel_info}: transmit buffer full")
+
+    def _try_send(self, sock: socket.socket, frame: bytes) -> bool:
+        """Send without waiting: False when the buffer is full, an error when the peer is gone."""
         try:
             sock.send(frame)
-            return
+            return True
         except BlockingIOError:
-            pass
+            return False
         except OSError as error:
             raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
-        # The buffer is full: wait for room, at most `timeout`.
-        if timeout is None or timeout > 0:
-            writable = select.poll()
-            writable.register(sock, _POLL_OUT)
-            if writable.poll(None if timeout is None else timeout * 1e3):
-                try:
-                    sock.send(frame)
-                    return
-                except BlockingIOError:
-                    pass
-                except OSError as error:
-                    raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
-        raise can.CanOperationError(f"{self.channel_info}: transmit buffer full")
 
     def _recv_internal(self, timeout: float | None) -> tuple[can.Message | None, bool]:
         sock = self._sock
@@ -190,8 +182,7 @@ class UnixCanBus(can.BusABC):
         except BlockingIOError:
             if timeout is not None and timeout <= 0:
                 return None, False
-            events = self._poll.poll(None if timeout is None else timeout * 1e3)
-            if not events:
+            if not select.select([sock], [], [], timeout)[0]:  # (select: microsecond timeouts, poll: milliseconds)
                 return None, False
             try:
                 data = sock.recv(16)
