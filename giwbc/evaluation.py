@@ -168,6 +168,10 @@ class Comparison:
         }
 
 
+def _episodes(n: int) -> str:
+    return f"{n} episode" + ("" if n == 1 else "s")
+
+
 def mcnemar_exact(b: int, c: int) -> float:
     """Two-sided exact McNemar p-value for ``b`` and ``c`` discordant pairs (binomial, p = 1/2)."""
     n = b + c
@@ -387,7 +391,7 @@ def run_evaluate_command(args: Any) -> int:
         if args.policy is not None:
             print("same pushes in both arms: " + ", ".join(str(c.same_pushes) for c in comparisons))
             for c in comparisons:
-                print(f"paired at {c.wbc.protocol.force:g} N: the residual saves {c.saved} episodes the WBC alone loses, "
+                print(f"paired at {c.wbc.protocol.force:g} N: the residual saves {_episodes(c.saved)} the WBC alone loses, "
                       f"loses {c.lost} the WBC alone saves (exact McNemar p = {c.paired_p_value:.3g})")
     return 0
 
@@ -472,6 +476,6 @@ def demo_residual(policy_path: str | os.PathLike[str] = SHIPPED_POLICY, *, episo
           f"direction per {protocol.episode_seconds} s episode, seeds {seed}..{seed + episodes - 1}, same pushes in both arms:")
     for line in format_table([comparison.wbc, comparison.residual]).splitlines():
         print("  " + line)
-    print(f"  paired: the residual saves {comparison.saved} episodes the WBC alone loses and loses {comparison.lost} it saves "
+    print(f"  paired: the residual saves {_episodes(comparison.saved)} the WBC alone loses and loses {comparison.lost} it saves "
           "(the 100-episode figures: policies/README.md)")
     return comparison
