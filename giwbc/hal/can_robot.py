@@ -23,7 +23,7 @@ measured when the command arrived, so the command computed from them goes out at
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -166,6 +166,14 @@ class CycleReport:
     @property
     def complete(self) -> bool:
         return not bool(self.missing.any())
+
+
+@dataclass
+class _Tally:
+    """Frames a cycle could not use: undecodable per bus, and unknown (error, remote, no such motor)."""
+
+    corrupt: np.ndarray
+    unknown: int = 0
 
 
 class CanRobot(DescribedRobot):
@@ -327,32 +335,51 @@ class CanRobot(DescribedRobot):
                 out.append(fast_message(f.arbitration_id, f.data, f.is_extended_id))
         return out, 0
 
+    def _replies(self, b: int, deadline: float, tally: _Tally, expected: int | None = None) -> Iterator[Any]:
+        """Decoded motor replies arriving on bus ``b`` until ``deadline`` (absolute ``perf_counter``
+        seconds; a past deadline reads only what is already waiting) or, with ``expected``, until
+        that many distinct motors replied. Error, remote and unknown frames and undecodable ones are counted
+        in ``tally``; a driver error ends the bus's reading. A bus that hands over its whole queue
+        at once (``drain``, giwbc-unix) is read that way when there is nothing to wait for."""
+        link = self.links[b]
+        bus, decode = link.bus, link.protocol.decode
+        clock = time.perf_counter
+        drain = getattr(bus, "drain", None)
+        seen: set[int] | None = None
+        if drain is not None and deadline <= clock():
+            try:
+                frames: Iterable[can.Message] = drain()
+            except (can.CanError, OSError):
+                return
+        else:
+            frames = _received(bus, deadline)
+            seen = set() if expected is not None else None
+        if expected == 0:
+            return
+        for msg in frames:
+            if msg.is_error_frame or msg.is_remote_frame:
+                tally.unknown += 1
+                continue
+            try:
+                reply = decode(msg.arbitration_id, msg.data, msg.is_extended_id)
+            except UnknownMotorError:
+                tally.unknown += 1
+                continue
+            except CanProtocolError:
+                tally.corrupt[b] += 1
+                continue
+            yield reply
+            if seen is not None:  # waiting for the bus's replies: stop once every motor's came
+                seen.add(reply.motor_id)
+                if len(seen) >= expected:  # type: ignore[operator]
+                    return
+
     def _drain(self) -> tuple[int, np.ndarray, int]:
         """Read frames already waiting (late replies, stray frames): (late, corrupt per bus, unknown)."""
-        late = unknown = 0
-        corrupt = np.zeros(len(self.links), dtype=np.int64)
-        for b, link in enumerate(self.links):
-            bus, decode = link.bus, link.protocol.decode
-            while True:
-                try:
-                    msg = bus.recv(timeout=0.0)
-                except (can.CanError, OSError):
-                    break
-                if msg is None:
-                    break
-                if msg.is_error_frame or msg.is_remote_frame:
-                    unknown += 1
-                    continue
-                try:
-                    decode(msg.arbitration_id, msg.data, msg.is_extended_id)
-                except UnknownMotorError:
-                    unknown += 1
-                except CanProtocolError:
-                    corrupt[b] += 1
-                else:
-                    late += 1
+        tally = _Tally(np.zeros(len(self.links), dtype=np.int64))
+        late = sum(1 for b in range(len(self.links)) for _ in self._replies(b, 0.0, tally))
         self.late_frames += late
-        return late, corrupt, unknown
+        return late, tally.corrupt, tally.unknown
 
     def _collect(self, deadline: float) -> tuple[np.ndarray, np.ndarray, int]:
         """Receive every bus's replies until each is complete or ``deadline`` passed; update the
@@ -362,44 +389,10 @@ class CanRobot(DescribedRobot):
         pos, vel, tor = np.zeros(n), np.zeros(n), np.zeros(n)
         temp = np.full(n, np.nan)
         err = np.full(n, -1, dtype=np.int64)
-        corrupt = np.zeros(len(self.links), dtype=np.int64)
-        unknown = 0
-        clock = time.perf_counter
-        for b, link in enumerate(self.links):
-            bus, decode, slot = link.bus, link.protocol.decode, self._slot[b]
-            waiting = len(slot)
-            queued = None
-            drain = getattr(bus, "drain", None)  # a bus that hands over its whole queue at once (giwbc-unix)
-            if drain is not None and deadline <= clock():  # nothing to wait for: take what is there
-                try:
-                    queued = iter(drain())
-                except (can.CanError, OSError):
-                    continue
-            while waiting:
-                if queued is not None:
-                    msg = next(queued, None)
-                else:
-                    left = deadline - clock()
-                    try:
-                        msg = bus.recv(timeout=left if left > 0 else 0.0)
-                    except (can.CanError, OSError):
-                        break
-                if msg is None:
-                    break
-                if msg.is_error_frame or msg.is_remote_frame:
-                    unknown += 1
-                    continue
-                try:
-                    r = decode(msg.arbitration_id, msg.data, msg.is_extended_id)
-                except UnknownMotorError:
-                    unknown += 1
-                    continue
-                except CanProtocolError:
-                    corrupt[b] += 1
-                    continue
+        tally = _Tally(np.zeros(len(self.links), dtype=np.int64))
+        for b, slot in enumerate(self._slot):
+            for r in self._replies(b, deadline, tally, expected=len(slot)):
                 i = slot[r.motor_id]
-                if not got[i]:
-                    waiting -= 1
                 got[i] = True
                 pos[i], vel[i], tor[i] = r.position, r.velocity, r.torque
                 temperature = r.rotor_temperature if r.rotor_temperature is not None else r.temperature
@@ -413,7 +406,7 @@ class CanRobot(DescribedRobot):
         self._temperature[j], self._error[j] = temp[got], err[got]
         replied = np.zeros(self.description.dofs, dtype=bool)
         replied[j] = True
-        return replied, corrupt, unknown
+        return replied, tally.corrupt, tally.unknown
 
     def _read_imu(self) -> bool:
         if self.imu_source is None:
@@ -556,6 +549,20 @@ class CanRobot(DescribedRobot):
 
     def __exit__(self, *exc: Any) -> None:
         self.close()
+
+
+def _received(bus: can.BusABC, deadline: float) -> Iterator[can.Message]:
+    """Frames from ``bus`` until ``deadline`` (absolute ``perf_counter`` s) passes or a driver error."""
+    clock = time.perf_counter
+    while True:
+        left = deadline - clock()
+        try:
+            msg = bus.recv(timeout=left if left > 0 else 0.0)
+        except (can.CanError, OSError):
+            return
+        if msg is None:
+            return
+        yield msg
 
 
 def _send(link: CanBusLink, messages: Sequence[can.Message], deadline: float) -> int:
