@@ -30,6 +30,7 @@ skipped (the last good estimate is held) or the bad channel is left out.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -171,13 +172,15 @@ class StateEstimator:
         self.detector = ContactDetector(
             n_feet, c.contact_on * weight, c.contact_off * weight, c.contact_filter_time, c.contact_full * weight
         )
-        self._imu_rotation = self.kinematics.imu_rotation  # IMU frame in base frame
-        self._imu_to_base = so3.quat_conjugate(so3.matrix_to_quat(self._imu_rotation))
+        self._imu_rotation = tuple(self.kinematics.imu_rotation.ravel().tolist())  # IMU frame in base frame, row by row
+        self._imu_to_base = tuple(so3.quat_conjugate(so3.matrix_to_quat(self.kinematics.imu_rotation)).tolist())
+        self._gravity = tuple(GRAVITY.tolist())
         leg_joints = [self.kinematics.leg_joints(i) for i in range(n_feet)]
         self._leg_mask = np.zeros((n_feet, dofs), dtype=bool)  # which joints each foot's kinematics uses
         for i, joints in enumerate(leg_joints):
             self._leg_mask[i, joints] = True
         self._dofs = dofs
+        self._nq, self._nv = self.kinematics.model.nq, self.kinematics.model.nv
         self._all_feet = np.ones(n_feet, dtype=bool)
         self._all_feet.flags.writeable = False
         self.reset()
@@ -211,15 +214,19 @@ class StateEstimator:
 
     def update(self, measurement: Measurement, contacts: np.ndarray | None = None) -> Estimate:
         """Fuse one measurement. ``contacts``: the controller's contact plan (one bool per
-        contact, description order); it overrides force-based detection for this update."""
+        contact, description order); it overrides force-based detection for this update.
+
+        3-vectors, quaternions and per-foot values are handled as Python floats (``so3.*_floats``):
+        at one sample per control tick, numpy's per-call overhead would cost more than their
+        arithmetic; numpy and Pinocchio take the joint-sized and matrix work."""
         monitor, c = self.monitor, self.config
         imu = measurement.imu
         now = float(imu.time)
-        gyro = np.asarray(imu.angular_velocity, float)
-        accel = np.asarray(imu.linear_acceleration, float)
         self._check_time(now)
-        self._check_vector(gyro, c.gyro_range, Fault.GYRO_INVALID, Fault.GYRO_SATURATED, "gyro")
-        accel_ok = self._check_vector(accel, c.accel_range, Fault.ACCEL_INVALID, Fault.ACCEL_SATURATED, "accelerometer")
+        gyro = self._read_vector(imu.angular_velocity, c.gyro_range, Fault.GYRO_INVALID, Fault.GYRO_SATURATED, "gyro")
+        accel = self._read_vector(
+            imu.linear_acceleration, c.accel_range, Fault.ACCEL_INVALID, Fault.ACCEL_SATURATED, "accelerometer"
+        )
         orientation = self._imu_orientation(imu.quaternion)  # validated quaternion or None
         plan = self._contact_plan(contacts)
         if monitor.has(_HOLDING):
@@ -227,44 +234,45 @@ class StateEstimator:
         position_ok, velocity_ok, effort_ok = self._read_joints(measurement)
         starting = not self.orientation.initialized
         if starting:
-            if not self.orientation.initialize(orientation, accel if accel_ok else None):
+            if not self.orientation.initialize(orientation, accel):
                 monitor.flag(Fault.ORIENTATION_INVALID, "no usable IMU orientation or gravity to start from: not initialized")
                 return self._hold()
             dt = 0.0
         else:
             dt = now - self._time
-            self.orientation.update(gyro, dt, orientation, accel if accel_ok else None)
+            self.orientation.update(gyro, dt, orientation, accel)
         self._time = now
 
-        base_quaternion = so3.quat_multiply(self.orientation.quaternion, self._imu_to_base)
-        base_rotation = so3.quat_to_matrix(base_quaternion)
-        base_omega = self._imu_rotation @ self.orientation.angular_velocity(gyro)  # base frame
+        base_quaternion, base_rotation, base_omega = self._base_attitude(gyro)
         use_efforts = measurement.contact_forces is None
         try:
             efforts = self._efforts if use_efforts else None
-            self.kinematics.compute(base_quaternion, base_omega, self._positions, self._velocities, efforts, base_rotation)
+            self.kinematics.compute(base_quaternion, base_omega, self._positions, self._velocities, efforts)
         except np.linalg.LinAlgError:  # a leg at a singularity: no effort-based forces this update
             use_efforts, effort_ok = False, np.zeros_like(effort_ok)
         stance = self._detect_contacts(measurement, effort_ok, use_efforts, plan, dt)
-
-        confidence = np.where(stance, np.maximum(self.detector.confidence(), c.contact_min_confidence), 0.0)
+        flags = stance.tolist()
+        loads = self._stance_confidence(flags)
         if starting:
             self._initialize_filter(stance)
         else:
-            acceleration = base_rotation @ (self._imu_rotation @ accel) + GRAVITY if accel_ok else None
-            self.filter.predict(acceleration, dt, confidence)
-            if not stance.any():
+            self.filter.predict(None if accel is None else self._world_acceleration(base_rotation, accel), dt, loads)
+            if not any(flags):
                 monitor.flag(Fault.NO_STANCE_FOOT, "no foot in contact: base velocity from the IMU alone")
             self.filter.correct(
-                self.kinematics.foot_positions, self.kinematics.foot_velocities, confidence, position_ok, velocity_ok,
+                self.kinematics.foot_positions, self.kinematics.foot_velocities, loads, position_ok, velocity_ok,
                 0.0 if c.ground_height is None else c.ground_height,
             )
-        self._estimate = self._make_estimate(base_rotation, base_quaternion, base_omega, stance, confidence, monitor.finish())
+        self._estimate = self._make_estimate(
+            base_rotation, base_quaternion, base_omega, stance, np.array(loads), monitor.finish()
+        )
         return self._estimate
 
     # --- checks ---------------------------------------------------------------------------
     def _check_time(self, now: float) -> None:
         last, monitor = self._time, self.monitor
+        if last is not None and 0.0 < now - last <= self.config.max_dt:  # fast path; False for NaN
+            return
         if not math.isfinite(now):
             monitor.flag(Fault.TIME_INVALID, f"IMU timestamp is {now}: update skipped")
         elif last is not None and now == last:
@@ -274,27 +282,34 @@ class StateEstimator:
         elif last is not None and now - last > self.config.max_dt:
             monitor.flag(Fault.TIME_GAP, f"{now - last:.4f} s since the last IMU sample (> {self.config.max_dt} s)")
 
-    def _check_vector(self, value: np.ndarray, limit: float, invalid: Fault, saturated: Fault, name: str) -> bool:
-        if value.shape == (3,) and np.abs(value).max() < 0.999 * limit:  # fast path; False for NaN
-            return True
+    def _read_vector(self, value: np.ndarray, limit: float, invalid: Fault, saturated: Fault, name: str) -> list[float] | None:
+        """A 3-vector reading as Python floats, or None (flagged) when not 3 finite numbers or
+        saturated (within 0.1 % of the sensor's range ``limit``)."""
+        value = np.asarray(value, float)
+        if value.shape == (3,):
+            x, y, z = floats = value.tolist()
+            bound = 0.999 * limit
+            if abs(x) < bound and abs(y) < bound and abs(z) < bound:  # fast path; False for NaN
+                return floats
         if value.shape != (3,) or not np.isfinite(value).all():
             self.monitor.flag(invalid, f"{name} reading {value} is not 3 finite numbers")
-            return False
-        if (np.abs(value) >= 0.999 * limit).any():
+        else:
             self.monitor.flag(saturated, f"{name} reading {value} is at its range +-{limit:g}")
-            return False
-        return True
+        return None
 
-    def _imu_orientation(self, quaternion: np.ndarray | None) -> np.ndarray | None:
-        """The IMU's orientation output (a unit quaternion), or None when unusable or unused."""
+    def _imu_orientation(self, quaternion: np.ndarray | None) -> list[float] | None:
+        """The IMU's orientation output (a unit quaternion, as Python floats), or None when
+        unusable or unused."""
         if not self.config.use_imu_orientation or quaternion is None:
             return None
         quaternion = np.asarray(quaternion, float)
-        if quaternion.shape != (4,) or not np.isfinite(quaternion).all() or abs(float(quaternion @ quaternion) - 1.0) > 0.02:
-            reason = f"IMU orientation {quaternion} is not a unit quaternion: gravity used instead"
-            self.monitor.flag(Fault.ORIENTATION_INVALID, reason)
-            return None
-        return quaternion
+        if quaternion.shape == (4,):
+            x, y, z, w = floats = quaternion.tolist()
+            if abs(x * x + y * y + z * z + w * w - 1.0) <= 0.02:  # False for NaN (and inf gives inf)
+                return floats
+        reason = f"IMU orientation {quaternion} is not a unit quaternion: gravity used instead"
+        self.monitor.flag(Fault.ORIENTATION_INVALID, reason)
+        return None
 
     def _contact_plan(self, contacts: np.ndarray | None) -> np.ndarray | None:
         if contacts is None:
@@ -308,7 +323,14 @@ class StateEstimator:
     def _read_joints(self, measurement: Measurement) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Take the joint readings, holding the last good value of any non-finite one. Returns,
         per foot, whether its leg's positions, velocities and efforts are all good."""
-        readings = []
+        try:  # one copy of all three (the caller may refill its arrays in place; these are the "last good" values)
+            readings = np.array((measurement.joint_positions, measurement.joint_velocities, measurement.joint_efforts), float)
+        except ValueError:  # ragged: the shapes are checked below
+            readings = None
+        # All finite when the sum of squares is (a huge but finite reading overflows it: checked one by one below).
+        if readings is not None and readings.shape == (3, self._dofs) and math.isfinite(np.vdot(readings, readings)):
+            self._positions, self._velocities, self._efforts = readings[0], readings[1], readings[2]  # views of the copy
+            return self._all_feet, self._all_feet, self._all_feet
         for name, value in (
             ("position", measurement.joint_positions),
             ("velocity", measurement.joint_velocities),
@@ -317,12 +339,7 @@ class StateEstimator:
             value = np.asarray(value, float)
             if value.shape != (self._dofs,):
                 raise ValueError(f"joint {name}s need shape ({self._dofs},), got {value.shape}")
-            readings.append(value)
         positions, velocities, efforts = readings
-        if np.isfinite(positions).all() and np.isfinite(velocities).all() and np.isfinite(efforts).all():
-            # Copies: the caller may refill its arrays in place, and these are the "last good" values.
-            self._positions, self._velocities, self._efforts = positions.copy(), velocities.copy(), efforts.copy()
-            return self._all_feet, self._all_feet, self._all_feet
         ok, held = [], []
         for name, value, last, fault in (
             ("position", positions, self._positions, Fault.JOINT_POSITION_INVALID),
@@ -361,6 +378,25 @@ class StateEstimator:
         return detected if plan is None else plan
 
     # --- state ----------------------------------------------------------------------------
+    def _base_attitude(self, gyro: Sequence[float]) -> tuple[so3.Quaternion, so3.Matrix3, so3.Vector3]:
+        """The base orientation (quaternion and matrix) from the orientation filter's IMU
+        orientation, and the base angular velocity (base frame) from the bias-corrected gyro."""
+        quaternion = so3.quat_multiply_floats(self.orientation.quaternion_floats, self._imu_to_base)
+        bx, by, bz = self.orientation.gyro_bias_floats
+        omega = so3.rotate(self._imu_rotation, (gyro[0] - bx, gyro[1] - by, gyro[2] - bz))
+        return quaternion, so3.quat_to_matrix_floats(quaternion), omega
+
+    def _world_acceleration(self, base_rotation: so3.Matrix3, accel: Sequence[float]) -> so3.Vector3:
+        """The IMU's acceleration in the world (its specific force rotated to world, plus gravity)."""
+        ax, ay, az = so3.rotate(base_rotation, so3.rotate(self._imu_rotation, accel))
+        gx, gy, gz = self._gravity
+        return (ax + gx, ay + gy, az + gz)
+
+    def _stance_confidence(self, flags: list[bool]) -> list[float]:
+        """Per foot: 0 in swing, else its load confidence, at least ``contact_min_confidence``."""
+        least = self.config.contact_min_confidence
+        return [max(load, least) if standing else 0.0 for load, standing in zip(self.detector.confidence_floats(), flags)]
+
     def _initialize_filter(self, stance: np.ndarray) -> None:
         """Feet on the ground (all of them, or those in stance) at rest; xy from the config."""
         c, kin = self.config, self.kinematics
@@ -386,18 +422,22 @@ class StateEstimator:
         return self._estimate
 
     def _make_estimate(
-        self, rotation: np.ndarray, quaternion: np.ndarray, omega_local: np.ndarray, stance: np.ndarray, confidence: np.ndarray,
-        faults: FaultReport,
+        self, rotation: so3.Matrix3, quaternion: so3.Quaternion, omega_local: so3.Vector3, stance: np.ndarray,
+        confidence: np.ndarray, faults: FaultReport,
     ) -> Estimate:
-        kf, kin = self.filter, self.kinematics
-        omega_world = rotation @ omega_local
-        position = kf.imu_position - kin.imu_offset
-        velocity = kf.imu_velocity - so3.cross(omega_world, kin.imu_offset)
-        base = BaseState(position, quaternion, velocity, omega_world)
-        q = np.concatenate([position, quaternion, self._positions])
-        v = np.concatenate([rotation.T @ velocity, omega_local, self._velocities])
+        kf = self.filter
+        omega_world = so3.rotate(rotation, omega_local)
+        (px, vx), (py, vy), (pz, vz) = kf.x[:, :2].tolist()  # IMU position and velocity
+        ox, oy, oz = offset = self.kinematics.imu_offset.tolist()
+        lever_x, lever_y, lever_z = so3.cross_floats(omega_world, offset)
+        position = (px - ox, py - oy, pz - oz)
+        velocity = (vx - lever_x, vy - lever_y, vz - lever_z)
+        base = BaseState(np.array(position), np.array(quaternion), np.array(velocity), np.array(omega_world))
+        q, v = np.empty(self._nq), np.empty(self._nv)
+        q[:7], q[7:] = position + quaternion, self._positions
+        v[:6], v[6:] = so3.rotate_back(rotation, velocity) + omega_local, self._velocities
         return Estimate(self._time, base, q, v, stance, confidence, self._forces.copy(), kf.base_covariance(),
-                        self.orientation.gyro_bias, faults)
+                        np.array(self.orientation.gyro_bias_floats), faults)
 
 
 class EstimatedRobot(Robot):

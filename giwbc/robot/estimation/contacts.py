@@ -10,6 +10,8 @@ controller's contact plan can override the result per update.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["ContactDetector"]
@@ -46,29 +48,46 @@ class ContactDetector:
 
     def reset(self) -> None:
         self.contacts = np.full(self.n_feet, self.initial)
-        self.forces: np.ndarray | None = None  # low-passed normal forces; None until the first update
+        self._filtered: list[float] | None = None  # low-passed normal forces; None until the first update
+
+    @property
+    def forces(self) -> np.ndarray | None:
+        """Low-passed normal forces (N); None until the first update."""
+        return None if self._filtered is None else np.array(self._filtered)
 
     def update(self, normal_forces: np.ndarray, dt: float, valid: np.ndarray | None = None) -> np.ndarray:
         """New flags from ``normal_forces`` measured ``dt`` s after the previous ones; feet whose
-        force is not ``valid`` (or not finite) keep their flag. Returns a new array each update."""
-        if self.forces is None:
-            self.forces = np.where(np.isfinite(normal_forces), normal_forces, 0.0)
+        force is not ``valid`` (or not finite) keep their flag. Returns a new array each update.
+
+        Per foot on Python floats: a handful of scalars, where numpy calls would cost more."""
+        measured = np.asarray(normal_forces, float).tolist()
+        usable = [True] * self.n_feet if valid is None else np.asarray(valid, bool).tolist()
+        if self._filtered is None:
+            filtered = [force if math.isfinite(force) else 0.0 for force in measured]
         else:
             alpha = 1.0 if self.time_constant == 0 else dt / (self.time_constant + dt)
-            step = alpha * (normal_forces - self.forces)
-            if valid is not None:
-                step = np.where(valid, step, 0.0)
-            self.forces = np.where(np.isfinite(step), self.forces + step, self.forces)
-        if valid is None:
-            self.contacts = (self.contacts | (self.forces > self.on_force)) & ~(self.forces < self.off_force)
-        else:
-            rising = (self.forces > self.on_force) & valid
-            falling = (self.forces < self.off_force) & valid
-            self.contacts = (self.contacts | rising) & ~falling
+            filtered = self._filtered
+            for i, (force, ok) in enumerate(zip(measured, usable)):
+                step = alpha * (force - filtered[i])
+                if ok and math.isfinite(step):
+                    filtered[i] += step
+        self._filtered = filtered
+        on, off = self.on_force, self.off_force
+        self.contacts = np.array(
+            [
+                (contact or (ok and force > on)) and not (ok and force < off)
+                for contact, force, ok in zip(self.contacts.tolist(), filtered, usable)
+            ]
+        )
         return self.contacts
 
     def confidence(self) -> np.ndarray:
         """Per foot, in [0, 1]: how loaded the foot is between ``off_force`` and ``full_force``."""
-        if self.forces is None:
-            return np.ones(self.n_feet)
-        return np.clip((self.forces - self.off_force) / (self.full_force - self.off_force), 0.0, 1.0)
+        return np.array(self.confidence_floats())
+
+    def confidence_floats(self) -> list[float]:
+        """:meth:`confidence` as Python floats."""
+        if self._filtered is None:
+            return [1.0] * self.n_feet
+        off, span = self.off_force, self.full_force - self.off_force
+        return [min(max((force - off) / span, 0.0), 1.0) for force in self._filtered]

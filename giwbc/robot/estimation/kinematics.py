@@ -3,21 +3,26 @@ force it carries, from one Pinocchio pass (joint Jacobians + RNEA) per update.
 
 Everything is expressed in world-aligned axes (the estimated base orientation) with the base
 origin held at zero, so a stance foot's relative position and velocity are exactly the
-measurements the leg Kalman filter needs.
+measurements the leg Kalman filter needs. The IMU is one more frame of the pass: its position and
+velocity come out with the feet's, and the feet's are taken relative to it. The pass runs on a
+model of the base and the legs only (the other joints locked): neither the feet's motion nor the
+legs' RNEA torques depend on the rest, which would only cost time.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
 from giwbc.robot.description import RobotDescription
-from giwbc.robot.estimation.so3 import cross
 
 __all__ = ["LegKinematics", "sole_frame_name"]
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+IMU_FRAME = "estimator_imu"  # the frame this module adds at the IMU (the base origin without one)
 
 
 def sole_frame_name(contact_name: str) -> str:
@@ -30,8 +35,8 @@ class LegKinematics:
 
     After :meth:`compute`, ``foot_positions[i]`` is foot ``i``'s sole centre minus the IMU position
     and ``foot_velocities[i]`` its velocity relative to an IMU that does not translate (both world
-    axes), ``imu_offset`` the IMU position minus the base origin, and ``foot_wrenches[i]`` the
-    wrench ``(force, torque)`` the ground exerts at the sole centre, estimated quasi-statically
+    axes), ``imu_offset`` the IMU position minus the base origin, and ``foot_wrenches[i]``
+    the wrench ``(force, torque)`` the ground exerts at the sole centre, estimated quasi-statically
     from the leg's joint efforts (``J_leg^T w = g(q) + C(q, v) v - tau``).
     """
 
@@ -40,32 +45,44 @@ class LegKinematics:
             raise ValueError(f"robot {description.name!r}: leg kinematics need a floating base with contacts")
         model = pin.Model(model) if model is not None else description.build_pinocchio()
         self.contact_names = tuple(c.name for c in description.contacts)
-        self._feet = []
-        self._leg_joints = []
-        for contact in description.contacts:
-            link = model.getFrameId(contact.link)
-            if link >= model.nframes:
-                raise ValueError(f"contact link {contact.link!r} is not a frame of the Pinocchio model")
-            parent = model.frames[link]
-            placement = parent.placement * pin.SE3(np.eye(3), np.asarray(contact.center, float))
-            frame = pin.Frame(sole_frame_name(contact.name), parent.parentJoint, link, placement, pin.FrameType.OP_FRAME)
-            self._feet.append(model.addFrame(frame, False))
-            chain = [j for j in model.supports[parent.parentJoint] if j > 1]  # skip universe and free flyer
-            self._leg_joints.append(np.array([model.joints[j].idx_v - 6 for j in chain]))
+        soles, chains = _add_sole_frames(model, description)
+        self._leg_joints = [np.array([model.joints[j].idx_v - 6 for j in chain]) for chain in chains]
         self.imu_position, self.imu_rotation = self._imu_placement(description, model)
-        self.model = model
+        base_frame = model.getFrameId(description.base_link)
+        base_frame = base_frame if base_frame < model.nframes else 0
+        imu = pin.Frame(IMU_FRAME, 1, base_frame, pin.SE3(self.imu_rotation, self.imu_position), pin.FrameType.OP_FRAME)
+        model.addFrame(imu, False)
+        self.model = model  # the whole robot, with the sole and IMU frames
         self.data = model.createData()
-        n = len(self._feet)
-        self._q = pin.neutral(model)
+        # Per update, only the legs move the feet and carry their load: the other joints are
+        # locked in a reduced model, which gives the same foot kinematics and leg torques (a
+        # joint's RNEA torque depends on the bodies it carries only) at about half the cost.
+        leg_set = set().union(*chains)
+        legs = model if len(leg_set) == model.njoints - 2 else _legs_only(model, leg_set)
+        self._legs, self._legs_data = legs, legs.createData()
+        self._frames = tuple(legs.getFrameId(name) for name in (*soles, IMU_FRAME))  # the feet, then the IMU
+        # Index maps: description joint order -> the reduced model's joints, and each leg's
+        # joints -> columns of the reduced model's velocity (slices where contiguous).
+        description_index = {model.names[j]: model.joints[j].idx_v - 6 for j in range(2, model.njoints)}
+        self._leg_model_joints = _as_index([description_index[legs.names[j]] for j in range(2, legs.njoints)])
+        leg_v = {legs.names[j]: legs.joints[j].idx_v for j in range(2, legs.njoints)}
+        self._leg_columns = [_as_index([leg_v[model.names[j]] for j in chain]) for chain in chains]
+        self._leg_rows = [_as_index([leg_v[model.names[j]] - 6 for j in chain]) for chain in chains]
+        # Legs of 6 joints each, none shared: together, their J_leg^T w = tau systems are one
+        # square system (a foot's Jacobian is zero on the other legs' joints), solved in one call.
+        self._block_legs = all(len(c) == 6 for c in chains) and sum(map(len, chains)) == len(leg_set) == legs.nv - 6
+        n = len(chains)
+        self._q = pin.neutral(legs)
         self._q[:3] = 0.0
-        self._v = np.zeros(model.nv)
-        self._zero = np.zeros(model.nv)
-        self.foot_positions = np.zeros((n, 3))
-        self.foot_velocities = np.zeros((n, 3))
+        self._v = np.zeros(legs.nv)
+        self._zero = np.zeros(legs.nv)
+        self._jacobians = np.zeros((n + 1, 6, legs.nv))  # LOCAL_WORLD_ALIGNED, of the feet then the IMU
+        self._frame_motion = np.zeros((n + 1, 6))  # their world position and velocity (base at 0, not translating)
+        self._relative_motion = np.zeros((n, 6))  # the feet's minus the IMU's
+        self.foot_positions = self._relative_motion[:, :3]  # views: updated by compute
+        self.foot_velocities = self._relative_motion[:, 3:]
+        self.imu_offset = self._frame_motion[n, :3]
         self.foot_wrenches = np.zeros((n, 6))
-        self.imu_offset = np.zeros(3)
-        self._jacobians = [np.zeros((6, model.nv)) for _ in range(n)]
-        self._leg_columns = [6 + joints for joints in self._leg_joints]
 
     @staticmethod
     def _imu_placement(description: RobotDescription, model: pin.Model) -> tuple[np.ndarray, np.ndarray]:
@@ -82,7 +99,7 @@ class LegKinematics:
 
     @property
     def n_feet(self) -> int:
-        return len(self._feet)
+        return len(self._leg_joints)
 
     def leg_joints(self, foot: int) -> np.ndarray:
         """Indices (description joint order) of the joints between the base and foot ``foot``."""
@@ -90,40 +107,74 @@ class LegKinematics:
 
     def compute(
         self,
-        base_quaternion: np.ndarray,
-        base_angular_velocity: np.ndarray,
+        base_quaternion: Sequence[float],
+        base_angular_velocity: Sequence[float],
         joint_positions: np.ndarray,
         joint_velocities: np.ndarray,
         joint_efforts: np.ndarray | None,
-        base_rotation: np.ndarray | None = None,
     ) -> None:
         """Fill the per-foot arrays. ``base_angular_velocity`` is in the base frame; the base
-        orientation (``base_rotation``: its matrix, when the caller has it) only rotates the
-        results into world axes (and orients gravity)."""
-        model, data, q, v = self.model, self.data, self._q, self._v
+        orientation only rotates the results into world axes (and orients gravity)."""
+        model, data, q, v, n = self._legs, self._legs_data, self._q, self._v, self.n_feet
+        joints = self._leg_model_joints
         q[3:7] = base_quaternion
-        q[7:] = joint_positions
+        q[7:] = joint_positions[joints]
         v[3:6] = base_angular_velocity
-        v[6:] = joint_velocities
+        v[6:] = joint_velocities[joints]
         pin.computeJointJacobians(model, data, q)
-        rotation = data.oMi[1].rotation if base_rotation is None else base_rotation
-        self.imu_offset[:] = rotation @ self.imu_position
-        imu_velocity = cross(rotation @ base_angular_velocity, self.imu_offset)
-        for i, frame in enumerate(self._feet):
-            self.foot_positions[i] = pin.updateFramePlacement(model, data, frame).translation
-            jacobian = pin.getFrameJacobian(model, data, frame, _LWA)
-            self._jacobians[i] = jacobian
-            self.foot_velocities[i] = jacobian[:3] @ v
-        self.foot_positions -= self.imu_offset
-        self.foot_velocities -= imu_velocity
+        motion, jacobians = self._frame_motion, self._jacobians
+        for i, frame in enumerate(self._frames):
+            motion[i, :3] = pin.updateFramePlacement(model, data, frame).translation
+            jacobians[i] = pin.getFrameJacobian(model, data, frame, _LWA)
+        np.matmul(jacobians[:, :3], v, out=motion[:, 3:])
+        np.subtract(motion[:n], motion[n], out=self._relative_motion)
         if joint_efforts is not None:
-            bias = pin.rnea(model, data, q, v, self._zero)[6:] - joint_efforts
-            for i, joints in enumerate(self._leg_joints):
-                leg_jacobian_t = self._jacobians[i][:, self._leg_columns[i]].T
-                if len(joints) == 6:
-                    *_, wrench, info = lapack.dgesv(leg_jacobian_t, bias[joints])
-                    if info != 0:
-                        raise np.linalg.LinAlgError(f"leg of foot {self.contact_names[i]!r} is singular")
-                    self.foot_wrenches[i] = wrench
-                else:
-                    self.foot_wrenches[i] = np.linalg.lstsq(leg_jacobian_t, bias[joints], rcond=None)[0]
+            bias = pin.rnea(model, data, q, v, self._zero)[6:] - joint_efforts[joints]
+            if self._block_legs:
+                *_, wrenches, info = lapack.dgesv(jacobians[:n, :, 6:].reshape(6 * n, -1).T, bias)
+                if info > 0:
+                    raise np.linalg.LinAlgError(f"leg of foot {self.contact_names[(info - 1) // 6]!r} is singular")
+                self.foot_wrenches[:] = wrenches.reshape(n, 6)
+            else:
+                for i in range(n):
+                    self.foot_wrenches[i] = self._leg_wrench(i, bias)
+
+    def _leg_wrench(self, foot: int, bias: np.ndarray) -> np.ndarray:
+        """The wrench at ``foot`` that its leg's ``bias`` torques (RNEA minus efforts) balance."""
+        leg_jacobian_t = self._jacobians[foot][:, self._leg_columns[foot]].T
+        rows = bias[self._leg_rows[foot]]
+        if leg_jacobian_t.shape[1] != 6:
+            return np.linalg.lstsq(leg_jacobian_t, rows, rcond=None)[0]
+        *_, wrench, info = lapack.dgesv(leg_jacobian_t, rows)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"leg of foot {self.contact_names[foot]!r} is singular")
+        return wrench
+
+
+def _add_sole_frames(model: pin.Model, description: RobotDescription) -> tuple[list[str], list[list[int]]]:
+    """Add a frame at each contact's sole centre to ``model``. Returns the frames' names and, per
+    contact, the joints between the base and its link (the leg, without the free flyer)."""
+    names, chains = [], []
+    for contact in description.contacts:
+        link = model.getFrameId(contact.link)
+        if link >= model.nframes:
+            raise ValueError(f"contact link {contact.link!r} is not a frame of the Pinocchio model")
+        parent = model.frames[link]
+        placement = parent.placement * pin.SE3(np.eye(3), np.asarray(contact.center, float))
+        names.append(sole_frame_name(contact.name))
+        model.addFrame(pin.Frame(names[-1], parent.parentJoint, link, placement, pin.FrameType.OP_FRAME), False)
+        chains.append([j for j in model.supports[parent.parentJoint] if j > 1])  # skip universe and free flyer
+    return names, chains
+
+
+def _legs_only(model: pin.Model, legs: set[int]) -> pin.Model:
+    """``model`` with every joint but the free flyer and ``legs`` locked (at the neutral pose)."""
+    locked = [j for j in range(2, model.njoints) if j not in legs]
+    return pin.buildReducedModel(model, locked, pin.neutral(model))
+
+
+def _as_index(indices: list[int]) -> slice | np.ndarray:
+    """``indices`` as a slice when they are consecutive (a view instead of a gather), else an array."""
+    if indices and indices == list(range(indices[0], indices[0] + len(indices))):
+        return slice(indices[0], indices[0] + len(indices))
+    return np.array(indices, dtype=int)

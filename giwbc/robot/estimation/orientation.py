@@ -12,6 +12,7 @@ operations, far cheaper than numpy calls on 3-vectors.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -46,6 +47,16 @@ class OrientationFilter:
         return np.array(self._q)
 
     @property
+    def quaternion_floats(self) -> tuple[float, float, float, float]:
+        """:attr:`quaternion` as Python floats."""
+        return self._q
+
+    @property
+    def gyro_bias_floats(self) -> tuple[float, float, float]:
+        """:attr:`gyro_bias` as Python floats."""
+        return self._bias
+
+    @property
     def rotation(self) -> np.ndarray:
         return so3.quat_to_matrix(self._q)
 
@@ -68,16 +79,19 @@ class OrientationFilter:
         self.initialized = True
         return True
 
-    def update(self, gyro: np.ndarray, dt: float, quaternion: np.ndarray | None, accel: np.ndarray | None) -> None:
+    def update(
+        self, gyro: Sequence[float], dt: float, quaternion: Sequence[float] | None, accel: Sequence[float] | None
+    ) -> None:
         """Propagate with the gyro (IMU frame, rad/s) over ``dt`` and correct toward the IMU's
-        orientation output ``quaternion`` or, without it, toward the gravity direction of ``accel``."""
+        orientation output ``quaternion`` or, without it, toward the gravity direction of ``accel``
+        (arrays, or sequences of Python floats: the cheapest)."""
         x, y, z, w = self._q
         bx, by, bz = self._bias
         ex = ey = ez = 0.0
         gain = 0.0
         if quaternion is not None:
             # Body-frame error rotation conj(q) * q_measured; 2 * its vector part ~ rotation vector.
-            mx, my, mz, mw = (float(c) for c in quaternion)
+            mx, my, mz, mw = so3.as_floats(quaternion)
             ew = w * mw + x * mx + y * my + z * mz
             sign = 2.0 if ew >= 0.0 else -2.0
             ex = sign * (w * mx - x * mw - y * mz + z * my)
@@ -85,7 +99,7 @@ class OrientationFilter:
             ez = sign * (w * mz - x * my + y * mx - z * mw)
             gain = self.orientation_gain
         elif accel is not None:
-            ax, ay, az = (float(c) for c in accel)
+            ax, ay, az = so3.as_floats(accel)
             norm = math.sqrt(ax * ax + ay * ay + az * az)
             trust = max(0.0, 1.0 - abs(norm - GRAVITY) / (0.1 * GRAVITY))  # 0 beyond +-10 % of 1 g
             if trust > 0.0:
@@ -100,7 +114,7 @@ class OrientationFilter:
             by = min(limit, max(-limit, by - step * ey))
             bz = min(limit, max(-limit, bz - step * ez))
             self._bias = (bx, by, bz)
-        gx, gy, gz = (float(c) for c in gyro)
+        gx, gy, gz = so3.as_floats(gyro)
         rx, ry, rz = (gx - bx + gain * ex) * dt, (gy - by + gain * ey) * dt, (gz - bz + gain * ez) * dt
         angle = math.sqrt(rx * rx + ry * ry + rz * rz)
         half = 0.5 * angle
