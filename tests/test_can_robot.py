@@ -9,15 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from giwbc.hal.can_robot import (
-    BaseStateUnavailable,
-    CanRobot,
-    FastMessage,
-    NonFiniteCommand,
-    _one_encoder,
-    fast_message,
-    imu_source_for,
-)
+from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, NonFiniteCommand, imu_source_for
+from giwbc.hal.frames import FastMessage, fast_message
 from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.hal.hardware import ImuConfig, load_hardware
 from giwbc.robot.estimator import StateEstimator
@@ -120,16 +113,16 @@ def test_torque_commands_go_out_as_zero_gain_impedance_frames(rig, g1, twisted_p
 
 def test_one_call_encoder_matches_each_buses_protocol(rig, g1, rng):
     robot, _ = rig()
-    encode = _one_encoder(robot.links, robot.motors)
     n = len(robot.motors)
     values = [rng.uniform(-30, 30, n), rng.uniform(-60, 60, n), rng.uniform(-10, 600, n), rng.uniform(-1, 7, n), rng.uniform(-250, 250, n)]
-    data, clamped = encode(*values)
+    batch, clamped = robot.codec.encode_commands(*values)
     start = 0
     for link in robot.links:
         k = len(link.protocol.motors)
-        batch = link.protocol.encode_commands(*(v[start : start + k] for v in values))
-        assert np.array_equal(data[start : start + k], batch.data)
-        assert np.array_equal(clamped[start : start + k], batch.clamped)
+        expected = link.protocol.encode_commands(*(v[start : start + k] for v in values))
+        assert np.array_equal(batch["data"][start : start + k], expected.data)
+        assert np.array_equal(batch["can_id"][start : start + k], expected.arbitration_ids)
+        assert np.array_equal(clamped[start : start + k], expected.clamped)
         start += k
 
 

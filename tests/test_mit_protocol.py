@@ -9,8 +9,15 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from giwbc.hal.frames import CAN_ERR_FLAG, FRAME, frames, frames_of
 from giwbc.hal.motor import MotorConfig, MotorModel, Range
 from giwbc.hal.protocols import (
+    CORRUPT,
+    ERROR_FRAME,
+    REPLY,
+    UNKNOWN,
+    ActuatorProtocol,
+    CanFrame,
     CanProtocolError,
     CommandValueError,
     CorruptFrameError,
@@ -349,23 +356,55 @@ def test_garbage_never_raises_anything_but_protocol_errors(specs, arb_id, data, 
     assert m.model.torque.min <= r.torque <= m.model.torque.max
 
 
-@settings(max_examples=200, deadline=None)
-@given(st.lists(st.binary(min_size=0, max_size=8), min_size=1, max_size=12))
-def test_decode_batch_agrees_with_decode(frames):
-    p = mixed_bus()
-    buf = np.zeros((len(frames), 8), dtype=np.uint8)
-    for i, f in enumerate(frames):
-        buf[i, : len(f)] = np.frombuffer(f, dtype=np.uint8)
-    out = p.decode_batch(buf, [len(f) for f in frames])
-    for i, f in enumerate(frames):
-        try:
-            r = p.decode(0, f)
-        except CanProtocolError:
-            assert out.index[i] == -1 and math.isnan(out.position[i])
-            continue
-        assert p.motors[out.index[i]].can_id == r.motor_id
-        assert (out.position[i], out.velocity[i], out.torque[i]) == (r.position, r.velocity, r.torque)
-        if r.temperature is not None:
-            assert out.temperature[i] == r.temperature
-        if r.error_code is not None:
-            assert out.error_code[i] == r.error_code
+frame_records = st.lists(
+    st.tuples(
+        st.sampled_from([0, 1, 2, 3, 4, 5, 0x7FF, 0x80000001, 0x40000001, 0x20000000]) | st.integers(0, 0xFFFFFFFF),
+        st.integers(0, 15),  # payload length as a struct can_frame says it (> 8: not a classic frame)
+        st.binary(min_size=8, max_size=8) | st.sampled_from([b"\xff" * 7 + bytes([k]) for k in range(0xFA, 0x100)]),
+        st.sampled_from([1, 2, 3, 0x13, 0xA3, 0xFF, 0x05]),  # byte 0: ids, Damiao states, strangers
+    ),
+    min_size=1,
+    max_size=16,
+)
+
+
+def _records(rows) -> np.ndarray:
+    batch = np.zeros(len(rows), dtype=FRAME)
+    for k, (can_id, length, data, b0) in enumerate(rows):
+        batch[k]["can_id"] = can_id
+        batch[k]["len"] = length
+        batch[k]["data"] = np.frombuffer(bytes([b0]) + data[1:] if data[:7] != b"\xff" * 7 else data, dtype=np.uint8)
+    return batch
+
+
+@settings(max_examples=300, deadline=None)
+@given(frame_records, st.sampled_from([None, 0, 0x7FF]))
+def test_vectorized_decode_equals_decode_frame_by_frame(rows, host_id):
+    """decode_frames (vectorized) gives what decode() gives for each frame: the same verdict
+    (reply, unknown, corrupt, error frame), the same MotorReply, bit for bit."""
+    p = MitProtocol(mixed_bus().motors, host_id=host_id)
+    batch = _records(rows)
+    fast = p.decode_frames(batch)
+    reference = ActuatorProtocol.decode_frames(p, batch)  # one decode() per frame
+    assert fast.verdict.tolist() == reference.verdict.tolist()
+    assert fast.index.tolist() == reference.index.tolist()
+    for k in range(len(batch)):
+        assert fast.reply(k) == reference.reply(k)
+
+
+def test_decode_frames_verdicts_match_the_exceptions():
+    p = MitProtocol([*mixed_bus().motors, motor(0xFF, "cubemars")])
+    good = p.encode_reply(2, 0.5, -1.0, 0.25)
+    batch = frames_of([
+        good,
+        CanFrame(good.arbitration_id, good.data[:3]),  # too short for motor 2's variant: corrupt
+        CanFrame(good.arbitration_id, bytes([0x42]) + good.data[1:]),  # no such motor: unknown
+        CanFrame(0x123, good.data, is_extended_id=True),  # extended: unknown
+        CanFrame(good.arbitration_id, b"\xff" * 7 + b"\xfc"),  # motor 0xFF's length, but enter-motor-mode: corrupt
+    ])  # fmt: skip
+    batch = np.concatenate([batch, frames([0], np.zeros((1, 8)))])
+    batch[-1]["can_id"] |= CAN_ERR_FLAG
+    decoded = p.decode_frames(batch)
+    assert decoded.verdict.tolist() == [REPLY, CORRUPT, UNKNOWN, UNKNOWN, CORRUPT, ERROR_FRAME]
+    assert decoded.reply(0) == p.decode(good.arbitration_id, good.data)
+    assert decoded.index.tolist() == [p.index[2], -1, -1, -1, -1, -1]

@@ -1,9 +1,10 @@
 """One CAN bus in the control loop, and the bus capacity planner.
 
-:class:`CanBusLink` wraps one python-can ``BusABC`` and one :class:`ActuatorProtocol`. Everything
-runs in the caller's thread against absolute ``time.perf_counter()`` deadlines (no ``Notifier``
-thread that could die silently): :meth:`CanBusLink.send` never raises on a full transmit buffer or
-a driver error (it retries a bounded number of times, then counts the frame as dropped), and
+:class:`CanBusLink` wraps one python-can ``BusABC`` (moved in batches by its
+:class:`~giwbc.hal.frames.FramePort`) and one :class:`ActuatorProtocol`. Everything runs in the
+caller's thread against absolute ``time.perf_counter()`` deadlines (no ``Notifier`` thread that
+could die silently): :meth:`CanBusLink.send` never raises on a full transmit buffer or a driver
+error (it retries a bounded number of times, then counts the frame as dropped), and
 :meth:`CanBusLink.receive` returns at the deadline at the latest, with the newest reply per motor.
 
 Capacity: per motor and cycle, one command and one reply frame cross the bus. A classic frame with
@@ -15,21 +16,23 @@ other traffic) *and* its worst-case load (every frame maximally stuffed) is at m
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Collection, Iterable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import can
+import numpy as np
 
+from giwbc.hal.frames import FRAME, Received, frame_port, frames, frames_of
 from giwbc.hal.protocols.base import (
     ActuatorProtocol,
     CanFrame,
-    CanProtocolError,
     CommandBatch,
+    DecodedReplies,
     FrameTraffic,
     MotorReply,
-    UnknownMotorError,
 )
 
 DEFAULT_MAX_LOAD = 0.8
@@ -162,7 +165,7 @@ def plan_bus_loads(buses: Iterable[BusPlanSpec], rate_hz: float) -> dict[str, Bu
 
 
 # --------------------------------------------------------------------------- link
-@dataclass(slots=True)
+@dataclass(frozen=True, slots=True)
 class LinkCounters:
     """Counts since the link was opened. ``errors`` are CAN error frames seen on the bus,
     ``bus_errors`` exceptions raised by the python-can driver (send or receive)."""
@@ -175,6 +178,13 @@ class LinkCounters:
     unknown: int = 0  # frames from no configured motor (unknown id, foreign, remote frames)
     corrupt: int = 0  # frames for us that could not be decoded (length, content)
     bus_errors: int = 0
+
+
+# Columns of a link's counter row (LinkCounters' field order): a robot driving several links keeps
+# their rows in one array and updates them all in one operation per cycle.
+SENT, DROPPED, RETRIES, RECEIVED, ERRORS, UNKNOWN, CORRUPT, BUS_ERRORS = range(8)
+# Verdict (REPLY, UNKNOWN, CORRUPT, ERROR_FRAME) -> counter column.
+VERDICT_COLUMNS = np.array([RECEIVED, UNKNOWN, CORRUPT, ERRORS], dtype=np.int64)
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,9 +204,9 @@ class ReceiveResult:
 class CanBusLink:
     """One python-can bus driven by one actuator protocol, from the control loop's thread.
 
-    ``send_timeout``: how long one ``bus.send`` may wait for room in the transmit queue (it is
-    further capped by the call's deadline); ``max_retries``: extra attempts per frame after a
-    driver error before the frame is dropped.
+    ``send_timeout``: how long one frame may wait for room in the transmit queue (further capped by
+    the call's deadline); ``max_retries``: extra attempts per frame after a failed one before the
+    frame is dropped. ``port``: how frames cross (default: :func:`~giwbc.hal.frames.frame_port`).
     """
 
     def __init__(
@@ -211,59 +221,49 @@ class CanBusLink:
         if send_timeout < 0 or max_retries < 0:
             raise ValueError("send_timeout and max_retries must be >= 0")
         self.bus = bus
+        self.port = frame_port(bus)
         self.protocol = protocol
         self.name = name or str(getattr(bus, "channel_info", "can"))
         self.send_timeout = float(send_timeout)
         self.max_retries = int(max_retries)
-        self._c = LinkCounters()
+        self.counts = np.zeros(8, dtype=np.int64)  # see LinkCounters; a robot may replace it by a row of its own array
 
     @property
     def counters(self) -> LinkCounters:
         """A snapshot of the counters."""
-        return replace(self._c)
+        return LinkCounters(*self.counts.tolist())
 
     # ------------------------------------------------------------------ send
-    def send(self, frames: Sequence[CanFrame] | CommandBatch, deadline: float | None = None) -> int:
+    def send(self, batch: Sequence[CanFrame] | CommandBatch | np.ndarray, deadline: float | None = None) -> int:
         """Send frames in order; returns how many went out. Never raises for driver errors.
 
-        A frame whose ``bus.send`` fails is retried up to ``max_retries`` times, then dropped. Each
-        attempt waits at most ``send_timeout`` and never past ``deadline`` (absolute
-        ``time.perf_counter()`` seconds); frames still unsent at the deadline are all counted as
-        dropped, so the call returns at the deadline at the latest (plus one driver call).
+        ``batch``: :data:`~giwbc.hal.frames.FRAME` records, a :class:`CommandBatch` or
+        :class:`CanFrame` objects. A frame whose send fails is retried up to ``max_retries`` times,
+        then dropped. Each attempt waits at most ``send_timeout`` and never past ``deadline``
+        (absolute ``time.perf_counter()`` seconds); frames still unsent at the deadline are all
+        counted as dropped, so the call returns at the deadline at the latest (plus one driver call).
         """
-        if isinstance(frames, CommandBatch):
-            frames = frames.frames()
-        c = self._c
-        ok = 0
-        for k, f in enumerate(frames):
-            msg = can.Message(
-                arbitration_id=f.arbitration_id, data=f.data, is_extended_id=f.is_extended_id, check=False
-            )
-            attempt = 0
-            while True:
-                timeout = self.send_timeout
-                if deadline is not None:
-                    left = deadline - time.perf_counter()
-                    if left <= 0:
-                        c.dropped += len(frames) - k
-                        return ok
-                    timeout = min(timeout, left)
-                try:
-                    self.bus.send(msg, timeout=timeout)
-                except (can.CanError, OSError):
-                    c.bus_errors += 1
-                    if attempt >= self.max_retries:
-                        c.dropped += 1
-                        break
-                    attempt += 1
-                    c.retries += 1
-                else:
-                    c.sent += 1
-                    ok += 1
-                    break
-        return ok
+        if isinstance(batch, CommandBatch):
+            batch = frames(batch.arbitration_ids, batch.data, extended=batch.is_extended_id)
+        elif not (isinstance(batch, np.ndarray) and batch.dtype == FRAME):
+            batch = frames_of(batch)
+        outcome = self.port.send(batch, math.inf if deadline is None else deadline, timeout=self.send_timeout, retries=self.max_retries)
+        self.counts[[SENT, DROPPED, RETRIES, BUS_ERRORS]] += (outcome.sent, outcome.dropped, outcome.retries, outcome.errors)
+        return outcome.sent
 
     # --------------------------------------------------------------- receive
+    def receive_frames(self, deadline: float | None = None, limit: int | None = None) -> Received:
+        """Frames until ``deadline`` (None: those already waiting) or ``limit`` of them, undecoded;
+        a driver error ends the read (counted, and in the result)."""
+        received = self.port.receive(deadline, limit)
+        self.counts[UNKNOWN] += received.skipped
+        self.counts[BUS_ERRORS] += received.error is not None
+        return received
+
+    def tally(self, decoded: DecodedReplies) -> None:
+        """Count decoded frames by verdict (valid replies, unknown, corrupt, error frames)."""
+        np.add.at(self.counts, VERDICT_COLUMNS[decoded.verdict], 1)
+
     def receive(self, deadline: float, expect: Collection[int] | None = None) -> ReceiveResult:
         """Collect replies until every expected motor has replied or ``deadline`` passes.
 
@@ -274,39 +274,19 @@ class CanBusLink:
         """
         expected = set(self.protocol.index) if expect is None else set(expect)
         replies: dict[int, MotorReply] = {}
-        c = self._c
-        decode = self.protocol.decode
         while True:
-            left = deadline - time.perf_counter()
-            if left <= 0:
-                break
-            try:
-                msg = self.bus.recv(timeout=left)
-            except (can.CanError, OSError):
-                c.bus_errors += 1
-                break
-            if msg is None:
-                break
-            if msg.is_error_frame:
-                c.errors += 1
-                continue
-            if msg.is_remote_frame:
-                c.unknown += 1
-                continue
-            try:
-                r = decode(msg.arbitration_id, msg.data, msg.is_extended_id)
-            except UnknownMotorError:
-                c.unknown += 1
-                continue
-            except CanProtocolError:
-                c.corrupt += 1
-                continue
-            c.received += 1
-            replies[r.motor_id] = r
-            if expected and expected.issubset(replies):
+            waiting = len(expected.difference(replies)) if expected else None
+            received = self.receive_frames(deadline, waiting)
+            decoded = self.protocol.decode_frames(received.frames)
+            self.tally(decoded)
+            for k in np.flatnonzero(decoded.valid):
+                reply = decoded.reply(int(k))
+                assert reply is not None
+                replies[reply.motor_id] = reply
+            if received.error is not None or (expected and expected.issubset(replies)) or time.perf_counter() >= deadline:
                 break
         missing = tuple(sorted(expected.difference(replies)))
-        return ReceiveResult(replies, missing, replace(c))
+        return ReceiveResult(replies, missing, self.counters)
 
     def exchange(self, batch: CommandBatch, deadline: float) -> ReceiveResult:
         """Send a command batch for all motors, then receive until all replied or ``deadline`` passes."""
@@ -330,7 +310,13 @@ __all__ = [
     "BusLoad",
     "BusPlanSpec",
     "CanBusLink",
+    "BUS_ERRORS",
+    "DROPPED",
     "LinkCounters",
+    "RETRIES",
+    "SENT",
+    "UNKNOWN",
+    "VERDICT_COLUMNS",
     "ReceiveResult",
     "bus_load",
     "capacity_problem",

@@ -8,7 +8,10 @@ measured when the command arrived, so the command computed from them goes out at
 - **State** is joint side (sign, zero offset and gear ratio applied by the plan's ``MotorGroup``);
   a motor that did not reply keeps its last values and its ``stale`` count grows.
 - **Commands** are per-joint impedance frames; :meth:`set_joint_torques` sends impedance frames with
-  ``kp = kd = 0`` and the torque as feed-forward. All motors are encoded in one vectorized call.
+  ``kp = kd = 0`` and the torque as feed-forward. All motors are encoded in one vectorized call,
+  and the replies of all buses decoded in one (:class:`~giwbc.hal.protocols.multibus.MultiBusCodec`);
+  frames cross each bus in batches (:class:`~giwbc.hal.frames.FramePort`: on the bus's socket
+  where it has one, giwbc-unix and SocketCAN, without python-can's per-message objects).
 - **Late frames**: before sending, frames already waiting (replies that missed an earlier deadline)
   are drained and counted as late, never taken as this cycle's replies.
 - **IMU** comes from an :class:`ImuSource` (``emulated``: the emulator's :class:`ImuChannel`).
@@ -23,17 +26,18 @@ measured when the command arrived, so the command computed from them goes out at
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Sequence
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
-import can
 import numpy as np
 
-from giwbc.hal.bus import CanBusLink
+from giwbc.hal.bus import BUS_ERRORS, DROPPED, RETRIES, SENT, UNKNOWN, VERDICT_COLUMNS, CanBusLink
+from giwbc.hal.frames import PortGroup
 from giwbc.hal.hardware import HardwarePlan, ImuConfig
 from giwbc.hal.motor import MotorGroup
-from giwbc.hal.protocols import CanProtocolError, MitProtocol, UnknownMotorError
+from giwbc.hal.protocols import CORRUPT, REPLY, DecodedReplies
+from giwbc.hal.protocols.multibus import MultiBusCodec
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading
 
 if TYPE_CHECKING:
@@ -41,6 +45,7 @@ if TYPE_CHECKING:
     from giwbc.robot.estimator import Estimate, StateEstimator
 
 COMMAND, ENTER, EXIT = "command", "enter", "exit"
+_SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
 _SEND_BUDGET = 5e-3  # s: how long sending may take when the caller gives no deadline
 
 
@@ -50,55 +55,6 @@ class BaseStateUnavailable(RuntimeError):
 
 class NonFiniteCommand(ValueError):
     """A command with NaN or infinite entries (from a policy or controller): never sent."""
-
-
-class FastMessage(can.Message):
-    """A ``can.Message`` whose deep copy is cheap.
-
-    python-can's ``virtual`` interface deep-copies every frame for every receiver; the generic
-    ``Message.__deepcopy__`` costs ~13 us (it deep-copies the ``bytearray``), this one ~3 us.
-    Other interfaces only read the attributes, so to them it is a plain message.
-    """
-
-    __slots__ = ()
-
-    def __deepcopy__(self, memo: dict[int, Any] | None) -> FastMessage:
-        c = _new(FastMessage)
-        c.timestamp = self.timestamp
-        c.arbitration_id = self.arbitration_id
-        c.is_extended_id = self.is_extended_id
-        c.is_remote_frame = self.is_remote_frame
-        c.is_error_frame = self.is_error_frame
-        c.channel = self.channel
-        c.dlc = self.dlc
-        c.data = bytearray(self.data)
-        c.is_fd = self.is_fd
-        c.is_rx = self.is_rx
-        c.bitrate_switch = self.bitrate_switch
-        c.error_state_indicator = self.error_state_indicator
-        return c
-
-
-def fast_message(arbitration_id: int, data: bytes, is_extended_id: bool = False) -> FastMessage:
-    """A data frame (what ``can.Message(arbitration_id=..., data=..., is_extended_id=...)`` makes,
-    built without the generic constructor's argument handling: this runs ~60 times per cycle)."""
-    c = _new(FastMessage)
-    c.timestamp = 0.0
-    c.arbitration_id = arbitration_id
-    c.is_extended_id = is_extended_id
-    c.is_remote_frame = False
-    c.is_error_frame = False
-    c.channel = None
-    c.data = bytearray(data)
-    c.dlc = len(c.data)
-    c.is_fd = False
-    c.is_rx = True
-    c.bitrate_switch = False
-    c.error_state_indicator = False
-    return c
-
-
-_new = FastMessage.__new__
 
 
 class Peer(Protocol):
@@ -168,14 +124,6 @@ class CycleReport:
         return not bool(self.missing.any())
 
 
-@dataclass
-class _Tally:
-    """Frames a cycle could not use: undecodable per bus, and unknown (error, remote, no such motor)."""
-
-    corrupt: np.ndarray
-    unknown: int = 0
-
-
 class CanRobot(DescribedRobot):
     """A robot whose joints are the CAN actuators of ``plan`` (see the module docstring).
 
@@ -217,22 +165,37 @@ class CanRobot(DescribedRobot):
 
         self.motors = plan.motors
         self.group = MotorGroup(self.motors)
-        n = len(self.motors)
         self.joint_index = np.array([names.index(m.joint) for m in self.motors], dtype=np.int64)
-        self._ids = [m.can_id for m in self.motors]
-        self._bus_slices: list[slice] = []
-        self._slot: list[dict[int, int]] = []
-        first = 0
-        for bus in plan.buses:
-            self._bus_slices.append(slice(first, first + len(bus.motors)))
-            self._slot.append({m.can_id: first + i for i, m in enumerate(bus.motors)})
-            first += len(bus.motors)
-        self._encoder = _one_encoder(self.links, self.motors)
+        self.codec = MultiBusCodec([link.protocol for link in self.links])
+        if self.codec.motors != tuple(self.motors):
+            raise ValueError("the links' protocols must drive the plan's motors, in plan order")
+        self._bus_sizes = np.array([len(bus.motors) for bus in plan.buses], dtype=np.int64)
+        bounds = np.cumsum([0, *self._bus_sizes.tolist()])
+        self._bus_slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
+        self._bounds = bounds.tolist()
+        self._bus_starts = bounds[:-1]
+        self.ports = PortGroup([link.port for link in self.links])
+        self._send_timeouts = [link.send_timeout for link in self.links]
+        self._send_retries = [link.max_retries for link in self.links]
+        # Every link's counters, one row each, updated in one operation per cycle.
+        self._link_counts = np.vstack([link.counts for link in self.links])
+        for b, link in enumerate(self.links):
+            link.counts = self._link_counts[b]
+        # Motor -> joint side of (position, velocity, torque) rows, and the steady state's shape:
+        # one reply per motor, in plan order.
+        g = self.group
+        self._state_scale = np.column_stack([g.sign / g.gear, g.sign / g.gear, g.sign * g.gear])
+        self._state_offset = np.column_stack([g.offset, np.zeros(len(g.offset)), np.zeros(len(g.offset))])
+        self._plan_order = np.arange(len(self.motors))
+        self._no_corrupt = np.zeros(len(self.links), dtype=np.int64)
+        # Motor-side conversion of a joint-side command row block (q, dq, kp, kd, tau) x motors.
+        self._to_motor_scale = np.vstack([g.sign * g.gear, g.sign * g.gear, 1 / g.gear**2, 1 / g.gear**2, g.sign / g.gear])
+        self._to_motor_offset = np.zeros((5, len(self.motors)))
+        self._to_motor_offset[0] = -g.sign * g.gear * g.offset
 
         dofs = description.dofs
-        self._q = np.zeros(dofs)
-        self._dq = np.zeros(dofs)
-        self._tau = np.zeros(dofs)
+        self._joint_state = np.zeros((3, dofs))  # q, dq, tau: written in one assignment per cycle
+        self._q, self._dq, self._tau = self._joint_state
         self._temperature = np.full(dofs, np.nan)
         self._error = np.full(dofs, -1, dtype=np.int64)
         self._stale = np.zeros(dofs, dtype=np.int64)
@@ -248,6 +211,12 @@ class CanRobot(DescribedRobot):
         self.late_frames = 0
         self.send_dropped = 0
         self._pin: Any = None
+
+    @property
+    def reply_lag(self) -> int:
+        """Cycles from a frame going out to its reply being read: 0 when a cycle waits for the
+        replies, 1 when it reads them at the next cycle (``wait_for_replies=False``)."""
+        return 0 if self.wait_for_replies else 1
 
     # --- identity -------------------------------------------------------------------------
     def time(self) -> float:
@@ -272,7 +241,7 @@ class CanRobot(DescribedRobot):
         deferred = not self.wait_for_replies
         if deferred:  # the replies to the previous cycle: whatever arrived, without waiting
             received = time.perf_counter()
-            replied, corrupt, unknown = self._collect(received)
+            replied, corrupt, unknown = self._collect(None)
             late, corrupt_late, unknown_late = 0, 0, 0
             receive_s = time.perf_counter() - received
         else:
@@ -280,10 +249,10 @@ class CanRobot(DescribedRobot):
         t0 = time.perf_counter()
         if deadline is None:
             deadline = t0 + _SEND_BUDGET
-        messages, clamped = self._frames(kind)
-        dropped = 0
-        for link, sl in zip(self.links, self._bus_slices):
-            dropped += _send(link, messages[sl], deadline)
+        batch, clamped = self._frames(kind)
+        outcomes = np.array(self.ports.send(batch, self._bounds, deadline, timeout=self._send_timeouts, retries=self._send_retries))
+        self._link_counts[:, _SEND_COLUMNS] += outcomes
+        dropped = int(outcomes[:, 1].sum())
         self.send_dropped += dropped
         t1 = sent = time.perf_counter()
         if not deferred:
@@ -292,8 +261,7 @@ class CanRobot(DescribedRobot):
                 answered = time.perf_counter()
                 deadline += answered - t1
                 t1 = answered
-            limit = min(t1 + self.reply_timeout, deadline)
-            replied, corrupt, unknown = self._collect(limit)
+            replied, corrupt, unknown = self._collect(min(t1 + self.reply_timeout, deadline))
             receive_s = time.perf_counter() - t1
 
         missing = ~replied
@@ -314,99 +282,100 @@ class CanRobot(DescribedRobot):
         self.cycle += 1
         return report
 
-    def _frames(self, kind: str) -> tuple[list[FastMessage], int]:
+    def _frames(self, kind: str) -> tuple[np.ndarray, int]:
         """One frame per motor (plan order) and how many fields were clamped."""
-        ids = self._ids
-        if kind == COMMAND:
-            c, j = self.command, self.joint_index
-            p, v, kp, kd, tau = self.group.command_to_motor(c.q_ref[j], c.v_ref[j], c.kp[j], c.kd[j], c.tau_ff[j])
-            data, clamp = self._encoder(p, v, kp, kd, tau)
-            n_clamped = int(np.count_nonzero(clamp))
-            if n_clamped:
-                np.add.at(self.clamp_counts, j, clamp.astype(np.int64))
-            raw = data.tobytes()
-            return [fast_message(a, raw[8 * i : 8 * i + 8]) for i, a in enumerate(ids)], n_clamped
-        out = []
-        for link, sl in zip(self.links, self._bus_slices):
-            protocol = link.protocol
-            make = protocol.enter_motor_mode if kind == ENTER else protocol.exit_motor_mode
-            for motor_id in ids[sl]:
-                f = make(motor_id)
-                out.append(fast_message(f.arbitration_id, f.data, f.is_extended_id))
-        return out, 0
+        if kind != COMMAND:
+            return self.codec.special_frames(kind), 0
+        c = self.command
+        rows = np.array((c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff))[:, self.joint_index]
+        rows *= self._to_motor_scale
+        rows += self._to_motor_offset
+        batch, clamp = self.codec.encode_commands(*rows)
+        n_clamped = int(np.count_nonzero(clamp))
+        if n_clamped:
+            np.add.at(self.clamp_counts, self.joint_index, clamp.astype(np.int64))
+        return batch, n_clamped
 
-    def _replies(self, b: int, deadline: float, tally: _Tally, expected: int | None = None) -> Iterator[Any]:
-        """Decoded motor replies arriving on bus ``b`` until ``deadline`` (absolute ``perf_counter``
-        seconds; a past deadline reads only what is already waiting) or, with ``expected``, until
-        that many distinct motors replied. Error, remote and unknown frames and undecodable ones are counted
-        in ``tally``; a driver error ends the bus's reading. A bus that hands over its whole queue
-        at once (``drain``, giwbc-unix) is read that way when there is nothing to wait for."""
-        link = self.links[b]
-        bus, decode = link.bus, link.protocol.decode
-        clock = time.perf_counter
-        drain = getattr(bus, "drain", None)
-        seen: set[int] | None = None
-        if drain is not None and deadline <= clock():
-            try:
-                frames: Iterable[can.Message] = drain()
-            except (can.CanError, OSError):
-                return
-        else:
-            frames = _received(bus, deadline)
-            seen = set() if expected is not None else None
-        if expected == 0:
-            return
-        for msg in frames:
-            if msg.is_error_frame or msg.is_remote_frame:
-                tally.unknown += 1
+    def _receive(self, deadline: float | None) -> tuple[DecodedReplies, np.ndarray, int]:
+        """Frames from every bus, decoded in one call: until each bus's motors all replied or
+        ``deadline`` passed, or (``deadline`` None) those already waiting. Returns the decoded
+        frames (in arrival order per bus), the bus of each, and how many frames no protocol can
+        read (CAN FD on a classic bus)."""
+        links = self.links
+        got = self.ports.receive(deadline, None if deadline is None else self._bus_sizes)
+        batch, bus = got.frames, got.bus
+        decoded = self.codec.decode_replies(bus, batch)
+        skipped = sum(got.skipped)
+        failed = {b for b, error in enumerate(got.errors) if error is not None}
+        while deadline is not None and time.perf_counter() < deadline:
+            # A bus that gave frames other than one reply per motor (corrupt, unknown, repeated)
+            # is read again for the motors still missing, until the deadline.
+            heard = np.zeros(len(self.motors), dtype=bool)
+            heard[decoded.index[decoded.verdict == REPLY]] = True
+            need = self._bus_sizes - np.add.reduceat(heard, self._bus_starts)
+            again = [b for b in np.flatnonzero(need > 0).tolist() if b not in failed]
+            if not again:
+                break
+            more = self.ports.receive(deadline, need, again)
+            skipped += sum(more.skipped)
+            failed.update(b for b, error in enumerate(more.errors) if error is not None)
+            self._count_received(more)
+            if not len(more.frames):
                 continue
-            try:
-                reply = decode(msg.arbitration_id, msg.data, msg.is_extended_id)
-            except UnknownMotorError:
-                tally.unknown += 1
-                continue
-            except CanProtocolError:
-                tally.corrupt[b] += 1
-                continue
-            yield reply
-            if seen is not None:  # waiting for the bus's replies: stop once every motor's came
-                seen.add(reply.motor_id)
-                if len(seen) >= expected:  # type: ignore[operator]
-                    return
+            order = np.argsort(np.concatenate([bus, more.bus]), kind="stable")  # keep bus order
+            batch = np.frombuffer(batch.tobytes() + more.frames.tobytes(), dtype=batch.dtype)[order]
+            bus = np.concatenate([bus, more.bus])[order]
+            decoded = self.codec.decode_replies(bus, batch)
+        self._count_received(got)
+        if len(bus):
+            self._link_counts += np.bincount(bus * 8 + VERDICT_COLUMNS[decoded.verdict], minlength=self._link_counts.size).reshape(self._link_counts.shape)
+        return decoded, bus, skipped
+
+    def _count_received(self, got: Any) -> None:
+        """Datagrams a read skipped (CAN FD frames) and driver errors, per bus."""
+        if any(got.skipped) or any(e is not None for e in got.errors):
+            self._link_counts[:, UNKNOWN] += got.skipped
+            self._link_counts[:, BUS_ERRORS] += [e is not None for e in got.errors]
 
     def _drain(self) -> tuple[int, np.ndarray, int]:
         """Read frames already waiting (late replies, stray frames): (late, corrupt per bus, unknown)."""
-        tally = _Tally(np.zeros(len(self.links), dtype=np.int64))
-        late = sum(1 for b in range(len(self.links)) for _ in self._replies(b, 0.0, tally))
+        decoded, bus, skipped = self._receive(None)
+        late = decoded.count(REPLY)
         self.late_frames += late
-        return late, tally.corrupt, tally.unknown
+        corrupt = np.bincount(bus[decoded.verdict == CORRUPT], minlength=len(self.links))
+        return late, corrupt, len(decoded) - late - int(corrupt.sum()) + skipped
 
-    def _collect(self, deadline: float) -> tuple[np.ndarray, np.ndarray, int]:
-        """Receive every bus's replies until each is complete or ``deadline`` passed; update the
-        joint state. Returns (replied per joint, corrupt frames per bus, unknown frames)."""
-        n = len(self.motors)
-        got = np.zeros(n, dtype=bool)
-        pos, vel, tor = np.zeros(n), np.zeros(n), np.zeros(n)
-        temp = np.full(n, np.nan)
-        err = np.full(n, -1, dtype=np.int64)
-        tally = _Tally(np.zeros(len(self.links), dtype=np.int64))
-        for b, slot in enumerate(self._slot):
-            for r in self._replies(b, deadline, tally, expected=len(slot)):
-                i = slot[r.motor_id]
-                got[i] = True
-                pos[i], vel[i], tor[i] = r.position, r.velocity, r.torque
-                temperature = r.rotor_temperature if r.rotor_temperature is not None else r.temperature
-                if temperature is not None:
-                    temp[i] = temperature
-                if r.error_code is not None:
-                    err[i] = r.error_code
-        q, dq, tau = self.group.state_to_joint(pos, vel, tor)
-        j = self.joint_index[got]
-        self._q[j], self._dq[j], self._tau[j] = q[got], dq[got], tau[got]
-        self._temperature[j], self._error[j] = temp[got], err[got]
+    def _collect(self, deadline: float | None) -> tuple[np.ndarray, np.ndarray, int]:
+        """Receive every bus's replies (see :meth:`_receive`) and update the joint state with the
+        newest reply of each motor. Returns (replied per joint, corrupt frames per bus, unknown frames)."""
+        decoded, bus, skipped = self._receive(deadline)
+        if np.array_equal(decoded.index, self._plan_order):  # the steady state: every motor once, in order
+            state = decoded.state * self._state_scale
+            state += self._state_offset
+            rows: Any = slice(None)
+            j = self.joint_index
+            corrupt, unknown = self._no_corrupt.copy(), skipped
+        else:
+            corrupt = np.bincount(bus[decoded.verdict == CORRUPT], minlength=len(self.links))
+            rows = np.flatnonzero(decoded.verdict == REPLY)
+            unknown = len(decoded) - len(rows) - int(corrupt.sum()) + skipped
+            index = decoded.index[rows]
+            n = len(self.motors)
+            if len(index) and np.bincount(index, minlength=n).max() > 1:  # a motor replied twice: the newest counts
+                newest = np.full(n, -1, dtype=np.int64)
+                np.maximum.at(newest, index, np.arange(len(index)))
+                keep = newest[newest >= 0]
+                rows, index = rows[keep], index[keep]
+            state = decoded.state[rows] * self._state_scale[index]
+            state += self._state_offset[index]
+            j = self.joint_index[index]
+        self._joint_state[:, j] = state.T
+        rotor, reported = decoded.rotor_temperature[rows], decoded.temperature[rows]
+        self._temperature[j] = np.where(np.isnan(rotor), reported, rotor)  # the coil's where reported
+        self._error[j] = decoded.error_code[rows]
         replied = np.zeros(self.description.dofs, dtype=bool)
         replied[j] = True
-        return replied, tally.corrupt, tally.unknown
+        return replied, corrupt, unknown
 
     def _read_imu(self) -> bool:
         if self.imu_source is None:
@@ -551,72 +520,6 @@ class CanRobot(DescribedRobot):
         self.close()
 
 
-def _received(bus: can.BusABC, deadline: float) -> Iterator[can.Message]:
-    """Frames from ``bus`` until ``deadline`` (absolute ``perf_counter`` s) passes or a driver error."""
-    clock = time.perf_counter
-    while True:
-        left = deadline - clock()
-        try:
-            msg = bus.recv(timeout=left if left > 0 else 0.0)
-        except (can.CanError, OSError):
-            return
-        if msg is None:
-            return
-        yield msg
-
-
-def _send(link: CanBusLink, messages: Sequence[can.Message], deadline: float) -> int:
-    """Send in order with the link's retry policy; returns how many were dropped (never raises)."""
-    bus, dropped = link.bus, 0
-    for k, msg in enumerate(messages):
-        attempt = 0
-        while True:
-            left = deadline - time.perf_counter()
-            if left <= 0:
-                return dropped + len(messages) - k
-            try:
-                bus.send(msg, timeout=min(link.send_timeout, left))
-            except (can.CanError, OSError):
-                if attempt >= link.max_retries:
-                    dropped += 1
-                    break
-                attempt += 1
-            else:
-                break
-    return dropped
-
-
-def _one_encoder(links: Sequence[CanBusLink], motors: Sequence[Any]) -> Callable[..., tuple[np.ndarray, np.ndarray]]:
-    """A function encoding every motor's command at once: ``(p, v, kp, kd, tau) -> (data (N, 8),
-    clamped (N, 5))``, plan order.
-
-    When every bus speaks MIT mode, one :class:`MitProtocol` over all motors does it in a single
-    vectorized call (command payloads do not depend on CAN ids, so the motors are renumbered to
-    make ids unique across buses); otherwise each bus's protocol encodes its slice.
-    """
-    if all(type(link.protocol) is MitProtocol for link in links) and len(motors) <= 0xFF:
-        encoder = MitProtocol([replace(m, can_id=i + 1, reply="original") for i, m in enumerate(motors)])
-
-        def encode(*values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            batch = encoder.encode_commands(*values)
-            return batch.data, batch.clamped
-
-        return encode
-
-    sizes = [len(link.protocol.motors) for link in links]
-    bounds = np.cumsum([0, *sizes])
-
-    def encode_per_bus(*values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        data, clamped = [], []
-        for link, a, b in zip(links, bounds[:-1], bounds[1:]):
-            batch = link.protocol.encode_commands(*(v[a:b] for v in values))
-            data.append(batch.data)
-            clamped.append(batch.clamped)
-        return np.vstack(data), np.vstack(clamped)
-
-    return encode_per_bus
-
-
 __all__ = [
     "COMMAND",
     "ENTER",
@@ -625,10 +528,8 @@ __all__ = [
     "CanRobot",
     "NonFiniteCommand",
     "CycleReport",
-    "FastMessage",
     "ImuChannel",
     "ImuSource",
     "Peer",
-    "fast_message",
     "imu_source_for",
 ]

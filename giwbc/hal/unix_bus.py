@@ -28,12 +28,8 @@ from typing import Any
 
 import can
 
-from giwbc.hal.can_robot import FastMessage, _new
+from giwbc.hal.frames import CAN_EFF_FLAG, CAN_EFF_MASK, CAN_ERR_FLAG, CAN_RTR_FLAG, CAN_SFF_MASK, fast_message
 
-CAN_EFF_FLAG = 0x80000000
-CAN_RTR_FLAG = 0x40000000
-CAN_ERR_FLAG = 0x20000000
-CAN_EFF_MASK = 0x1FFFFFFF
 _FRAME = struct.Struct("=IB3x8s")  # struct can_frame: can_id, len, pad, data[8]
 
 
@@ -122,6 +118,21 @@ class UnixCanBus(can.BusABC):
     @property
     def connected(self) -> bool:
         return self._sock is not None
+
+    @property
+    def frame_socket(self) -> socket.socket | None:
+        """The connected socket (accepting a waiting host first), None while nobody is on the
+        bus; ``can.CanOperationError`` once closed. :class:`~giwbc.hal.frames.SocketPort` moves
+        whole batches of frames on it, bypassing the per-message API."""
+        if self._sock is None:
+            if self._closed:
+                raise can.CanOperationError(f"{self.channel_info} is closed")
+            self.accept(0.0)
+        return self._sock
+
+    def note_unsent(self, frames: int) -> None:
+        """Count frames sent while nobody was on the bus (lost)."""
+        self.unsent += frames
 
     def fileno(self) -> int:
         """The descriptor to wait on: the connection, or the listening socket before it."""
@@ -222,20 +233,11 @@ class UnixCanBus(can.BusABC):
         if len(data) != _FRAME.size:
             raise can.CanOperationError(f"giwbc-unix: a {len(data)}-byte datagram is not a CAN frame")
         can_id, length, payload = _FRAME.unpack(data)
-        m = _new(FastMessage)
-        m.timestamp = time.time()
-        m.is_extended_id = bool(can_id & CAN_EFF_FLAG)
-        m.is_remote_frame = bool(can_id & CAN_RTR_FLAG)
-        m.is_error_frame = bool(can_id & CAN_ERR_FLAG)
-        m.arbitration_id = can_id & CAN_EFF_MASK
-        m.channel = None
-        m.dlc = min(length, 8)
-        m.data = bytearray(payload[: m.dlc])
-        m.is_fd = False
-        m.is_rx = True
-        m.bitrate_switch = False
-        m.error_state_indicator = False
-        return m
+        extended = bool(can_id & CAN_EFF_FLAG)
+        return fast_message(
+            can_id & (CAN_EFF_MASK if extended else CAN_SFF_MASK), payload[: min(length, 8)], extended,
+            remote=bool(can_id & CAN_RTR_FLAG), error=bool(can_id & CAN_ERR_FLAG), timestamp=time.time(),
+        )  # fmt: skip
 
     def shutdown(self) -> None:
         if self._closed:

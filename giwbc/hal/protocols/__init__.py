@@ -11,7 +11,12 @@ from giwbc.hal.protocols.base import (
     CanProtocolError,
     CommandBatch,
     CommandValueError,
+    CORRUPT,
+    ERROR_FRAME,
+    REPLY,
+    UNKNOWN,
     CorruptFrameError,
+    DecodedReplies,
     EncodedCommand,
     FrameLengthError,
     FrameTraffic,
@@ -20,7 +25,7 @@ from giwbc.hal.protocols.base import (
     ProtocolConfigError,
     UnknownMotorError,
 )
-from giwbc.hal.protocols.mit import REPLY_VARIANTS, MitProtocol, ReplyBatch, pack_command
+from giwbc.hal.protocols.mit import REPLY_VARIANTS, MitProtocol, MitReplyDecoder, pack_command
 
 PROTOCOLS: Mapping[str, type[ActuatorProtocol]] = MappingProxyType({MitProtocol.name: MitProtocol})
 """Protocol classes by the name used in hardware.toml (``protocol = "mit"``)."""
@@ -42,15 +47,20 @@ __all__ = [
     "CanProtocolError",
     "CommandBatch",
     "CommandValueError",
+    "CORRUPT",
+    "ERROR_FRAME",
+    "REPLY",
+    "UNKNOWN",
     "CorruptFrameError",
+    "DecodedReplies",
     "EncodedCommand",
     "FrameLengthError",
     "FrameTraffic",
     "MitProtocol",
+    "MitReplyDecoder",
     "MotorCommand",
     "MotorReply",
     "ProtocolConfigError",
-    "ReplyBatch",
     "UnknownMotorError",
     "pack_command",
     "protocol_class",

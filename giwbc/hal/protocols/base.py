@@ -11,6 +11,7 @@ exception type and count it.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -78,6 +79,106 @@ class MotorReply:
     def faulted(self) -> bool:
         """The motor reported a fault."""
         return bool(self.error_code)
+
+
+REPLY, UNKNOWN, CORRUPT, ERROR_FRAME = 0, 1, 2, 3
+"""Verdicts of :meth:`ActuatorProtocol.decode_frames` per frame: a valid reply; not from a
+configured motor (:class:`UnknownMotorError`, remote frames); addressed like a reply but
+undecodable (any other :class:`CanProtocolError`); a CAN error frame."""
+
+
+@dataclass(frozen=True, slots=True)
+class DecodedReplies:
+    """A batch of frames decoded as replies, one row per frame (see :data:`REPLY` for ``verdict``).
+
+    ``index`` is the motor's position in the decoder's motor order and ``motor_id`` its CAN id
+    (both -1 where the row is not a reply). ``state`` holds position, velocity and torque, motor
+    side, one row per frame. Optional fields are NaN (floats) or -1 (integers) where the motor's
+    reply variant does not report them or the row is no reply.
+    """
+
+    verdict: NDArray[np.int64]
+    index: NDArray[np.int64]
+    motor_id: NDArray[np.int64]
+    state: NDArray[np.float64]  # (M, 3): position, velocity, torque
+    temperature: NDArray[np.float64]
+    rotor_temperature: NDArray[np.float64]
+    error_code: NDArray[np.int64]
+    voltage: NDArray[np.float64]
+    status: NDArray[np.int64]
+
+    def __len__(self) -> int:
+        return int(self.verdict.shape[0])
+
+    @property
+    def position(self) -> NDArray[np.float64]:
+        return self.state[:, 0]
+
+    @property
+    def velocity(self) -> NDArray[np.float64]:
+        return self.state[:, 1]
+
+    @property
+    def torque(self) -> NDArray[np.float64]:
+        return self.state[:, 2]
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        return self.verdict == REPLY
+
+    def count(self, verdict: int) -> int:
+        return int(np.count_nonzero(self.verdict == verdict))
+
+    def reply(self, k: int) -> MotorReply | None:
+        """Row ``k`` as a :class:`MotorReply` (what :meth:`ActuatorProtocol.decode` returns), or None."""
+        if self.verdict[k] != REPLY:
+            return None
+
+        def opt(x: float) -> float | None:
+            return None if x != x else float(x)
+
+        def opt_int(x: int) -> int | None:
+            return None if x < 0 else int(x)
+
+        return MotorReply(
+            int(self.motor_id[k]), float(self.position[k]), float(self.velocity[k]), float(self.torque[k]),
+            opt(self.temperature[k]), opt(self.rotor_temperature[k]), opt_int(self.error_code[k]),
+            opt(self.voltage[k]), opt_int(self.status[k]),
+        )  # fmt: skip
+
+    @classmethod
+    def from_replies(cls, verdict: Sequence[int], index: Sequence[int], replies: Sequence[MotorReply | None]) -> DecodedReplies:
+        """Rows from per-frame results (the reference path: one :meth:`ActuatorProtocol.decode` each)."""
+
+        def column(name: str, missing: float) -> list[float]:
+            return [missing if r is None or getattr(r, name) is None else getattr(r, name) for r in replies]
+
+        nan = math.nan
+        return cls(
+            np.asarray(verdict, dtype=np.int64).reshape(-1),
+            np.asarray(index, dtype=np.int64).reshape(-1),
+            np.array([-1 if r is None else r.motor_id for r in replies], dtype=np.int64),
+            np.array([column("position", nan), column("velocity", nan), column("torque", nan)], dtype=float).reshape(3, -1).T.copy(),
+            np.array(column("temperature", nan), dtype=float),
+            np.array(column("rotor_temperature", nan), dtype=float),
+            np.array(column("error_code", -1), dtype=np.int64),
+            np.array(column("voltage", nan), dtype=float),
+            np.array(column("status", -1), dtype=np.int64),
+        )
+
+    def take(self, rows: Any) -> DecodedReplies:
+        """The rows ``rows`` (an index array or mask), in that order."""
+        return DecodedReplies(*(getattr(self, name)[rows] for name in self.__slots__))
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[DecodedReplies], offsets: Sequence[int] = ()) -> DecodedReplies:
+        """Rows of several batches in order; ``offsets`` are added to each part's valid indexes."""
+        if not parts:
+            return cls.from_replies([], [], [])
+        offsets = list(offsets) or [0] * len(parts)
+        index = np.concatenate([np.where(p.index >= 0, p.index + o, -1) for p, o in zip(parts, offsets)])
+        rest = {name: np.concatenate([getattr(p, name) for p in parts]) for name in cls.__slots__ if name != "index"}
+        return cls(index=index, **rest)
 
 
 @dataclass(frozen=True, slots=True)
@@ -201,6 +302,33 @@ class ActuatorProtocol(ABC):
     @abstractmethod
     def decode(self, arbitration_id: Any, data: Any, is_extended_id: bool = False) -> MotorReply:
         """A reply, or a :class:`CanProtocolError` subclass; never another exception."""
+
+    def decode_frames(self, batch: NDArray[Any]) -> DecodedReplies:
+        """Decode a batch of :data:`~giwbc.hal.frames.FRAME` records at once (error frames get
+        :data:`ERROR_FRAME`, remote frames :data:`UNKNOWN`). This default calls :meth:`decode`
+        per frame; a protocol may vectorize it, with exactly the same results."""
+        from giwbc.hal.frames import fields
+
+        f = fields(batch)
+        verdicts, indexes, replies = [], [], []
+        for k in range(len(batch)):
+            reply, verdict = None, UNKNOWN
+            if f.error[k]:
+                verdict = ERROR_FRAME
+            elif not f.remote[k]:
+                length = int(f.length[k])
+                data = batch[k]["data"].tobytes()
+                data = data[:length] if length <= 8 else data + bytes(length - 8)  # a longer frame keeps its length
+                try:
+                    reply, verdict = self.decode(int(f.arbitration_id[k]), data, bool(f.extended[k])), REPLY
+                except UnknownMotorError:
+                    verdict = UNKNOWN
+                except CanProtocolError:
+                    verdict = CORRUPT
+            verdicts.append(verdict)
+            indexes.append(-1 if reply is None else self.index[reply.motor_id])
+            replies.append(reply)
+        return DecodedReplies.from_replies(verdicts, indexes, replies)
 
     @abstractmethod
     def decode_command(self, arbitration_id: Any, data: Any, is_extended_id: bool = False) -> MotorCommand:

@@ -52,7 +52,12 @@ from giwbc.hal.protocols.base import (
     CanProtocolError,
     CommandBatch,
     CommandValueError,
+    CORRUPT,
+    ERROR_FRAME,
+    REPLY,
+    UNKNOWN,
     CorruptFrameError,
+    DecodedReplies,
     EncodedCommand,
     FrameLengthError,
     FrameTraffic,
@@ -168,23 +173,6 @@ def _pack(bounds: tuple[tuple[float, float, float, int], ...], values: tuple[flo
     return word.to_bytes(8, "big"), tuple(clamped)
 
 
-@dataclass(frozen=True, slots=True)
-class ReplyBatch:
-    """Vectorized decode result, one row per input frame. ``index`` is the motor's index in the
-    protocol's order, -1 where the row is not a valid reply (its values are NaN)."""
-
-    index: NDArray[np.int64]
-    position: NDArray[np.float64]
-    velocity: NDArray[np.float64]
-    torque: NDArray[np.float64]
-    temperature: NDArray[np.float64]  # NaN where not reported
-    error_code: NDArray[np.int64]  # -1 where not reported
-
-    @property
-    def valid(self) -> NDArray[np.bool_]:
-        return self.index >= 0
-
-
 class MitProtocol(ActuatorProtocol):
     """MIT mode for the motors of one bus.
 
@@ -244,19 +232,11 @@ class MitProtocol(ActuatorProtocol):
             for m in self.motors
         ]  # fmt: skip
         self._dec_array = np.array(self._dec, dtype=float).reshape(n, 6)
-        # decode_batch tables: an extra row N (all NaN, code -1) stands for "not a valid reply".
-        temp_offset = [
-            {_CUBEMARS: CUBEMARS_TEMPERATURE_OFFSET, _DAMIAO: 0.0}.get(v.code, math.nan) for v in self._variants
-        ]
-        self._dec_batch = np.vstack(
-            [np.column_stack([self._dec_array, np.array(temp_offset).reshape(n, 1)]), np.full((1, 7), np.nan)]
-        )
-        self._code_batch = np.array([v.code for v in self._variants] + [-1], dtype=np.int64)
-        self._lut_batch = np.vstack([np.where(lut < 0, n, lut), np.full((1, 256), n, dtype=np.int64)])
         self._lo = np.array([[r.min for r in m.model.ranges] for m in self.motors], dtype=float).reshape(n, 5)
         self._hi = np.array([[r.max for r in m.model.ranges] for m in self.motors], dtype=float).reshape(n, 5)
         self._span = self._hi - self._lo
         self._arb_ids = np.array([m.can_id for m in self.motors], dtype=np.int64)
+        self._decoder: MitReplyDecoder | None = None
 
     @staticmethod
     def _variant(motor: MotorConfig) -> ReplyVariant:
@@ -384,33 +364,11 @@ class MitProtocol(ActuatorProtocol):
             error_code=state if state >= 8 else 0, status=state,
         )  # fmt: skip
 
-    def decode_batch(self, data: ArrayLike, lengths: ArrayLike | None = None) -> ReplyBatch:
-        """Decode M frames at once: ``data`` (M, 8) uint8 (shorter payloads zero-padded), ``lengths``
-        (M,) payload lengths (default 8). Rows that :meth:`decode` would reject get index -1.
-        Arbitration ids are not checked here (filter foreign and extended frames before)."""
-        d = np.asarray(data, dtype=np.uint8)
-        if d.ndim != 2 or d.shape[1] != 8:
-            raise ValueError(f"data must be (M, 8), got {d.shape}")
-        m = d.shape[0]
-        ln = np.full(m, 8, dtype=np.int64) if lengths is None else np.asarray(lengths, dtype=np.int64).reshape(m)
-        # Row 9 of the table is all "no motor" (index N, a NaN sentinel row of the per-motor tables).
-        k = self._lut_batch[np.clip(ln, 0, 9), d[:, 0]]
-        last = d[:, 7]
-        special = (ln == 8) & (last >= 0xFB) & (last <= 0xFE) & (d[:, :7] == 0xFF).all(axis=1)
-        k[special] = len(self.motors)
-        di = d.astype(np.int64)
-        sc = self._dec_batch[k]
-        p = ((di[:, 1] << 8) | di[:, 2]) * sc[:, 1] + sc[:, 0]
-        v = ((di[:, 3] << 4) | (di[:, 4] >> 4)) * sc[:, 3] + sc[:, 2]
-        t = (((di[:, 4] & 0x0F) << 8) | di[:, 5]) * sc[:, 5] + sc[:, 4]
-        temp = di[:, 6] + sc[:, 6]  # NaN offset where the variant reports no temperature
-        state = di[:, 0] >> 4
-        code = self._code_batch[k]
-        err = np.where(
-            code == _CUBEMARS, di[:, 7], np.where(code == _DAMIAO, np.where(state >= 8, state, 0), -1)
-        )
-        idx = np.where(k == len(self.motors), -1, k)
-        return ReplyBatch(idx, p, v, t, temp, err)
+    def decode_frames(self, batch: NDArray[Any]) -> DecodedReplies:
+        """Vectorized :meth:`ActuatorProtocol.decode_frames` (same results as :meth:`decode` per frame)."""
+        if self._decoder is None:
+            self._decoder = MitReplyDecoder([self])
+        return self._decoder.decode(np.zeros(len(batch), dtype=np.int64), batch)
 
     def decode_command(self, arbitration_id: Any, data: Any, is_extended_id: bool = False) -> MotorCommand:
         try:
@@ -486,6 +444,107 @@ class MitProtocol(ActuatorProtocol):
             out += bytes((_byte(temperature), _byte(rotor_temperature)))
         arb = arbitration_id if arbitration_id is not None else (self.host_id or 0)
         return CanFrame(arb, bytes(out))
+
+
+class MitReplyDecoder:
+    """Replies of the motors of one or several MIT buses, decoded in one vectorized call.
+
+    Motors are numbered in bus order, then each bus's motor order (a robot's plan order), and each
+    frame comes with the index of the bus it arrived on, so motors with the same id on different
+    buses are told apart. Exactly the checks and arithmetic of :meth:`MitProtocol.decode` (the
+    tests compare them frame by frame on random input): one table lookup per frame on (bus,
+    length, byte 0) gives the motor or the reason it is none, one gather gives the motor's
+    constants, and the bit fields come out of one exact integer product.
+    """
+
+    # Bit fields of the payload read as one big-endian 64-bit word: position (bytes 1-2), velocity
+    # (byte 3 and the high nibble of byte 4), torque (low nibble of byte 4 and byte 5).
+    _SHIFTS = np.array([40, 28, 16], dtype=np.uint64)
+    _MASKS = np.array([0xFFFF, 0xFFF, 0xFFF], dtype=np.uint64)
+
+    def __init__(self, protocols: Sequence[MitProtocol]) -> None:
+        self.protocols = tuple(protocols)
+        motors = [m for p in self.protocols for m in p.motors]
+        n = self.n_motors = len(motors)
+        unknown, corrupt = n, n + 1
+        first = np.cumsum([0] + [len(p.motors) for p in self.protocols])
+        # lut[bus, min(length, 9), byte 0]: the global motor index, or n (unknown), or n + 1 (corrupt:
+        # length 0 or > 8, or the byte 0 of a motor of this bus with a length it does not reply with).
+        lut = np.full((len(self.protocols), 10, 256), unknown, dtype=np.int64)
+        for b, p in enumerate(self.protocols):
+            lut[b, :, list(p._by_byte0)] = corrupt
+            lut[b, 0, :] = lut[b, 9, :] = corrupt
+            for key, i in p._lut.items():
+                lut[b, key >> 8, key & 0xFF] = first[b] + i
+        self._lut = lut.reshape(-1)
+        self._unknown, self._corrupt = unknown, corrupt
+        self._host_id = np.array([-1 if p.host_id is None else p.host_id for p in self.protocols], dtype=np.int64)
+        self._any_host_id = bool((self._host_id >= 0).any())
+        # Per lookup result (motors, then unknown, corrupt): verdict, index, CAN id, and the constants:
+        # position lo, scale, velocity lo, scale, torque lo, scale; temperature offset of byte 6 (NaN:
+        # not reported); volts per count of byte 6 (NaN: none); rotor temperature offset of byte 7
+        # (NaN: none); error code from byte 7 (1: CubeMars), from the state nibble (1: Damiao).
+        nan = math.nan
+        rows = []
+        for p in self.protocols:
+            for i, v in enumerate(p._variants):
+                temperature = {_CUBEMARS: CUBEMARS_TEMPERATURE_OFFSET, _DAMIAO: 0.0}.get(v.code, nan)
+                volts = p.voltage_lsb if v.code == _VOLTAGE else nan
+                rotor = 0.0 if v.code == _DAMIAO else nan
+                rows.append((*p._dec[i], temperature, volts, rotor, float(v.code == _CUBEMARS), float(v.code == _DAMIAO)))
+        none = (*(nan,) * 9, 0.0, 0.0)
+        self._table = np.array([*rows, none, none], dtype=float)
+        self._verdict = np.array([REPLY] * n + [UNKNOWN, CORRUPT], dtype=np.int64)
+        self._index = np.array([*range(n), -1, -1], dtype=np.int64)
+        self._can_id = np.array([m.can_id for m in motors] + [-1, -1], dtype=np.int64)
+        self._has_error_field = any(v.code in (_CUBEMARS, _DAMIAO) for p in self.protocols for v in p._variants)
+
+    def decode(self, bus: ArrayLike, batch: NDArray[Any]) -> DecodedReplies:
+        """Decode ``batch`` (:data:`~giwbc.hal.frames.FRAME` records); ``bus[k]`` is the index (in
+        this decoder's protocols) of the bus frame ``k`` arrived on."""
+        m = len(batch)
+        word = batch["data"].view(">u8").reshape(m).astype(np.uint64)
+        length = batch["len"]
+        can_id = batch["can_id"]
+        b0 = (word >> np.uint64(56)).astype(np.int64)
+        bus = np.asarray(bus, dtype=np.int64).reshape(m)
+        k = self._lut[(bus * 10 + np.minimum(length, 9)) * 256 + b0]
+        flags = can_id >> 29  # EFF, RTR, ERR
+        any_flags = bool(flags.any())
+        if any_flags or self._any_host_id:
+            host = self._host_id[bus]
+            foreign = (flags != 0) | ((host >= 0) & ((can_id & 0x7FF) != host))
+            k = np.where(foreign, self._unknown, k)
+        maybe_special = (b0 == 0xFF) & (k < self.n_motors)
+        if maybe_special.any():  # 8 bytes FF .. FF FB..FE: a special command frame, no reply
+            last = word & np.uint64(0xFF)
+            special = maybe_special & (length == 8) & ((word >> np.uint64(8)) == np.uint64(0xFFFFFFFFFFFFFF)) & (last >= 0xFB) & (last <= 0xFE)
+            k = np.where(special, self._corrupt, k)
+        verdict = self._verdict[k]
+        if any_flags:
+            verdict[(flags & 1) != 0] = ERROR_FRAME
+        t = self._table[k]
+        values = ((word[:, None] >> self._SHIFTS) & self._MASKS) * t[:, 1:6:2] + t[:, 0:6:2]
+        d6 = ((word >> np.uint64(8)) & np.uint64(0xFF)).astype(np.int64)
+        d7 = (word & np.uint64(0xFF)).astype(np.int64)
+        if self._has_error_field:
+            state = b0 >> 4
+            damiao = t[:, 10] != 0
+            error = np.where(t[:, 9] != 0, d7, np.where(damiao, np.where(state >= 8, state, 0), -1))
+            status = np.where(damiao, state, -1)
+        else:
+            error = status = np.full(m, -1, dtype=np.int64)
+        return DecodedReplies(
+            verdict=verdict,
+            index=self._index[k],
+            motor_id=self._can_id[k],
+            state=values,
+            temperature=d6 + t[:, 6],
+            rotor_temperature=d7 + t[:, 8],
+            error_code=error,
+            voltage=d6 * t[:, 7],
+            status=status,
+        )
 
 
 def _as_bytes(data: Any) -> bytes:
