@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from giwbc.hal import children
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.robot.interface import ImuReading
 
@@ -123,16 +124,9 @@ class EmulatorProcess:
         prefix = f"giwbc-emu-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self._host_plan = replace(plan, buses=tuple(replace(b, interface=INTERFACE, channel=f"{prefix}/{b.name}") for b in plan.buses))
         self.imu_channel = SharedImuChannel()
-        # fork: "spawn" would re-import the user's main script in the child (a script without an
-        # `if __name__ == "__main__"` guard would start a second emulator); nothing of the parent
-        # is used in the child but the arguments.
-        context = multiprocessing.get_context("fork")
-        self._conn, child = context.Pipe()
-        self._process = context.Process(
-            target=_serve, args=(plan, description, self.config, prefix, self.imu_channel.name, child, rt_priority, cpu),
-            name="giwbc-emulator", daemon=True,
-        )
-        self._process.start()
+        self._conn, child = multiprocessing.get_context("fork").Pipe()
+        args = (plan, description, self.config, prefix, self.imu_channel.name, child, rt_priority, cpu)
+        self._process = children.start(_serve, args, "giwbc-emulator")  # motors do not hear Ctrl-C (see children)
         child.close()
         self.truth = np.zeros((0, 3))
         self.counters: EmulatorCounters | None = None
@@ -189,10 +183,7 @@ class EmulatorProcess:
         except (RuntimeError, OSError, EOFError) as error:
             self.failure = str(error)  # a failed, dead or stuck child: terminated below
         finally:
-            self._process.join(timeout)
-            if self._process.is_alive():
-                self._process.terminate()
-                self._process.join(1.0)
+            children.stop(self._process, timeout)
             self._conn.close()
             self.imu_channel.close()
 
@@ -236,16 +227,18 @@ def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorCo
             pass
 
 
-def _rehearse(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, model: Any, cycles: int = 20) -> None:
+def _rehearse(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, model: Any, prefix: str,
+              cycles: int = 20) -> None:  # fmt: skip
     """A short private lockstep run (enter motor mode, hold the default pose) on a throwaway
-    emulator: the first passes through numpy, MuJoCo and the codecs cost milliseconds each, which
-    the real run's first replies must not pay (they would come cycles late)."""
+    emulator, over giwbc-unix channels of its own (``prefix``): the first passes through numpy,
+    MuJoCo, the codecs and the transport cost milliseconds each, which the real run's first
+    replies must not pay (they would come cycles late)."""
     from giwbc.hal.can_robot import ENTER, CanRobot
     from giwbc.hal.emulator import ActuatorEmulator
     from giwbc.robot.standing import pd_hold_command
 
     quiet = replace(config, faults=(), record=False, record_truth=False)
-    with ActuatorEmulator(plan, description, quiet, model=model) as emulator:
+    with ActuatorEmulator(plan, description, quiet, model=model, channel_prefix=prefix, interface=INTERFACE, bus_options={"serve": True}) as emulator:
         robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
         try:
             period = 1.0 / plan.control_rate
@@ -274,7 +267,7 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
     from giwbc.hal.emulator import ActuatorEmulator
 
     model = description.build_mujoco()
-    _rehearse(plan, description, config, copy.copy(model))
+    _rehearse(plan, description, config, copy.copy(model), f"{prefix}-rehearsal")
     emulator = ActuatorEmulator(plan, description, config, model=model, channel_prefix=prefix, interface=INTERFACE, bus_options={"serve": True})
     imu = SharedImuChannel(imu_name)
     emulator.imu_channel = imu
@@ -295,8 +288,8 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
             scheduler = f"default (SCHED_FIFO refused: {error})"
     conn.send(("ready", (emulator.physics_dt, scheduler)))
     control = conn.fileno()
-    listening = {bus.fileno(): bus for bus in emulator.buses}  # until the host connects each bus
-    connected: list[int] = []
+    listening = {bus.fileno(): (b, bus) for b, bus in enumerate(emulator.buses)}  # until the host connects each bus
+    connected: dict[int, int] = {}  # descriptor -> bus index
     start: float | None = None
     clock = time.perf_counter
     dt = emulator.physics_dt
@@ -311,19 +304,22 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
                 if fd == control:
                     running = _control(conn, emulator)
                 elif fd in listening:
-                    bus = listening.pop(fd)
+                    b, bus = listening.pop(fd)
                     if bus.accept(0.0):
-                        connected.append(bus.fileno())
+                        connected[bus.fileno()] = b
                     else:  # a spurious wake-up: keep listening
-                        listening[fd] = bus
+                        listening[fd] = (b, bus)
                 else:
                     frames = True
             if not running:
                 break
+            buses: list[int] = []
             if frames:
                 # A cycle's frames come as a burst (the host sends every motor's frame at once):
-                # let the burst arrive, then answer it as one batch, not frame by frame.
+                # let the burst arrive, then answer it as one batch, reading only the buses that
+                # have frames (a wake-up for a physics step reads none).
                 select.select([], [], [], BURST_WAIT)
+                buses = sorted(connected[fd] for fd in select.select(list(connected), [], [], 0)[0])
             if start is None:
                 if not frames:
                     continue
@@ -331,7 +327,7 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
             now = clock() - start
             try:
                 emulator.advance(now)
-                emulator.answer(now)
+                emulator.answer(now, buses)
             except can.CanOperationError:
                 running = False  # the host closed its buses
         cpu = os.times()

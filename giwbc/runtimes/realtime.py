@@ -264,8 +264,8 @@ class StartupConfig:
     gain_ramp: float = 0.2  # fraction of the ramp over which kp, kd rise from the damping gains
     shutdown_time: float = 1.0  # last command -> damping at the end of a clean run
     off_delay: float = 0.5  # damping held before motors off after a clean run
-    enable_attempts: int = 3  # cycles of enter-motor-mode frames before giving up
-    exit_attempts: int = 3
+    enable_attempts: int = 5  # cycles of enter-motor-mode frames before giving up (plus the robot's reply lag)
+    exit_attempts: int = 3  # cycles of exit-motor-mode frames, fewer when every motor confirmed
 
     def __post_init__(self) -> None:
         if self.ramp_profile not in PROFILES:
@@ -437,17 +437,15 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                 self._gc_frozen = False
 
     def _raise_priority(self) -> None:
-        """``SCHED_FIFO`` for the loop's thread and the log's writer thread (a writer preempted while
-        holding the GIL would stall the loop: priority inversion)."""
+        """``SCHED_FIFO`` for the loop's thread (the run log is written by a process of its own,
+        at normal priority)."""
         if self.rt_priority is None or not hasattr(os, "sched_setscheduler"):
             return
-        threads = [0] + ([self.log.thread_id] if self.log is not None and self.log.thread_id else [])
         detail: dict[str, Any] = {"policy": "SCHED_FIFO", "priority": self.rt_priority}
         try:
-            for tid in threads:
-                previous = (os.sched_getscheduler(tid), os.sched_getparam(tid))
-                os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(self.rt_priority))
-                self._schedulers.append((tid, previous))
+            previous = (os.sched_getscheduler(0), os.sched_getparam(0))
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            self._schedulers.append((0, previous))
         except OSError as error:
             detail = {"refused": str(error)}
             self._restore_priority()
@@ -516,10 +514,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._raise_priority()
         self._set_phase(ENABLE)
         self.armed = False
-        for _ in range(s.enable_attempts):
-            report = self._cycle(None, ENTER)
-            if report is not None and report.complete or self.fault is not None:
-                break
+        report = self._special_frames(ENTER, s.enable_attempts, stop_on_fault=True)
         if self.fault is None and (report is None or not report.complete):
             missing = [self.description.joint_names[j] for j in np.flatnonzero(report.missing)] if report is not None else []
             self._fail(FaultKind.STARTUP, f"motors did not answer enter-motor-mode after {s.enable_attempts} tries: {missing}")
@@ -599,13 +594,24 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._safe_stop()
         return self._last_observation(), 0.0, True, False, self._info()
 
+    def _special_frames(self, kind: str, attempts: int, *, stop_on_fault: bool) -> CycleReport | None:
+        """Send ``kind`` (enter / exit motor mode) frames every cycle until a cycle reads every
+        motor's reply to them, at most ``attempts`` cycles (plus the robot's reply lag: replies
+        read a cycle later when the motors answer on their own clock). Returns the last report."""
+        lag = self.robot.reply_lag
+        report = None
+        for attempt in range(attempts + lag):
+            report = self._cycle(None, kind)
+            if attempt >= lag and report is not None and report.complete:
+                break
+            if stop_on_fault and self.fault is not None:
+                break
+        return report
+
     def _motors_off(self) -> None:
         if self.phase == OFF:
             return
-        for _ in range(self.startup.exit_attempts):
-            report = self._cycle(None, EXIT)
-            if report is not None and report.complete:
-                break
+        self._special_frames(EXIT, self.startup.exit_attempts, stop_on_fault=False)
         self._set_phase(OFF)
         self._event("motors_off", {"fault": None if self.fault is None else str(self.fault)})
 
@@ -677,6 +683,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             try:
                 self.log.timing(report.cycle, t, slot, lateness * 1e6, period, work * 1e6, report.send_s * 1e6,
                                 report.receive_s * 1e6, overrun)  # fmt: skip
+                self.log.flush()  # the cycle's records, to the logger process in one datagram
             except Exception as error:  # noqa: BLE001
                 self._log_failed(error)
         return report
