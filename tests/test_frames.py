@@ -196,3 +196,22 @@ def test_the_multibus_codec_equals_each_buses_protocol(g1_protocols, rng):
         x, y = fast.decode_replies(bus, batch), reference.decode_replies(bus, batch)
         assert x.verdict.tolist() == y.verdict.tolist() and x.index.tolist() == y.index.tolist()
         assert all(x.reply(k) == y.reply(k) for k in range(m))
+
+
+def test_draining_reads_the_expected_frames_then_any_bus_holding_more():
+    pairs = [UnixCanBus.pair(f"frames-drain-{next(_channels)}") for _ in range(3)]
+    try:
+        hosts = PortGroup([frame_port(h) for h, _ in pairs])
+        motors = PortGroup([frame_port(m) for _, m in pairs])
+        batch = frames([1, 2, 3, 4, 5, 6], np.arange(48).reshape(6, 8))
+        hosts.send(batch, [0, 1, 4, 6], time.perf_counter() + 1.0, timeout=[1e-3] * 3, retries=[1] * 3)  # 1, 3, 2 frames
+        got = motors.receive(None, need=[1, 1, 2], drain=True)  # bus 1 holds two more than expected
+        assert got.bus.tolist() == [0, 1, 1, 1, 2, 2] and got.frames.tobytes() == batch.tobytes()
+        assert len(motors.receive(None).frames) == 0
+        hosts.send(batch[:1], [0, 1, 1, 1], time.perf_counter() + 1.0, timeout=[1e-3] * 3, retries=[1] * 3)
+        got = motors.receive(None, need=[1, 1, 2], drain=True)  # fewer than expected: what there is
+        assert got.bus.tolist() == [0] and all(e is None for e in got.errors)
+    finally:
+        for h, m in pairs:
+            h.shutdown()
+            m.shutdown()

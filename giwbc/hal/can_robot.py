@@ -302,7 +302,7 @@ class CanRobot(DescribedRobot):
         frames (in arrival order per bus), the bus of each, and how many frames no protocol can
         read (CAN FD on a classic bus)."""
         links = self.links
-        got = self.ports.receive(deadline, None if deadline is None else self._bus_sizes)
+        got = self.ports.receive(deadline, self._bus_sizes, drain=deadline is None)
         batch, bus = got.frames, got.bus
         decoded = self.codec.decode_replies(bus, batch)
         skipped = sum(got.skipped)

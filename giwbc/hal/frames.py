@@ -338,8 +338,15 @@ class SocketPort(FramePort):
 
     def __init__(self, bus: can.BusABC, sock: Any) -> None:
         super().__init__(bus)
-        self.socket = sock
+        self._socket_of_bus = sock
+        self._socket: socket.socket | None = None
         self.name = str(getattr(bus, "channel_info", "can"))
+
+    def socket(self) -> socket.socket | None:
+        """The bus's socket, None while there is none yet; ``can.CanError`` once the bus is closed."""
+        if self._socket is None:  # kept once there: a bus's socket lives as long as the bus
+            self._socket = self._socket_of_bus()
+        return self._socket
 
     def send(self, batch: np.ndarray, deadline: float, *, timeout: float = 200e-6, retries: int = 2) -> SendOutcome:
         return SendOutcome(*self.send_raw(batch.tobytes(), deadline, timeout, retries))
@@ -410,19 +417,48 @@ class PortGroup:
             for port, a, b, t, r in zip(self.ports, bounds[:-1], bounds[1:], timeout, retries)
         ]
 
-    def receive(self, deadline: float | None = None, need: Sequence[int] | None = None, buses: Sequence[int] | None = None) -> GroupReceived:
-        """Frames of every bus (or of ``buses``): until ``deadline`` (None: those already waiting),
-        at most ``need[b]`` from bus ``b``. Buses are read one after the other (their frames are in
-        flight together), so the call returns by the deadline."""
-        chunks: list[bytes] = []
-        counts = np.zeros(len(self.ports), dtype=np.int64)
-        skipped = [0] * len(self.ports)
-        errors: list[Exception | None] = [None] * len(self.ports)
-        for b in self._buses if buses is None else buses:
-            got, skipped[b], errors[b] = self.ports[b].receive_raw(chunks, deadline, None if need is None else int(need[b]))
-            counts[b] = got
-        batch = np.frombuffer(b"".join(chunks), dtype=FRAME) if chunks else _NO_FRAMES
+    def receive(self, deadline: float | None = None, need: Sequence[int] | None = None, buses: Sequence[int] | None = None,
+                *, drain: bool = False) -> GroupReceived:  # fmt: skip
+        """Frames of every bus (or of ``buses``, ascending): until ``deadline`` (None: those already
+        waiting), at most ``need[b]`` from bus ``b``. With ``drain`` (and no deadline), ``need`` is
+        what each bus is expected to hold and everything waiting is read: the expected frames
+        first, then one ``select()`` over all sockets finds the buses holding more (late or stray
+        frames), instead of probing every bus for "nothing left" (a raised BlockingIOError each).
+        Buses are read one after the other (their frames are in flight together), so the call
+        returns by the deadline."""
+        n = len(self.ports)
+        per_bus: list[list[bytes]] = [[] for _ in range(n)]
+        counts = np.zeros(n, dtype=np.int64)
+        skipped = [0] * n
+        errors: list[Exception | None] = [None] * n
+        order = self._buses if buses is None else buses
+        expected = drain and need is not None and deadline is None
+        for b in order:
+            limit = None if need is None else int(need[b])
+            counts[b], skipped[b], errors[b] = self.ports[b].receive_raw(per_bus[b], deadline, limit)
+        if expected:
+            for b in self._more_waiting([b for b in order if errors[b] is None]):
+                got, more, errors[b] = self.ports[b].receive_raw(per_bus[b], None, None)
+                counts[b] += got
+                skipped[b] += more
+        raw = b"".join(chunk for chunks in per_bus for chunk in chunks)
+        batch = np.frombuffer(raw, dtype=FRAME) if raw else _NO_FRAMES
         return GroupReceived(batch, np.repeat(self._buses, counts), tuple(skipped), tuple(errors))
+
+    def _more_waiting(self, buses: Sequence[int]) -> list[int]:
+        """The buses among ``buses`` with frames still waiting: one select() over their sockets
+        (a bus without a socket counts as possibly waiting)."""
+        sockets: dict[int, int] = {}
+        unknown = []
+        for b in buses:
+            port = self.ports[b]
+            sock = port.socket() if isinstance(port, SocketPort) else None
+            if sock is None or sock.fileno() < 0:
+                unknown.append(b)
+            else:
+                sockets[sock.fileno()] = b
+        ready = select.select(list(sockets), [], [], 0)[0] if sockets else []
+        return sorted(unknown + [sockets[fd] for fd in ready])
 
 
 class MessagePort(FramePort):

@@ -347,6 +347,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self.freeze_gc = freeze_gc
         self._gc_frozen = False
         self._schedulers: list[tuple[int, tuple[int, Any]]] = []
+        self.scheduler = "default"  # the loop thread's scheduling while the motors were on, as granted
         if spin is None:  # under SCHED_FIFO wake-ups are prompt; spinning counts against RT throttling
             spin = 100e-6 if rt_priority is not None else 250e-6
         min_idle = 0.06 / controller_rate if rt_priority is not None else 0.0  # stay under 95 % busy
@@ -446,8 +447,10 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             previous = (os.sched_getscheduler(0), os.sched_getparam(0))
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
             self._schedulers.append((0, previous))
+            self.scheduler = f"SCHED_FIFO {self.rt_priority}"
         except OSError as error:
             detail = {"refused": str(error)}
+            self.scheduler = f"default (SCHED_FIFO {self.rt_priority} refused: {error})"
             self._restore_priority()
         self._event("scheduler", detail)
 
