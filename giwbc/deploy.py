@@ -350,6 +350,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         if options.realtime else "not paced (as fast as possible)"
     )  # fmt: skip
     say(f"{result.cycles} cycles, {result.robot_time:.2f} s robot time in {result.wall_time:.2f} s; {pacing}")
+    if options.realtime and options.emulate and options.emulator_mode == "lockstep" and timing["overruns"]:
+        say("  (lockstep: the loop also runs the emulator's physics and firmware; --emulator process times the loop as on hardware)")
     if standing is not None:
         say(
             f"emulated robot while running: base height {standing['min_height']:.3f}..{standing['max_height']:.3f} m, "

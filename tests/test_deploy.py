@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import signal
 import subprocess
@@ -164,3 +165,49 @@ def test_command_line_dry_run_stopped_by_sigint(tmp_path):
     run_log = read_log(log)
     assert run_log.faults[0]["kind"] == "signal" and run_log.event_names()[-1] == "motors_off"
     assert run_log.topic("/commands")[-1]["kind"] == "exit"
+
+
+def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp_path):
+    """A controller whose first tick after a reset is slow (a QP laid out and solved cold) takes
+    over between two cycles: the motors hold the ramp's last command meanwhile, the pause is
+    logged, and the first running cycles neither overrun nor skip a slot."""
+    import copy
+
+    from giwbc.deploy import PdHold
+    from giwbc.hal.can_robot import CanRobot
+    from giwbc.hal.emulator import ActuatorEmulator
+    from giwbc.hal.hardware import load_hardware
+    from giwbc.hal.runlog import RunLogWriter
+    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
+
+    class SlowFirstTick(PdHold):
+        fresh = True
+
+        def reset(self):
+            self.fresh = True
+
+        def __call__(self, robot):
+            if self.fresh:
+                self.fresh = False
+                time.sleep(0.03)  # three 10 ms periods
+            return super().__call__(robot)
+
+    plan = load_hardware(g1.folder / "hardware.toml", 100.0, joint_names=g1.joint_names, interface="virtual")
+    emulator = ActuatorEmulator(plan, g1, EmulatorConfig(), model=copy.copy(model))
+    robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
+    log = RunLogWriter(tmp_path / "handover.mcap", g1.joint_names)
+    runtime = RealtimeRuntime(StandingTask(SlowFirstTick(g1), g1.default_positions), robot, agent_rate=50.0, log=log,
+                              startup=StartupConfig(settle_time=0.05, ramp_time=0.2, shutdown_time=0.05, off_delay=0.02))  # fmt: skip
+    try:
+        result = runtime.run(None, seconds=0.3)
+    finally:
+        robot.close()
+        emulator.close()
+        log.close()
+    assert result.ok, result.fault
+    (handover,) = [e["detail"] for e in read_log(log.path, topics=["/events"]).events if e["event"] == "handover"]
+    assert handover["pause_ms"] >= 30.0
+    first = runtime.phase_cycles["running"]
+    stats = runtime.clock.stats.between(first, first + 5)
+    assert not any(stats.overrun) and stats.skipped == 0
+    assert math.isnan(stats.periods[0]) and max(stats.lateness) < 0.005  # the schedule restarted after the pause

@@ -37,6 +37,15 @@ from giwbc.hal.unix_bus import UnixCanBus
 _channels = itertools.count()
 
 
+@pytest.fixture
+def pair():
+    """Two connected ends of a giwbc-unix channel: (host, motor side)."""
+    host, motor = UnixCanBus.pair(f"frames-{next(_channels)}")
+    yield host, motor
+    host.shutdown()
+    motor.shutdown()
+
+
 def mixed_batch() -> np.ndarray:
     """Standard, extended, remote and error frames of several lengths."""
     batch = frames([0x12, 0x7FF, 0x1ABCDE, 0x05], np.arange(32).reshape(4, 8), [8, 3, 8, 0], [False, False, True, False])
@@ -65,62 +74,48 @@ def test_records_and_python_can_messages_convert_both_ways():
         assert a["data"][:n].tolist() == b["data"][:n].tolist()
 
 
-def test_the_socket_port_moves_a_batch_exactly():
-    host, motor = UnixCanBus.pair(f"frames-{next(_channels)}")
-    try:
-        tx, rx = frame_port(host), frame_port(motor)
-        assert isinstance(tx, SocketPort) and isinstance(rx, SocketPort)
-        batch = mixed_batch()
-        outcome = tx.send(batch, time.perf_counter() + 1.0)
-        assert (outcome.sent, outcome.dropped, outcome.errors) == (len(batch), 0, 0)
-        got = rx.receive(time.perf_counter() + 1.0, limit=len(batch))
-        assert got.error is None and got.skipped == 0
-        assert got.frames.tobytes() == batch.tobytes()
-        assert len(rx.receive(None).frames) == 0  # nothing left; returns at once
-    finally:
-        host.shutdown()
-        motor.shutdown()
+def test_the_socket_port_moves_a_batch_exactly(pair):
+    host, motor = pair
+    tx, rx = frame_port(host), frame_port(motor)
+    assert isinstance(tx, SocketPort) and isinstance(rx, SocketPort)
+    batch = mixed_batch()
+    outcome = tx.send(batch, time.perf_counter() + 1.0)
+    assert (outcome.sent, outcome.dropped, outcome.errors) == (len(batch), 0, 0)
+    got = rx.receive(time.perf_counter() + 1.0, limit=len(batch))
+    assert got.error is None and got.skipped == 0
+    assert got.frames.tobytes() == batch.tobytes()
+    assert len(rx.receive(None).frames) == 0  # nothing left; returns at once
 
 
-def test_a_non_classic_datagram_is_skipped_and_counted():
-    host, motor = UnixCanBus.pair(f"frames-{next(_channels)}")
-    try:
-        host.frame_socket.send(bytes(72))  # a struct canfd_frame
-        frame_port(host).send(frames([1], np.zeros((1, 8))), time.perf_counter() + 1.0)
-        got = frame_port(motor).receive(None)
-        assert got.skipped == 1 and len(got.frames) == 1 and got.frames[0]["can_id"] == 1
-    finally:
-        host.shutdown()
-        motor.shutdown()
+def test_a_non_classic_datagram_is_skipped_and_counted(pair):
+    host, motor = pair
+    host.frame_socket.send(bytes(72))  # a struct canfd_frame
+    frame_port(host).send(frames([1], np.zeros((1, 8))), time.perf_counter() + 1.0)
+    got = frame_port(motor).receive(None)
+    assert got.skipped == 1 and len(got.frames) == 1 and got.frames[0]["can_id"] == 1
 
 
-def test_a_full_queue_drops_frames_by_the_deadline_without_raising():
-    host, motor = UnixCanBus.pair(f"frames-{next(_channels)}")
-    try:
-        host.frame_socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)
-        port = frame_port(host)
-        batch = frames(np.arange(2000) % 0x7FF, np.zeros((2000, 8)))
-        start = time.perf_counter()
-        outcome = port.send(batch, start + 0.05, timeout=1e-3, retries=1)
-        assert time.perf_counter() - start < 0.5
-        assert outcome.sent + outcome.dropped == 2000 and outcome.dropped > 0 and outcome.errors > 0
-        assert len(frame_port(motor).receive(None).frames) == outcome.sent  # what was sent arrived, in order
-    finally:
-        host.shutdown()
-        motor.shutdown()
+def test_a_full_queue_drops_frames_by_the_deadline_without_raising(pair):
+    host, motor = pair
+    host.frame_socket.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, 4096)
+    port = frame_port(host)
+    batch = frames(np.arange(2000) % 0x7FF, np.zeros((2000, 8)))
+    start = time.perf_counter()
+    outcome = port.send(batch, start + 0.05, timeout=1e-3, retries=1)
+    assert time.perf_counter() - start < 0.5
+    assert outcome.sent + outcome.dropped == 2000 and outcome.dropped > 0 and outcome.errors > 0
+    assert len(frame_port(motor).receive(None).frames) == outcome.sent  # what was sent arrived, in order
 
 
-def test_a_closed_peer_is_reported_not_raised():
-    host, motor = UnixCanBus.pair(f"frames-{next(_channels)}")
+def test_a_closed_peer_is_reported_not_raised(pair):
+    host, motor = pair
     motor.shutdown()
-    try:
-        port = frame_port(host)
-        outcome = port.send(frames([1, 2], np.zeros((2, 8))), time.perf_counter() + 0.1, retries=2)
-        assert outcome.sent == 0 and outcome.dropped == 2 and outcome.errors == 6
-        got = port.receive(time.perf_counter() + 0.1)
-        assert isinstance(got.error, can.CanOperationError) and len(got.frames) == 0
-    finally:
-        host.shutdown()
+    port = frame_port(host)
+    outcome = port.send(frames([1, 2], np.zeros((2, 8))), time.perf_counter() + 0.1, retries=2)
+    assert outcome.sent == 0 and outcome.dropped == 2 and outcome.errors == 6
+    got = port.receive(time.perf_counter() + 0.1)
+    assert isinstance(got.error, can.CanOperationError) and len(got.frames) == 0
+    host.shutdown()
     outcome = frame_port(host).send(frames([1], np.zeros((1, 8))), time.perf_counter() + 0.1)  # a closed bus
     assert outcome.dropped == 1 and outcome.errors == 1
 

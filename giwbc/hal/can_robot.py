@@ -171,7 +171,6 @@ class CanRobot(DescribedRobot):
             raise ValueError("the links' protocols must drive the plan's motors, in plan order")
         self._bus_sizes = np.array([len(bus.motors) for bus in plan.buses], dtype=np.int64)
         bounds = np.cumsum([0, *self._bus_sizes.tolist()])
-        self._bus_slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:])]
         self._bounds = bounds.tolist()
         self._bus_starts = bounds[:-1]
         self.ports = PortGroup([link.port for link in self.links])
@@ -301,7 +300,6 @@ class CanRobot(DescribedRobot):
         ``deadline`` passed, or (``deadline`` None) those already waiting. Returns the decoded
         frames (in arrival order per bus), the bus of each, and how many frames no protocol can
         read (CAN FD on a classic bus)."""
-        links = self.links
         got = self.ports.receive(deadline, self._bus_sizes, drain=deadline is None)
         batch, bus = got.frames, got.bus
         decoded = self.codec.decode_replies(bus, batch)

@@ -443,6 +443,10 @@ def _serve(sock: socket.socket, parent_end: socket.socket, path: Path, joint_nam
     """The logger process: write records until told to close, or until the control process is gone."""
     parent_end.close()
     try:
+        os.nice(10)  # the control loop first: a logger behind by a few cycles loses nothing (backlog)
+    except OSError:
+        pass
+    try:
         sink = _McapSink(path, joint_names, metadata, chunk_size)
     except OSError as error:
         sock.send(f"cannot write the run log {path}: {error}".encode())

@@ -17,6 +17,11 @@ Phases::
     idle -> enable (enter motor mode) -> settle (damping) -> ramp (measured pose -> default pose)
          -> running (controller) -> shutdown (ramp to damping) -> damping -> off (exit motor mode)
 
+Hand-over: after the ramp (and after every later reset) the task's first controller tick runs
+between two cycles, while the motors hold their last command, and the schedule restarts after it
+(:meth:`DeadlineClock.resync`): a whole-body controller's first tick lays out and cold-solves its
+QP (milliseconds), which would otherwise overrun the first running cycle. The pause is logged.
+
 Any fault (:mod:`giwbc.hal.safety`), a signal, a non-finite action or command, an exception in
 the policy, the controller or the task: damping goes out at the next exchange (within two cycles
 of the detection), is held for ``damping_time``, then the motors are switched off; the cause is
@@ -181,6 +186,14 @@ class DeadlineClock:
         lateness = now - due  # from the deadline this cycle was first due at (skips included)
         self._begin(now, lateness, skipped)
         return slot, lateness
+
+    def resync(self) -> None:
+        """Restart the schedule from now: the next slot is due one period from now. After a
+        deliberate pause between cycles (the hand-over) nothing counts as an overrun or a skipped
+        slot, and the period across the pause is not measured (NaN)."""
+        if self.realtime and self.start is not None:
+            self.start = time.perf_counter() - self.slot * self.period
+            self._last_start = None
 
     def _begin(self, now: float, lateness: float, skipped: int) -> None:
         st = self.stats
@@ -383,10 +396,25 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         if self.fault is None:
             try:
                 self.task.reset_task()
+                self._hand_over()
                 self._observation = self._observe()
+            except NonFiniteCommand as error:
+                self._fail(FaultKind.NONFINITE_COMMAND, f"controller output is not finite: {error}")
             except Exception as error:  # noqa: BLE001 - no exception escapes the loop
                 self._fail(FaultKind.CONTROLLER_ERROR, f"task reset failed: {_describe(error)}")
         return self._last_observation(), self._info()
+
+    def _hand_over(self) -> None:
+        """The task's first controller tick after a reset, between two cycles (module docstring):
+        it pays the controller's one-time costs (the G1 WBC lays out its QP and solves it cold:
+        ~1.5-3 ms) while the motors hold their last command, then the deadline schedule restarts,
+        instead of the first running cycle overrunning by that much. Its command goes out at the
+        next exchange, as any cycle's does."""
+        started = time.perf_counter()
+        self._control_tick()
+        pause = time.perf_counter() - started
+        self.clock.resync()
+        self._event("handover", {"pause_ms": round(1e3 * pause, 3)})
 
     def step(self, action: Any) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """One agent step: the action, then ``controller / agent`` control cycles."""
