@@ -19,7 +19,8 @@ controller with the estimator, what ``giwbc deploy`` runs) and the MCAP run log,
 
 ``--emulator process`` (default): the emulator runs in its own process on ``giwbc-unix`` channels
 (as motors run on their own hardware), on its own real-time clock and its own CPU; the CAN robot
-reads each cycle's replies at the next cycle. ``--emulator lockstep``: in the loop's thread on
+reads each cycle's replies at the next cycle. The loop's thread has the first CPU to itself: the
+emulator and the run logger run on the others. ``--emulator lockstep``: in the loop's thread on
 python-can ``virtual`` buses. The emulator shares this machine with the loop, so a stall of its
 CPU looks like silent motors: the benchmark tolerates 25 silent cycles (``max_missing_cycles``)
 where a deployment stops after 3, and reports the cycles with missing replies. ``--repeat N``
@@ -132,7 +133,8 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, estimator=estimator)
     meter = _CpuMeter(emulator if mode == "lockstep" else None, robot)
     task = StandingTask(make_controller(controller, description), description.default_positions)
-    writer = RunLogWriter(log_dir / f"deploy_loop_{int(rate)}.mcap", description.joint_names, {"benchmark": "deploy_loop"}) if log else None
+    writer = RunLogWriter(log_dir / f"deploy_loop_{int(rate)}.mcap", description.joint_names, {"benchmark": "deploy_loop"},
+                          cpus=cpus[1:] if split else None) if log else None  # off the loop's CPU  # fmt: skip
     runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, safety=BENCHMARK_SAFETY,
                               startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.1, off_delay=0.05))  # fmt: skip
     marks: dict[str, dict[str, object]] = {}

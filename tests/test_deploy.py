@@ -211,3 +211,43 @@ def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp
     stats = runtime.clock.stats.between(first, first + 5)
     assert not any(stats.overrun) and stats.skipped == 0
     assert math.isnan(stats.periods[0]) and max(stats.lateness) < 0.005  # the schedule restarted after the pause
+
+
+def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, tmp_path):
+    """No automatic collection can fire inside a cycle while the motors are on: the runtime
+    collects the young generations itself between cycles, and restores the collector at close."""
+    import copy
+    import gc
+
+    from giwbc.deploy import PdHold
+    from giwbc.hal.can_robot import CanRobot
+    from giwbc.hal.emulator import ActuatorEmulator
+    from giwbc.hal.hardware import load_hardware
+    from giwbc.hal.runlog import RunLogWriter
+    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
+
+    seen = []
+
+    class Watching(PdHold):
+        def __call__(self, robot):
+            seen.append(gc.isenabled())
+            return super().__call__(robot)
+
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    emulator = ActuatorEmulator(plan, g1, EmulatorConfig(), model=copy.copy(model))
+    robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
+    log = RunLogWriter(tmp_path / "gc.mcap", g1.joint_names)
+    runtime = RealtimeRuntime(StandingTask(Watching(g1), g1.default_positions), robot, log=log, realtime=False, gc_every=20,
+                              startup=StartupConfig(settle_time=0.02, ramp_time=0.05, shutdown_time=0.02, off_delay=0.02))  # fmt: skip
+    assert gc.isenabled()
+    try:
+        result = runtime.run(None, seconds=0.2)
+    finally:
+        robot.close()
+        emulator.close()
+        log.close()
+    assert result.ok, result.fault
+    assert seen and not any(seen)  # off in every controller tick
+    assert gc.isenabled()  # restored
+    (summary,) = [e["detail"] for e in read_log(log.path, topics=["/events"]).events if e["event"] == "garbage_collection"]
+    assert summary["young_collections"] >= result.cycles // 20 - 1 and summary["longest_us"] > 0

@@ -153,3 +153,16 @@ def test_a_logger_that_cannot_write_is_a_clear_error(tmp_path):
             time.sleep(0.01)
     with pytest.raises(OSError, match="cannot write the run log"):
         log.close()
+
+
+def test_the_logger_runs_where_it_is_told_and_below_the_loop(tmp_path):
+    cpu = min(os.sched_getaffinity(0))
+    log = RunLogWriter(tmp_path / "placed.mcap", JOINTS, cpus=[cpu])
+    try:
+        deadline = time.monotonic() + 10
+        while os.sched_getaffinity(log.pid) != {cpu} and time.monotonic() < deadline:
+            time.sleep(0.01)  # the child sets it up as it starts
+        assert os.sched_getaffinity(log.pid) == {cpu}
+        assert os.getpriority(os.PRIO_PROCESS, log.pid) >= os.getpriority(os.PRIO_PROCESS, 0) + 10 or os.getpriority(os.PRIO_PROCESS, log.pid) == 19
+    finally:
+        log.close()

@@ -158,10 +158,14 @@ class RunLogWriter:
     counted in :attr:`dropped` and noted in the log. The logger ignores SIGINT and SIGTERM (a
     Ctrl-C stops the run, not its log) and finishes the file with what it received should this
     process die. :meth:`close` waits until the file is complete; OSError if writing it failed.
+
+    ``cpus``: the CPUs the logger may run on (Linux), e.g. all but the control loop's: on a kernel
+    without full preemption, a logger inside a long write() on the loop's CPU delays the loop's
+    wake-up, whatever the loop's priority.
     """
 
     def __init__(self, path: str | os.PathLike[str], joint_names: Sequence[str], metadata: Mapping[str, Any] | None = None,
-                 *, chunk_size: int = 256 * 1024, backlog: int = 4096) -> None:  # fmt: skip
+                 *, chunk_size: int = 256 * 1024, backlog: int = 4096, cpus: Iterable[int] | None = None) -> None:  # fmt: skip
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.joint_names = tuple(joint_names)
@@ -177,7 +181,9 @@ class RunLogWriter:
         self._last_words: bytes | None = None  # the logger's final status, once read
         self._sock, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         _grow_send_buffer(self._sock)
-        self._process = children.start(_serve, (child, self._sock, self.path, self.joint_names, meta, chunk_size), "giwbc-runlog")
+        cpus = None if cpus is None else sorted(set(cpus))
+        args = (child, self._sock, self.path, self.joint_names, meta, chunk_size, cpus)
+        self._process = children.start(_serve, args, "giwbc-runlog")
         child.close()
         self._sock.setblocking(False)
 
@@ -439,12 +445,14 @@ def _read_text(body: memoryview, k: int) -> tuple[str, int]:
 
 
 def _serve(sock: socket.socket, parent_end: socket.socket, path: Path, joint_names: Sequence[str], metadata: Mapping[str, Any],
-           chunk_size: int) -> None:  # fmt: skip
+           chunk_size: int, cpus: list[int] | None) -> None:  # fmt: skip
     """The logger process: write records until told to close, or until the control process is gone."""
     parent_end.close()
     try:
         os.nice(10)  # the control loop first: a logger behind by a few cycles loses nothing (backlog)
-    except OSError:
+        if cpus:
+            os.sched_setaffinity(0, cpus)
+    except (OSError, AttributeError):
         pass
     try:
         sink = _McapSink(path, joint_names, metadata, chunk_size)

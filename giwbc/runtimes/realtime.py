@@ -324,7 +324,12 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     ``SCHED_FIFO`` every cycle sleeps at least 6 % of the period, late or not. ``spin``: seconds
     spent spinning before each deadline (default 250 us, 100 us under ``SCHED_FIFO``). ``freeze_gc``: collect
     garbage before the motors start, then ``gc.freeze()`` what exists (a full collection of the whole
-    heap costs tens of ms: a stalled loop), ``gc.unfreeze()`` at :meth:`close`.
+    heap costs tens of ms: a stalled loop), ``gc.unfreeze()`` at :meth:`close`. ``gc_every``: while
+    the motors are on, Python's automatic collection is off and the runtime collects the young
+    generations itself every this many cycles, right after a cycle's work (~5-30 us: they hold a
+    few hundred objects), instead of an automatic collection firing inside a cycle (measured
+    ~0.8 ms for a generation-1 collection there, ~12 ms for a full one); the automatic collector
+    is restored at :meth:`close`. None: leave it to Python.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -344,6 +349,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         spin: float | None = None,
         rt_priority: int | None = None,
         freeze_gc: bool = True,
+        gc_every: int | None = 500,
     ) -> None:
         controller_rate = float(controller_rate or robot.plan.control_rate)
         self.rates = Rates(agent=agent_rate, controller=controller_rate, physics=controller_rate)
@@ -359,6 +365,9 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self.rt_priority = rt_priority
         self.freeze_gc = freeze_gc
         self._gc_frozen = False
+        self.gc_every = None if gc_every is None else max(1, int(gc_every))
+        self._gc_was_enabled: bool | None = None  # automatic collection before the motors started (when turned off)
+        self.gc_collections, self.gc_seconds_max = 0, 0.0
         self._schedulers: list[tuple[int, tuple[int, Any]]] = []
         self.scheduler = "default"  # the loop thread's scheduling while the motors were on, as granted
         if spin is None:  # under SCHED_FIFO wake-ups are prompt; spinning counts against RT throttling
@@ -461,6 +470,10 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         finally:
             self.signals.restore()
             self._restore_priority()
+            if self._gc_was_enabled is not None:
+                if self._gc_was_enabled:
+                    gc.enable()
+                self._gc_was_enabled = None
             if self._gc_frozen:
                 gc.unfreeze()
                 self._gc_frozen = False
@@ -542,6 +555,9 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             gc.collect()
             gc.freeze()
             self._gc_frozen = True
+        if self.gc_every is not None and self._gc_was_enabled is None:
+            self._gc_was_enabled = gc.isenabled()
+            gc.disable()  # collections happen between cycles: see the class docstring
         self._raise_priority()
         self._set_phase(ENABLE)
         self.armed = False
@@ -643,6 +659,8 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         if self.phase == OFF:
             return
         self._special_frames(EXIT, self.startup.exit_attempts, stop_on_fault=False)
+        if self._gc_was_enabled is not None:
+            self._event("garbage_collection", {"young_collections": self.gc_collections, "longest_us": round(1e6 * self.gc_seconds_max, 1)})
         self._set_phase(OFF)
         self._event("motors_off", {"fault": None if self.fault is None else str(self.fault)})
 
@@ -708,6 +726,11 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                 except Exception as error:  # noqa: BLE001 - the robot must not depend on its log
                     self._log_failed(error)
         work, overrun = self.clock.done()
+        if self._gc_was_enabled is not None and self._cycles % self.gc_every == 0:  # type: ignore[operator]
+            started = time.perf_counter()
+            gc.collect(1)  # the young generations, in this cycle's slack
+            self.gc_collections += 1
+            self.gc_seconds_max = max(self.gc_seconds_max, time.perf_counter() - started)
         if self.log is not None and report is not None and report.cycle % self.log_every == 0:
             st = self.clock.stats
             period = st.periods[-1] * 1e6 if st.periods and math.isfinite(st.periods[-1]) else None
