@@ -167,18 +167,35 @@ def test_command_line_dry_run_stopped_by_sigint(tmp_path):
     assert run_log.topic("/commands")[-1]["kind"] == "exit"
 
 
-def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp_path):
-    """A controller whose first tick after a reset is slow (a QP laid out and solved cold) takes
-    over between two cycles: the motors hold the ramp's last command meanwhile, the pause is
-    logged, and the first running cycles neither overrun nor skip a slot."""
+def _run_lockstep(g1, model, tmp_path, controller, rate: float, seconds: float, startup: StartupConfig, **runtime_options):
+    """Run ``controller`` in a StandingTask on the lockstep emulator; (result, runtime, log path)."""
     import copy
 
-    from giwbc.deploy import PdHold
     from giwbc.hal.can_robot import CanRobot
     from giwbc.hal.emulator import ActuatorEmulator
     from giwbc.hal.hardware import load_hardware
     from giwbc.hal.runlog import RunLogWriter
     from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
+
+    plan = load_hardware(g1.folder / "hardware.toml", rate, joint_names=g1.joint_names, interface="virtual")
+    emulator = ActuatorEmulator(plan, g1, EmulatorConfig(), model=copy.copy(model))
+    robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
+    log = RunLogWriter(tmp_path / "run.mcap", g1.joint_names)
+    runtime = RealtimeRuntime(StandingTask(controller, g1.default_positions), robot, log=log, startup=startup, **runtime_options)
+    try:
+        result = runtime.run(None, seconds=seconds)
+    finally:
+        robot.close()
+        emulator.close()
+        log.close()
+    return result, runtime, log.path
+
+
+def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp_path):
+    """A controller whose first tick after a reset is slow (a QP laid out and solved cold) takes
+    over between two cycles: the motors hold the ramp's last command meanwhile, the pause is
+    logged, and the first running cycle neither overruns nor skips a slot."""
+    from giwbc.deploy import PdHold
 
     class SlowFirstTick(PdHold):
         fresh = True
@@ -192,20 +209,10 @@ def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp
                 time.sleep(0.03)  # three 10 ms periods
             return super().__call__(robot)
 
-    plan = load_hardware(g1.folder / "hardware.toml", 100.0, joint_names=g1.joint_names, interface="virtual")
-    emulator = ActuatorEmulator(plan, g1, EmulatorConfig(), model=copy.copy(model))
-    robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
-    log = RunLogWriter(tmp_path / "handover.mcap", g1.joint_names)
-    runtime = RealtimeRuntime(StandingTask(SlowFirstTick(g1), g1.default_positions), robot, agent_rate=50.0, log=log,
-                              startup=StartupConfig(settle_time=0.05, ramp_time=0.2, shutdown_time=0.05, off_delay=0.02))  # fmt: skip
-    try:
-        result = runtime.run(None, seconds=0.3)
-    finally:
-        robot.close()
-        emulator.close()
-        log.close()
+    startup = StartupConfig(settle_time=0.05, ramp_time=0.2, shutdown_time=0.05, off_delay=0.02)
+    result, runtime, log = _run_lockstep(g1, model, tmp_path, SlowFirstTick(g1), 100.0, 0.3, startup, agent_rate=50.0)
     assert result.ok, result.fault
-    (handover,) = [e["detail"] for e in read_log(log.path, topics=["/events"]).events if e["event"] == "handover"]
+    (handover,) = [e["detail"] for e in read_log(log, topics=["/events"]).events if e["event"] == "handover"]
     assert handover["pause_ms"] >= 30.0
     first = runtime.phase_cycles["running"]
     stats = runtime.clock.stats.between(first, first + 1)  # the cycle after the pause
@@ -216,15 +223,9 @@ def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp
 def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, tmp_path):
     """No automatic collection can fire inside a cycle while the motors are on: the runtime
     collects the young generations itself between cycles, and restores the collector at close."""
-    import copy
     import gc
 
     from giwbc.deploy import PdHold
-    from giwbc.hal.can_robot import CanRobot
-    from giwbc.hal.emulator import ActuatorEmulator
-    from giwbc.hal.hardware import load_hardware
-    from giwbc.hal.runlog import RunLogWriter
-    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
 
     seen = []
 
@@ -233,21 +234,11 @@ def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, 
             seen.append(gc.isenabled())
             return super().__call__(robot)
 
-    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
-    emulator = ActuatorEmulator(plan, g1, EmulatorConfig(), model=copy.copy(model))
-    robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
-    log = RunLogWriter(tmp_path / "gc.mcap", g1.joint_names)
-    runtime = RealtimeRuntime(StandingTask(Watching(g1), g1.default_positions), robot, log=log, realtime=False, gc_every=20,
-                              startup=StartupConfig(settle_time=0.02, ramp_time=0.05, shutdown_time=0.02, off_delay=0.02))  # fmt: skip
+    startup = StartupConfig(settle_time=0.02, ramp_time=0.05, shutdown_time=0.02, off_delay=0.02)
     assert gc.isenabled()
-    try:
-        result = runtime.run(None, seconds=0.2)
-    finally:
-        robot.close()
-        emulator.close()
-        log.close()
+    result, _, log = _run_lockstep(g1, model, tmp_path, Watching(g1), 500.0, 0.2, startup, realtime=False, gc_every=20)
     assert result.ok, result.fault
     assert seen and not any(seen)  # off in every controller tick
     assert gc.isenabled()  # restored
-    (summary,) = [e["detail"] for e in read_log(log.path, topics=["/events"]).events if e["event"] == "garbage_collection"]
+    (summary,) = [e["detail"] for e in read_log(log, topics=["/events"]).events if e["event"] == "garbage_collection"]
     assert summary["young_collections"] >= result.cycles // 20 - 1 and summary["longest_us"] > 0
