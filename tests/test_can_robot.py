@@ -217,3 +217,17 @@ def test_imu_sources_and_fast_messages():
     clone = copy.deepcopy(msg)
     assert isinstance(clone, FastMessage) and clone is not msg and clone.data is not msg.data
     assert clone.equals(msg) and (clone.dlc, clone.is_extended_id, clone.is_rx) == (3, False, True)
+
+
+def test_block_conversions_equal_the_per_field_ones(twisted_plan, rng):
+    from giwbc.hal.motor import MotorGroup
+
+    group = MotorGroup(twisted_plan.motors)
+    n = len(group)
+    rows = rng.normal(size=(5, n))
+    motor = group.commands_to_motor(rows.copy())
+    assert np.allclose(motor, np.array(group.command_to_motor(*rows)), rtol=1e-15, atol=1e-15)
+    states = rng.normal(size=(n, 3))
+    assert np.allclose(group.states_to_joint(states), np.array(group.state_to_joint(*states.T)).T, rtol=1e-15, atol=1e-15)
+    some = np.array([3, 0, 7])
+    assert np.allclose(group.states_to_joint(states[some], some), np.array(group.state_to_joint(*states.T)).T[some], rtol=1e-15, atol=1e-15)

@@ -169,10 +169,9 @@ class CanRobot(DescribedRobot):
         self.codec = MultiBusCodec([link.protocol for link in self.links])
         if self.codec.motors != tuple(self.motors):
             raise ValueError("the links' protocols must drive the plan's motors, in plan order")
-        self._bus_sizes = np.array([len(bus.motors) for bus in plan.buses], dtype=np.int64)
-        bounds = np.cumsum([0, *self._bus_sizes.tolist()])
+        bounds = self.codec.bounds  # motors of bus b: bounds[b]:bounds[b + 1]
         self._bounds = bounds.tolist()
-        self._bus_starts = bounds[:-1]
+        self._bus_sizes, self._bus_starts = np.diff(bounds), bounds[:-1]
         self.ports = PortGroup([link.port for link in self.links])
         self._send_timeouts = [link.send_timeout for link in self.links]
         self._send_retries = [link.max_retries for link in self.links]
@@ -180,17 +179,8 @@ class CanRobot(DescribedRobot):
         self._link_counts = np.vstack([link.counts for link in self.links])
         for b, link in enumerate(self.links):
             link.counts = self._link_counts[b]
-        # Motor -> joint side of (position, velocity, torque) rows, and the steady state's shape:
-        # one reply per motor, in plan order.
-        g = self.group
-        self._state_scale = np.column_stack([g.sign / g.gear, g.sign / g.gear, g.sign * g.gear])
-        self._state_offset = np.column_stack([g.offset, np.zeros(len(g.offset)), np.zeros(len(g.offset))])
-        self._plan_order = np.arange(len(self.motors))
+        self._plan_order = np.arange(len(self.motors))  # the steady state: one reply per motor, in plan order
         self._no_corrupt = np.zeros(len(self.links), dtype=np.int64)
-        # Motor-side conversion of a joint-side command row block (q, dq, kp, kd, tau) x motors.
-        self._to_motor_scale = np.vstack([g.sign * g.gear, g.sign * g.gear, 1 / g.gear**2, 1 / g.gear**2, g.sign / g.gear])
-        self._to_motor_offset = np.zeros((5, len(self.motors)))
-        self._to_motor_offset[0] = -g.sign * g.gear * g.offset
 
         dofs = description.dofs
         self._joint_state = np.zeros((3, dofs))  # q, dq, tau: written in one assignment per cycle
@@ -286,9 +276,7 @@ class CanRobot(DescribedRobot):
         if kind != COMMAND:
             return self.codec.special_frames(kind), 0
         c = self.command
-        rows = np.array((c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff))[:, self.joint_index]
-        rows *= self._to_motor_scale
-        rows += self._to_motor_offset
+        rows = self.group.commands_to_motor(np.array((c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff))[:, self.joint_index])
         batch, clamp = self.codec.encode_commands(*rows)
         n_clamped = int(np.count_nonzero(clamp))
         if n_clamped:
@@ -348,8 +336,7 @@ class CanRobot(DescribedRobot):
         newest reply of each motor. Returns (replied per joint, corrupt frames per bus, unknown frames)."""
         decoded, bus, skipped = self._receive(deadline)
         if np.array_equal(decoded.index, self._plan_order):  # the steady state: every motor once, in order
-            state = decoded.state * self._state_scale
-            state += self._state_offset
+            state = self.group.states_to_joint(decoded.state)
             rows: Any = slice(None)
             j = self.joint_index
             corrupt, unknown = self._no_corrupt.copy(), skipped
@@ -364,8 +351,7 @@ class CanRobot(DescribedRobot):
                 np.maximum.at(newest, index, np.arange(len(index)))
                 keep = newest[newest >= 0]
                 rows, index = rows[keep], index[keep]
-            state = decoded.state[rows] * self._state_scale[index]
-            state += self._state_offset[index]
+            state = self.group.states_to_joint(decoded.state[rows], index)
             j = self.joint_index[index]
         self._joint_state[:, j] = state.T
         rotor, reported = decoded.rotor_temperature[rows], decoded.temperature[rows]

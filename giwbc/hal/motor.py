@@ -254,7 +254,16 @@ class MotorGroup:
         self._sg = self.sign * self.gear
         self._s_over_g = self.sign / self.gear
         self._g2 = self.gear**2
-        for a in (self.sign, self.gear, self.offset, self._sg, self._s_over_g, self._g2):
+        # The same conversions as blocks (commands: rows q, dq, kp, kd, tau; states: columns
+        # position, velocity, torque), for the control loop's one-operation-per-step form.
+        n = len(self.motors)
+        self._command_scale = np.vstack([self._sg, self._sg, 1 / self._g2, 1 / self._g2, self._s_over_g])
+        self._command_offset = np.zeros((5, n))
+        self._command_offset[0] = -self._sg * self.offset
+        self._state_scale = np.column_stack([self._s_over_g, self._s_over_g, self._sg])
+        self._state_offset = np.column_stack([self.offset, np.zeros(n), np.zeros(n)])
+        for a in (self.sign, self.gear, self.offset, self._sg, self._s_over_g, self._g2, self._command_scale, self._command_offset,
+                  self._state_scale, self._state_offset):  # fmt: skip
             a.flags.writeable = False
 
     def __len__(self) -> int:
@@ -275,6 +284,20 @@ class MotorGroup:
             np.asarray(kd, dtype=float) / self._g2,
             self._s_over_g * np.asarray(tau, dtype=float),
         )
+
+    def commands_to_motor(self, rows: NDArray[np.float64]) -> NDArray[np.float64]:
+        """:meth:`command_to_motor` on a ``(5, N)`` block of joint-side rows (q, dq, kp, kd, tau),
+        in place: the control loop's form, one operation per step instead of one per field."""
+        rows *= self._command_scale
+        rows += self._command_offset
+        return rows
+
+    def states_to_joint(self, states: NDArray[np.float64], motors: Any = slice(None)) -> NDArray[np.float64]:
+        """:meth:`state_to_joint` on ``(M, 3)`` rows of motor-side (position, velocity, torque)
+        of the motors ``motors`` (indices, default all in order), as new ``(M, 3)`` rows."""
+        joint = states * self._state_scale[motors]
+        joint += self._state_offset[motors]
+        return joint
 
     def state_to_joint(
         self, position: ArrayLike, velocity: ArrayLike, torque: ArrayLike

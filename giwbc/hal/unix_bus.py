@@ -207,27 +207,6 @@ class UnixCanBus(can.BusABC):
             raise can.CanOperationError(f"{self.channel_info}: the other end closed the channel")
         return self._message(data), False
 
-    def drain(self) -> list[can.Message]:
-        """Every frame already waiting, without waiting and without python-can's per-call
-        ``recv`` wrapper (no software filters: this bus has none): the emulator's hot path."""
-        sock = self._sock
-        if sock is None and not self.accept(0.0):
-            return []
-        sock = self._sock
-        assert sock is not None
-        out = []
-        recv, message = sock.recv, self._message
-        while True:
-            try:
-                data = recv(16)
-            except BlockingIOError:
-                return out
-            except OSError as error:
-                raise can.CanOperationError(f"{self.channel_info}: the other end is gone ({error})") from error
-            if not data:
-                raise can.CanOperationError(f"{self.channel_info}: the other end closed the channel")
-            out.append(message(data))
-
     @staticmethod
     def _message(data: bytes) -> can.Message:
         if len(data) != _FRAME.size:
