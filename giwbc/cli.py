@@ -14,6 +14,7 @@ from giwbc.deploy import add_deploy_command
 from giwbc.evaluation import add_evaluate_command
 from giwbc.policy import add_play_command
 from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, load
+from giwbc.runtimes.rendering import RenderingUnavailableError
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
 from giwbc.sim_to_sim import add_sim_to_sim_command
 from giwbc.training import add_train_command
@@ -109,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except RobotDescriptionError as error:
+    except (RobotDescriptionError, RenderingUnavailableError) as error:
         print(f"giwbc: error: {error}", file=sys.stderr)
         return 2
 

@@ -19,6 +19,8 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.runtimes.rendering import RenderingUnavailableError, offscreen_backend
+
 FORMAT = "giwbc-policy/1"
 INPUT_NAME = "observation"
 OUTPUT_NAME = "action"
@@ -217,6 +219,7 @@ def play(
     policy = OnnxPolicy(policy_path)
     overrides = dict(env_overrides or {})
     if video is not None:
+        offscreen_backend()  # before any episode runs: no GL library is a one-line error, not lost work
         overrides.update(render_mode="rgb_array", render_size=render_size)
     if real_time_factor is not None:
         overrides["real_time_factor"] = real_time_factor
@@ -267,7 +270,7 @@ def add_play_command(commands: Any) -> None:
     parser.add_argument("--episodes", type=int, default=1)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-steps", type=int, default=None)
-    parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs MUJOCO_GL=egl|osmesa headless")
+    parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs EGL or OSMesa (libegl1 or libosmesa6)")
     parser.add_argument("--real-time-factor", type=float, default=None, help="pace the simulation (default: as fast as possible)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.set_defaults(run=run_play_command)
@@ -279,7 +282,7 @@ def run_play_command(args: Any) -> int:
     try:
         result = play(args.policy, episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, video=args.video,
                       real_time_factor=args.real_time_factor)
-    except (PolicyFormatError, FileNotFoundError) as error:
+    except (PolicyFormatError, FileNotFoundError, RenderingUnavailableError) as error:
         print(f"giwbc play: error: {error}", file=sys.stderr)
         return 2
     summary = {"returns": list(result.returns), "lengths": list(result.lengths), "video": str(result.video) if result.video else None}
