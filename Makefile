@@ -20,6 +20,7 @@ demo: $(STAMP)
 	$(BIN)/giwbc demo
 
 test: $(STAMP)
+	$(BIN)/lint-imports --no-cache
 	$(BIN)/python -m pytest -q tests
 
 bench: $(STAMP)

@@ -119,7 +119,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     estimator = None
     if controller == "wbc":
-        from giwbc.robot.estimator import StateEstimator
+        from giwbc.estimation.estimator import StateEstimator
 
         estimator = StateEstimator(description)
     cpus = sorted(os.sched_getaffinity(0))

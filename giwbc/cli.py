@@ -13,8 +13,8 @@ import numpy as np
 from giwbc.deploy import add_deploy_command
 from giwbc.evaluation import add_evaluate_command
 from giwbc.policy import add_play_command
-from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, load
-from giwbc.runtimes.rendering import RenderingUnavailableError
+from giwbc.errors import GiwbcError
+from giwbc.robot import MujocoRobot, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
 from giwbc.sim_to_sim import add_sim_to_sim_command
 from giwbc.training import add_train_command
@@ -110,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except (RobotDescriptionError, RenderingUnavailableError) as error:
+    except GiwbcError as error:
         print(f"giwbc: error: {error}", file=sys.stderr)
         return 2
 

@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from giwbc.errors import DeployError
 
 if TYPE_CHECKING:
     import mujoco
@@ -58,10 +59,6 @@ def _runtime_keys() -> frozenset[str]:
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     make_options = {name for name, p in inspect.signature(gymnasium.make).parameters.items() if p.kind in named} - {"id"}
     return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS, *make_options})
-
-
-class DeployError(RuntimeError):
-    """A deployment that cannot start: configuration, policy or hardware mismatch (exit code 2)."""
 
 
 # ----------------------------------------------------------------------------- policy metadata
@@ -304,7 +301,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
-            from giwbc.robot.estimator import StateEstimator
+            from giwbc.estimation.estimator import StateEstimator
 
             estimator = StateEstimator(description)
         try:

@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from giwbc.runtimes.rendering import RenderingUnavailableError, offscreen_backend
+from giwbc.errors import PolicyFormatError, RenderingUnavailableError
+from giwbc.runtimes.rendering import offscreen_backend
 
 FORMAT = "giwbc-policy/1"
 INPUT_NAME = "observation"
@@ -28,10 +29,6 @@ REQUIRED_METADATA = (
     "format", "env_id", "env_kwargs", "observation_names", "action_names", "action_scale", "joint_names", "rates",
 )
 ACTIVATIONS = {"tanh": "Tanh", "relu": "Relu", "elu": "Elu"}
-
-
-class PolicyFormatError(ValueError):
-    """An ONNX file that is not a giwbc policy, or does not match the environment it names."""
 
 
 @dataclass(frozen=True)

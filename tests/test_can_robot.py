@@ -13,7 +13,7 @@ from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, NonFiniteCommand
 from giwbc.hal.frames import FastMessage, fast_message
 from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.hal.hardware import ImuConfig, load_hardware
-from giwbc.robot.estimator import StateEstimator
+from giwbc.estimation.estimator import StateEstimator
 from giwbc.robot.interface import ImpedanceCommand
 from giwbc.robot.standing import pd_hold_command
 

@@ -46,7 +46,7 @@ def run(g1, model, tmp_path):
 
 def _metadata(g1) -> dict:
     """A test policy's metadata: the balance task's layout (joint-PD residuals), the robot's joints."""
-    from giwbc.runtimes.rates import Rates
+    from giwbc.tasks.rates import Rates
     from giwbc.tasks.balance import G1Balance
 
     class _Joints:

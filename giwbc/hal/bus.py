@@ -34,6 +34,7 @@ from giwbc.hal.protocols.base import (
     FrameTraffic,
     MotorReply,
 )
+from giwbc.errors import BusCapacityError
 
 DEFAULT_MAX_LOAD = 0.8
 CLASSIC_CAN_MAX_BITRATE = 1_000_000
@@ -77,10 +78,6 @@ class BusLoad:
             f"bus {self.bus!r}: {self.n_motors} motors at {self.rate_hz:g} Hz on {self.bitrate} bit/s: "
             f"load {100 * self.nominal:.1f}% nominal, {100 * self.worst_case:.1f}% worst-case with bit stuffing"
         )
-
-
-class BusCapacityError(ValueError):
-    """A bus plan needs more bandwidth than allowed."""
 
 
 def bus_load(

@@ -16,7 +16,7 @@ measured when the command arrived, so the command computed from them goes out at
   are drained and counted as late, never taken as this cycle's replies.
 - **IMU** comes from an :class:`ImuSource` (``emulated``: the emulator's :class:`ImuChannel`).
 - **Base state** is not measured on hardware: it comes from an attached
-  :class:`~giwbc.robot.estimator.StateEstimator`, updated once per exchange. Without one,
+  :class:`~giwbc.estimation.estimator.StateEstimator`, updated once per exchange. Without one,
   :meth:`base_state` raises :class:`BaseStateUnavailable` (never ground truth from a simulator).
 - ``peer``: an in-process stand-in for the motors (:class:`Peer`, the emulator): told that time
   reached the cycle time before draining (``advance``), and to answer after sending (``answer``),
@@ -39,22 +39,15 @@ from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import CORRUPT, REPLY, DecodedReplies
 from giwbc.hal.protocols.multibus import MultiBusCodec
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading
+from giwbc.errors import BaseStateUnavailable, NonFiniteCommand
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
-    from giwbc.robot.estimator import Estimate, StateEstimator
+    from giwbc.estimation.estimator import Estimate, StateEstimator
 
 COMMAND, ENTER, EXIT = "command", "enter", "exit"
 _SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
 _SEND_BUDGET = 5e-3  # s: how long sending may take when the caller gives no deadline
-
-
-class BaseStateUnavailable(RuntimeError):
-    """The CAN robot measures no base state: attach an estimator."""
-
-
-class NonFiniteCommand(ValueError):
-    """A command with NaN or infinite entries (from a policy or controller): never sent."""
 
 
 class Peer(Protocol):
@@ -261,7 +254,7 @@ class CanRobot(DescribedRobot):
         imu_fresh = self._read_imu()
         self._time = float(t)
         if self.estimator is not None and imu_fresh:
-            from giwbc.robot.estimator import Measurement
+            from giwbc.estimation.estimator import Measurement
 
             self._estimate = self.estimator.update(Measurement(self._imu, self._q.copy(), self._dq.copy(), self._tau.copy()))
         report = CycleReport(

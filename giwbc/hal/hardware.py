@@ -47,12 +47,9 @@ import can
 from giwbc.hal.bus import DEFAULT_MAX_LOAD, BusCapacityError, BusLoad, BusPlanSpec, CanBusLink, plan_bus_loads
 from giwbc.hal.motor import RANGE_FIELDS, MotorConfig, motor_preset
 from giwbc.hal.protocols import ActuatorProtocol, ProtocolConfigError, protocol_class
+from giwbc.errors import HardwareConfigError
 
 IMU_SOURCES = ("emulated", "serial", "can")
-
-
-class HardwareConfigError(ValueError):
-    """A hardware plan is malformed or cannot work; the message names the file and the problem."""
 
 
 @dataclass(frozen=True)

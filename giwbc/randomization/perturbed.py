@@ -31,6 +31,21 @@ from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, Im
 from giwbc.robot.noise import SensorErrors, SensorModel
 
 
+def sensor_errors(episode: Sample) -> SensorErrors:
+    """The sensor part of a randomization episode sample (per-joint noise and bias, IMU latency)."""
+    return SensorErrors(
+        joint_position_noise=episode["joint_position_noise"].copy(),
+        joint_position_bias=episode["joint_position_bias"].copy(),
+        joint_velocity_noise=episode["joint_velocity_noise"].copy(),
+        gyro_noise=episode.scalar("gyro_noise"),
+        gyro_bias=episode["gyro_bias"].copy(),
+        accel_noise=episode.scalar("accelerometer_noise"),
+        accel_bias=episode["accelerometer_bias"].copy(),
+        orientation_noise=episode.scalar("imu_orientation_noise"),
+        imu_latency=int(episode.scalar("imu_latency")),
+    )
+
+
 class PerturbedRobot(Robot):
     """Wraps a simulated robot; :meth:`set_perturbations` installs one episode's samples."""
 
@@ -73,7 +88,7 @@ class PerturbedRobot(Robot):
         self.sensors = None
         self.pushes = ()
         if episode is not None:
-            errors = SensorErrors.from_sample(episode)
+            errors = sensor_errors(episode)
             if not errors.is_ideal():
                 self.sensors = SensorModel(self.inner, errors, np.random.default_rng(episode.noise_seed), imu=self._has_imu)
             self.pushes = episode.pushes

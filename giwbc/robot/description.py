@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from giwbc.errors import RobotDescriptionError
 
 if TYPE_CHECKING:
     import mujoco
@@ -26,10 +27,6 @@ if TYPE_CHECKING:
 CONFIG_NAME = "robot.toml"
 ERD_PREFIX = "erd:"  # a path inside the example-robot-data wheel's share folder
 PROJECT_ROBOTS = Path(__file__).resolve().parents[2] / "robots"
-
-
-class RobotDescriptionError(ValueError):
-    """A robot description is missing, malformed or inconsistent with its model."""
 
 
 @dataclass(frozen=True)

@@ -10,10 +10,10 @@ true readings sampled from a robot. Two wrappers use it:
   It does *not* report the base pose and twist, link poses and contact wrenches: on hardware
   nothing measures them, so :meth:`NoisyRobot.base_state`, :meth:`~NoisyRobot.link_pose`,
   :meth:`~NoisyRobot.contact_wrench` (and hence ``generalized_state``) raise
-  :class:`NotMeasuredError`; a state estimator (:mod:`giwbc.robot.estimator`) provides them, and
+  :class:`NotMeasuredError`; a state estimator (:mod:`giwbc.estimation.estimator`) provides them, and
   the truth stays reachable for evaluation as :attr:`NoisyRobot.ground_truth`.
 * :class:`~giwbc.randomization.PerturbedRobot` builds a :class:`SensorModel` from each episode's
-  randomized noise and bias (:meth:`SensorErrors.from_sample`) and passes the ground truth through.
+  randomized noise and bias (:func:`giwbc.randomization.perturbed.sensor_errors`) and passes the ground truth through.
 
 Sampling: a model takes one sample of every channel per distinct ``robot.time()`` it is read at
 (or per physics step, when its owner records every step); latency counts those samples. Every
@@ -26,21 +26,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import asdict, dataclass, fields
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from giwbc.robot.estimation.so3 import quat_multiply
+from giwbc.robot.so3 import quat_multiply
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
-
-if TYPE_CHECKING:
-    from giwbc.randomization.sampling import Sample
+from giwbc.errors import NotMeasuredError
 
 __all__ = ["NoisyRobot", "NotMeasuredError", "SensorErrors", "SensorModel", "SensorNoiseConfig"]
-
-
-class NotMeasuredError(RuntimeError):
-    """A quantity a real robot does not measure (base pose/twist, link poses, contact wrenches)."""
 
 
 @dataclass(frozen=True)
@@ -68,21 +61,6 @@ class SensorErrors:
     imu_dropout: float = 0.0  # probability a sample repeats the previous IMU sample
     imu_latency: int = 0  # samples
     joint_latency: int = 0  # samples
-
-    @classmethod
-    def from_sample(cls, episode: "Sample") -> "SensorErrors":
-        """The sensor part of a randomization episode sample (per-joint noise and bias, IMU latency)."""
-        return cls(
-            joint_position_noise=episode["joint_position_noise"].copy(),
-            joint_position_bias=episode["joint_position_bias"].copy(),
-            joint_velocity_noise=episode["joint_velocity_noise"].copy(),
-            gyro_noise=episode.scalar("gyro_noise"),
-            gyro_bias=episode["gyro_bias"].copy(),
-            accel_noise=episode.scalar("accelerometer_noise"),
-            accel_bias=episode["accelerometer_bias"].copy(),
-            orientation_noise=episode.scalar("imu_orientation_noise"),
-            imu_latency=int(episode.scalar("imu_latency")),
-        )
 
     @property
     def latency(self) -> int:
@@ -334,7 +312,7 @@ class NoisyRobot(Robot):
     # --- not measured on hardware -------------------------------------------------------------
     def base_state(self) -> BaseState:
         raise NotMeasuredError(
-            "a real robot does not measure its base state: estimate it (giwbc.robot.estimator.StateEstimator, "
+            "a real robot does not measure its base state: estimate it (giwbc.estimation.estimator.StateEstimator, "
             "or EstimatedRobot), or read noisy.ground_truth.base_state() to evaluate"
         )
 

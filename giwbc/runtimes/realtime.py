@@ -47,7 +47,7 @@ from giwbc.hal.can_robot import COMMAND, ENTER, EXIT, CanRobot, CycleReport, Non
 from giwbc.hal.runlog import RunLogWriter
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
 from giwbc.robot.interface import ImpedanceCommand, Robot, quat_to_matrix
-from giwbc.runtimes.rates import Rates
+from giwbc.tasks.rates import Rates
 from giwbc.tasks.task import Task
 
 IDLE, ENABLE, SETTLE, RAMP, RUNNING, SHUTDOWN, DAMPING, OFF = (

@@ -17,13 +17,11 @@ import subprocess
 import sys
 from typing import Any
 
+from giwbc.errors import RenderingUnavailableError
+
 # Offscreen backends in order of preference, with the Debian/Ubuntu package that provides each.
 OFFSCREEN_BACKENDS: dict[str, str] = {"egl": "libegl1", "osmesa": "libosmesa6"}
 _PROBE = "import mujoco; c = mujoco.GLContext(8, 8); c.make_current(); c.free()"
-
-
-class RenderingUnavailableError(RuntimeError):
-    """No OpenGL library for offscreen rendering: the message says what to install."""
 
 
 def probe_backend(backend: str, timeout: float = 60.0) -> str | None:

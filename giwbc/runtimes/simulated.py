@@ -35,7 +35,7 @@ from giwbc.randomization.randomizer import RandomizerSpec
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
 from giwbc.runtimes.engines import EnginePool, EngineSpec
-from giwbc.runtimes.rates import Rates
+from giwbc.tasks.rates import Rates
 from giwbc.runtimes.rendering import offscreen_renderer
 from giwbc.runtimes.sim2real import ActionQueue, SimToReal
 

@@ -21,30 +21,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from giwbc.hal.motor import RANGE_FIELDS, MotorConfig, MotorGroup
-
-
-class CanProtocolError(Exception):
-    """A received frame is not a valid reply from a configured motor."""
-
-
-class FrameLengthError(CanProtocolError):
-    """The frame's payload length fits no reply variant expected for it."""
-
-
-class UnknownMotorError(CanProtocolError):
-    """The frame is not addressed from a motor configured on this bus (unknown id, foreign frame)."""
-
-
-class CorruptFrameError(CanProtocolError):
-    """The frame is addressed correctly but its content cannot be a reply (or the input is not bytes)."""
-
-
-class ProtocolConfigError(ValueError):
-    """The motors given to a protocol cannot work together (bad id, ambiguous replies, bad variant)."""
-
-
-class CommandValueError(ValueError):
-    """A command cannot be encoded at all (NaN); out-of-range values are clamped instead."""
+from giwbc.errors import (
+    CanProtocolError,
+    CommandValueError,
+    CorruptFrameError,
+    FrameLengthError,
+    ProtocolConfigError,
+    UnknownMotorError,
+)
 
 
 @dataclass(frozen=True, slots=True)

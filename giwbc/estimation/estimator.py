@@ -37,15 +37,15 @@ import numpy as np
 import pinocchio as pin
 
 from giwbc.robot.description import RobotDescription
-from giwbc.robot.estimation import so3
-from giwbc.robot.estimation.contacts import ContactDetector
-from giwbc.robot.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
+from giwbc.robot import so3
+from giwbc.estimation.contacts import ContactDetector
+from giwbc.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
 
 _HOLDING = int(HOLDING_FAULTS)
 UNKNOWN_VARIANCE = 1e6  # covariance diagonal of an estimate not yet initialized (finite on purpose)
-from giwbc.robot.estimation.kalman import GRAVITY, LegKalmanFilter, LegKalmanNoise
-from giwbc.robot.estimation.kinematics import LegKinematics
-from giwbc.robot.estimation.orientation import OrientationFilter
+from giwbc.estimation.kalman import GRAVITY, LegKalmanFilter, LegKalmanNoise
+from giwbc.estimation.kinematics import LegKinematics
+from giwbc.estimation.orientation import OrientationFilter
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
 
 __all__ = [
