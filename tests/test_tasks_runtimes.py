@@ -74,7 +74,7 @@ class AnalyticCartPoleRobot(Robot):
     def imu(self) -> ImuReading:
         raise NotImplementedError
 
-    def set_joint_torques(self, torques: np.ndarray) -> None:
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         self.tau = np.array(torques, float)
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:

@@ -439,13 +439,8 @@ class CanRobot(DescribedRobot):
         return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[k]))
 
     # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         """Torque commands: impedance frames with ``kp = kd = 0``, clipped to the effort limits."""
-        torques = np.asarray(torques, dtype=float)
-        if torques.shape != (self.dofs,):
-            raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
-        if not np.all(np.isfinite(torques)):
-            raise NonFiniteCommand(f"joint torques are not finite: {torques}")
         zeros = np.zeros(self.dofs)
         self.command = ImpedanceCommand(self._q.copy(), zeros, zeros.copy(), zeros.copy(), np.clip(torques, -self._effort, self._effort))
 

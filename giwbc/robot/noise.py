@@ -11,7 +11,7 @@ true readings sampled from a robot. Two wrappers use it:
   nothing measures them, so :meth:`NoisyRobot.base_state`, :meth:`~NoisyRobot.link_pose`,
   :meth:`~NoisyRobot.contact_wrench` (and hence ``generalized_state``) raise
   :class:`NotMeasuredError`; a state estimator (:mod:`giwbc.estimation.estimator`) provides them, and
-  the truth stays reachable for evaluation as :attr:`NoisyRobot.ground_truth`.
+  the truth stays reachable for evaluation as :attr:`NoisyRobot.robot`.
 * :class:`~giwbc.randomization.PerturbedRobot` builds a :class:`SensorModel` from each episode's
   randomized noise and bias (:func:`giwbc.randomization.perturbed.sensor_errors`) and passes the ground truth through.
 
@@ -30,7 +30,7 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 
 from giwbc.robot.so3 import quat_multiply
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
+from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
 from giwbc.errors import NotMeasuredError
 
 __all__ = ["NoisyRobot", "NotMeasuredError", "SensorErrors", "SensorModel", "SensorNoiseConfig"]
@@ -265,36 +265,20 @@ class SensorModel:
         return ImuReading(quaternion, gyro, accel, truth.time)
 
 
-class NoisyRobot(Robot):
+class NoisyRobot(RobotWrapper):
     """A :class:`Robot` reporting what a real robot measures, with noise and latency; see the module doc.
 
-    ``ground_truth`` is the wrapped robot: step and reset the simulation through it, and read it
-    to evaluate an estimator. A wrapped robot whose time goes backwards (a reset) restarts the
-    latency buffers; biases persist, as they would across a controller restart.
+    ``robot`` is the wrapped robot, the ground truth: step and reset the simulation through it, and
+    read it to evaluate an estimator. A wrapped robot whose time goes backwards (a reset) restarts
+    the latency buffers; biases persist, as they would across a controller restart.
     """
 
     def __init__(self, robot: Robot, config: SensorNoiseConfig | None = None, rng: np.random.Generator | None = None) -> None:
         if rng is None:
             raise ValueError("NoisyRobot needs a seeded numpy.random.Generator (rng=np.random.default_rng(seed))")
-        self.ground_truth = robot
+        super().__init__(robot)
         self.config = config if config is not None else SensorNoiseConfig()
         self.sensors = SensorModel(robot, self.config.errors(rng), rng)
-
-    # --- identity -------------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return self.ground_truth.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.ground_truth.joint_names
-
-    @property
-    def floating_base(self) -> bool:
-        return self.ground_truth.floating_base
-
-    def time(self) -> float:
-        return self.ground_truth.time()
 
     # --- measured ---------------------------------------------------------------------------
     def imu(self) -> ImuReading:
@@ -313,18 +297,15 @@ class NoisyRobot(Robot):
     def base_state(self) -> BaseState:
         raise NotMeasuredError(
             "a real robot does not measure its base state: estimate it (giwbc.estimation.estimator.StateEstimator, "
-            "or EstimatedRobot), or read noisy.ground_truth.base_state() to evaluate"
+            "or EstimatedRobot), or read noisy.robot.base_state() to evaluate"
         )
+
+    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joints only on a fixed base; a floating base needs the base state (not measured)."""
+        return Robot.generalized_state(self)
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         raise NotMeasuredError(f"link poses need the base pose, which a real robot does not measure (link {link!r})")
 
     def contact_wrench(self, link: str) -> ContactWrench:
         raise NotMeasuredError(f"this robot has no force/torque sensor at {link!r}: estimate contacts from joint efforts")
-
-    # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        self.ground_truth.set_joint_torques(torques)
-
-    def set_joint_impedance(self, command: ImpedanceCommand) -> None:
-        self.ground_truth.set_joint_impedance(command)

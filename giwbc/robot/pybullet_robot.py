@@ -496,12 +496,7 @@ class PybulletRobot(DescribedRobot):
         return force, torque_com - cross3(np.asarray(contact.center, dtype=float) - com, force)
 
     # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        torques = np.asarray(torques, dtype=float)
-        if torques.shape != (self.dofs,):
-            raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
-        if not np.all(np.isfinite(torques)):
-            raise ValueError(f"joint torques must be finite, got {torques}")
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         self._kp[:] = 0.0
         self._kd[:] = 0.0
         self._q_ref[:] = 0.0
