@@ -299,3 +299,35 @@ def test_fuzz_every_decode_path_agrees_with_the_oracle(rng):
         assert ((scalar.state[scalar.valid] >= lo[i]) & (scalar.state[scalar.valid] <= hi[i])).all()
         counts = np.bincount(scalar.verdict, minlength=4)
         assert counts.min() > 100, counts  # every verdict well exercised
+
+
+def test_a_plan_gives_its_buses_a_host_id():
+    """``host_id`` in hardware.toml reaches the bus's protocol (and is validated)."""
+    from giwbc.hal.hardware import HardwareConfigError, parse_hardware
+
+    text = """
+[[buses]]
+name = "can0"
+interface = "virtual"
+channel = "x"
+bitrate = 1000000
+host_id = {host}
+
+[[motors]]
+bus = "can0"
+id = 1
+joint = "j1"
+model = "DM4310"
+
+[imu]
+source = "emulated"
+"""
+    p = parse_hardware(text.format(host=0x10)).buses[0].make_protocol()
+    assert p.host_id == 0x10
+    reply = p.encode_reply(1, 0.0, 0.0, 0.0)
+    assert reply.arbitration_id == 0x10 and p.decode(0x10, reply.data).motor_id == 1
+    with pytest.raises(UnknownMotorError):
+        p.decode(0, reply.data)
+    for bad in ("0x800", "-1", '"0"'):
+        with pytest.raises(HardwareConfigError, match="host_id"):
+            parse_hardware(text.format(host=bad))
