@@ -174,6 +174,7 @@ class CanRobot(DescribedRobot):
             link.counts = self._link_counts[b]
         self._plan_order = np.arange(len(self.motors))  # the steady state: one reply per motor, in plan order
         self._no_corrupt = np.zeros(len(self.links), dtype=np.int64)
+        self._no_frames = np.zeros(len(self.links), dtype=np.int64)  # expected per bus when draining
 
         dofs = description.dofs
         self._joint_state = np.zeros((3, dofs))  # q, dq, tau: written in one assignment per cycle
@@ -276,39 +277,67 @@ class CanRobot(DescribedRobot):
             np.add.at(self.clamp_counts, self.joint_index, clamp.astype(np.int64))
         return batch, n_clamped
 
-    def _receive(self, deadline: float | None) -> tuple[DecodedReplies, np.ndarray, int]:
-        """Frames from every bus, decoded in one call: until each bus's motors all replied or
-        ``deadline`` passed, or (``deadline`` None) those already waiting. Returns the decoded
-        frames (in arrival order per bus), the bus of each, and how many frames no protocol can
-        read (CAN FD on a classic bus)."""
-        got = self.ports.receive(deadline, self._bus_sizes, drain=deadline is None)
-        batch, bus = got.frames, got.bus
-        decoded = self.codec.decode_replies(bus, batch)
-        skipped = sum(got.skipped)
-        failed = {b for b, error in enumerate(got.errors) if error is not None}
-        while deadline is not None and time.perf_counter() < deadline:
-            # A bus that gave frames other than one reply per motor (corrupt, unknown, repeated)
-            # is read again for the motors still missing, until the deadline.
-            heard = np.zeros(len(self.motors), dtype=bool)
-            heard[decoded.index[decoded.verdict == REPLY]] = True
-            need = self._bus_sizes - np.add.reduceat(heard, self._bus_starts)
-            again = [b for b in np.flatnonzero(need > 0).tolist() if b not in failed]
-            if not again:
-                break
-            more = self.ports.receive(deadline, need, again)
-            skipped += sum(more.skipped)
-            failed.update(b for b, error in enumerate(more.errors) if error is not None)
-            self._count_received(more)
-            if not len(more.frames):
-                continue
-            order = np.argsort(np.concatenate([bus, more.bus]), kind="stable")  # keep bus order
-            batch = np.frombuffer(batch.tobytes() + more.frames.tobytes(), dtype=batch.dtype)[order]
-            bus = np.concatenate([bus, more.bus])[order]
-            decoded = self.codec.decode_replies(bus, batch)
-        self._count_received(got)
+    def _receive(self, deadline: float | None, expect: bool = True) -> tuple[DecodedReplies, np.ndarray, int]:
+        """Frames from every bus, decoded together: until each bus's motors all replied or
+        ``deadline`` passed, or (``deadline`` None) those already waiting (``expect``: one reply per
+        motor is expected to wait, read without probing). Returns the decoded frames (in arrival
+        order per bus), the bus of each, and how many frames no protocol can read (CAN FD on a
+        classic bus).
+
+        All buses are served together (a silent motor on one bus does not hold up the others), and
+        a bus whose frames were not one reply per motor (stray, corrupt or repeated frames) is read
+        again for the motors still missing; at the deadline, whatever already waits on those buses
+        is read too, so a stray frame never hides a reply that came in time. Copies of a reply
+        already waiting when all replied are read as well: the newest copy counts, as it does when
+        replies are read at the next cycle."""
+        ports, codec = self.ports, self.codec
+        if deadline is None:
+            got = ports.receive(None, self._bus_sizes if expect else self._no_frames, drain=True)
+            received = [got]
+            batch, bus = got.frames, got.bus
+            decoded = codec.decode_replies(bus, batch)
+        else:
+            got = ports.receive(deadline, self._bus_sizes)
+            received = [got]
+            batch, bus = got.frames, got.bus
+            decoded = codec.decode_replies(bus, batch)
+            failed = {b for b, error in enumerate(got.errors) if error is not None}
+            while True:
+                heard = np.zeros(len(self.motors), dtype=bool)
+                heard[decoded.index[decoded.verdict == REPLY]] = True
+                need = self._bus_sizes - np.add.reduceat(heard, self._bus_starts)
+                again = [b for b in np.flatnonzero(need > 0).tolist() if b not in failed]
+                if not again:
+                    break
+                past = time.perf_counter() >= deadline
+                more = ports.receive(None, None, again) if past else ports.receive(deadline, need, again)
+                received.append(more)
+                failed.update(b for b, error in enumerate(more.errors) if error is not None)
+                if len(more.frames):
+                    batch, bus = self._merge(batch, bus, more)
+                    decoded = codec.decode_replies(bus, batch)
+                if past:
+                    break
+            live = [b for b in range(len(self.links)) if b not in failed]
+            more = ports.receive(None, self._no_frames, live, drain=True)  # copies already waiting: one select()
+            if len(more.frames):
+                received.append(more)
+                batch, bus = self._merge(batch, bus, more)
+                decoded = codec.decode_replies(bus, batch)
+        skipped = 0
+        for part in received:
+            self._count_received(part)
+            skipped += sum(part.skipped)
         if len(bus):
             self._link_counts += np.bincount(bus * 8 + VERDICT_COLUMNS[decoded.verdict], minlength=self._link_counts.size).reshape(self._link_counts.shape)
         return decoded, bus, skipped
+
+    @staticmethod
+    def _merge(batch: np.ndarray, bus: np.ndarray, more: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``batch`` and the frames of ``more``, in bus order, arrival order within a bus."""
+        order = np.argsort(np.concatenate([bus, more.bus]), kind="stable")
+        merged = np.frombuffer(batch.tobytes() + more.frames.tobytes(), dtype=batch.dtype)[order]
+        return merged, np.concatenate([bus, more.bus])[order]
 
     def _count_received(self, got: Any) -> None:
         """Datagrams a read skipped (CAN FD frames) and driver errors, per bus."""
@@ -318,7 +347,7 @@ class CanRobot(DescribedRobot):
 
     def _drain(self) -> tuple[int, np.ndarray, int]:
         """Read frames already waiting (late replies, stray frames): (late, corrupt per bus, unknown)."""
-        decoded, bus, skipped = self._receive(None)
+        decoded, bus, skipped = self._receive(None, expect=False)
         late = decoded.count(REPLY)
         self.late_frames += late
         corrupt = np.bincount(bus[decoded.verdict == CORRUPT], minlength=len(self.links))

@@ -29,6 +29,7 @@ at the latest; a driver error ends it early and is returned, not raised.
 from __future__ import annotations
 
 import errno
+import queue
 import select
 import socket
 import time
@@ -228,6 +229,14 @@ class FramePort(ABC):
         o = self.send(np.frombuffer(raw, dtype=FRAME), deadline, timeout=timeout, retries=retries)
         return o.sent, o.dropped, o.retries, o.errors
 
+    def wait_fd(self) -> int | None:
+        """A descriptor that becomes readable when frames arrive, or None (then the port is polled)."""
+        return None
+
+    def pending(self) -> bool | None:
+        """Whether frames are waiting, when the port can tell without reading one (None: unknown)."""
+        return None
+
     def receive_raw(self, chunks: list[bytes], deadline: float | None, limit: int | None) -> tuple[int, int, Exception | None]:
         """:meth:`receive` appending the frames' bytes to ``chunks``: (frames read, skipped, error)."""
         received = self.receive(deadline, limit)
@@ -252,6 +261,7 @@ def frame_port(bus: can.BusABC) -> FramePort:
 
 _FULL = (errno.EAGAIN, errno.EWOULDBLOCK, errno.ENOBUFS)  # SocketCAN reports a full queue as ENOBUFS
 _NO_FRAMES = np.zeros(0, dtype=FRAME)
+_POLL_SLICE = 100e-6  # s: how long a group waits before polling again buses it cannot select() on
 
 
 def _send_frame(sock: socket.socket, frame: bytes, timeout: float) -> bool:
@@ -348,6 +358,13 @@ class SocketPort(FramePort):
             self._socket = self._socket_of_bus()
         return self._socket
 
+    def wait_fd(self) -> int | None:
+        try:
+            sock = self.socket()
+        except (can.CanError, OSError):
+            return None
+        return None if sock is None else sock.fileno()
+
     def send(self, batch: np.ndarray, deadline: float, *, timeout: float = 200e-6, retries: int = 2) -> SendOutcome:
         return SendOutcome(*self.send_raw(batch.tobytes(), deadline, timeout, retries))
 
@@ -419,50 +436,106 @@ class PortGroup:
 
     def receive(self, deadline: float | None = None, need: Sequence[int] | None = None, buses: Sequence[int] | None = None,
                 *, drain: bool = False) -> GroupReceived:  # fmt: skip
-        """Frames of every bus (or of ``buses``, ascending): until ``deadline`` (None: those already
-        waiting), at most ``need[b]`` from bus ``b``. With ``drain`` (and no deadline), ``need`` is
-        what each bus is expected to hold and everything waiting is read: the expected frames
+        """Frames of every bus (or of ``buses``, ascending), all buses served together: each bus is
+        read until it gave ``need[b]`` frames (None: everything) or ``deadline`` passed (None: only
+        the frames already waiting). A bus waiting for frames never holds up another: what is
+        waiting is read from every bus first, then one ``select()`` over the buses still short
+        wakes on whichever has frames, until the deadline. With ``drain`` and no deadline, ``need``
+        is what each bus is expected to hold and everything waiting is read: the expected frames
         first, then one ``select()`` over all sockets finds the buses holding more (late or stray
         frames), instead of probing every bus for "nothing left" (a raised BlockingIOError each).
-        Buses are read one after the other (their frames are in flight together), so the call
-        returns by the deadline."""
+        Returns by the deadline (plus one read per bus)."""
         n = len(self.ports)
         per_bus: list[list[bytes]] = [[] for _ in range(n)]
         counts = np.zeros(n, dtype=np.int64)
         skipped = [0] * n
         errors: list[Exception | None] = [None] * n
         order = self._buses if buses is None else buses
-        expected = drain and need is not None and deadline is None
+        ports = self.ports
+        short = []
         for b in order:
             limit = None if need is None else int(need[b])
-            counts[b], skipped[b], errors[b] = self.ports[b].receive_raw(per_bus[b], deadline, limit)
-        if expected:
+            if limit == 0:
+                continue
+            counts[b], skipped[b], errors[b] = ports[b].receive_raw(per_bus[b], None, limit)
+            if errors[b] is None and (limit is None or counts[b] < limit):
+                short.append(b)
+        if deadline is not None:
+            clock = time.perf_counter
+            while short:
+                left = deadline - clock()
+                if left <= 0:
+                    break
+                for b in self._ready(short, left):
+                    limit = None if need is None else int(need[b]) - int(counts[b])
+                    got, more, errors[b] = ports[b].receive_raw(per_bus[b], None, limit)
+                    counts[b] += got
+                    skipped[b] += more
+                short = [b for b in short if errors[b] is None and (need is None or counts[b] < need[b])]
+        elif drain and need is not None:
             for b in self._more_waiting([b for b in order if errors[b] is None]):
-                got, more, errors[b] = self.ports[b].receive_raw(per_bus[b], None, None)
+                got, more, errors[b] = ports[b].receive_raw(per_bus[b], None, None)
                 counts[b] += got
                 skipped[b] += more
         raw = b"".join(chunk for chunks in per_bus for chunk in chunks)
         batch = np.frombuffer(raw, dtype=FRAME) if raw else _NO_FRAMES
         return GroupReceived(batch, np.repeat(self._buses, counts), tuple(skipped), tuple(errors))
 
+    def _sockets(self, buses: Sequence[int]) -> tuple[dict[int, int], list[int]]:
+        """The descriptors of ``buses`` to wait on ({fd: bus}) and the buses without one (a port
+        with no socket yet, a python-can bus that has no descriptor): those are polled."""
+        sockets: dict[int, int] = {}
+        polled = []
+        for b in buses:
+            fd = self.ports[b].wait_fd()
+            if fd is None or fd < 0:
+                polled.append(b)
+            else:
+                sockets[fd] = b
+        return sockets, polled
+
+    def _ready(self, buses: Sequence[int], timeout: float) -> list[int]:
+        """The buses among ``buses`` with frames waiting, waiting at most ``timeout`` for one. Buses
+        that cannot be waited on are polled: returned at once when their port says frames are
+        waiting, after a short slice when it cannot tell."""
+        sockets, polled = self._sockets(buses)
+        pending = [(b, self.ports[b].pending()) for b in polled]
+        waiting = [b for b, p in pending if p]
+        unknown = [b for b, p in pending if p is None]
+        if waiting:
+            timeout = 0.0
+        elif polled:
+            timeout = min(timeout, _POLL_SLICE)
+        ready = select.select(list(sockets), [], [], timeout)[0] if sockets else (time.sleep(timeout) or [])
+        return sorted(waiting + unknown + [sockets[fd] for fd in ready])
+
     def _more_waiting(self, buses: Sequence[int]) -> list[int]:
         """The buses among ``buses`` with frames still waiting: one select() over their sockets
-        (a bus without a socket counts as possibly waiting)."""
-        sockets: dict[int, int] = {}
-        unknown = []
-        for b in buses:
-            port = self.ports[b]
-            sock = port.socket() if isinstance(port, SocketPort) else None
-            if sock is None or sock.fileno() < 0:
-                unknown.append(b)
-            else:
-                sockets[sock.fileno()] = b
+        (a bus that cannot be waited on counts as possibly waiting, unless its port knows better)."""
+        sockets, polled = self._sockets(buses)
+        polled = [b for b in polled if self.ports[b].pending() is not False]
         ready = select.select(list(sockets), [], [], 0)[0] if sockets else []
-        return sorted(unknown + [sockets[fd] for fd in ready])
+        return sorted(polled + [sockets[fd] for fd in ready])
 
 
 class MessagePort(FramePort):
     """Frames as ``can.Message`` objects through python-can's own ``send`` and ``recv``."""
+
+    def __init__(self, bus: can.BusABC) -> None:
+        super().__init__(bus)
+        try:
+            fd = bus.fileno()
+        except (NotImplementedError, can.CanError, OSError, AttributeError):
+            fd = None
+        self._fd = fd if isinstance(fd, int) and fd >= 0 else None
+        queue_ = getattr(bus, "queue", None)  # python-can's virtual bus: its receive queue
+        self._queue = queue_ if isinstance(queue_, queue.Queue) else None
+
+    def wait_fd(self) -> int | None:
+        return self._fd
+
+    def pending(self) -> bool | None:
+        return None if self._queue is None else not self._queue.empty()
 
     def send(self, batch: np.ndarray, deadline: float, *, timeout: float = 200e-6, retries: int = 2) -> SendOutcome:
         bus, clock = self.bus, time.perf_counter
