@@ -62,6 +62,8 @@ def frames(arbitration_ids: Any, data: Any, lengths: Any = 8, extended: Any = Fa
     """A batch from identifiers, payloads ``(N, 8)`` uint8 (zero-padded), lengths and the
     extended-id flag (scalars broadcast)."""
     ids = np.asarray(arbitration_ids, dtype=np.uint32).reshape(-1)
+    if (np.asarray(lengths) > 8).any() or (np.asarray(lengths) < 0).any():
+        raise ValueError(f"a classic CAN frame carries 0..8 data bytes, got lengths {lengths!r} (CAN FD is not supported)")
     out = np.zeros(ids.size, dtype=FRAME)
     out["can_id"] = np.where(np.asarray(extended, dtype=bool), ids | np.uint32(CAN_EFF_FLAG), ids)
     out["len"] = lengths
@@ -74,8 +76,8 @@ def frames_of(can_frames: Sequence[CanFrame]) -> np.ndarray:
     out = np.zeros(len(can_frames), dtype=FRAME)
     for k, f in enumerate(can_frames):
         n = len(f.data)
-        if n > 8:
-            raise ValueError(f"a classic CAN frame carries at most 8 bytes, got {n}")
+        if n > 8 or getattr(f, "is_fd", False):
+            raise ValueError(f"a classic CAN frame carries at most 8 bytes, got {n} (CAN FD is not supported)")
         out[k]["can_id"] = f.arbitration_id | (CAN_EFF_FLAG if f.is_extended_id else 0)
         out[k]["len"] = n
         out[k]["data"][:n] = np.frombuffer(bytes(f.data), dtype=np.uint8)
@@ -107,12 +109,15 @@ def fields(batch: np.ndarray) -> FrameFields:
 
 
 def payload(record: np.void) -> bytes:
-    """The payload bytes of one record (``len`` of them, at most 8)."""
+    """The payload bytes of one record (``len`` of them; a record cannot hold more than 8)."""
     return record["data"].tobytes()[: min(int(record["len"]), 8)]
 
 
 def to_message(record: np.void) -> can.Message:
-    """One record as a python-can message."""
+    """One record as a python-can message (``ValueError`` for a record saying more than 8 bytes:
+    a classic frame cannot carry them, and they are never cut)."""
+    if record["len"] > 8:
+        raise ValueError(f"a classic CAN frame record says {int(record['len'])} data bytes (at most 8); not sent")
     can_id = int(record["can_id"])
     extended = bool(can_id & CAN_EFF_FLAG)
     return fast_message(
@@ -247,13 +252,21 @@ class FramePort(ABC):
 
 def frame_port(bus: can.BusABC) -> FramePort:
     """The fastest port for ``bus``: :class:`SocketPort` where its frames are classic
-    ``struct can_frame`` datagrams on a socket we can read (giwbc-unix; socketcan without CAN FD
-    and without software filters), :class:`MessagePort` otherwise."""
+    ``struct can_frame`` datagrams on a socket we can read (giwbc-unix; socketcan without software
+    filters), :class:`MessagePort` otherwise.
+
+    Batches are classic frames: a bus opened for CAN FD (``fd=True``) is refused with
+    ``can.CanInitializationError``, as giwbc-unix refuses it, rather than having its FD frames cut
+    or dropped. (A classic port that still meets an FD frame skips it and counts it.)"""
+    if getattr(bus, "protocol", None) in (can.CanProtocol.CAN_FD, can.CanProtocol.CAN_FD_NON_ISO):
+        raise can.CanInitializationError(
+            f"{getattr(bus, 'channel_info', bus)!s}: the batched frame path carries classic CAN frames only "
+            "(struct can_frame, 8 data bytes); open the bus without fd=True"
+        )
     if hasattr(type(bus), "frame_socket"):  # giwbc-unix: its socket, or None until the peer connects
         return SocketPort(bus, lambda: bus.frame_socket)  # type: ignore[attr-defined]
     if type(bus).__name__ == "SocketcanBus" and isinstance(getattr(bus, "socket", None), socket.socket):
-        classic = getattr(bus, "protocol", None) is can.CanProtocol.CAN_20
-        if classic and not bus.filters:  # CAN FD sockets deliver 72-byte frames; software filters need python-can's path
+        if not bus.filters:  # software filters need python-can's path
             sock = bus.socket  # type: ignore[attr-defined]
             return SocketPort(bus, lambda: sock)
     return MessagePort(bus)
@@ -540,6 +553,8 @@ class MessagePort(FramePort):
     def send(self, batch: np.ndarray, deadline: float, *, timeout: float = 200e-6, retries: int = 2) -> SendOutcome:
         bus, clock = self.bus, time.perf_counter
         n = len(batch)
+        if n and batch["len"].max() > 8:
+            raise ValueError("a classic CAN frame record says more than 8 data bytes; nothing was sent")
         sent = retried = errors = 0
         for k in range(n):
             msg = to_message(batch[k])
