@@ -499,8 +499,11 @@ class PortGroup:
         with no socket yet, a python-can bus that has no descriptor): those are polled."""
         sockets: dict[int, int] = {}
         polled = []
+        ports = self.ports
         for b in buses:
-            fd = self.ports[b].wait_fd()
+            port = ports[b]
+            sock = port._socket if type(port) is SocketPort else None  # the common case, without calls
+            fd = port.wait_fd() if sock is None else sock.fileno()
             if fd is None or fd < 0:
                 polled.append(b)
             else:

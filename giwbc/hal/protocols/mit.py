@@ -583,12 +583,13 @@ class MitReplyDecoder:
         n = self.n_motors
         word = batch["data"].view(">u8").reshape(m).astype(np.uint64)
         length = batch["len"]
-        can_id = batch["can_id"].astype(np.int64)
+        can_id = batch["can_id"]
         b0 = (word >> np.uint64(56)).astype(np.int64)
         bus = np.asarray(bus, dtype=np.int64).reshape(m)
         k = self._lut[(bus * 10 + np.minimum(length, 9)) * 256 + b0]
-        sid = can_id & MAX_STANDARD_ID
-        if sid.any():  # replies to host id 0 skip this: no motor has id 0 then
+        some_id = bool(can_id.any())  # replies to host id 0, the usual case, skip the id checks
+        sid = can_id & MAX_STANDARD_ID if some_id or self._any_host_id else can_id
+        if some_id:
             r = self._reserved[bus * (MAX_STANDARD_ID + 1) + sid]
             clash = (r >= 0) & (r != k) & (k < n)  # another motor's command id: traffic for it
             if clash.any():
@@ -600,17 +601,19 @@ class MitReplyDecoder:
             k = np.where(special, self._corrupt, k)
         d7 = (word & np.uint64(0xFF)).astype(np.int64)
         if self._has_cubemars:
-            undefined = self._is_cubemars[k] & (d7 > CUBEMARS_MAX_ERROR)
+            undefined = d7 > CUBEMARS_MAX_ERROR
             if undefined.any():
-                k = np.where(undefined, self._corrupt, k)
+                k = np.where(undefined & self._is_cubemars[k], self._corrupt, k)
         if self._any_host_id:
             host = self._host_id[bus]
             k = np.where((host >= 0) & (sid != host), self._unknown, k)
-        high = can_id >> 11  # flags (EFF, RTR, ERR) and, in a standard frame, junk id bits
-        flags = high >> 18
-        any_high = bool(high.any())
-        if any_high:
-            k = np.where(flags != 0, self._unknown, np.where(high != 0, self._corrupt, k))
+        any_high = False
+        if some_id:
+            high = can_id >> 11  # flags (EFF, RTR, ERR) and, in a standard frame, junk id bits
+            flags = high >> 18
+            any_high = bool(high.any())
+            if any_high:
+                k = np.where(flags != 0, self._unknown, np.where(high != 0, self._corrupt, k))
         verdict = self._verdict[k]
         if any_high:
             verdict[(flags & 1) != 0] = ERROR_FRAME
