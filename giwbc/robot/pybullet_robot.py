@@ -148,6 +148,8 @@ class PybulletRobot(DescribedRobot):
         self._pb = require_pybullet()
         for link in [-1, *range(c.getNumJoints(self.body))]:
             c.changeDynamics(self.body, link, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0)
+        for shape in description.collision:  # the floor's friction, as the feet; no bounce, even between links
+            c.changeDynamics(self.body, self._link_index[shape.link], lateralFriction=FEET_FRICTION, restitution=0.0)
         for contact in description.contacts:
             c.changeDynamics(self.body, self._link_index[contact.link], lateralFriction=FEET_FRICTION, restitution=1.0)
         links = [-1, *range(c.getNumJoints(self.body))]
