@@ -326,8 +326,8 @@ class UrdfGeometry:
             points = _sphere_points(float(shape.get("radius")))
         elif shape.tag in ("cylinder", "capsule"):
             radius, half = float(shape.get("radius")), float(shape.get("length")) / 2
-            ring = _sphere_points(radius)
-            ring[:, 2] = 0.0
+            angle = np.linspace(0.0, 2 * math.pi, 32, endpoint=False)
+            ring = np.stack([radius * np.cos(angle), radius * np.sin(angle), np.zeros_like(angle)], axis=1)
             points = np.concatenate([ring + [0, 0, -half], ring + [0, 0, half]])
         else:
             return np.zeros((0, 3))
