@@ -320,3 +320,27 @@ def test_pybullet_default_pose_touches_with_the_feet_only_and_a_fall_rests_on_th
         robot.step(1500)
         assert robot.base_state().position[2] > 0.05  # feet-only collision: below the floor
         assert np.linalg.norm(robot.base_state().linear_velocity) < 0.05
+
+
+def test_pybullet_and_mujoco_shapes_agree(g1: RobotDescription, g1_model: mujoco.MjModel, rng: np.random.Generator) -> None:
+    """Every collision link's distance to the floor, at random poses in the air, is the same in both engines."""
+    pytest.importorskip("pybullet")
+    from giwbc.robot.pybullet_robot import PybulletRobot
+
+    data = mujoco.MjData(g1_model)
+    lower, upper = g1.position_limits
+    floor, fromto = g1_model.geom("floor").id, np.zeros(6)
+    geoms = {link: [g for g in range(g1_model.ngeom) if g1_model.geom_bodyid[g] == g1_model.body(link).id and g1_model.geom_contype[g]]
+             for link in g1.collision_links}  # fmt: skip
+    with PybulletRobot(g1) as robot:
+        for _ in range(3):
+            quaternion = rng.normal(size=4)
+            quaternion /= np.linalg.norm(quaternion)  # (x, y, z, w)
+            q = np.concatenate([[0.0, 0.0, 1.2], quaternion, rng.uniform(np.maximum(lower, -1.5), np.minimum(upper, 1.5))])
+            robot.reset(q)
+            data.qpos[:3], data.qpos[3:7], data.qpos[7:] = q[:3], np.roll(quaternion, 1), q[7:]
+            mujoco.mj_forward(g1_model, data)
+            for link, link_geoms in geoms.items():
+                in_mujoco = min(mujoco.mj_geomDistance(g1_model, data, floor, g, 3.0, fromto) for g in link_geoms)
+                points = robot.client.getClosestPoints(robot.body, robot.floor, 3.0, linkIndexA=robot.link_index(link))
+                assert min(p[8] for p in points) == pytest.approx(in_mujoco, abs=1e-6), link
