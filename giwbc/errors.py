@@ -9,6 +9,7 @@ also a ``can.CanError``, so existing ``except`` clauses keep working.
 GiwbcError
 ├── ConfigError (ValueError)          bad input or configuration; the message names the problem
 │   ├── RobotDescriptionError         robot.toml / URDF
+│   │   └── CollisionError            a [[collision]] table
 │   ├── HardwareConfigError           hardware.toml
 │   │   └── BusCapacityError          a bus plan beyond its bandwidth
 │   ├── RandomizationError            randomization config
@@ -43,6 +44,10 @@ class ConfigError(GiwbcError, ValueError):
 
 class RobotDescriptionError(ConfigError):
     """A robot description is missing, malformed or inconsistent with its model."""
+
+
+class CollisionError(RobotDescriptionError):
+    """A collision table is malformed or cannot be fitted (the description loader re-raises it with the file)."""
 
 
 class HardwareConfigError(ConfigError):

@@ -39,12 +39,10 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.errors import CollisionError
+
 SHAPE_KINDS = ("box", "capsule", "sphere")
 FIT_PERCENTILE = 95.0  # radial percentile of a fitted capsule or sphere: ignores thin protrusions
-
-
-class CollisionError(ValueError):
-    """A collision table is malformed or cannot be fitted (the description loader re-raises it with the file)."""
 
 
 @dataclass(frozen=True)
