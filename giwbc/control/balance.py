@@ -104,7 +104,7 @@ class BalanceController:
             raise ValueError(f"robot {description.name!r} has a fixed base; balance needs a floating base")
         self.description = description
         self.config = config = config or BalanceConfig()
-        model = description.build_pinocchio() if model is None else model
+        model = description.pinocchio_model if model is None else model
         weight = description.total_mass * 9.81
         self.wbc = WholeBodyController(
             model,

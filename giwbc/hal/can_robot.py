@@ -444,7 +444,7 @@ class CanRobot(DescribedRobot):
         import pinocchio as pin
 
         if self._pin is None:
-            model = self.description.build_pinocchio()
+            model = self.description.pinocchio_model
             self._pin = (model, model.createData())
         model, data = self._pin
         frame = model.getFrameId(link)

@@ -18,9 +18,12 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
 from giwbc.errors import RobotDescriptionError
 
 from giwbc.robot.collision import CollisionError, CollisionShape, UrdfGeometry, excluded_pairs, parse_shape
+from giwbc.robot.mujoco_model import build_mujoco_model
+from giwbc.robot.pinocchio_model import build_pinocchio_model
 
 if TYPE_CHECKING:
     import mujoco
@@ -159,7 +162,7 @@ class RobotDescription:
             return np.zeros(3)
         import pinocchio as pin
 
-        model = self.build_pinocchio()
+        model = self.pinocchio_model
         data = model.createData()
         q = np.concatenate([np.zeros(3), [0.0, 0.0, 0.0, 1.0], self.default_positions])
         pin.framesForwardKinematics(model, data, q)
@@ -179,14 +182,32 @@ class RobotDescription:
         """The URDF with ``package://`` URIs resolved to absolute paths."""
         return _resolve_package_uris(self.urdf_path.read_text())
 
-    def build_pinocchio(self) -> "pinocchio.Model":
-        from giwbc.robot.pinocchio_model import build_pinocchio_model
+    @cached_property
+    def imu_in_base(self) -> "pinocchio.SE3":
+        """Placement of the IMU frame in the base frame at the default pose (identity without one)."""
+        import pinocchio as pin
 
+        if not self.imu_frame or not self.floating_base:
+            return pin.SE3.Identity()
+        model = self.pinocchio_model
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, self.default_configuration())
+        return data.oMf[model.getFrameId(self.base_link)].actInv(data.oMf[model.getFrameId(self.imu_frame)])
+
+    @cached_property
+    def pinocchio_model(self) -> "pinocchio.Model":
+        """The Pinocchio model, parsed from the URDF once per description and shared: read it, make
+        your own ``Data`` (``model.createData()``); never modify it (take :meth:`build_pinocchio`)."""
         return build_pinocchio_model(self)
 
-    def build_mujoco(self) -> "mujoco.MjModel":
-        from giwbc.robot.mujoco_model import build_mujoco_model
+    def build_pinocchio(self) -> "pinocchio.Model":
+        """A new Pinocchio model of its own (a copy of :attr:`pinocchio_model`), free to modify."""
+        import pinocchio as pin
 
+        return pin.Model(self.pinocchio_model)
+
+    def build_mujoco(self) -> "mujoco.MjModel":
+        """A new MuJoCo model (floor, actuators, contact boxes, collision shapes, sensors)."""
         return build_mujoco_model(self)
 
     @cached_property

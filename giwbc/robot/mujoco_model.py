@@ -12,12 +12,16 @@ from __future__ import annotations
 
 import math
 import re
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
+from giwbc.errors import RobotDescriptionError
 from giwbc.robot.collision import CollisionShape
-from giwbc.robot.description import RobotDescription, RobotDescriptionError
+
+if TYPE_CHECKING:
+    from giwbc.robot.description import RobotDescription
 
 SOLE_THICKNESS = 0.01  # half-height of a foot collision box below... above the sole plane, m
 MUJOCO_COMPILER = '<mujoco><compiler fusestatic="false" discardvisual="false" strippath="false" balanceinertia="false"/></mujoco>'
