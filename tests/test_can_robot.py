@@ -55,7 +55,10 @@ def rig(g1, plan, model):
 
     def make(hardware=None, estimator=False, **config):
         emulator = ActuatorEmulator(hardware or plan, g1, EmulatorConfig(**config), model=copy.copy(model))
-        robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator,
+        # The emulator answers before collection starts (lockstep): a generous reply timeout only
+        # matters when a reply is really missing, and (with the send budget) keeps a descheduled
+        # test process from reading in-time replies as missing or dropping sends on a loaded machine.
+        robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, reply_timeout=0.02, send_budget=0.5,
                          estimator=StateEstimator(g1) if estimator else None)  # fmt: skip
         made.append((robot, emulator))
         return robot, emulator

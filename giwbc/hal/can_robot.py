@@ -122,6 +122,7 @@ class CanRobot(DescribedRobot):
 
     ``links``: open :class:`CanBusLink` per bus in plan order (default: opened from the plan).
     ``reply_timeout``: how long after sending a cycle waits for replies at most (s).
+    ``send_budget``: how long a cycle's sends may take when :meth:`exchange` is given no deadline (s).
     ``wait_for_replies=False``: a cycle does not wait; it first takes the frames that arrived
     since the last one (the replies to the previous cycle's commands: state one period old), then
     sends. The loop then never blocks on the bus, which suits motors that answer later than a
@@ -140,6 +141,7 @@ class CanRobot(DescribedRobot):
         links: Sequence[CanBusLink] | None = None,
         reply_timeout: float = 0.8e-3,
         wait_for_replies: bool = True,
+        send_budget: float = _SEND_BUDGET,
     ) -> None:
         self.description = description
         self.plan = plan
@@ -152,6 +154,7 @@ class CanRobot(DescribedRobot):
         self.estimator = estimator
         self.peer = peer
         self.reply_timeout = float(reply_timeout)
+        self.send_budget = float(send_budget)
         self.wait_for_replies = bool(wait_for_replies)
         if peer is not None and not self.wait_for_replies:
             raise ValueError("a lockstep peer answers within the cycle: wait_for_replies=False needs motors with a clock of their own")
@@ -231,7 +234,7 @@ class CanRobot(DescribedRobot):
             late, corrupt_late, unknown_late = self._drain()
         t0 = time.perf_counter()
         if deadline is None:
-            deadline = t0 + _SEND_BUDGET
+            deadline = t0 + self.send_budget
         batch, clamped = self._frames(kind)
         outcomes = np.array(self.ports.send(batch, self._bounds, deadline, timeout=self._send_timeouts, retries=self._send_retries))
         self._link_counts[:, _SEND_COLUMNS] += outcomes
