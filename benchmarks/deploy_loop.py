@@ -43,7 +43,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from giwbc.deploy import make_controller  # noqa: E402
+from giwbc.apps.deploy import make_controller  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig  # noqa: E402
 from giwbc.hal.emulator_process import EmulatorProcess  # noqa: E402

@@ -14,7 +14,7 @@ import gymnasium
 import numpy as np
 
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
-from giwbc.policy import write_video
+from giwbc.apps.play import write_video
 
 
 def main() -> None:

@@ -13,8 +13,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from giwbc.policy import OnnxPolicy, play
-from giwbc.training import TrainConfig, train
+from giwbc.apps.play import play
+from giwbc.policy import OnnxPolicy
+from giwbc.apps.training import TrainConfig, train
 
 
 def main() -> None:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from giwbc.deploy import DeployError, DeployOptions, add_deploy_command, check_policy_metadata, deploy
+from giwbc.apps.deploy import DeployError, DeployOptions, add_deploy_command, check_policy_metadata, deploy
 from giwbc.hal.emulator import EmulatorConfig, Gantry
 from giwbc.hal.runlog import SCHEMAS, read_log
 from giwbc.hal.safety import SafetyConfig
@@ -146,7 +146,7 @@ def test_command_line_dry_run_stopped_by_sigint(tmp_path):
     log = tmp_path / "cli.mcap"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     proc = subprocess.Popen(
-        [sys.executable, "-m", "giwbc.deploy", "--emulate", "--controller", "pd", "--seconds", "60", "--ramp", "0.2",
+        [sys.executable, "-m", "giwbc.apps.deploy", "--emulate", "--controller", "pd", "--seconds", "60", "--ramp", "0.2",
          "--log", str(log), "--json"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )  # fmt: skip
@@ -195,7 +195,7 @@ def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp
     """A controller whose first tick after a reset is slow (a QP laid out and solved cold) takes
     over between two cycles: the motors hold the ramp's last command meanwhile, the pause is
     logged, and the first running cycle neither overruns nor skips a slot."""
-    from giwbc.deploy import PdHold
+    from giwbc.apps.deploy import PdHold
 
     class SlowFirstTick(PdHold):
         fresh = True
@@ -225,7 +225,7 @@ def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, 
     collects the young generations itself between cycles, and restores the collector at close."""
     import gc
 
-    from giwbc.deploy import PdHold
+    from giwbc.apps.deploy import PdHold
 
     seen = []
 

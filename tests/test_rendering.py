@@ -68,8 +68,8 @@ def test_demo_and_env_import_paths_need_no_gl(no_gl_env) -> None:
         """
         import json, sys
         import numpy as np, gymnasium
-        import giwbc.cli, giwbc.demo, giwbc.envs, giwbc.deploy, giwbc.evaluation, giwbc.sim_to_sim
-        from giwbc.cli import run_pd_hold
+        import giwbc.apps.cli, giwbc.apps.demo, giwbc.envs, giwbc.apps.deploy, giwbc.apps.evaluation, giwbc.apps.sim_to_sim
+        from giwbc.apps.cli import run_pd_hold
         summary = run_pd_hold("g1", 0.1)
         env = gymnasium.make("giwbc/G1Balance-v0")
         obs, _ = env.reset(seed=0)
@@ -88,7 +88,7 @@ def test_demo_and_env_import_paths_need_no_gl(no_gl_env) -> None:
 def test_video_without_gl_is_one_line_error_before_any_work(no_gl_env, tmp_path) -> None:
     """`giwbc play --video` on such a machine: exit 2, one line naming the package, no traceback, no file."""
     video = tmp_path / "out.mp4"
-    result = subprocess.run([sys.executable, "-m", "giwbc.cli", "play", "--policy", str(POLICY), "--max-steps", "2",
+    result = subprocess.run([sys.executable, "-m", "giwbc.apps.cli", "play", "--policy", str(POLICY), "--max-steps", "2",
                              "--video", str(video)], env=no_gl_env, capture_output=True, text=True, timeout=300,
                             cwd=ROOT)
     assert result.returncode == 2, result.stderr[-3000:]
@@ -113,7 +113,7 @@ def test_play_writes_a_video_of_the_robot(tmp_path, backend) -> None:
     pytest.importorskip("imageio_ffmpeg", reason="the video extra (imageio-ffmpeg) is not installed")
     video = tmp_path / "play.mp4"
     env = {k: v for k, v in os.environ.items() if k != "PYOPENGL_PLATFORM"} | {"MUJOCO_GL": backend}
-    result = subprocess.run([sys.executable, "-m", "giwbc.cli", "play", "--policy", str(POLICY), "--max-steps", "5",
+    result = subprocess.run([sys.executable, "-m", "giwbc.apps.cli", "play", "--policy", str(POLICY), "--max-steps", "5",
                              "--video", str(video), "--json"], env=env, capture_output=True, text=True, timeout=300,
                             cwd=ROOT)
     assert result.returncode == 0, result.stderr[-3000:]

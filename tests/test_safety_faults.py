@@ -11,7 +11,7 @@ import signal
 import numpy as np
 import pytest
 
-from giwbc.deploy import DeployOptions, deploy
+from giwbc.apps.deploy import DeployOptions, deploy
 from giwbc.hal.can_robot import CycleReport
 from giwbc.hal.emulator import EmulatorConfig, FaultInjection
 from giwbc.hal.runlog import read_log

@@ -443,7 +443,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m giwbc.deploy ...`` (the same as ``giwbc deploy ...``)."""
+    """``python -m giwbc.apps.deploy ...`` (the same as ``giwbc deploy ...``)."""
     parser = argparse.ArgumentParser(prog="giwbc")
     add_deploy_command(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["deploy", *(sys.argv[1:] if argv is None else argv)])
