@@ -212,21 +212,47 @@ def test_latency_longer_than_an_agent_step() -> None:
     assert env.task.force == 20.0  # the first action arrived at physics step 30, the second is in flight
 
 
-def test_controller_rate_ticks() -> None:
-    class CountingBalance(CartPoleBalance):
-        ticks = 0
+class CountingMujocoRobot(MujocoRobot):
+    """A MuJoCo robot that counts the physics steps it is asked to take."""
 
-        def apply_command(self) -> None:
-            CountingBalance.ticks += 1
-            super().apply_command()
+    def __init__(self, *args, **kwargs) -> None:
+        self.steps_taken = 0
+        super().__init__(*args, **kwargs)
 
-    robot = MujocoRobot(make().sim_robot.description)
-    env = SimulatedRuntime(CountingBalance(), robot, agent_rate=50.0, controller_rate=250.0)
+    def step(self, n: int = 1) -> None:
+        self.steps_taken += n
+        super().step(n)
+
+
+class TickRecordingBalance(CartPoleBalance):
+    """Records the robot's simulated time at every controller tick."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.tick_times: list[float] = []
+
+    def apply_command(self) -> None:
+        self.tick_times.append(self.robot.time())
+        super().apply_command()
+
+
+@pytest.mark.parametrize("controller_rate", [50.0, 250.0, 1000.0])
+def test_physics_steps_and_controller_ticks_are_the_ones_taken(controller_rate: float) -> None:
+    """Counted from what happened (MuJoCo's clock, the robot's step calls, the ticks' times), not from the settings."""
+    robot = CountingMujocoRobot(make().sim_robot.description)
+    task = TickRecordingBalance()
+    env = SimulatedRuntime(task, robot, agent_rate=50.0, controller_rate=controller_rate)
+    dt = robot.model.opt.timestep
     env.reset(seed=0)
-    for _ in range(3):
+    assert robot.steps_taken == 0 and robot.data.time == 0.0
+    for k in range(1, 4):
         env.step([0.0])
-    assert CountingBalance.ticks == 3 * 5
-    assert env.timings.physics_steps == 60 and env.timings.agent_steps == 3
+        assert robot.data.time == pytest.approx(k / 50.0, abs=1e-12)  # MuJoCo's own clock: k agent periods
+        assert robot.steps_taken == round(k / 50.0 / dt)
+        assert env.time == pytest.approx(robot.data.time, abs=1e-12)
+    expected = np.arange(0.0, 3 / 50.0 - 1e-9, 1.0 / controller_rate)  # a tick at every controller period, from t = 0
+    np.testing.assert_allclose(task.tick_times, expected, atol=1e-12)
+    assert env.timings.physics_steps == robot.steps_taken and env.timings.agent_steps == 3
 
 
 def test_pushes_follow_their_schedule() -> None:
@@ -318,12 +344,35 @@ def test_balance_and_swing_up_differ_on_the_same_robot() -> None:
     assert balance.describe()["observation_names"][2] == "pole_cos"
 
 
-def test_real_time_factor_paces_the_simulation() -> None:
+class FakeClock:
+    """A wall clock that only moves when slept on (or by ``work`` per reading): pacing tested in counts."""
+
+    def __init__(self, work: float = 0.0) -> None:
+        self.now, self.work, self.sleeps = 100.0, work, []
+
+    def perf_counter(self) -> float:
+        self.now += self.work
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now += seconds
+
+
+@pytest.mark.parametrize("work", [0.0, 1e-4])
+def test_real_time_factor_paces_the_simulation(monkeypatch, work: float) -> None:
+    """At twice real time, 0.16 s simulated take 0.08 s of wall time: the runtime sleeps what the work
+    did not use, after every step, so wall time never runs behind (and never ahead of) the pace."""
     env = make(real_time_factor=2.0)
+    clock = FakeClock(work)
+    monkeypatch.setattr(time, "perf_counter", clock.perf_counter)
+    monkeypatch.setattr(time, "sleep", clock.sleep)
     env.reset(seed=0)
-    started = time.perf_counter()
-    for _ in range(8):  # 0.16 s simulated
+    started = clock.now
+    for k in range(1, 9):  # 0.02 s simulated each
         env.step([0.0])
-    assert time.perf_counter() - started >= 0.08 - 1e-3
+        assert clock.now - started == pytest.approx(0.01 * k, abs=work * 50 + 1e-12)
+    assert len(clock.sleeps) == 8 and all(s > 0 for s in clock.sleeps)
+    assert sum(clock.sleeps) < 0.08 if work else sum(clock.sleeps) == pytest.approx(0.08)
     with pytest.raises(ValueError, match="real_time_factor"):
         make(real_time_factor=0.0)
