@@ -52,7 +52,9 @@ class Group:
 GROUPS: tuple[Group, ...] = (
     Group("safety", ("giwbc/hal/safety.py",),
           ("tests/test_safety_supervisor.py", "tests/test_safety_faults.py", "-k", "supervisor or signal_watch or safety_supervisor"), 600),
-    Group("protocols", ("giwbc/hal/protocols/*",), ("tests/test_mit_protocol.py",), 900),
+    Group("protocols", ("giwbc/hal/protocols/*",),
+          ("tests/test_mit_protocol.py", "tests/test_protocol_details.py",
+           "tests/test_frames.py::test_the_multibus_codec_equals_each_buses_protocol"), 1200),
     Group("estimator", ("giwbc/robot/estimator.py",),
           ("tests/test_estimator.py", "tests/test_estimator_truth.py", "-k", "not 20_s and not push_run and not 60_N"), 900),
     Group("stepping", ("giwbc/runtimes/simulated.py", "giwbc/runtimes/rates.py"), ("tests/test_tasks_runtimes.py",), 900),
