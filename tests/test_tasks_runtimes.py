@@ -255,6 +255,83 @@ def test_physics_steps_and_controller_ticks_are_the_ones_taken(controller_rate: 
     assert env.timings.physics_steps == robot.steps_taken and env.timings.agent_steps == 3
 
 
+def test_controller_ticks_stay_on_their_period_when_an_action_arrives_between_them() -> None:
+    """An action latency of 6 physics steps splits the chunks off the 4-step controller grid; the
+    ticks must still fall every 4 steps from t = 0."""
+    robot = CountingMujocoRobot(make().sim_robot.description)
+    task = TickRecordingBalance()
+    env = SimulatedRuntime(task, robot, agent_rate=50.0, controller_rate=250.0, sim2real={"action_latency": 6})
+    env.reset(seed=0)
+    for _ in range(3):
+        env.step([0.0])
+    np.testing.assert_allclose(task.tick_times, np.arange(15) * 0.004, atol=1e-12)
+    assert robot.steps_taken == 60
+
+
+def test_step_timings_add_up_per_part(monkeypatch) -> None:
+    """On a fake clock that advances by one unit per reading: each controller tick and each physics
+    chunk costs exactly one unit, and the totals accumulate over steps."""
+    env = make(controller_rate=250.0)  # 20 physics steps per agent step, a tick every 4: 5 chunks
+    env.reset(seed=0)
+    env.timings.clear()
+    clock = FakeClock(work=1.0)
+    monkeypatch.setattr(time, "perf_counter", clock.perf_counter)
+    for _ in range(3):
+        env.step([0.0])
+    timings = env.timings
+    assert (timings.agent_steps, timings.physics_steps) == (3, 60)
+    assert timings.controller == 15.0 and timings.physics == 15.0
+    per_step = timings.total / 3
+    assert per_step == int(per_step) and per_step >= 5 + 5 + 5 + 5 + 1  # every reading inside the step
+    assert timings.other == timings.total - 30.0
+    timings.clear()
+    assert (timings.total, timings.physics, timings.controller, timings.agent_steps, timings.physics_steps) == (0, 0, 0, 0, 0)
+
+
+def test_step_before_reset_and_step_results_are_plain_bools() -> None:
+    env = make()
+    with pytest.raises(RuntimeError, match=r"^call reset\(\) before step\(\)$"):
+        env.step([0.0])
+    env.reset(seed=0)
+    _, reward, terminated, truncated, info = env.step([0.0])
+    assert terminated is False and truncated is False and type(reward) is float
+    assert info["time"] == pytest.approx(0.02) and "physics_diverged" not in info
+
+
+def test_a_diverged_simulation_terminates_the_episode() -> None:
+    env = make()
+    env.reset(seed=0)
+    env.step([0.0])
+    env.sim_robot.data.qvel[:] = np.nan  # MuJoCo flags the bad state and resets it
+    _, _, terminated, _, info = env.step([0.0])
+    assert terminated is True and info["physics_diverged"] is True
+    _, _, terminated, _, info = env.step([0.0])  # it stays flagged until the next reset
+    assert terminated is True and info["physics_diverged"] is True
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step([0.0])
+    assert terminated is False and "physics_diverged" not in info
+
+
+def test_human_render_mode_draws_at_every_reset_and_step(monkeypatch) -> None:
+    env = make()
+    frames: list[None] = []
+    monkeypatch.setattr(env, "render", lambda: frames.append(None))
+    env.reset(seed=0)
+    env.step([0.0])
+    assert frames == []  # headless: never drawn
+    env.render_mode = "human"
+    env.reset(seed=0)
+    env.step([0.0])
+    env.step([0.0])
+    assert len(frames) == 3
+
+
+def test_describe_reports_the_rates_robot_and_engine() -> None:
+    description = make(controller_rate=250.0).describe()
+    assert description["rates"] == {"agent_hz": 50.0, "controller_hz": 250.0, "physics_hz": 1000.0}
+    assert description["robot"] == "cartpole" and description["engine"] == "mujoco"
+
+
 def test_pushes_follow_their_schedule() -> None:
     pushes = PushConfig(interval=(0.1, 0.1), duration=0.05, force=(3.0, 3.0), link="cart")
     env = make(sim2real=SimToReal(pushes=pushes))

@@ -22,6 +22,7 @@ diff of every surviving mutant.
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import os
 import re
 import shutil
@@ -47,6 +48,10 @@ class Group:
     modules: tuple[str, ...]  # globs relative to the repository root
     tests: tuple[str, ...]  # pytest arguments selecting the tests
     budget_s: float  # wall-clock budget of the mutation run on 2 vCPUs
+    functions: tuple[str, ...] = ()  # mutant-name globs: only these are run and scored (default: all)
+
+    def selects(self, name: str) -> bool:
+        return not self.functions or any(fnmatch.fnmatchcase(name, pattern) for pattern in self.functions)
 
 
 GROUPS: tuple[Group, ...] = (
@@ -57,9 +62,18 @@ GROUPS: tuple[Group, ...] = (
            "tests/test_frames.py::test_the_multibus_codec_equals_each_buses_protocol"), 1200),
     Group("estimator", ("giwbc/robot/estimator.py",),
           ("tests/test_estimator.py", "tests/test_estimator_truth.py", "-k", "not 20_s and not push_run and not 60_N"), 900),
-    Group("stepping", ("giwbc/runtimes/simulated.py", "giwbc/runtimes/rates.py"), ("tests/test_tasks_runtimes.py",), 900),
+    Group("stepping", ("giwbc/runtimes/simulated.py", "giwbc/runtimes/rates.py"), ("tests/test_tasks_runtimes.py", "tests/test_engines.py"), 900,
+          ("giwbc.runtimes.rates.*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ__init__*",
+           "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁreset*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁstep*",
+           "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_observe*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_pace*",
+           "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁtime*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_info*",
+           "giwbc.runtimes.simulated.xǁStepTimings*", "giwbc.runtimes.simulated.x_timestep*")),
     Group("scoring", ("giwbc/evaluation.py", "giwbc/sim_to_sim.py"),
-          ("tests/test_scoring.py", "tests/test_evaluation.py", "tests/test_sim_to_sim.py", "-k", "not training"), 900),
+          ("tests/test_scoring.py", "tests/test_evaluation.py", "tests/test_sim_to_sim.py", "-k", "not training"), 900,
+          ("giwbc.evaluation.x_run_chunk*", "giwbc.evaluation.x_run_episodes*", "giwbc.evaluation.xǁArmResultǁ*",
+           "giwbc.evaluation.xǁComparisonǁ*", "giwbc.evaluation.x_wilson_interval*", "giwbc.evaluation.x_mcnemar_exact*",
+           "giwbc.evaluation.xǁPushProtocolǁ*", "giwbc.sim_to_sim.x_run_job*", "giwbc.sim_to_sim.x_evaluate*",
+           "giwbc.sim_to_sim.xǁCellǁ*", "giwbc.sim_to_sim.xǁPushSettingǁ*")),
     Group("control", ("giwbc/control/*",),
           ("tests/test_wbc.py", "tests/test_wbc_mujoco_dynamics.py", "tests/test_kinodynamics.py", "tests/test_wbc_reset.py", "tests/test_wbc_bounded.py",
            "tests/test_analytic_dynamics.py", "-m", "not slow"), 2400),
@@ -151,13 +165,13 @@ def run_group(group: Group, args: argparse.Namespace) -> list[str]:
     log = work / "mutmut.log"
     budget = group.budget_s * args.budget_scale
     started = time.monotonic()
-    names: list[str] = []
+    names: list[str] = list(group.functions)
     if args.rerun_survivors:
-        names = [n for n, s in results(work).items() if s not in KILLED]
+        names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)]
     if names or not args.rerun_survivors:
         _mutmut(work, ["run", "--max-children", str(args.jobs), *names], budget, log)
     elapsed = time.monotonic() - started
-    status = results(work)
+    status = {n: s for n, s in results(work).items() if group.selects(n)}
     excluded = equivalents()
     counted = {n: s for n, s in status.items() if n not in excluded}
     killed = sum(s in KILLED for s in counted.values())
@@ -167,6 +181,7 @@ def run_group(group: Group, args: argparse.Namespace) -> list[str]:
     lines = [
         f"== {group.name}: {', '.join(group.modules)}",
         f"   tests: {' '.join(group.tests)}",
+        *([f"   functions: {' '.join(group.functions)}"] if group.functions else []),
         f"   killed {killed} / {len(counted) - not_run} run ({100 * score:.1f} %); {not_run} not run within the budget;"
         f" {len(status) - len(counted)} equivalent excluded; {elapsed:.0f} s",
     ]
