@@ -281,8 +281,7 @@ def test_step_timings_add_up_per_part(monkeypatch) -> None:
     timings = env.timings
     assert (timings.agent_steps, timings.physics_steps) == (3, 60)
     assert timings.controller == 15.0 and timings.physics == 15.0
-    per_step = timings.total / 3
-    assert per_step == int(per_step) and per_step >= 5 + 5 + 5 + 5 + 1  # every reading inside the step
+    assert timings.total == 3 * (2 * 5 + 2 * 5 + 1)  # per step: two readings per tick and per chunk, one at the end
     assert timings.other == timings.total - 30.0
     timings.clear()
     assert (timings.total, timings.physics, timings.controller, timings.agent_steps, timings.physics_steps) == (0, 0, 0, 0, 0)
@@ -326,6 +325,40 @@ def test_human_render_mode_draws_at_every_reset_and_step(monkeypatch) -> None:
     assert len(frames) == 3
 
 
+def test_a_truncating_task_truncates_the_episode() -> None:
+    class Truncating(CartPoleBalance):
+        def is_truncated(self) -> bool:
+            return self.robot.time() >= 0.04
+
+    env = SimulatedRuntime(Truncating(), make().sim_robot.description, agent_rate=50.0)
+    env.reset(seed=0)
+    assert [env.step([0.0])[3] for _ in range(3)] == [False, True, True]
+
+
+def test_runtime_options_are_kept_and_checked() -> None:
+    env = make(real_time_factor=0.5)  # slower than real time is allowed
+    assert env.real_time_factor == 0.5 and env.render_mode is None
+    assert env.metadata["render_fps"] == 50.0 and env.render_size == (480, 640)
+    env.reset(seed=0)
+    assert env.randomization is None  # no randomizer: nothing drawn
+    human = make(render_mode="human")  # the viewer opens at the first render, not here
+    assert human.render_mode == "human" and human.real_time_factor == 1.0  # paced to real time by default
+    assert make(render_mode="human", real_time_factor=3.0).real_time_factor == 3.0
+    assert make(render_mode="rgb_array").real_time_factor is None
+    with pytest.raises(ValueError, match=r"^render_mode must be one of \('human', 'rgb_array'\) or None, got 'movie'$"):
+        make(render_mode="movie")
+    with pytest.raises(ValueError, match=r"^rendering needs the MuJoCo engine; this runtime runs on \['pybullet'\]$"):
+        make(render_mode="rgb_array", engine="pybullet")
+    with pytest.raises(TypeError, match=r"^_NotSimulated cannot be simulated: it needs step\(\), reset\(\) and "):
+        SimulatedRuntime(CartPoleBalance(), _NotSimulated(), agent_rate=50.0)
+
+
+class _NotSimulated(AnalyticCartPoleRobot):
+    """A robot without set_external_wrench: it cannot be pushed, so the runtime refuses it."""
+
+    set_external_wrench = None  # type: ignore[assignment]
+
+
 def test_describe_reports_the_rates_robot_and_engine() -> None:
     description = make(controller_rate=250.0).describe()
     assert description["rates"] == {"agent_hz": 50.0, "controller_hz": 250.0, "physics_hz": 1000.0}
@@ -355,6 +388,9 @@ def test_observation_noise_has_the_requested_std() -> None:
     std = np.std(errors, axis=0)
     assert std[[0, 2, 3]].max() == 0.0
     assert std[1] == pytest.approx(0.02, rel=0.15) and std[4] == pytest.approx(0.05, rel=0.15)
+    errors = np.array(errors)
+    assert abs(errors[:, 1].mean()) < 0.004 and abs(errors[:, 4].mean()) < 0.01  # zero mean (3 sigma over 300 draws)
+    assert abs(np.corrcoef(errors[:, 1], errors[:, 4])[0, 1]) < 0.3  # an independent draw per component
 
 
 def test_sim2real_validation() -> None:
