@@ -338,7 +338,8 @@ def test_a_truncating_task_truncates_the_episode() -> None:
 def test_runtime_options_are_kept_and_checked() -> None:
     env = make(real_time_factor=0.5)  # slower than real time is allowed
     assert env.real_time_factor == 0.5 and env.render_mode is None
-    assert env.metadata["render_fps"] == 50.0 and env.render_size == (480, 640)
+    assert env.render_size == (480, 640)
+    assert make(agent_rate=25.0).metadata["render_fps"] == 25.0  # frames at the agent rate
     env.reset(seed=0)
     assert env.randomization is None  # no randomizer: nothing drawn
     human = make(render_mode="human")  # the viewer opens at the first render, not here
@@ -357,6 +358,33 @@ class _NotSimulated(AnalyticCartPoleRobot):
     """A robot without set_external_wrench: it cannot be pushed, so the runtime refuses it."""
 
     set_external_wrench = None  # type: ignore[assignment]
+
+
+def test_the_task_sees_what_each_reset_drew() -> None:
+    class Recording(CartPoleBalance):
+        def __init__(self) -> None:
+            super().__init__()
+            self.drawn: list[object] = []
+
+        def randomized(self, drawn) -> None:
+            self.drawn.append(drawn)
+
+    task = Recording()
+    pushes = {"pushes": {"interval": [0.05, 0.2], "duration": 0.03, "force": [1.0, 5.0], "link": "cart"}}
+    env = SimulatedRuntime(task, make().sim_robot.description, agent_rate=50.0, sim2real=pushes)
+    env.reset(seed=0)
+    env.reset(seed=1)
+    assert len(task.drawn) == 2 and task.drawn[-1] is env.randomization and env.randomization is not None
+
+
+def test_rates_edges() -> None:
+    assert Rates(agent=0.5, controller=0.5, physics=1000.0).physics_per_agent == 2000  # below 1 Hz is a rate too
+    assert Rates(agent=1.0, controller=1.0, physics=1000.0000001).physics_per_agent == 1000  # within 1e-9 relative
+    with pytest.raises(RateError, match=r"= 1\.5 is not an integer; nearest valid agent rates: 500 Hz \(2 physics steps\) or 1000 Hz"):
+        Rates(agent=1000.0 / 1.5, controller=1000.0 / 1.5, physics=1000.0)
+    for bad in (0.0, -0.001, float("nan"), float("inf")):
+        with pytest.raises(RateError, match=rf"^physics timestep must be positive, got {bad!r}$"):
+            Rates.from_timestep(bad, agent=50.0)
 
 
 def test_describe_reports_the_rates_robot_and_engine() -> None:
