@@ -9,7 +9,7 @@ import pinocchio as pin
 import pytest
 
 from giwbc.robot import MujocoRobot, RobotDescription
-from giwbc.robot.estimator import EstimatorConfig, Measurement, StateEstimator
+from giwbc.robot.estimator import EstimatedRobot, EstimatorConfig, Fault, Measurement, StateEstimator
 from giwbc.robot.noise import SensorErrors, SensorModel
 from giwbc.robot.standing import pd_hold_command
 
@@ -69,3 +69,89 @@ def test_free_fall_velocity_comes_from_the_accelerometer_with_gravity_added_back
     np.testing.assert_allclose(estimate.base.linear_velocity, truth.linear_velocity, atol=0.05)
     np.testing.assert_allclose(estimate.base.position - first, truth.position - start, atol=0.01)
     assert estimator.fault_counts.get("NO_STANCE_FOOT", 0) == int(0.3 / g1.timestep)  # every update said so
+
+
+# --- foot force sensors, contact plans and the Robot wrapper ------------------------------------
+@pytest.fixture(scope="module")
+def standing(g1: RobotDescription, g1_models):
+    """0.2 s of exact measurements of the G1 standing under the PD hold."""
+    mj_model, _ = g1_models
+    sim = MujocoRobot(g1, mj_model)
+    sim.set_joint_impedance(pd_hold_command(g1))
+    measurements = []
+    for _ in range(100):
+        measurements.append(Measurement.from_robot(sim))
+        sim.step()
+    return measurements
+
+
+def test_foot_force_sensors_decide_contact_and_a_nan_one_is_held(g1: RobotDescription, g1_models, standing) -> None:
+    from dataclasses import replace
+
+    _, pin_model = g1_models
+    estimator = StateEstimator(g1, model=pin_model)
+    weight = g1.total_mass * 9.81
+    for m in standing[:50]:
+        estimate = estimator.update(replace(m, contact_forces=np.array([0.7 * weight, 0.3 * weight])))
+    assert estimate.contacts.tolist() == [True, True] and estimate.faults.ok
+    np.testing.assert_allclose(estimate.contact_forces, [[0.0, 0.0, 0.7 * weight], [0.0, 0.0, 0.3 * weight]])
+    for m in standing[50:60]:  # the right foot lifts: its sensor reads nothing
+        estimate = estimator.update(replace(m, contact_forces=np.array([weight, 0.0])))
+    assert estimate.contacts.tolist() == [True, False]
+    bad = estimator.update(replace(standing[60], contact_forces=np.array([np.nan, weight])))
+    assert bad.faults.flags == Fault.CONTACT_FORCE_INVALID and not bad.faults.held
+    assert bad.faults.reasons[0].startswith("CONTACT_FORCE_INVALID: non-finite contact forces")
+    assert bad.contacts.tolist() == [True, True]  # the NaN foot keeps its flag, the other follows its sensor
+    assert bad.contact_forces[0, 2] == weight and bad.contact_forces[1, 2] == weight  # the NaN foot keeps its last force
+
+
+def test_update_from_robot_passes_the_contact_plan(g1: RobotDescription, g1_models) -> None:
+    mj_model, pin_model = g1_models
+    sim = MujocoRobot(g1, mj_model)
+    sim.set_joint_impedance(pd_hold_command(g1))
+    estimator = StateEstimator(g1, model=pin_model)
+    estimator.update_from_robot(sim)
+    sim.step()
+    assert estimator.update_from_robot(sim, np.array([False, True])).contacts.tolist() == [False, True]
+    sim.step()
+    assert estimator.update_from_robot(sim).contacts.tolist() == [True, True]  # no plan: detected
+
+
+def test_an_unusable_first_sample_is_held_not_initialized(g1: RobotDescription, g1_models, standing) -> None:
+    from dataclasses import replace
+
+    _, pin_model = g1_models
+    estimator = StateEstimator(g1, model=pin_model)
+    first = standing[0]
+    no_attitude = replace(first, imu=replace(first.imu, quaternion=np.array([0.0, 0.0, 0.0, 3.0]),
+                                             linear_acceleration=np.zeros(3)))  # fmt: skip  (no gravity to level on)
+    estimate = estimator.update(no_attitude)
+    assert not estimate.initialized and estimate.faults.held is True
+    assert estimate.faults.flags == Fault.ORIENTATION_INVALID  # not a holding fault: held because nothing to start from
+
+
+def test_estimated_robot_wrapper_plan_links_and_commands(g1: RobotDescription, g1_models) -> None:
+    mj_model, pin_model = g1_models
+    sim = MujocoRobot(g1, mj_model)
+    robot = EstimatedRobot(sim, StateEstimator(g1, model=pin_model))
+    robot.set_contact_plan(np.array([1, 0]))
+    sim.step()
+    assert robot.estimate.contacts.tolist() == [True, False] and robot.estimate.contacts.dtype == bool
+    robot.set_contact_plan(None)
+    sim.step()
+    assert robot.estimate.contacts.tolist() == [True, True]
+    with pytest.raises(KeyError, match="robot 'g1' has no link 'tail'"):
+        robot.link_pose("tail")
+    with pytest.raises(KeyError, match=r"no contact on link 'pelvis'; contacts are on \['left_ankle_roll_link', 'right_ankle_roll_link'\]"):
+        robot.contact_wrench("pelvis")
+    foot = g1.contacts[0]
+    wrench = robot.contact_wrench(foot.link)
+    _, rotation = robot.link_pose(foot.link)
+    np.testing.assert_allclose(wrench.torque, np.cross(rotation @ np.asarray(foot.center), wrench.force))
+    assert np.linalg.norm(wrench.torque) > 0.0
+    torques = np.linspace(-1.0, 1.0, g1.dofs)
+    robot.set_joint_torques(torques)
+    np.testing.assert_allclose(sim.data.ctrl, torques[g1.actuated])
+    command = pd_hold_command(g1)
+    robot.set_joint_impedance(command)
+    np.testing.assert_allclose(sim.data.ctrl, (command.kp * command.q_ref)[g1.actuated])
