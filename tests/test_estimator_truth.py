@@ -155,3 +155,143 @@ def test_estimated_robot_wrapper_plan_links_and_commands(g1: RobotDescription, g
     command = pd_hold_command(g1)
     robot.set_joint_impedance(command)
     np.testing.assert_allclose(sim.data.ctrl, (command.kp * command.q_ref)[g1.actuated])
+
+
+# --- configuration, thresholds and what the faults say -------------------------------------------
+def test_estimator_config_is_validated_at_its_edges() -> None:
+    EstimatorConfig(contact_off=0.0)  # no hysteresis floor is allowed
+    EstimatorConfig(orientation_gain=0.0, gravity_gain=0.0, gyro_bias_gain=0.0)  # gains may be off
+    for bad in ({"contact_on": 0.1, "contact_off": 0.1}, {"contact_off": -0.01}):
+        with pytest.raises(ValueError) as raised:
+            EstimatorConfig(**bad)
+        assert str(raised.value) == "contact thresholds need 0 <= contact_off < contact_on"
+    for bad in ({"orientation_gain": -1.0}, {"gravity_gain": -1.0}, {"gyro_bias_gain": -1.0}, {"max_dt": 0.0}):
+        with pytest.raises(ValueError) as raised:
+            EstimatorConfig(**bad)
+        assert str(raised.value) == "gains must be >= 0 and max_dt > 0"
+
+
+def test_contact_thresholds_are_fractions_of_the_weight(g1: RobotDescription, g1_models, standing) -> None:
+    from dataclasses import replace
+
+    _, pin_model = g1_models
+    config = EstimatorConfig(contact_on=0.2, contact_off=0.1, contact_full=0.4, contact_filter_time=0.002)
+    estimator = StateEstimator(g1, config, model=pin_model)
+    weight = g1.total_mass * 9.81
+    seen = []
+    for fraction in (0.5, 0.15, 0.08, 0.15, 0.25, 0.3):  # on, held (hysteresis), off, still off, on, on
+        for k in range(8):
+            estimate = estimator.update(replace(standing[len(seen) * 8 + k], contact_forces=np.array([fraction * weight, weight])))
+        seen.append((bool(estimate.contacts[0]), float(estimate.contact_confidence[0])))
+    assert [flag for flag, _ in seen] == [True, True, False, False, True, True]
+    assert seen[0][1] == pytest.approx(1.0) and seen[5][1] == pytest.approx((0.3 - 0.1) / (0.4 - 0.1), rel=0.01)
+    assert seen[2][1] == 0.0
+
+
+def test_a_reset_estimator_holds_defaults_for_bad_first_joints(g1: RobotDescription, g1_models, standing) -> None:
+    from dataclasses import replace
+
+    _, pin_model = g1_models
+    estimator = StateEstimator(g1, model=pin_model)
+    for m in standing[:20]:
+        estimator.update(m)
+    estimator.reset()
+    knee = g1.joint_names.index("left_knee_joint")
+    first = standing[20]
+    positions, velocities, efforts = (first.joint_positions.copy(), first.joint_velocities.copy(), first.joint_efforts.copy())
+    positions[knee] = velocities[knee] = efforts[knee] = np.nan
+    estimate = estimator.update(replace(first, joint_positions=positions, joint_velocities=velocities, joint_efforts=efforts))
+    assert estimate.initialized
+    assert estimate.q[7 + knee] == g1.default_positions[knee] and estimate.v[6 + knee] == 0.0  # the defaults, held
+    assert np.all(np.isfinite(estimate.q)) and np.all(np.isfinite(estimate.v)) and np.all(np.isfinite(estimate.contact_forces))
+
+
+def test_bad_imu_readings_name_the_sensor(g1: RobotDescription, g1_models, standing) -> None:
+    from dataclasses import replace
+
+    _, pin_model = g1_models
+    estimator = StateEstimator(g1, model=pin_model)
+    for m in standing[:10]:
+        estimator.update(m)
+    gyro_range, accel_range = estimator.config.gyro_range, estimator.config.accel_range
+
+    def with_imu(m, **changes):
+        return replace(m, imu=replace(m.imu, **changes))
+
+    cases = [
+        (dict(angular_velocity=np.array([0.0, 0.9995 * gyro_range, 0.0])), Fault.GYRO_SATURATED, "GYRO_SATURATED: gyro reading"),
+        (dict(angular_velocity=np.array([0.999 * gyro_range, 0.0, 0.0])), Fault.GYRO_SATURATED, "is at its range"),
+        (dict(angular_velocity=np.array([0.0, 0.0, -0.999 * gyro_range])), Fault.GYRO_SATURATED, "is at its range"),
+        (dict(linear_acceleration=np.array([0.0, 0.999 * accel_range, 0.0])), Fault.ACCEL_SATURATED, "ACCEL_SATURATED: accelerometer"),
+        (dict(linear_acceleration=np.array([np.nan, 0.0, 9.8])), Fault.ACCEL_INVALID,
+         "ACCEL_INVALID: accelerometer reading [nan 0.  9.8] is not 3 finite numbers"),
+    ]  # fmt: skip
+    for k, (changes, fault, text) in enumerate(cases):
+        estimate = estimator.update(with_imu(standing[10 + k], **changes))
+        assert estimate.faults.flags == fault, (changes, estimate.faults)
+        assert text in estimate.faults.reasons[0], estimate.faults.reasons
+    assert estimator.update(with_imu(standing[20], angular_velocity=np.array([0.998 * gyro_range, 0.0, 0.0]))).faults.ok
+
+
+def test_timestamp_faults_say_what_happened(g1: RobotDescription, g1_models, standing) -> None:
+    from dataclasses import replace
+
+    _, pin_model = g1_models
+    estimator = StateEstimator(g1, model=pin_model)
+    for m in standing[:10]:
+        estimator.update(m)
+
+    def at(m, t):
+        return replace(m, imu=replace(m.imu, time=t))
+
+    last = standing[9].time
+    assert estimator.update(at(standing[10], float("inf"))).faults.reasons == ("TIME_INVALID: IMU timestamp is inf: update skipped",)
+    assert estimator.update(at(standing[10], last)).faults.reasons == (
+        f"STALE_TIMESTAMP: IMU timestamp {last} repeats the last accepted one: update skipped",)
+    gap = estimator.update(at(standing[10], last + 0.05))
+    assert gap.faults.reasons == ("TIME_GAP: 0.0500 s since the last IMU sample (> 0.02 s)",)
+    assert estimator.update(at(standing[11], last + 0.06)).faults.ok  # within max_dt of the accepted one: no gap
+
+
+def test_without_the_imu_orientation_gravity_levels_the_estimate(g1: RobotDescription, g1_models) -> None:
+    """use_imu_orientation=False: start level from the accelerometer and keep roll and pitch from
+    it against a biased gyro (yaw may drift, roll and pitch may not)."""
+    mj_model, pin_model = g1_models
+    sim = MujocoRobot(g1, mj_model)
+    sim.set_joint_impedance(pd_hold_command(g1))
+    sensors = SensorModel(sim, SensorErrors(gyro_bias=GYRO_BIAS), np.random.default_rng(0))
+    estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, gravity_gain=2.0), model=pin_model)
+    first = estimator.update(Measurement.from_robot(sensors))
+    assert first.initialized and first.faults.ok
+    for _ in range(int(3.0 / g1.timestep)):
+        sim.step()
+        estimate = estimator.update(Measurement.from_robot(sensors))
+    truth = sim.base_state()
+    tilt_error = np.degrees(np.arccos(np.clip(estimate.base.rotation[:, 2] @ truth.rotation[:, 2], -1.0, 1.0)))
+    assert tilt_error < 2.5, tilt_error  # ~bias / gain = 1 degree; the uncorrected gyro drifts 6 degrees in 3 s
+    level = EstimatorConfig(use_imu_orientation=False)
+    zero = StateEstimator(g1, level, model=pin_model)
+    m = Measurement.from_robot(sim)
+    from dataclasses import replace
+
+    estimate = zero.update(replace(m, imu=replace(m.imu, linear_acceleration=np.zeros(3))))  # free fall: no gravity to level on
+    assert not estimate.initialized
+    assert estimate.faults.reasons == ("ORIENTATION_INVALID: no usable IMU orientation or gravity to start from: not initialized",)
+
+
+def test_measured_ground_height_corrects_a_wrong_initial_guess(g1: RobotDescription, g1_models) -> None:
+    """Told the ground is 5 cm higher than it is, the estimate stays 5 cm off, unless stance feet
+    are measured on the known ground (``ground_height``)."""
+    mj_model, pin_model = g1_models
+    errors = {}
+    for name, config in {"guess": EstimatorConfig(initial_ground_height=0.05),
+                         "measured": EstimatorConfig(initial_ground_height=0.05, ground_height=0.0)}.items():  # fmt: skip
+        sim = MujocoRobot(g1, mj_model)
+        sim.set_joint_impedance(pd_hold_command(g1))
+        estimator = StateEstimator(g1, config, model=pin_model)
+        for _ in range(int(2.0 / g1.timestep)):
+            estimate = estimator.update(Measurement.from_robot(sim))
+            sim.step()
+        errors[name] = estimate.base.position[2] - sim.base_state().position[2]
+    assert errors["guess"] == pytest.approx(0.05, abs=0.01)
+    assert abs(errors["measured"]) < 0.01, errors
