@@ -167,7 +167,8 @@ def run_group(group: Group, args: argparse.Namespace) -> list[str]:
     started = time.monotonic()
     names: list[str] = list(group.functions)
     if args.rerun_survivors:
-        names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)]
+        names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)
+                 and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
     if names or not args.rerun_survivors:
         _mutmut(work, ["run", "--max-children", str(args.jobs), *names], budget, log)
     elapsed = time.monotonic() - started
@@ -200,6 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=2, help="mutants tested in parallel")
     parser.add_argument("--fresh", action="store_true", help="forget earlier results of these groups")
     parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived")
+    parser.add_argument("--only", nargs="*", default=[], help="with --rerun-survivors: only mutants matching these globs")
     parser.add_argument("--no-diffs", action="store_true", help="list surviving mutants without their diffs")
     args = parser.parse_args(argv)
     known = {g.name: g for g in GROUPS}
