@@ -48,7 +48,7 @@ RENDER_MODES = ("human", "rgb_array")
 
 
 @runtime_checkable
-class SimulatedRobot(Protocol):
+class SimulatedRobot(Protocol):  # pragma: no mutate block (mutmut would add members to the protocol)
     """What the runtime needs beyond the Robot interface: a simulator's step, reset and push."""
 
     def step(self, n: int = 1) -> None: ...
