@@ -11,7 +11,6 @@ import signal
 import numpy as np
 import pytest
 
-from giwbc.hal import safety as safety_module
 from giwbc.hal.can_robot import CycleReport
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
 from giwbc.robot.interface import ImuReading
