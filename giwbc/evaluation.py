@@ -339,11 +339,28 @@ def compare(
     env_kwargs = _strip_time_limit(env_kwargs)
     common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": episodes, "seed": seed, "workers": workers}
     if runner is not None:
-        wbc, residual = run_arms([{"policy_path": None, **common}, {"policy_path": policy_path, **common}], runner)
-        return Comparison(wbc, residual, env_id, env_kwargs)
+        return compare_forces(policy_path, [protocol], episodes=episodes, seed=seed, workers=workers, runner=runner)[0]
     wbc = run_episodes(None, **common)
     residual = run_episodes(policy_path, **common)
     return Comparison(wbc, residual, env_id, env_kwargs)
+
+
+def compare_forces(
+    policy_path: str | os.PathLike[str],
+    protocols: Sequence[PushProtocol],
+    *,
+    episodes: int = 50,
+    seed: int = 0,
+    workers: int = 2,
+    runner: RayRunner,
+) -> list[Comparison]:
+    """:func:`compare` for each protocol (e.g. each push force), every arm's episodes at once as Ray tasks."""
+    env_id, env_kwargs = policy_env(policy_path)
+    env_kwargs = _strip_time_limit(env_kwargs)
+    common = {"env_id": env_id, "env_kwargs": env_kwargs, "episodes": episodes, "seed": seed, "workers": workers}
+    arms = run_arms([{"policy_path": path, "protocol": protocol, **common} for protocol in protocols for path in (None, policy_path)],
+                    runner)
+    return [Comparison(arms[2 * i], arms[2 * i + 1], env_id, env_kwargs) for i in range(len(protocols))]
 
 
 def sweep(
@@ -430,12 +447,13 @@ def run_evaluate_command(args: Any) -> int:
             rows = sweep(args.force, env_id=args.env, env_kwargs=json.loads(args.env_kwargs), protocol=protocol, **common)
             summary = {"env_id": args.env, "arms": [r.summary() | {"force": r.protocol.force} for r in rows]}
         else:
-            comparisons = []
             from dataclasses import replace
 
-            for force in args.force:
-                comparison = compare(args.policy, protocol=replace(protocol, force=force), **common)
-                comparisons.append(comparison)
+            if runner is not None:  # every force's two arms at once
+                comparisons = compare_forces(args.policy, [replace(protocol, force=force) for force in args.force], **common)
+            else:
+                comparisons = [compare(args.policy, protocol=replace(protocol, force=force), **common) for force in args.force]
+            for comparison in comparisons:
                 rows += [comparison.wbc, comparison.residual]
             summary = {"comparisons": [c.summary() for c in comparisons]}
     except (PolicyFormatError, FileNotFoundError, ValueError) as error:

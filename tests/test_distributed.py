@@ -188,13 +188,13 @@ def residual_policy(tmp_path_factory) -> Path:
 
 
 def test_evaluate_on_ray_prints_the_same_table(ray_cluster, residual_policy, capsys) -> None:
-    argv = ["evaluate", "--policy", str(residual_policy), "--episodes", "3", "--seed", "21", "--force", "40", "--duration", "0.1",
+    argv = ["evaluate", "--policy", str(residual_policy), "--episodes", "2", "--seed", "21", "--force", "40", "70", "--duration", "0.1",
             "--interval", "0.2", "0.3", "--episode-seconds", "0.5"]
     assert giwbc_main(argv) == 0
     local = capsys.readouterr().out
     assert giwbc_main([*argv, "--ray"]) == 0
     on_ray = capsys.readouterr().out
-    assert "paired at 40 N" in local and "residual.onnx" in local
+    assert "paired at 40 N" in local and "paired at 70 N" in local and "residual.onnx" in local
     assert on_ray == local
     assert ray_cluster.ray.is_initialized()  # joined the running instance, left it running
 

@@ -116,14 +116,16 @@ class RayRunner:
         try:
             while pending:
                 done, pending = ray.wait(pending, num_returns=1)
-                ref = done[0]
-                try:
-                    results[index[ref]] = ray.get(ref)
-                except system_failures(ray) as error:
-                    job = jobs[index[ref]]
-                    raise WorkerLostError(
-                        f"a Ray worker died running {getattr(function, '__name__', 'a job')}({describe(job)}) after "
-                        f"{self.max_retries} retries: {type(error).__name__}: {_first_line(error)}") from None
+                if pending:  # and whatever else has finished meanwhile: O(n) waits, not O(n^2), on a big sweep
+                    more, pending = ray.wait(pending, num_returns=len(pending), timeout=0)
+                    done += more
+                for ref in done:
+                    try:
+                        results[index[ref]] = ray.get(ref)
+                    except system_failures(ray) as error:
+                        raise WorkerLostError(
+                            f"a Ray worker died running {getattr(function, '__name__', 'a job')}({describe(jobs[index[ref]])}) "
+                            f"after {self.max_retries} retries: {type(error).__name__}: {_first_line(error)}") from None
         finally:
             for ref in pending:
                 ray.cancel(ref, force=True)
