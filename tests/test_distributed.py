@@ -32,6 +32,17 @@ def test_a_missing_ray_is_one_line_error(monkeypatch, capsys) -> None:
     assert len(err.splitlines()) == 1 and "Ray is not installed" in err
 
 
+def test_ray_flag_on_train_evaluate_and_sim_to_sim() -> None:
+    from giwbc.cli import build_parser
+
+    parser = build_parser()
+    for command in ("train", "evaluate", "sim-to-sim"):
+        assert parser.parse_args([command]).ray is None  # one machine unless asked
+        assert parser.parse_args([command, "--ray"]).ray == "local"  # a local instance with this machine's CPUs
+        assert parser.parse_args([command, "--ray", "10.0.0.1:6379"]).ray == "10.0.0.1:6379"  # join that cluster
+    assert parser.parse_args(["train", "--ray", "--envs-per-worker", "4"]).envs_per_worker == 4
+
+
 @pytest.fixture(scope="module")
 def ray_cluster():
     pytest.importorskip("ray")
