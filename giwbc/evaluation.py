@@ -335,11 +335,11 @@ def compare(
 ) -> Comparison:
     """The policy against the zero residual on the policy's own environment, same seeds, same pushes
     (with ``runner``, both arms at once as Ray tasks)."""
+    if runner is not None:
+        return compare_forces(policy_path, [protocol], episodes=episodes, seed=seed, workers=workers, runner=runner)[0]
     env_id, env_kwargs = policy_env(policy_path)
     env_kwargs = _strip_time_limit(env_kwargs)
     common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": episodes, "seed": seed, "workers": workers}
-    if runner is not None:
-        return compare_forces(policy_path, [protocol], episodes=episodes, seed=seed, workers=workers, runner=runner)[0]
     wbc = run_episodes(None, **common)
     residual = run_episodes(policy_path, **common)
     return Comparison(wbc, residual, env_id, env_kwargs)

@@ -24,7 +24,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices,
 from stable_baselines3.common.vec_env.subproc_vec_env import _stack_obs
 
 from giwbc.distributed.cluster import require_ray, system_failures
-from giwbc.errors import WorkerLostError
+from giwbc.errors import UnavailableError, WorkerLostError
 
 
 class EnvWorker:
@@ -101,7 +101,7 @@ class RayVecEnv(VecEnv):
             raise ValueError(f"need at least one environment and envs_per_worker >= 1, got {len(env_fns)}, {envs_per_worker}")
         self._ray = ray = require_ray()
         if not ray.is_initialized():
-            raise RuntimeError("RayVecEnv needs a Ray runtime: call giwbc.distributed.connect() first")
+            raise UnavailableError("RayVecEnv needs a Ray runtime: call giwbc.distributed.connect() first")
         self.closed, self.waiting = False, False
         n = len(env_fns)
         self.groups = [list(range(start, min(start + envs_per_worker, n))) for start in range(0, n, envs_per_worker)]
