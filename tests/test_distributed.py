@@ -141,18 +141,22 @@ def test_ppo_on_ray_trains_the_same_policy_as_on_subprocesses(ray_cluster, tmp_p
     assert on_ray.vecnormalize.read_bytes() == in_processes.vecnormalize.read_bytes()
 
 
-def test_a_killed_env_worker_is_reported_not_skipped(ray_cluster) -> None:
+def test_a_worker_dying_mid_step_is_reported_not_skipped(ray_cluster) -> None:
     from giwbc.distributed.vec_env import RayVecEnv
+
+    def crash(action):  # replaces env 1's step: its worker process dies inside the step
+        os._exit(1)
 
     venv = _make(RayVecEnv, 2)
     try:
         venv.reset()
         actions = np.zeros((2, *venv.action_space.shape), np.float32)
         venv.step(actions)
-        venv.step_async(actions)
-        ray_cluster.ray.kill(venv.workers[1])  # dies mid-step
-        with pytest.raises(WorkerLostError, match=r"worker 1 \(envs 1\.\.1\)"):
-            venv.step_wait()
+        venv.set_attr("step", crash, indices=[1])
+        with pytest.raises(WorkerLostError, match=r"worker 1 \(envs 1\.\.1\) died.*cannot continue"):
+            venv.step(actions)
+        with pytest.raises(WorkerLostError, match="worker 1"):  # and stays lost: no step with one env missing
+            venv.step(actions)
     finally:
         venv.close()
 
