@@ -125,14 +125,15 @@ class RayRunner:
                     except system_failures(ray) as error:
                         raise WorkerLostError(
                             f"a Ray worker died running {getattr(function, '__name__', 'a job')}({describe(jobs[index[ref]])}) "
-                            f"after {self.max_retries} retries: {type(error).__name__}: {_first_line(error)}") from None
+                            f"after {self.max_retries} retries: {type(error).__name__}: {first_line(error)}") from None
         finally:
             for ref in pending:
                 ray.cancel(ref, force=True)
         return results
 
 
-def _first_line(error: BaseException) -> str:
+def first_line(error: BaseException) -> str:
+    """The first non-empty line of an error's message (Ray's carry whole tracebacks)."""
     lines = [line for line in str(error).strip().splitlines() if line.strip()]
     return lines[0] if lines else ""
 

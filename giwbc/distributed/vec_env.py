@@ -23,7 +23,7 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvObs, VecEnvStepReturn
 from stable_baselines3.common.vec_env.subproc_vec_env import _stack_obs
 
-from giwbc.distributed.cluster import require_ray, system_failures
+from giwbc.distributed.cluster import first_line, require_ray, system_failures
 from giwbc.errors import UnavailableError, WorkerLostError
 
 
@@ -127,8 +127,8 @@ class RayVecEnv(VecEnv):
                 except system_failures(ray):
                     lost.append(f"worker {w} (envs {self.groups[w][0]}..{self.groups[w][-1]})")
             raise WorkerLostError(
-                f"Ray environment {', '.join(lost) or 'worker'} died ({type(error).__name__}): its environments' states are "
-                "lost, the rollout cannot continue") from None
+                f"Ray environment {', '.join(lost) or 'worker'} died ({type(error).__name__}: {first_line(error)}): its "
+                "environments' states are lost, the rollout cannot continue") from None
 
     def _call(self, method: str, indices: VecEnvIndices, *args: Any) -> list[Any]:
         """``method(*args, local indices)`` on the workers holding ``indices``; results in ``indices`` order."""
