@@ -41,7 +41,7 @@ class TrainConfig:
     out_dir: str = "runs/cartpole"
     vectorization: str = "subproc"  # worker processes; "dummy": all envs in this process; "ray": Ray actors
     ray_address: str | None = None  # vectorization "ray": a cluster's address (None: a local instance)
-    envs_per_worker: int = 1  # vectorization "ray": environments per Ray actor
+    envs_per_worker: int | None = None  # vectorization "ray": environments per Ray actor (None: as few as the CPUs allow)
     checkpoint_every: int = 50_000  # environment steps, all envs together; 0: none
     normalize_observations: bool = True
     normalize_rewards: bool = True
@@ -56,7 +56,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.vectorization not in ("subproc", "dummy", "ray"):
             raise ValueError(f"vectorization must be 'subproc', 'dummy' or 'ray', got {self.vectorization!r}")
-        if self.n_envs < 1 or self.total_timesteps < 1 or self.envs_per_worker < 1:
+        if self.n_envs < 1 or self.total_timesteps < 1 or (self.envs_per_worker is not None and self.envs_per_worker < 1):
             raise ValueError("n_envs, total_timesteps and envs_per_worker must be >= 1")
         try:
             json.dumps(self.env_kwargs)
@@ -271,7 +271,7 @@ def add_train_command(commands: Any) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_ray_argument(parser)
     parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
-                        help="with --ray: environments per Ray actor (default: one actor per environment)")
+                        help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
     parser.set_defaults(run=run_train_command)
 
 

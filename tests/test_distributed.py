@@ -41,6 +41,19 @@ def test_ray_flag_on_train_evaluate_and_sim_to_sim() -> None:
         assert parser.parse_args([command, "--ray"]).ray == "local"  # a local instance with this machine's CPUs
         assert parser.parse_args([command, "--ray", "10.0.0.1:6379"]).ray == "10.0.0.1:6379"  # join that cluster
     assert parser.parse_args(["train", "--ray", "--envs-per-worker", "4"]).envs_per_worker == 4
+    assert parser.parse_args(["train", "--ray"]).envs_per_worker is None
+
+
+def test_env_workers_are_planned_within_the_cluster_cpus() -> None:
+    from giwbc.distributed.vec_env import plan_workers
+
+    assert plan_workers(3, None, cpus=4.0) == [[0], [1], [2]]  # one env per actor when the CPUs are there
+    assert plan_workers(5, None, cpus=2.0) == [[0, 1, 2], [3, 4]]  # else as few per actor as fit
+    assert plan_workers(4, 3, cpus=2.0) == [[0, 1, 2], [3]]
+    with pytest.raises(UnavailableError, match=r"4 Ray env workers .* need 4 CPUs, the cluster has 2: .*>= 2"):
+        plan_workers(4, 1, cpus=2.0)  # the extra actors would wait for a CPU forever
+    with pytest.raises(ValueError):
+        plan_workers(2, 0, cpus=2.0)
 
 
 @pytest.fixture(scope="module")

@@ -89,22 +89,40 @@ class EnvWorker:
             env.close()
 
 
+def plan_workers(n_envs: int, envs_per_worker: int | None, cpus: float, cpus_per_worker: float = 1.0) -> list[list[int]]:
+    """Contiguous groups of env indices, one per Ray actor; ``None``: as few envs per actor as the CPUs allow.
+
+    More actors than the cluster has CPUs for would wait forever to be scheduled: that is an error.
+    """
+    if n_envs < 1 or (envs_per_worker is not None and envs_per_worker < 1) or cpus_per_worker <= 0:
+        raise ValueError(f"need n_envs >= 1, envs_per_worker >= 1 and cpus_per_worker > 0, got {n_envs}, {envs_per_worker}, "
+                         f"{cpus_per_worker}")
+    slots = int(cpus // cpus_per_worker)
+    if envs_per_worker is None:
+        envs_per_worker = -(-n_envs // max(1, slots))
+    actors = -(-n_envs // envs_per_worker)
+    if actors > slots:
+        raise UnavailableError(
+            f"{actors} Ray env workers of {cpus_per_worker:g} CPU need {actors * cpus_per_worker:g} CPUs, the cluster has "
+            f"{cpus:g}: put more envs in each (envs_per_worker >= {-(-n_envs // max(1, slots))}) or add nodes")
+    return [list(range(start, min(start + envs_per_worker, n_envs))) for start in range(0, n_envs, envs_per_worker)]
+
+
 class RayVecEnv(VecEnv):
-    """``SubprocVecEnv`` with Ray actors as the workers: ``envs_per_worker`` environments per actor.
+    """``SubprocVecEnv`` with Ray actors as the workers: ``envs_per_worker`` environments per actor
+    (default: one per actor if the cluster has the CPUs, else as few as fit; see :func:`plan_workers`).
 
     Needs a connected Ray runtime (:func:`giwbc.distributed.connect`); each actor takes
     ``cpus_per_worker`` CPUs of the cluster, wherever Ray places it.
     """
 
-    def __init__(self, env_fns: list[Callable[[], gym.Env]], envs_per_worker: int = 1, cpus_per_worker: float = 1.0) -> None:
-        if envs_per_worker < 1 or not env_fns:
-            raise ValueError(f"need at least one environment and envs_per_worker >= 1, got {len(env_fns)}, {envs_per_worker}")
+    def __init__(self, env_fns: list[Callable[[], gym.Env]], envs_per_worker: int | None = None, cpus_per_worker: float = 1.0) -> None:
         self._ray = ray = require_ray()
         if not ray.is_initialized():
             raise UnavailableError("RayVecEnv needs a Ray runtime: call giwbc.distributed.connect() first")
         self.closed, self.waiting = False, False
         n = len(env_fns)
-        self.groups = [list(range(start, min(start + envs_per_worker, n))) for start in range(0, n, envs_per_worker)]
+        self.groups = plan_workers(n, envs_per_worker, float(ray.cluster_resources().get("CPU", 0.0)), cpus_per_worker)
         actor_class = ray.remote(num_cpus=cpus_per_worker, max_restarts=0, max_task_retries=0)(EnvWorker)
         self.workers = [actor_class.remote([env_fns[i] for i in group]) for group in self.groups]
         self._where = {env: (w, local) for w, group in enumerate(self.groups) for local, env in enumerate(group)}
