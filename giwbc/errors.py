@@ -25,6 +25,7 @@ GiwbcError
 │   ├── NotMeasuredError              a quantity a real robot does not measure
 │   ├── BaseStateUnavailable          a CAN robot without an estimator
 │   └── RenderingUnavailableError     no offscreen OpenGL library
+├── WorkerLostError (RuntimeError)    a distributed worker died and its work could not be retried
 └── DeployError (RuntimeError)        a deployment that cannot start (exit code 2)
 ```
 """
@@ -116,6 +117,10 @@ class BaseStateUnavailable(UnavailableError):
 
 class RenderingUnavailableError(UnavailableError):
     """No OpenGL library for offscreen rendering: the message says what to install."""
+
+
+class WorkerLostError(GiwbcError, RuntimeError):
+    """A distributed (Ray) worker, task or node died: its work is reported lost, never silently dropped."""
 
 
 class DeployError(GiwbcError, RuntimeError):

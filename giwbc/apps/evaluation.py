@@ -10,7 +10,8 @@ An episode *survives* if it is not terminated (pelvis too low or tilted past the
 the time limit, and *succeeds* if it survives with the pelvis tilt at the end under ``upright_tilt``
 (a robot falling over at the time limit is not a success).
 
-Episodes are split over worker processes (fork); results do not depend on the number of workers.
+Episodes are split over worker processes (fork), or over Ray tasks on a cluster (``runner``, see
+:mod:`giwbc.distributed`); results do not depend on the number of workers nor on where they ran.
 Needs onnxruntime for a policy arm, not torch.
 """
 
@@ -25,6 +26,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+
+from giwbc.distributed import RayRunner, add_ray_argument, connect
 
 DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
 # The environment as registered (both WBC solvers give bit-reproducible answers).
@@ -249,14 +252,16 @@ def run_episodes(
     episodes: int = 50,
     seed: int = 0,
     workers: int = 2,
+    runner: RayRunner | None = None,
 ) -> ArmResult:
-    """``episodes`` seeded episodes (seeds ``seed .. seed+episodes-1``) of a policy, or of the zero residual if ``None``."""
-    env_kwargs = dict(DEFAULT_ENV_KWARGS if env_kwargs is None else env_kwargs)
-    seeds = list(range(seed, seed + episodes))
-    workers = max(1, min(workers, episodes))
-    chunks = [seeds[i::workers] for i in range(workers)]
-    path = None if policy_path is None else str(policy_path)
-    jobs = [(path, env_id, env_kwargs, protocol, chunk) for chunk in chunks if chunk]
+    """``episodes`` seeded episodes (seeds ``seed .. seed+episodes-1``) of a policy, or of the zero residual if ``None``.
+
+    ``workers``: processes of this machine, or with ``runner`` the number of Ray tasks the episodes are split into.
+    """
+    if runner is not None:
+        return run_arms([{"policy_path": policy_path, "env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol,
+                          "episodes": episodes, "seed": seed, "workers": workers}], runner)[0]
+    jobs = _episode_jobs(policy_path, env_id, env_kwargs, protocol, episodes, seed, workers)
     if len(jobs) == 1:
         results = _run_chunk(jobs[0])
     else:
@@ -265,9 +270,45 @@ def run_episodes(
         context = multiprocessing.get_context("fork" if os.name == "posix" else "spawn")
         with context.Pool(len(jobs)) as pool:
             results = [r for chunk in pool.map(_run_chunk, jobs) for r in chunk]
-    results.sort(key=lambda r: r.seed)
+    return _arm_result(policy_path, protocol, results)
+
+
+_Job = tuple[str | None, str, dict[str, Any], PushProtocol, list[int]]
+
+
+def _episode_jobs(policy_path: str | os.PathLike[str] | None, env_id: str, env_kwargs: dict[str, Any] | None,
+                  protocol: PushProtocol, episodes: int, seed: int, workers: int) -> list[_Job]:
+    """The seeds ``seed .. seed+episodes-1`` dealt round-robin into ``workers`` jobs for :func:`_run_chunk`."""
+    env_kwargs = dict(DEFAULT_ENV_KWARGS if env_kwargs is None else env_kwargs)
+    seeds = list(range(seed, seed + episodes))
+    workers = max(1, min(workers, episodes))
+    chunks = [seeds[i::workers] for i in range(workers)]
+    path = None if policy_path is None else str(policy_path)
+    return [(path, env_id, env_kwargs, protocol, chunk) for chunk in chunks if chunk]
+
+
+def _arm_result(policy_path: str | os.PathLike[str] | None, protocol: PushProtocol, results: list[EpisodeResult]) -> ArmResult:
     name = "wbc" if policy_path is None else os.path.basename(str(policy_path))
-    return ArmResult(name, protocol, tuple(results))
+    return ArmResult(name, protocol, tuple(sorted(results, key=lambda r: r.seed)))
+
+
+def _describe_job(job: _Job) -> str:
+    path, env_id, _, protocol, seeds = job
+    return f"{path or 'wbc'} on {env_id} at {protocol.force:g} N, seeds {seeds}"
+
+
+def run_arms(arms: Sequence[dict[str, Any]], runner: RayRunner) -> list[ArmResult]:
+    """Several arms (each :func:`run_episodes`' keyword arguments) at once as Ray tasks: a whole sweep
+    keeps a cluster busy instead of waiting for each arm's slowest task. Same results as one by one."""
+    jobs = [_episode_jobs(arm.get("policy_path"), arm.get("env_id", DEFAULT_ENV_ID), arm.get("env_kwargs"),
+                          arm.get("protocol", PushProtocol()), arm.get("episodes", 50), arm.get("seed", 0), arm.get("workers", 2))
+            for arm in arms]
+    flat = runner.map(_run_chunk, [job for arm_jobs in jobs for job in arm_jobs], describe=_describe_job)
+    results, start = [], 0
+    for arm, arm_jobs in zip(arms, jobs, strict=True):
+        chunks, start = flat[start : start + len(arm_jobs)], start + len(arm_jobs)
+        results.append(_arm_result(arm.get("policy_path"), arm.get("protocol", PushProtocol()), [r for c in chunks for r in c]))
+    return results
 
 
 def policy_env(policy_path: str | os.PathLike[str]) -> tuple[str, dict[str, Any]]:
@@ -290,14 +331,36 @@ def compare(
     episodes: int = 50,
     seed: int = 0,
     workers: int = 2,
+    runner: RayRunner | None = None,
 ) -> Comparison:
-    """The policy against the zero residual on the policy's own environment, same seeds, same pushes."""
+    """The policy against the zero residual on the policy's own environment, same seeds, same pushes
+    (with ``runner``, both arms at once as Ray tasks)."""
+    if runner is not None:
+        return compare_forces(policy_path, [protocol], episodes=episodes, seed=seed, workers=workers, runner=runner)[0]
     env_id, env_kwargs = policy_env(policy_path)
     env_kwargs = _strip_time_limit(env_kwargs)
     common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": episodes, "seed": seed, "workers": workers}
     wbc = run_episodes(None, **common)
     residual = run_episodes(policy_path, **common)
     return Comparison(wbc, residual, env_id, env_kwargs)
+
+
+def compare_forces(
+    policy_path: str | os.PathLike[str],
+    protocols: Sequence[PushProtocol],
+    *,
+    episodes: int = 50,
+    seed: int = 0,
+    workers: int = 2,
+    runner: RayRunner,
+) -> list[Comparison]:
+    """:func:`compare` for each protocol (e.g. each push force), every arm's episodes at once as Ray tasks."""
+    env_id, env_kwargs = policy_env(policy_path)
+    env_kwargs = _strip_time_limit(env_kwargs)
+    common = {"env_id": env_id, "env_kwargs": env_kwargs, "episodes": episodes, "seed": seed, "workers": workers}
+    arms = run_arms([{"policy_path": path, "protocol": protocol, **common} for protocol in protocols for path in (None, policy_path)],
+                    runner)
+    return [Comparison(arms[2 * i], arms[2 * i + 1], env_id, env_kwargs) for i in range(len(protocols))]
 
 
 def sweep(
@@ -310,12 +373,20 @@ def sweep(
     seed: int = 0,
     workers: int = 2,
     policy_path: str | os.PathLike[str] | None = None,
+    runner: RayRunner | None = None,
 ) -> list[ArmResult]:
-    """Success rate against push magnitude (the zero residual unless ``policy_path``): to pick a force that discriminates."""
+    """Success rate against push magnitude (the zero residual unless ``policy_path``): to pick a force that discriminates.
+
+    With ``runner``, every force's episodes at once as Ray tasks."""
     if policy_path is not None:
         env_id, env_kwargs = policy_env(policy_path)
         env_kwargs = _strip_time_limit(env_kwargs)
     from dataclasses import replace
+
+    if runner is not None:
+        return run_arms([{"policy_path": policy_path, "env_id": env_id, "env_kwargs": env_kwargs, "episodes": episodes,
+                          "seed": seed, "workers": workers, "protocol": replace(protocol, force=float(force))}
+                         for force in forces], runner)
 
     return [
         run_episodes(policy_path, env_id=env_id, env_kwargs=env_kwargs, protocol=replace(protocol, force=float(force)),
@@ -343,7 +414,9 @@ def add_evaluate_command(commands: Any) -> None:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--seed", type=int, default=EVAL_SEED,
                         help="episode seeds are seed .. seed+episodes-1, the same in both arms (default: held out from training)")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--workers", type=int, default=None,
+                        help="worker processes (default 2), or with --ray Ray tasks per arm (default: the cluster's CPUs)")
+    add_ray_argument(parser)
     parser.add_argument("--force", type=float, nargs="+", default=[PushProtocol.force], help="push magnitude(s), N")
     parser.add_argument("--duration", type=float, default=PushProtocol.duration)
     parser.add_argument("--interval", type=float, nargs=2, default=list(PushProtocol.interval), help="push start window, s")
@@ -360,27 +433,35 @@ def run_evaluate_command(args: Any) -> int:
 
     from giwbc.policy import PolicyFormatError
 
+    connection = None
     try:
         protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval),
                                 episode_seconds=args.episode_seconds, upright_tilt=args.upright_tilt)
-        common = {"episodes": args.episodes, "seed": args.seed, "workers": args.workers}
+        connection = connect(args.ray) if getattr(args, "ray", None) else None
+        runner = RayRunner(connection) if connection is not None else None
+        workers = args.workers or (runner.cpus if runner is not None else 2)
+        common = {"episodes": args.episodes, "seed": args.seed, "workers": workers, "runner": runner}
         rows: list[ArmResult] = []
         summary: dict[str, Any]
         if args.policy is None:
             rows = sweep(args.force, env_id=args.env, env_kwargs=json.loads(args.env_kwargs), protocol=protocol, **common)
             summary = {"env_id": args.env, "arms": [r.summary() | {"force": r.protocol.force} for r in rows]}
         else:
-            comparisons = []
             from dataclasses import replace
 
-            for force in args.force:
-                comparison = compare(args.policy, protocol=replace(protocol, force=force), **common)
-                comparisons.append(comparison)
+            if runner is not None:  # every force's two arms at once
+                comparisons = compare_forces(args.policy, [replace(protocol, force=force) for force in args.force], **common)
+            else:
+                comparisons = [compare(args.policy, protocol=replace(protocol, force=force), **common) for force in args.force]
+            for comparison in comparisons:
                 rows += [comparison.wbc, comparison.residual]
             summary = {"comparisons": [c.summary() for c in comparisons]}
     except (PolicyFormatError, FileNotFoundError, ValueError) as error:
         print(f"giwbc evaluate: error: {error}", file=sys.stderr)
         return 2
+    finally:
+        if connection is not None:
+            connection.close()
     if args.json:
         print(json.dumps(summary))
     else:

@@ -11,7 +11,8 @@ controller -- the WBC alone (zero residual) and, when given, a residual ONNX pol
 
 Success: the episode ran its full length without terminating (fall or excessive tilt). Episodes
 are grouped in fixed chunks of seeds, each chunk run by one worker process on one environment, so
-the result does not depend on the number of workers. Prints a markdown table and one JSON object::
+the result does not depend on the number of workers, nor on whether the chunks ran as Ray tasks
+on a cluster (``--ray``, see :mod:`giwbc.distributed`). Prints a markdown table and one JSON object::
 
     python examples/sim_to_sim.py --episodes 50 --seconds 10 --push-force 90 --workers 2
 """
@@ -24,12 +25,15 @@ import multiprocessing as mp
 import os
 import sys
 import time
+from contextlib import nullcontext
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from giwbc.distributed import RayRunner, add_ray_argument, connect
 
 ENV_ID = "giwbc/G1Balance-v0"
 DEFAULT_POLICY = Path("policies/g1_balance_residual.onnx")
@@ -144,12 +148,13 @@ def evaluate(
     seed: int = 0,
     conditions: Sequence[str] = tuple(CONDITIONS),
     env_kwargs: dict[str, Any] | None = None,
+    runner: RayRunner | None = None,
 ) -> dict[str, dict[str, Cell]]:
     """Success of each controller on each condition over ``episodes`` seeded episodes (``seed``, ``seed + 1``, ...).
 
     ``policy``: a residual ONNX policy for ``G1Balance-v0``, or ``None`` (WBC only). ``workers``:
     processes (0: run in this process). ``env_kwargs``: extra ``gymnasium.make`` options for every
-    environment (e.g. ``wbc_options``).
+    environment (e.g. ``wbc_options``). ``runner``: run the chunks as Ray tasks instead (``workers`` unused).
     """
     if episodes < 1 or not seconds > 0:
         raise ValueError(f"episodes must be >= 1 and seconds > 0, got {episodes}, {seconds}")
@@ -163,7 +168,9 @@ def evaluate(
     jobs = [Job(controller, condition, chunk, seconds, pushes, policy_path, dict(env_kwargs or {}))
             for condition in conditions for controller in controllers for chunk in chunks]
     cells = {controller: {condition: Cell() for condition in conditions} for controller in controllers}
-    if workers > 0:
+    if runner is not None:
+        outcomes = runner.map(run_job, jobs, describe=lambda job: f"{job.controller} on {job.condition}, seeds {list(job.seeds)}")
+    elif workers > 0:
         with mp.get_context("fork").Pool(workers) as pool:
             outcomes = list(pool.imap_unordered(run_job, jobs))
     else:
@@ -213,6 +220,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2, help="worker processes (0: in this process)")
     parser.add_argument("--seed", type=int, default=0, help="first episode seed")
     parser.add_argument("--conditions", nargs="*", default=list(CONDITIONS), choices=list(CONDITIONS))
+    add_ray_argument(parser)
 
 
 def run_sim_to_sim_command(args: argparse.Namespace) -> int:
@@ -226,8 +234,10 @@ def run_sim_to_sim_command(args: argparse.Namespace) -> int:
         policy = None
     pushes = PushSetting(args.push_force, args.push_duration, tuple(args.push_interval))
     started = time.perf_counter()
-    cells = evaluate(policy=policy, episodes=args.episodes, seconds=args.seconds, pushes=pushes, workers=args.workers,
-                     seed=args.seed, conditions=args.conditions)
+    with connect(args.ray) if args.ray else nullcontext() as connection:
+        cells = evaluate(policy=policy, episodes=args.episodes, seconds=args.seconds, pushes=pushes, workers=args.workers,
+                         seed=args.seed, conditions=args.conditions, runner=RayRunner(connection) if connection else None)
+        workers = connection.cpus if connection else args.workers
     wall = time.perf_counter() - started
     print(markdown_table(cells, missing))
     print(json.dumps({
@@ -238,7 +248,8 @@ def run_sim_to_sim_command(args: argparse.Namespace) -> int:
         "episodes": args.episodes,
         "seconds_per_episode": args.seconds,
         "pushes": asdict(pushes),
-        "workers": args.workers,
+        "workers": workers,
+        "ray": args.ray,
         "seed": args.seed,
         "wall_s": wall,
         "results": {controller: {condition: cell.summary() for condition, cell in row.items()} for controller, row in cells.items()},

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -22,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from giwbc.apps.play import PlayResult, play
+from giwbc.distributed import add_ray_argument, connect
 from giwbc.policy import MlpWeights, ObservationNormalization, export_onnx
 
 if TYPE_CHECKING:
@@ -38,7 +40,9 @@ class TrainConfig:
     n_envs: int = 4
     seed: int = 0
     out_dir: str = "runs/cartpole"
-    vectorization: str = "subproc"  # worker processes; "dummy": all envs in this process
+    vectorization: str = "subproc"  # worker processes; "dummy": all envs in this process; "ray": Ray actors
+    ray_address: str | None = None  # vectorization "ray": a cluster's address (None: a local instance)
+    envs_per_worker: int | None = None  # vectorization "ray": environments per Ray actor (None: as few as the CPUs allow)
     checkpoint_every: int = 50_000  # environment steps, all envs together; 0: none
     normalize_observations: bool = True
     normalize_rewards: bool = True
@@ -51,10 +55,10 @@ class TrainConfig:
     eval_episodes: int = 3
 
     def __post_init__(self) -> None:
-        if self.vectorization not in ("subproc", "dummy"):
-            raise ValueError(f"vectorization must be 'subproc' or 'dummy', got {self.vectorization!r}")
-        if self.n_envs < 1 or self.total_timesteps < 1:
-            raise ValueError("n_envs and total_timesteps must be >= 1")
+        if self.vectorization not in ("subproc", "dummy", "ray"):
+            raise ValueError(f"vectorization must be 'subproc', 'dummy' or 'ray', got {self.vectorization!r}")
+        if self.n_envs < 1 or self.total_timesteps < 1 or (self.envs_per_worker is not None and self.envs_per_worker < 1):
+            raise ValueError("n_envs, total_timesteps and envs_per_worker must be >= 1")
         try:
             json.dumps(self.env_kwargs)
         except TypeError as error:
@@ -156,12 +160,7 @@ def export_sb3_policy(
 
 def train(config: TrainConfig) -> TrainResult:
     """Train PPO on ``config.env_id``, checkpointing as it goes; export and evaluate the final policy."""
-    import stable_baselines3
     import torch
-    from stable_baselines3 import PPO
-    from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecNormalize
 
     torch.set_num_threads(1)  # small MLPs: one thread is fastest, and leaves the cores to the workers
     out = Path(config.out_dir)
@@ -169,8 +168,25 @@ def train(config: TrainConfig) -> TrainResult:
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2))
     described = describe_env(config.env_id, config.env_kwargs)
     env_id = _module_id(config.env_id)
+    with connect(config.ray_address) if config.vectorization == "ray" else nullcontext():
+        return _train(config, described, env_id, out)
+
+
+def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Path) -> TrainResult:
+    """:func:`train` once the run folder exists (and Ray is connected for ``vectorization="ray"``)."""
+    import stable_baselines3
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
+
+    vec_cls: type[VecEnv]
     if config.vectorization == "subproc":
         vec_cls, vec_kwargs = SubprocVecEnv, {"start_method": "fork" if os.name == "posix" else "spawn"}
+    elif config.vectorization == "ray":
+        from giwbc.distributed.vec_env import RayVecEnv  # needs stable-baselines3, like everything here
+
+        vec_cls, vec_kwargs = RayVecEnv, {"envs_per_worker": config.envs_per_worker}
     else:
         vec_cls, vec_kwargs = DummyVecEnv, {}
     venv = make_vec_env(env_id, n_envs=config.n_envs, seed=config.seed, env_kwargs=config.env_kwargs,
@@ -254,13 +270,17 @@ def add_train_command(commands: Any) -> None:
     parser.add_argument("--log-std-init", type=float, default=TrainConfig.log_std_init,
                         help="initial log std of the actor (e.g. -1 for residual policies over a working controller)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_ray_argument(parser)
+    parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
+                        help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
     parser.set_defaults(run=run_train_command)
 
 
 def run_train_command(args: Any) -> int:
     out = args.out or f"runs/{args.env.split('/')[-1]}"
     config = TrainConfig(env_id=args.env, total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed, out_dir=out,
-                         checkpoint_every=args.checkpoint_every, vectorization=args.vectorization,
+                         checkpoint_every=args.checkpoint_every, vectorization="ray" if args.ray else args.vectorization,
+                         ray_address=args.ray, envs_per_worker=args.envs_per_worker,
                          env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
                          net_arch=tuple(args.net_arch), log_std_init=args.log_std_init)
     result = train(config)
