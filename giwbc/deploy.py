@@ -497,6 +497,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         print(json.dumps({
             "exit_code": outcome.exit_code, "message": outcome.message, "log": outcome.log_path,
             "fault": None if result is None or result.fault is None else result.fault.as_dict(),
+            "faults": [] if result is None else [f.kind.value for f in result.faults],
             "timing": None if result is None else result.timing, "standing": outcome.standing,
         }))  # fmt: skip
     elif outcome.exit_code:

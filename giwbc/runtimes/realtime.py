@@ -426,7 +426,8 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._cycles = 0
         self._clamp_noted = False
         self._now = 0.0  # the current cycle's slot time: advances every cycle, whatever the exchange did
-        self._fault_lock = threading.Lock()
+        self._fault_lock = threading.RLock()
+        self._log_lock = threading.RLock()  # the run log is written by the loop and, once, by the watchdog
         self._abandoned = False  # the watchdog took over: the loop's thread must not touch the motors again
         self.taken_over = threading.Event()  # set once the watchdog's stop is done
         self.stop_deadline: float | None = None  # perf_counter time by which a running stop must have ended
@@ -639,8 +640,9 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     def _set_phase(self, phase: str) -> None:
         self.phase = phase
         t = self._now
-        if phase in (SHUTDOWN, DAMPING) and self.stop_deadline is None:
-            # The watchdog takes over a stop that runs longer than its nominal length plus a margin.
+        if phase in (SHUTDOWN, DAMPING) and self.stop_deadline is None and self.clock.realtime:
+            # The watchdog takes over a stop that runs longer than its nominal length plus a margin
+            # (paced runs: robot time follows the wall clock; an unpaced run may be slower than it).
             s, c = self.startup, self.safety
             nominal = (s.shutdown_time + s.off_delay if phase == SHUTDOWN else c.damping_time) + (s.exit_attempts + 2) * self.period
             self.stop_deadline = time.perf_counter() + nominal + c.stop_margin
@@ -839,6 +841,9 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                         self._fail(FaultKind.CONTROLLER_FAILED, failure)
             if log is not None:
                 try:
+                    self._log_lock.acquire()
+                    if self._abandoned:
+                        raise LoopAbandoned
                     if report.cycle % self.log_every == 0:
                         self._log_cycle(report, sent, kind, imu)
                     if report.clamped and not self._clamp_noted:
@@ -849,6 +854,8 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                         log.event(report.cycle, t, "clamped", {"note": "command fields clamped to the motors' ranges", "fields": counts})
                 except Exception as error:  # noqa: BLE001 - the robot must not depend on its log
                     self._log_failed(error)
+                finally:
+                    self._log_lock.release()
         work, overrun = self.clock.done()
         if self._gc_was_enabled is not None and self._cycles % self.gc_every == 0:  # type: ignore[operator]
             started = time.perf_counter()
@@ -858,20 +865,25 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         if self.log is not None and report is not None and report.cycle % self.log_every == 0:
             st = self.clock.stats
             period = st.periods[-1] * 1e6 if st.periods and math.isfinite(st.periods[-1]) else None
-            try:
-                self.log.timing(report.cycle, t, slot, lateness * 1e6, period, work * 1e6, report.send_s * 1e6,
-                                report.receive_s * 1e6, overrun)  # fmt: skip
-                self.log.flush()  # the cycle's records, to the logger process in one datagram
-            except Exception as error:  # noqa: BLE001
-                self._log_failed(error)
+            with self._log_lock:
+                if self._abandoned:
+                    raise LoopAbandoned
+                try:
+                    self.log.timing(report.cycle, t, slot, lateness * 1e6, period, work * 1e6, report.send_s * 1e6,
+                                    report.receive_s * 1e6, overrun)  # fmt: skip
+                    self.log.flush()  # the cycle's records, to the logger process in one datagram
+                except Exception as error:  # noqa: BLE001
+                    self._log_failed(error)
         return report
 
     def _event(self, name: str, detail: dict[str, Any]) -> None:
-        if self.log is not None:
+        if self.log is not None and self._log_lock.acquire(timeout=0.5):  # (a loop stuck in the log: the watchdog logs nothing)
             try:
                 self.log.event(max(0, self.robot.cycle - 1), self._now, name, detail)
             except Exception as error:  # noqa: BLE001
                 self._log_failed(error)
+            finally:
+                self._log_lock.release()
 
     def _log_failed(self, error: BaseException) -> None:
         """Logging broke: stop logging (kept in the faults as an internal error), keep controlling."""
@@ -965,11 +977,13 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         if any(f.kind is fault.kind for f in self.faults):
             return  # one record per kind: a lost motor would otherwise be reported every cycle
         self.faults.append(fault)
-        if self.log is not None:
+        if self.log is not None and self._log_lock.acquire(timeout=0.5):
             try:
                 self.log.fault(fault)
             except Exception:  # noqa: BLE001 - logging must not stop the stop
                 pass
+            finally:
+                self._log_lock.release()
 
     # --- helpers ----------------------------------------------------------------------------
     def _observe(self) -> np.ndarray:

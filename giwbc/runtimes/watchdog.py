@@ -10,7 +10,8 @@ stop runs past its deadline (``SafetyConfig.stop_margin`` beyond its nominal len
 :class:`EmergencyStop` does not depend on the loop or on any exchange succeeding: the damping and
 exit-motor-mode frames are encoded once, up front; each bus has a sender thread of its own, so a
 driver stuck in ``send`` holds up only its own bus (its motors fall back on their own timeout);
-every step waits at most one period for the senders; the whole stop is a fixed number of steps.
+every step waits for the senders at most one period (at least ``min_wait``); the whole stop is
+a fixed number of steps.
 In lockstep emulation the emulator (the robot's ``peer``) is advanced and polled as the loop would.
 
 Limits: a thread needs the interpreter lock, so a call stuck in C code *holding* it (no blocking
@@ -138,8 +139,10 @@ class EmergencyStop:
     """Damping, then exit motor mode, for every motor of ``robot``, without its exchange (see the
     module docstring)."""
 
-    def __init__(self, robot: CanRobot, damping: ImpedanceCommand, *, send_timeout: float = 200e-6, retries: int = 1) -> None:
+    def __init__(self, robot: CanRobot, damping: ImpedanceCommand, *, send_timeout: float = 200e-6, retries: int = 1,
+                 min_wait: float = 10e-3) -> None:  # fmt: skip
         self.robot = robot
+        self.min_wait = min_wait  # s a step waits for its senders at least (a thread's wake-up on a loaded machine)
         self.ports = list(robot.ports.ports)
         self.names = [b.name for b in robot.plan.buses]
         self.bounds = [int(b) for b in robot.codec.bounds]
@@ -182,7 +185,7 @@ class EmergencyStop:
                     time.sleep(due - clock())
             t = t0 + (k + 1) * period
             damping = k < steps
-            ok = self._step(self.damping_frames if damping else self.exit_frames, t, period)
+            ok = self._step(self.damping_frames if damping else self.exit_frames, t, max(period, self.min_wait))
             (reached if damping else exited)[:] |= ok
         for s in self._senders:
             s.close()
