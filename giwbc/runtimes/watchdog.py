@@ -104,17 +104,21 @@ class _BusSender:
         self.port = port
         self.timeout, self.retries = timeout, retries
         self.busy = False
-        self.sent = 0
-        self._jobs: queue.SimpleQueue[tuple[bytes, float, threading.Event] | None] = queue.SimpleQueue()
+        self.sent: dict[str, int] = {}  # frames sent, per tag (damping, exit)
+        self.idle = threading.Event()
+        self.idle.set()
+        self._jobs: queue.SimpleQueue[tuple[bytes, float, str] | None] = queue.SimpleQueue()
         threading.Thread(target=self._serve, name=f"giwbc-stop-{name}", daemon=True).start()
 
-    def submit(self, raw: bytes, deadline: float) -> threading.Event | None:
+    def submit(self, raw: bytes, budget: float, tag: str) -> bool:
+        """Hand over ``raw``; it may take ``budget`` seconds from when the thread starts on it.
+        False when the previous frames are still going."""
         if self.busy:
-            return None
+            return False
         self.busy = True
-        done = threading.Event()
-        self._jobs.put((raw, deadline, done))
-        return done
+        self.idle.clear()
+        self._jobs.put((raw, budget, tag))
+        return True
 
     def close(self) -> None:
         self._jobs.put(None)
@@ -124,15 +128,16 @@ class _BusSender:
             job = self._jobs.get()
             if job is None:
                 return
-            raw, deadline, done = job
+            raw, budget, tag = job
             try:
-                sent, _, _, _ = self.port.send_raw(raw, deadline, self.timeout, self.retries)
-                self.sent += sent
+                # The budget runs from now: on a loaded machine the thread may start late.
+                sent, _, _, _ = self.port.send_raw(raw, time.perf_counter() + budget, self.timeout, self.retries)
+                self.sent[tag] = self.sent.get(tag, 0) + sent
             except BaseException:  # noqa: BLE001 - a driver's exception is the driver's; the others go on
                 pass
             finally:
                 self.busy = False
-                done.set()
+                self.idle.set()
 
 
 class EmergencyStop:
@@ -140,9 +145,10 @@ class EmergencyStop:
     module docstring)."""
 
     def __init__(self, robot: CanRobot, damping: ImpedanceCommand, *, send_timeout: float = 200e-6, retries: int = 1,
-                 min_wait: float = 10e-3) -> None:  # fmt: skip
+                 min_wait: float = 10e-3, final_wait: float = 0.2) -> None:  # fmt: skip
         self.robot = robot
         self.min_wait = min_wait  # s a step waits for its senders at least (a thread's wake-up on a loaded machine)
+        self.final_wait = final_wait  # s the stop waits at its end for senders still going
         self.ports = list(robot.ports.ports)
         self.names = [b.name for b in robot.plan.buses]
         self.bounds = [int(b) for b in robot.codec.bounds]
@@ -152,49 +158,52 @@ class EmergencyStop:
         self.exit_frames = robot.codec.special_frames(EXIT).tobytes()
         self._senders = [_BusSender(p, send_timeout, retries, n) for p, n in zip(self.ports, self.names)]
 
-    def _step(self, raw: bytes, t: float, wait: float) -> list[bool]:
+    def _step(self, raw: bytes, tag: str, t: float, wait: float) -> None:
         """Advance the lockstep peer to ``t``, hand every bus its frames, wait at most ``wait``
-        seconds for them, let the peer answer. Returns, per bus, whether its frames went out."""
+        seconds for them, let the peer answer."""
         peer = self.robot.peer
         if peer is not None:
             peer.advance(t)
         deadline = time.perf_counter() + wait
         size = 16
-        handed = [s.submit(raw[size * a : size * b], deadline) for s, a, b in zip(self._senders, self.bounds[:-1], self.bounds[1:])]
-        for done in handed:
-            if done is not None:
-                done.wait(max(0.0, deadline - time.perf_counter()))
+        handed = [s.submit(raw[size * a : size * b], wait, tag) for s, a, b in zip(self._senders, self.bounds[:-1], self.bounds[1:])]
+        for s, ok in zip(self._senders, handed):
+            if ok:
+                s.idle.wait(max(0.0, deadline - time.perf_counter()))
         if peer is not None:
             peer.answer(t)
-        return [done is not None and done.is_set() for done in handed]
 
     def run(self, t0: float, period: float, damping_time: float, exit_steps: int, *, realtime: bool = True) -> dict[str, Any]:
         """Damping every period for ``damping_time``, then ``exit_steps`` periods of exit frames,
         from robot time ``t0`` on; paced by the wall clock when ``realtime``. Returns what it
-        reached: the buses whose frames never went out (stuck), steps, the robot time at the end."""
+        reached: the buses no exit frame reached (a stuck driver), steps, the robot time at the end."""
         clock = time.perf_counter
         start = clock()
         steps = max(1, int(round(damping_time / period)))
-        reached = np.zeros(len(self.ports), dtype=bool)
-        exited = np.zeros(len(self.ports), dtype=bool)
+        exit_steps = max(1, exit_steps)
+        wait = max(period, self.min_wait)
         t = t0
-        for k in range(steps + max(1, exit_steps)):
+        for k in range(steps + exit_steps):
             if realtime:
                 due = start + k * period
                 if clock() < due:
                     time.sleep(due - clock())
             t = t0 + (k + 1) * period
             damping = k < steps
-            ok = self._step(self.damping_frames if damping else self.exit_frames, t, max(period, self.min_wait))
-            (reached if damping else exited)[:] |= ok
+            self._step(self.damping_frames if damping else self.exit_frames, "damping" if damping else "exit", t, wait)
+        end = clock() + self.final_wait  # senders still going (a slow thread, not a stuck driver): a last chance
+        for s in self._senders:
+            s.idle.wait(max(0.0, end - clock()))
+        if self.robot.peer is not None:
+            self.robot.peer.answer(t)
         for s in self._senders:
             s.close()
         return {
             "time": t,
             "damping_steps": steps,
-            "exit_steps": max(1, exit_steps),
-            "unreachable_buses": [n for n, r in zip(self.names, exited) if not r],
-            "frames_sent": int(sum(s.sent for s in self._senders)),
+            "exit_steps": exit_steps,
+            "unreachable_buses": [n for n, s in zip(self.names, self._senders) if not s.sent.get("exit")],
+            "frames_sent": int(sum(sum(s.sent.values()) for s in self._senders)),
         }
 
 
