@@ -128,7 +128,9 @@ def test_fault_table(kind, g1, model, tmp_path):
         assert after[-1]["kind"] == "exit" and log.event_names()[-1] == "motors_off"
     else:
         assert result.loop_abandoned and "watchdog" in log.event_names()
-    snaps = [s for s in emu.snapshots if fault.time < s.time <= fault.time + 2 * DT + 1e-9]
+    # (The watchdog's frames go out from its sender threads: on a loaded machine they may start a step late.)
+    steps = 3 if fault.kind is FaultKind.WATCHDOG else 2
+    snaps = [s for s in emu.snapshots if fault.time < s.time <= fault.time + steps * DT + 1e-9]
     reachable = ~np.isin(np.arange(g1.dofs), emu.joint_index[stuck_motors])
     assert any((s.kp[reachable] == 0).all() and (np.abs(s.tau_ff[reachable]) < 0.05).all() for s in snaps)
     # Motors off at the end; a bus that cannot be reached leaves its motors to their own timeout (limp).

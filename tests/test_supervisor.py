@@ -230,3 +230,16 @@ def test_command_line_fault_rehearsal_with_a_driver_stuck_forever(tmp_path):
     assert "watchdog" in summary["faults"] and "watchdog" in summary["message"]
     run_log = read_log(log, topics=["/faults", "/events"])
     assert "watchdog" in [f["kind"] for f in run_log.faults] and run_log.event_names()[-1] == "motors_off"
+
+
+def test_command_line_refuses_an_unknown_fault(capsys):
+    import argparse
+
+    from giwbc.deploy import add_deploy_command
+
+    parser = argparse.ArgumentParser(prog="giwbc")
+    add_deploy_command(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["deploy", "--emulate", "--fault", "gremlins"])
+    assert args.run(args) == 2
+    err = capsys.readouterr().err
+    assert "unknown fault 'gremlins'" in err and "bus_off" in err  # the known kinds are listed
