@@ -54,7 +54,7 @@ def run_lockstep(g1, model, tmp_path, *, policy=None, safety=None, patch=None, s
         patch(robot)
     log = RunLogWriter(tmp_path / "run.mcap", g1.joint_names)
     runtime = RealtimeRuntime(StandingTask(PdHold(g1), g1.default_positions), robot, log=log, startup=STARTUP, realtime=False,
-                              safety=safety or SafetyConfig(damping_time=0.1, watchdog_periods=100))  # fmt: skip
+                              safety=safety or SafetyConfig(damping_time=0.1))  # fmt: skip
     guard = threading.Timer(HANG_GUARD, _thread.interrupt_main)
     guard.start()
     try:
@@ -105,9 +105,8 @@ def test_a_policy_that_never_returns_is_stopped_by_the_watchdog(g1, model, tmp_p
             release.wait()  # hangs until the test ends
         return np.zeros(0, dtype=np.float32)
 
-    safety = SafetyConfig(damping_time=0.1, watchdog_periods=50)
     try:
-        result, runtime, emulator, robot, log = run_lockstep(g1, model, tmp_path, policy=policy, safety=safety)
+        result, runtime, emulator, robot, log = run_lockstep(g1, model, tmp_path, policy=policy)
     finally:
         release.set()
     runtime._loop_thread.join(5.0)

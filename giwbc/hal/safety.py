@@ -108,7 +108,7 @@ class SafetyConfig:
     damping_kd_scale: float = 1.0  # damping gain = this x the description's kd
     damping_time: float = 1.0  # s of damping before motors off
     bus_off_cycles: int = 2  # consecutive cycles in which a bus's driver refused every frame
-    watchdog_periods: int = 50  # control periods (wall clock) without a cycle before the watchdog stops the motors
+    watchdog_periods: int = 50  # control periods (wall clock; unpaced runs: at least 1 s) without a cycle before the watchdog stops the motors
     stop_margin: float = 1.0  # s (wall clock) a safe stop may overrun its nominal length before the watchdog takes over
 
     def __post_init__(self) -> None:

@@ -65,6 +65,7 @@ from giwbc.runtimes.rates import Rates
 from giwbc.runtimes.watchdog import EmergencyStop, LoopWatchdog
 from giwbc.tasks.task import Task
 
+UNPACED_WATCHDOG = 1.0  # s: the watchdog's least timeout when the loop is not paced by the wall clock
 IDLE, ENABLE, SETTLE, RAMP, RUNNING, SHUTDOWN, DAMPING, OFF = (
     "idle", "enable", "settle", "ramp", "running", "shutdown", "damping", "off",
 )  # fmt: skip
@@ -428,6 +429,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._now = 0.0  # the current cycle's slot time: advances every cycle, whatever the exchange did
         self._fault_lock = threading.RLock()
         self._log_lock = threading.RLock()  # the run log is written by the loop and, once, by the watchdog
+        self._exchange_lock = threading.Lock()  # held by the loop during an exchange
         self._abandoned = False  # the watchdog took over: the loop's thread must not touch the motors again
         self.taken_over = threading.Event()  # set once the watchdog's stop is done
         self.stop_deadline: float | None = None  # perf_counter time by which a running stop must have ended
@@ -435,6 +437,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self.emergency: dict[str, Any] | None = None  # what the watchdog's stop reached
         self._driver_errors_seen: set[int] = set()
         self._loop_thread: threading.Thread | None = None
+        self._wake = threading.Event()
 
     # --- gymnasium API ----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
@@ -532,13 +535,17 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                 self.watchdog.stop()
             self.signals.restore()
             self._restore_priority()
-            if self._gc_was_enabled is not None:
-                if self._gc_was_enabled:
-                    gc.enable()
-                self._gc_was_enabled = None
-            if self._gc_frozen:
-                gc.unfreeze()
-                self._gc_frozen = False
+            self._restore_process_state()
+
+    def _restore_process_state(self) -> None:
+        """The garbage collector as it was before the motors started."""
+        if self._gc_was_enabled is not None:
+            if self._gc_was_enabled:
+                gc.enable()
+            self._gc_was_enabled = None
+        if self._gc_frozen:
+            gc.unfreeze()
+            self._gc_frozen = False
 
     def _raise_priority(self) -> None:
         """``SCHED_FIFO`` for the loop's thread (the run log is written by a process of its own,
@@ -577,20 +584,22 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._wall0 = time.perf_counter()
         self.signals.install()
         done = threading.Event()
+        self._wake = wake = threading.Event()  # set when the loop ends or the watchdog's stop is done
         self._loop_thread = thread = threading.Thread(target=self._loop, args=(policy, seconds, done), name="giwbc-control", daemon=True)
         try:
             thread.start()
             while not done.is_set():
                 try:
-                    if done.wait(0.05):
-                        break
-                    if self.taken_over.is_set():
+                    wake.wait()  # (no polling: every wake-up would take the interpreter lock from the loop)
+                    if not done.is_set() and self.taken_over.is_set():
                         done.wait(max(0.05, 5 * self.period))  # a last chance for the loop's thread to leave
                         break
                 except KeyboardInterrupt:  # only without our handler (not the main thread): stop as SIGINT would
                     self.signals.trigger(signal.SIGINT)
         finally:
             self.signals.restore()
+            if not done.is_set():  # the loop's thread never came back: undo what it changed for the process
+                self._restore_process_state()
         return self.result()
 
     def _loop(self, policy: Callable[[np.ndarray], np.ndarray] | None, seconds: float, done: threading.Event) -> None:
@@ -621,6 +630,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             pass
         finally:
             done.set()
+            self._wake.set()
 
     def result(self) -> RunResult:
         return RunResult(
@@ -662,7 +672,10 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             gc.disable()  # collections happen between cycles: see the class docstring
         self._raise_priority()
         if self.watchdog is None:
-            self.watchdog = LoopWatchdog(self, self.safety.watchdog_periods * self.period, rt_priority=self.rt_priority).start()
+            timeout = self.safety.watchdog_periods * self.period
+            if not self.clock.realtime:  # an unpaced run (rehearsal, test) may be descheduled for a while: not a stuck loop
+                timeout = max(timeout, UNPACED_WATCHDOG)
+            self.watchdog = LoopWatchdog(self, timeout, rt_priority=self.rt_priority).start()
         self._set_phase(ENABLE)
         self.armed = False
         report = self._special_frames(ENTER, s.enable_attempts, stop_on_fault=True)
@@ -803,8 +816,13 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         sent = robot.command
         report: CycleReport | None = None
         try:
-            # A full period for the exchange from the cycle's actual start: a late cycle still sends.
-            report = robot.exchange(t, deadline=self.clock.cycle_start + self.period if self.clock.realtime else None, kind=kind)
+            with self._exchange_lock:  # the watchdog's stop never sends while an exchange is under way
+                if self._abandoned:
+                    raise LoopAbandoned
+                # A full period for the exchange from the cycle's actual start: a late cycle still sends.
+                report = robot.exchange(t, deadline=self.clock.cycle_start + self.period if self.clock.realtime else None, kind=kind)
+        except LoopAbandoned:
+            raise
         except BaseException as error:  # noqa: BLE001 - KeyboardInterrupt included; the next cycle tries again
             if self._abandoned:
                 raise LoopAbandoned from None
@@ -959,6 +977,8 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                 return False
             self._abandoned = True
         self._fail(FaultKind.WATCHDOG, reason)
+        # A loop still cycling (a stop that overran) finishes its exchange first; one stuck in it does not.
+        held = self._exchange_lock.acquire(timeout=2 * self.period)
         try:
             stop = EmergencyStop(self.robot, self.damping)
             self.emergency = stop.run(self._now, self.period, self.safety.damping_time, self.startup.exit_attempts,
@@ -966,11 +986,15 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             self._now = self.emergency["time"]
         except Exception as error:  # noqa: BLE001 - whatever happens, the loop stays abandoned
             self.emergency = {"error": _describe(error)}
+        finally:
+            if held:
+                self._exchange_lock.release()
         self.phase = OFF
         self.phase_times.setdefault(OFF, self._now)
         self._event("watchdog", {"reason": reason, **{k: v for k, v in (self.emergency or {}).items() if k != "time"}})
         self._event("motors_off", {"fault": None if self.fault is None else str(self.fault), "by": "watchdog"})
         self.taken_over.set()
+        self._wake.set()
         return True
 
     def _record(self, fault: Fault) -> None:

@@ -50,7 +50,8 @@ class LoopWatchdog:
             raise ValueError(f"watchdog timeout must be > 0, got {timeout}")
         self.runtime = runtime
         self.timeout = float(timeout)
-        self.poll = float(poll) if poll is not None else min(0.01, self.timeout / 4)
+        # A quarter of the timeout: each wake-up takes the interpreter lock from a busy loop.
+        self.poll = float(poll) if poll is not None else self.timeout / 4
         self.rt_priority = rt_priority
         self.fired: str | None = None  # why it took over, once it did
         self._stop = threading.Event()

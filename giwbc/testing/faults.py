@@ -229,7 +229,7 @@ class FaultCase:
     ``expected``: the fault kind that stops the run (None: tolerated traffic, counted, exit 0);
     ``bound``: cycles from onset to detection at most (2; reply loss and corrupt frames need
     ``max_missing_cycles`` / ``max_corrupt_frames`` = 3 cycles, i.e. onset + 2; the watchdog
-    counts wall time, ``watchdog_periods``, its robot-time bound is 1 cycle); ``needs``:
+    counts wall time, ``watchdog_periods`` periods (unpaced: at least 1 s), its robot-time bound is 1 cycle); ``needs``:
     ``"policy"`` (the balance task with a policy) or ``"wbc"`` (the whole-body controller);
     ``stuck_bus``: the fault leaves one bus unreachable (its motors fall back on their own timeout)."""
 
