@@ -405,6 +405,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                    + (f" (buses {', '.join(unreachable)} unreachable: their motors are left to their own timeout)" if unreachable else ""))
     else:
         message = f"stopped by a fault: {result.fault}; motors in damping then off"
+        if result.unconfirmed_off:
+            message += f" (not confirmed by {', '.join(result.unconfirmed_off)}: left to their own timeout)"
     if len(result.faults) > 1:
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)

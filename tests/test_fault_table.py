@@ -137,6 +137,8 @@ def test_fault_table(kind, g1, model, tmp_path):
     assert (emu.mode[~stuck_motors] == 0).all()
     assert emu.limp()[stuck_motors].all()
     assert all(name in outcome.message for name in stuck_bus)  # the bus that could not be reached is named
+    if fault.kind is not FaultKind.WATCHDOG:  # and its motors, as not confirmed off
+        assert {m.joint for m, stuck in zip(emu.motors, stuck_motors) if stuck} <= set(result.unconfirmed_off)
 
 
 def test_table_covers_every_kind_of_the_issue():

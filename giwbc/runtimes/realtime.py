@@ -323,6 +323,7 @@ class RunResult:
     log_path: str | None = None
 
     loop_abandoned: bool = False  # the watchdog stopped the motors; the loop's thread never came back
+    unconfirmed_off: tuple[str, ...] = ()  # joints whose motors never confirmed exit-motor-mode (a dead bus)
 
     @property
     def exit_code(self) -> int:
@@ -438,6 +439,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._driver_errors_seen: set[int] = set()
         self._loop_thread: threading.Thread | None = None
         self._wake = threading.Event()
+        self.unconfirmed_off: tuple[str, ...] = ()  # joints whose motors did not confirm exit-motor-mode
 
     # --- gymnasium API ----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
@@ -644,6 +646,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             phase_times=dict(self.phase_times),
             log_path=self.log_path,
             loop_abandoned=self._abandoned and self._loop_thread is not None and self._loop_thread.is_alive(),
+            unconfirmed_off=self.unconfirmed_off,
         )
 
     # --- phases -----------------------------------------------------------------------------
@@ -781,11 +784,14 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     def _motors_off(self) -> None:
         if self.phase == OFF:
             return
-        self._special_frames(EXIT, self.startup.exit_attempts, stop_on_fault=False)
+        report = self._special_frames(EXIT, self.startup.exit_attempts, stop_on_fault=False)
+        # Motors that never confirmed it (a dead bus): left to their own timeout.
+        missing = report.missing if report is not None else np.ones(self.description.dofs, dtype=bool)
+        self.unconfirmed_off = tuple(self.description.joint_names[j] for j in np.flatnonzero(missing))
         if self._gc_was_enabled is not None:
             self._event("garbage_collection", {"young_collections": self.gc_collections, "longest_us": round(1e6 * self.gc_seconds_max, 1)})
         self._set_phase(OFF)
-        self._event("motors_off", {"fault": None if self.fault is None else str(self.fault)})
+        self._event("motors_off", {"fault": None if self.fault is None else str(self.fault), "unconfirmed": list(self.unconfirmed_off)})
 
     def _run_for(self, seconds: float, compute: Callable[[], None] | None) -> None:
         """Cycles until ``seconds`` of robot time passed (skipped slots count: time is the
