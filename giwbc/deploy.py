@@ -16,9 +16,9 @@ Procedure (:func:`deploy`):
 4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
    run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``;
-5. report: exit code 0 on a clean run, non-zero with the cause on a fault (130 for SIGINT or a
-   ``KeyboardInterrupt`` inside the loop, 143 for SIGTERM, 1 for other faults, the watchdog's
-   included, 2 for configuration errors).
+5. report: exit code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's
+   number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
+   inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
 
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.testing.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a

@@ -118,8 +118,8 @@ def test_fault_table(kind, g1, model, tmp_path):
     # The cause, named in the summary and the run log; the documented exit code.
     assert case.expected.value in outcome.message
     assert log.faults[0]["kind"] == case.expected.value and log.faults[0]["cycle"] == fault.cycle
-    assert outcome.exit_code == exit_code_for(fault) == {FaultKind.SIGNAL: 130 if kind == "sigint" else 143,
-                                                         FaultKind.INTERRUPTED: 130}.get(fault.kind, 1)  # fmt: skip
+    documented = {"sigint": 130, "sigterm": 143, "sighup": 129, "keyboard_interrupt": 130}.get(kind, 1)
+    assert outcome.exit_code == exit_code_for(fault) == documented
     # Damping at the next cycle: in the log (sent by the loop), and applied by the emulated motors.
     if fault.kind is not FaultKind.WATCHDOG:
         after = [m for m in log.topic("/commands") if m["cycle"] > fault.cycle]

@@ -84,7 +84,7 @@ EMULATOR_FAULT_KINDS = (
 # Faults of the host side (policy, controller, bus drivers, the process): see giwbc.testing.faults.
 HOST_FAULT_KINDS = (
     "policy_nan", "controller_nan", "controller_raise", "qp_infeasible", "driver_raise", "driver_block", "bus_off",
-    "keyboard_interrupt", "sigint", "sigterm",
+    "keyboard_interrupt", "sigint", "sigterm", "sighup",
 )  # fmt: skip
 FAULT_KINDS = EMULATOR_FAULT_KINDS + HOST_FAULT_KINDS
 _REPLY_FAULTS = frozenset({"drop", "delay", "corrupt", "silent", "duplicate", "reorder"})

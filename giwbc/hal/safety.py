@@ -288,7 +288,8 @@ def _imu_in_base(description: RobotDescription) -> np.ndarray:
 
 @dataclass
 class SignalWatch:
-    """Records SIGINT/SIGTERM instead of raising, between :meth:`install` and :meth:`restore`.
+    """Records SIGINT/SIGTERM/SIGHUP/SIGQUIT instead of raising (or dying), between :meth:`install`
+    and :meth:`restore`.
 
     Handlers can only be installed from the main thread: elsewhere :attr:`installed` stays False
     and the caller relies on :meth:`trigger` (the same path a handler takes). Python runs a
@@ -297,7 +298,9 @@ class SignalWatch:
     signal handler at delivery): the loop sees a signal at its next cycle, whatever runs where.
     """
 
-    signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
+    # SIGHUP too: an operator's terminal or ssh session that goes away must stop the robot, not kill
+    # the process with the motors on. (SIGKILL cannot be caught: the motors' own timeout is left.)
+    signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
     received: int | None = None
     installed: bool = False
     _previous: dict[int, Any] = field(default_factory=dict)

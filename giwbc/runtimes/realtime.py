@@ -327,18 +327,22 @@ class RunResult:
 
     @property
     def exit_code(self) -> int:
-        """0 clean, 130 for SIGINT or a ``KeyboardInterrupt``, 143 for SIGTERM, 1 for any other fault."""
+        """0 clean, 128 + signal number for a signal (130 SIGINT, 143 SIGTERM), 130 for a
+        ``KeyboardInterrupt``, 1 for any other fault (see :func:`exit_code_for`)."""
         return exit_code_for(self.fault)
 
 
 def exit_code_for(fault: Fault | None) -> int:
-    """The process exit code for a run that ended on ``fault`` (see :attr:`RunResult.exit_code`)."""
+    """The process exit code for a run that ended on ``fault``: 0 clean, 128 + the signal's number
+    for a signal (130 SIGINT, 143 SIGTERM, 129 SIGHUP, 131 SIGQUIT), 130 for a ``KeyboardInterrupt``
+    raised inside the loop, 1 for any other fault."""
     if fault is None:
         return 0
     if fault.kind is FaultKind.INTERRUPTED:
         return 130
     if fault.kind is FaultKind.SIGNAL:
-        return 130 if "SIGINT" in fault.message else 143
+        name = fault.message.rsplit(" ", 1)[-1]
+        return 128 + signal.Signals[name].value if name in signal.Signals.__members__ else 143
     return 1
 
 

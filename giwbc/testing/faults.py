@@ -10,7 +10,7 @@ active in ``[start, stop)`` of robot time:
 - ``qp_infeasible``: the whole-body controller's QP is made infeasible (an inequality row with
   ``l > u``) before its real solver sees it, so the WBC takes its fallback;
 - ``keyboard_interrupt``: the controller tick raises ``KeyboardInterrupt`` (inside the loop);
-- ``sigint`` / ``sigterm``: the signal is sent once, to the loop's own thread (a process-directed
+- ``sigint`` / ``sigterm`` / ``sighup``: the signal is sent once, to the loop's own thread (a process-directed
   signal may land on any thread; this one makes the delivery cycle exact);
 - ``driver_raise``, ``driver_block``, ``bus_off``: the python-can driver of the buses of the
   fault's joints (:class:`FaultyBus`) raises ``RuntimeError`` in ``send`` (a driver bug), blocks
@@ -41,7 +41,8 @@ from giwbc.hal.safety import FaultKind
 from giwbc.robot.interface import ImpedanceCommand
 
 DRIVER_KINDS = frozenset({"driver_raise", "driver_block", "bus_off"})
-TASK_KINDS = frozenset({"controller_nan", "controller_raise", "keyboard_interrupt", "sigint", "sigterm"})
+TASK_KINDS = frozenset({"controller_nan", "controller_raise", "keyboard_interrupt", "sigint", "sigterm", "sighup"})
+_SIGNALS = {"sigint": signal.SIGINT, "sigterm": signal.SIGTERM, "sighup": signal.SIGHUP}
 
 
 class InjectedFault(ZeroDivisionError):
@@ -187,9 +188,9 @@ class HostFaults:
                     raise KeyboardInterrupt
                 if f.kind == "controller_raise":
                     raise InjectedFault("injected controller fault")
-                if f.kind in ("sigint", "sigterm") and id(f) not in self._signalled:
+                if f.kind in _SIGNALS and id(f) not in self._signalled:
                     self._signalled.add(id(f))
-                    signal.pthread_kill(threading.get_ident(), signal.SIGINT if f.kind == "sigint" else signal.SIGTERM)
+                    signal.pthread_kill(threading.get_ident(), _SIGNALS[f.kind])
             inner()
             if any(f.kind == "controller_nan" for f in active):
                 n = robot.dofs
@@ -268,6 +269,7 @@ FAULT_CASES: dict[str, FaultCase] = {c.kind: c for c in (
     FaultCase("keyboard_interrupt", _one("keyboard_interrupt"), FaultKind.INTERRUPTED, "KeyboardInterrupt raised in the loop"),
     FaultCase("sigint", _one("sigint"), FaultKind.SIGNAL, "SIGINT"),
     FaultCase("sigterm", _one("sigterm"), FaultKind.SIGNAL, "SIGTERM"),
+    FaultCase("sighup", _one("sighup"), FaultKind.SIGNAL, "SIGHUP (the operator's terminal went away)"),
     FaultCase("foreign_sync", _one("foreign_sync"), None, "a CANopen SYNC on every bus, every cycle"),
     FaultCase("foreign_ids", _one("foreign_ids"), None, "8-byte frames from ids no motor uses, every cycle"),
     FaultCase("zero_byte", _one("zero_byte"), None, "zero-byte frames from ids no motor uses, every cycle"),
