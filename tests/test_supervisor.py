@@ -242,3 +242,48 @@ def test_command_line_refuses_an_unknown_fault(capsys):
     assert args.run(args) == 2
     err = capsys.readouterr().err
     assert "unknown fault 'gremlins'" in err and "bus_off" in err  # the known kinds are listed
+
+
+class _Loop:
+    """What the watchdog reads of a runtime: phase, cycle count, stop deadline; records take-overs."""
+
+    def __init__(self, phase: str) -> None:
+        self.phase, self._cycles, self.stop_deadline = phase, 0, None
+        self.reasons: list[str] = []
+        self.taken = threading.Event()
+
+    def take_over(self, reason: str) -> bool:
+        self.reasons.append(reason)
+        self.taken.set()
+        return True
+
+
+def test_watchdog_fires_on_a_stalled_loop_and_on_an_overrunning_stop_only():
+    from giwbc.runtimes.watchdog import LoopWatchdog
+
+    idle = _Loop("idle")  # nothing to watch before the motors start, however long
+    dog = LoopWatchdog(idle, 0.02, poll=0.005).start()
+    assert not idle.taken.wait(0.1)
+    dog.stop()
+
+    cycling = _Loop("running")  # a loop that keeps producing cycles is never taken over
+    dog = LoopWatchdog(cycling, 0.5, poll=0.005).start()
+    for _ in range(40):
+        cycling._cycles += 1
+        assert not cycling.taken.wait(0.005)
+    dog.stop()
+
+    stalled = _Loop("running")
+    dog = LoopWatchdog(stalled, 0.02, poll=0.005).start()
+    assert stalled.taken.wait(HANG_GUARD) and "no control cycle" in stalled.reasons[0]
+    assert dog.fired == stalled.reasons[0] and len(stalled.reasons) == 1
+
+    import time
+
+    overrun = _Loop("damping")  # cycling, but past the stop's deadline
+    overrun.stop_deadline = time.perf_counter() + 0.03
+    dog = LoopWatchdog(overrun, 10.0, poll=0.005).start()
+    while not overrun.taken.is_set() and time.perf_counter() < overrun.stop_deadline + HANG_GUARD:
+        overrun._cycles += 1
+        time.sleep(0.002)
+    assert "overran its deadline" in overrun.reasons[0]
