@@ -16,8 +16,13 @@ Procedure (:func:`deploy`):
 4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
    run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``;
-5. report: exit code 0 on a clean run, non-zero with the cause on a fault (130/143 for
-   SIGINT/SIGTERM, 1 for other faults, 2 for configuration errors).
+5. report: exit code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's
+   number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
+   inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
+
+Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
+(:data:`giwbc.testing.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
+person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -150,6 +156,14 @@ class WbcHold:
         self.last = self.balance.update(q, v, robot.time())
         return self.last.impedance
 
+    def failure(self) -> str | None:
+        """Why the last tick fell back to its safe command (infeasible QP, unusable state), or None:
+        the runtime stops on it (a fault), instead of running on a decaying fallback."""
+        last = self.last
+        if last is None or last.ok:
+            return None
+        return f"whole-body controller {last.status.value} ({last.qp_status.value if last.qp_status else 'no QP'}): {last.message}"
+
 
 def make_controller(name: str, description: RobotDescription) -> Any:
     if name == "pd":
@@ -198,6 +212,7 @@ class DeployOutcome:
     bus_loads: list[str] = field(default_factory=list)
     standing: dict[str, float] | None = None
     emulator: ActuatorEmulator | EmulatorProcess | None = None
+    fault_onsets: dict[str, float] = field(default_factory=dict)  # host-side injected faults: robot time each first acted
 
 
 def deploy(
@@ -270,9 +285,15 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     for line in loads:
         say(f"  {line}")
 
+    from giwbc.testing.faults import HostFaults
+
+    host_faults = HostFaults(options.faults)
+    if host_faults and not options.emulate:
+        raise DeployError("injected faults are for rehearsals: they need --emulate")
     emulator = None
     robot = None
     log = None
+    runtime = None
     try:
         if options.emulate:
             config = options.emulator or EmulatorConfig()
@@ -304,16 +325,30 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             from giwbc.estimation.estimator import StateEstimator
 
             estimator = StateEstimator(description)
+        clock: list[Callable[[], float]] = []  # robot time for host-side faults (set once the robot exists)
+        if isinstance(emulator, ActuatorEmulator):
+            clock.append(lambda: emulator.time)  # lockstep: the emulator is at the cycle's time when the host sends
+        links = host_faults.links(host_plan, lambda: clock[0]() if clock else 0.0)
         try:
             robot = CanRobot(description, host_plan, imu=imu, estimator=estimator, peer=peer, reply_timeout=options.reply_timeout,
-                             wait_for_replies=not (options.emulate and options.emulator_mode == "process"))
+                             wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links)
         except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
             raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
 
+        if not clock:
+            clock.append(lambda: robot.time() + 1.0 / options.control_rate)
         if task_name == "stand":
             task: Any = StandingTask(make_controller(options.controller, description), description.default_positions)
         else:
             task = _balance_task(description, metadata, options.controller)
+        if host_faults:
+            try:
+                host_faults.wrap_task(task, robot)
+            except ValueError as error:
+                raise DeployError(str(error)) from error
+            if any(f.kind == "policy_nan" for f in host_faults.faults) and policy is None:
+                raise DeployError("the policy_nan fault needs a policy (--policy)")
+            policy = host_faults.wrap_policy(policy, robot)
         log_path = Path(options.log) if options.log else Path("runs") / f"deploy-{description.name}-{time.strftime('%Y%m%d-%H%M%S')}.mcap"
         log = RunLogWriter(log_path, names, {
             "robot": description.name, "hardware": str(hardware), "emulate": options.emulate, "task": task_name,
@@ -330,6 +365,10 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         say(f"running {task_name} ({options.controller}) for {options.seconds:g} s" + (" with the policy" if policy else ""))
         result = runtime.run(policy, options.seconds)
     finally:
+        if host_faults:
+            host_faults.release()  # a driver blocked on purpose: let the abandoned loop's thread leave
+            if runtime is not None and runtime._loop_thread is not None:
+                runtime._loop_thread.join(1.0)
         if robot is not None:
             robot.close()
         if emulator is not None:
@@ -357,10 +396,18 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     say(f"log: {log.path}")
     if result.ok:
         message = "clean run: motors ramped to damping and switched off"
+    elif result.fault is not None and result.fault.kind.value == "watchdog":
+        unreachable = (runtime.emergency or {}).get("unreachable_buses") or []
+        message = (f"stopped by a fault: {result.fault}; the watchdog switched the motors to damping then off"
+                   + (f" (buses {', '.join(unreachable)} unreachable: their motors are left to their own timeout)" if unreachable else ""))
     else:
         message = f"stopped by a fault: {result.fault}; motors in damping then off"
+        if result.unconfirmed_off:
+            message += f" (not confirmed by {', '.join(result.unconfirmed_off)}: left to their own timeout)"
+    if len(result.faults) > 1:
+        message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
-    return DeployOutcome(result.exit_code, message, result, str(log.path), loads, standing, emulator)
+    return DeployOutcome(result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets))
 
 
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
@@ -417,6 +464,9 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
     parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    parser.add_argument("--fault", default=None, metavar="KIND",
+                        help="with --emulate: inject one fault of the fault table (giwbc.testing.faults.FAULT_CASES), e.g. bus_off")
+    parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
     parser.set_defaults(run=run_deploy_command)
     return parser
 
@@ -424,10 +474,21 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
 def run_deploy_command(args: argparse.Namespace) -> int:
     from giwbc.runtimes.realtime import StartupConfig
 
+    startup = StartupConfig(ramp_time=args.ramp)
+    faults: tuple[Any, ...] = ()
+    if getattr(args, "fault", None):
+        from giwbc.testing.faults import fault_case
+
+        try:
+            case = fault_case(args.fault)
+        except ValueError as error:
+            print(f"giwbc deploy: error: {error}", file=sys.stderr)
+            return 2
+        faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
-        startup=StartupConfig(ramp_time=args.ramp), rt_priority=args.rt_priority,
+        startup=startup, rt_priority=args.rt_priority, faults=faults,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
@@ -435,10 +496,17 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         print(json.dumps({
             "exit_code": outcome.exit_code, "message": outcome.message, "log": outcome.log_path,
             "fault": None if result is None or result.fault is None else result.fault.as_dict(),
+            "faults": [] if result is None else [f.kind.value for f in result.faults],
             "timing": None if result is None else result.timing, "standing": outcome.standing,
         }))  # fmt: skip
     elif outcome.exit_code:
         print(f"giwbc deploy: {outcome.message}", file=sys.stderr)
+    if outcome.result is not None and outcome.result.loop_abandoned:
+        # The loop's thread is stuck in a driver (the watchdog stopped the motors): leave without
+        # waiting for it at interpreter shutdown.
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(outcome.exit_code)
     return outcome.exit_code
 
 

@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.workers import process_pool
 from giwbc.distributed import RayRunner, add_ray_argument, connect
 
 DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
@@ -265,10 +266,7 @@ def run_episodes(
     if len(jobs) == 1:
         results = _run_chunk(jobs[0])
     else:
-        import multiprocessing
-
-        context = multiprocessing.get_context("fork" if os.name == "posix" else "spawn")
-        with context.Pool(len(jobs)) as pool:
+        with process_pool(len(jobs)) as pool:
             results = [r for chunk in pool.map(_run_chunk, jobs) for r in chunk]
     return _arm_result(policy_path, protocol, results)
 

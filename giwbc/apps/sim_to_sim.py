@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import multiprocessing as mp
 import os
 import sys
 import time
@@ -33,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.workers import process_pool
 from giwbc.distributed import RayRunner, add_ray_argument, connect
 
 ENV_ID = "giwbc/G1Balance-v0"
@@ -171,7 +171,7 @@ def evaluate(
     if runner is not None:
         outcomes = runner.map(run_job, jobs, describe=lambda job: f"{job.controller} on {job.condition}, seeds {list(job.seeds)}")
     elif workers > 0:
-        with mp.get_context("fork").Pool(workers) as pool:
+        with process_pool(workers) as pool:
             outcomes = list(pool.imap_unordered(run_job, jobs))
     else:
         outcomes = [run_job(job) for job in jobs]

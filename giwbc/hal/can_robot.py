@@ -111,6 +111,10 @@ class CycleReport:
     imu_fresh: bool  # the IMU produced a new sample since the last cycle
     send_s: float  # wall time spent sending (s)
     receive_s: float  # wall time spent collecting replies (s)
+    status: np.ndarray | None = None  # reported motor state (Damiao: 0 disabled, 1 enabled, >= 8 error; -1 not reported)
+    bus_sent: np.ndarray | None = None  # per bus: frames the driver took this cycle
+    bus_errors: np.ndarray | None = None  # per bus: driver errors while sending this cycle
+    driver_errors: tuple[BaseException | None, ...] = ()  # per bus: the driver's last exception this cycle
 
     @property
     def complete(self) -> bool:
@@ -184,6 +188,7 @@ class CanRobot(DescribedRobot):
         self._q, self._dq, self._tau = self._joint_state
         self._temperature = np.full(dofs, np.nan)
         self._error = np.full(dofs, -1, dtype=np.int64)
+        self._status = np.full(dofs, -1, dtype=np.int64)
         self._stale = np.zeros(dofs, dtype=np.int64)
         self._replied = np.zeros(dofs, dtype=bool)
         self._effort = description.effort_limits
@@ -236,7 +241,11 @@ class CanRobot(DescribedRobot):
         if deadline is None:
             deadline = t0 + self.send_budget
         batch, clamped = self._frames(kind)
+        ports = self.ports.ports
+        for port in ports:
+            port.last_error = None  # type: ignore[attr-defined]
         outcomes = np.array(self.ports.send(batch, self._bounds, deadline, timeout=self._send_timeouts, retries=self._send_retries))
+        driver_errors = tuple(getattr(port, "last_error", None) for port in ports)
         self._link_counts[:, _SEND_COLUMNS] += outcomes
         dropped = int(outcomes[:, 1].sum())
         self.send_dropped += dropped
@@ -264,6 +273,7 @@ class CanRobot(DescribedRobot):
         report = CycleReport(
             self.cycle, float(t), kind, missing, self._stale.copy(), self._error.copy(), self._temperature.copy(),
             late, corrupt, unknown, dropped, clamped, imu_fresh, sent - t0, receive_s,
+            self._status.copy(), outcomes[:, 0].copy(), outcomes[:, 3].copy(), driver_errors,
         )  # fmt: skip
         self.cycle += 1
         return report
@@ -382,6 +392,7 @@ class CanRobot(DescribedRobot):
         rotor, reported = decoded.rotor_temperature[rows], decoded.temperature[rows]
         self._temperature[j] = np.where(np.isnan(rotor), reported, rotor)  # the coil's where reported
         self._error[j] = decoded.error_code[rows]
+        self._status[j] = decoded.status[rows]
         replied = np.zeros(self.description.dofs, dtype=bool)
         replied[j] = True
         return replied, corrupt, unknown

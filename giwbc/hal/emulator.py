@@ -30,8 +30,17 @@ Faults (:class:`FaultInjection`), per motor, within ``[start, stop)`` emulator s
 seeded ``numpy.random.Generator`` in a fixed order: ``drop`` or ``delay`` replies with a
 probability, ``corrupt`` replies (torn 1..5-byte frames: the motor's byte 0, random bytes),
 report an ``error`` code, ``overheat`` (extra heating until the trip), ``silent`` (no replies,
-still obeys), ``dead`` (no replies, limp), and ``push`` (an external force on a link, to make the
-robot fall). A :class:`Gantry` can hold the base while the motors start (start-up rehearsals).
+still obeys), ``dead`` (no replies, limp), ``push`` (an external force on a link, to make the
+robot fall), ``motor_exit`` (another node sends the motors an exit-motor-mode frame, once, at
+``start``: they go limp and report state "disabled"; the host hears the frame too), foreign
+traffic on the motors' buses before each poll's replies (``foreign_sync``: a CANopen SYNC, id
+0x080 with no data; ``foreign_ids``: 8 random bytes from an id no motor of the bus uses;
+``zero_byte``: a frame with no data from such an id), ``duplicate`` (each reply sent twice),
+``reorder`` (a poll's replies on a bus sent in reverse order) and ``encoder`` (the position
+reported shifted by ``offset`` rad, joint side: a slipped encoder, a joint reported beyond its
+limits). The kinds in :data:`HOST_FAULT_KINDS` act on the host (its policy, controller, bus
+drivers, process): :mod:`giwbc.testing.faults` applies them; the emulator ignores them.
+A :class:`Gantry` can hold the base while the motors start (start-up rehearsals).
 
 Speed: every bus speaks MIT mode in the shipped plans, so commands are decoded and replies encoded
 for all motors at once (:class:`_MitFirmwareCodec`, bit-identical to the protocol's scalar calls);
@@ -68,8 +77,19 @@ if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
     from giwbc.robot.mujoco_robot import MujocoRobot
 
-FAULT_KINDS = ("drop", "delay", "corrupt", "error", "overheat", "silent", "dead", "push")
-_REPLY_FAULTS = frozenset({"drop", "delay", "corrupt", "silent"})
+EMULATOR_FAULT_KINDS = (
+    "drop", "delay", "corrupt", "error", "overheat", "silent", "dead", "push",
+    "motor_exit", "foreign_sync", "foreign_ids", "zero_byte", "duplicate", "reorder", "encoder",
+)  # fmt: skip
+# Faults of the host side (policy, controller, bus drivers, the process): see giwbc.testing.faults.
+HOST_FAULT_KINDS = (
+    "policy_nan", "controller_nan", "controller_raise", "qp_infeasible", "driver_raise", "driver_block", "bus_off",
+    "keyboard_interrupt", "sigint", "sigterm", "sighup",
+)  # fmt: skip
+FAULT_KINDS = EMULATOR_FAULT_KINDS + HOST_FAULT_KINDS
+_REPLY_FAULTS = frozenset({"drop", "delay", "corrupt", "silent", "duplicate", "reorder"})
+_FOREIGN_FAULTS = frozenset({"foreign_sync", "foreign_ids", "zero_byte"})
+CANOPEN_SYNC_ID = 0x080
 OFF, MOTOR = 0, 1
 
 # Error codes a motor reports, by reply variant (see giwbc.hal.protocols.mit: CUBEMARS_ERRORS,
@@ -112,6 +132,8 @@ class FaultInjection:
     reply, for drop/delay/corrupt. ``delay``: seconds a delayed reply is held. ``error_code``: the
     code reported for ``error`` (default: over-current in the motor's variant). ``heat_rate``: K/s of
     extra heating for ``overheat``. ``force``/``link``: the world force (N) of a ``push``.
+    ``offset``: rad (joint side) added to the reported position for ``encoder``. For foreign
+    traffic, ``probability`` is per bus and poll, and ``joints`` choose the buses (theirs).
     """
 
     kind: str
@@ -124,6 +146,7 @@ class FaultInjection:
     heat_rate: float = 50.0
     force: tuple[float, float, float] = (0.0, 0.0, 0.0)
     link: str | None = None
+    offset: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in FAULT_KINDS:
@@ -132,13 +155,18 @@ class FaultInjection:
             raise ValueError(f"fault probability must be in [0, 1], got {self.probability}")
         if not self.stop > self.start:
             raise ValueError(f"fault window [{self.start}, {self.stop}) is empty")
-        if self.delay < 0 or self.heat_rate < 0:
-            raise ValueError("delay and heat_rate must be >= 0")
+        if self.delay < 0 or self.heat_rate < 0 or not math.isfinite(self.offset):
+            raise ValueError("delay and heat_rate must be >= 0, offset finite")
         if isinstance(self.joints, str):
             object.__setattr__(self, "joints", (self.joints,))
 
     def active(self, t: float) -> bool:
         return self.start <= t < self.stop
+
+    @property
+    def on_host(self) -> bool:
+        """Whether the host applies it (policy, controller, drivers, process), not the emulator."""
+        return self.kind in HOST_FAULT_KINDS
 
 
 @dataclass(frozen=True)
@@ -260,6 +288,8 @@ class ActuatorEmulator:
                     self._motor_at[b, m.can_id] = first + i
             first += len(bus.motors)
         self._ports = PortGroup(self.ports)
+        self._bus_of = np.repeat(np.arange(len(plan.buses)), [len(b.motors) for b in plan.buses])
+        self._fired: set[int] = set()  # one-shot faults (motor_exit) already applied, by position in self.faults
         self._no_wait = ([0.0] * len(self.ports), [0] * len(self.ports))  # replies go out now or never
         self._variant = [m.reply for m in self.motors]
         self._torque_max = np.array([m.model.torque.magnitude for m in self.motors])
@@ -358,6 +388,8 @@ class ActuatorEmulator:
             self.advance(now)
         self.counters.polls += 1
         bus, index, special, values = self._receive(buses)
+        if self.faults:
+            self._foreign_traffic(self.time)
         if len(index):
             self._answer(bus, index, special, values, self.time)
         if self.config.record:
@@ -399,7 +431,10 @@ class ActuatorEmulator:
         for i in np.flatnonzero(tripped):
             error[i] = OVER_TEMPERATURE.get(self._variant[i], 1)
         dead = np.zeros(len(self.motors), dtype=bool)
-        for f, motors in zip(self.faults, self._fault_motors):
+        for k, (f, motors) in enumerate(zip(self.faults, self._fault_motors)):
+            if f.kind == "motor_exit" and f.active(t) and k not in self._fired:
+                self._fired.add(k)
+                self._foreign_exit(motors)
             if f.active(t):
                 if f.kind == "error":
                     for i in np.flatnonzero(motors & (error == 0)):
@@ -409,6 +444,35 @@ class ActuatorEmulator:
         if not (np.array_equal(error, self.error) and np.array_equal(dead, self.dead)):
             self.error, self.dead = error, dead
             self._apply_commands()
+
+    def _foreign_exit(self, motors: np.ndarray) -> None:
+        """Another node sends ``motors`` an exit-motor-mode frame: they leave motor mode (limp,
+        state "disabled"), and the host hears the frame on their buses."""
+        for i in np.flatnonzero(motors).tolist():
+            b = int(self._bus_of[i])
+            self._state_machine(i, "exit", (math.nan,) * 5, self.time)
+            self._send(b, frames_of([self.protocols[b].exit_motor_mode(self.motors[i].can_id)]))
+        self._apply_commands()
+
+    def _foreign_traffic(self, t: float) -> None:
+        """Frames from other nodes on the faults' buses, ahead of this poll's replies."""
+        rng = self.rng
+        for f, motors in zip(self.faults, self._fault_motors):
+            if f.kind not in _FOREIGN_FAULTS or not f.active(t):
+                continue
+            for b in np.unique(self._bus_of[motors]).tolist():
+                if rng.random() >= f.probability:
+                    continue
+                if f.kind == "foreign_sync":
+                    batch = frames([CANOPEN_SYNC_ID], np.zeros((1, 8), dtype=np.uint8), lengths=0)
+                else:
+                    free = np.flatnonzero(self._motor_at[b] < 0)
+                    host = self.protocols[b].host_id
+                    free = free[(free != (host if host is not None else -1)) & (free != 0)]
+                    length = 8 if f.kind == "foreign_ids" else 0
+                    data = rng.integers(0, 256, (1, 8), dtype=np.uint8) if length else np.zeros((1, 8), dtype=np.uint8)
+                    batch = frames([int(rng.choice(free))], data, lengths=length)
+                self._send(b, batch)
 
     def _external_forces(self, t: float) -> None:
         """Pushes and the gantry, as world wrenches on bodies (set, not accumulated, every step)."""
@@ -509,11 +573,16 @@ class ActuatorEmulator:
             np.add.at(cnt.replies, index, 1)
             return
         rng = self.rng
+        out: list[tuple[int, np.ndarray]] = []
         for b, i, reply in zip(bus.tolist(), index.tolist(), replies):
             frame = reply.reshape(1).copy()
             send = True
+            copies = 1
             for f, m in active:
-                if not m[i] or f.kind == "silent":
+                if not m[i] or f.kind in ("silent", "reorder"):
+                    continue
+                if f.kind == "duplicate" and rng.random() < f.probability:
+                    copies = 2
                     continue
                 if f.kind == "drop" and rng.random() < f.probability:
                     cnt.dropped[i] += 1
@@ -532,8 +601,16 @@ class ActuatorEmulator:
                     send = False
                     break
             if send:
-                self._send(b, frame)
+                out.extend([(b, frame)] * copies)
                 cnt.replies[i] += 1
+        for f, m in active:  # reversed per bus: the buses of the motors the fault names
+            if f.kind == "reorder":
+                for b in np.unique(self._bus_of[m]).tolist():
+                    at = [k for k, (bb, _) in enumerate(out) if bb == b]
+                    for k, frame in zip(at, [out[k][1] for k in reversed(at)]):
+                        out[k] = (b, frame)
+        for b, frame in out:
+            self._send(b, frame)
 
     def _send(self, b: int, batch: np.ndarray) -> None:
         """Send on bus ``b`` now or never: a full host queue loses the reply, as a real bus under
@@ -619,6 +696,9 @@ class ActuatorEmulator:
         """Motor-side (position, velocity, torque) of every motor now."""
         q = self.robot.joint_positions()[self.joint_index]
         dq = self.robot.joint_velocities()[self.joint_index]
+        for f, motors in zip(self.faults, self._fault_motors):
+            if f.kind == "encoder" and f.active(self.time):
+                q = q + np.where(motors, f.offset, 0.0)
         position = self.group.sign * self.group.gear * (q - self.zero)
         velocity = self.group.sign * self.group.gear * dq
         return position, velocity, self._applied_motor_torque()
@@ -787,7 +867,10 @@ def _byte(x: np.ndarray) -> np.ndarray:
 
 
 __all__ = [
+    "CANOPEN_SYNC_ID",
+    "EMULATOR_FAULT_KINDS",
     "FAULT_KINDS",
+    "HOST_FAULT_KINDS",
     "MOTOR",
     "OFF",
     "ActuatorEmulator",

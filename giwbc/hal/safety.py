@@ -4,14 +4,19 @@
 :class:`~giwbc.hal.can_robot.CycleReport` plus joint state and IMU) against :class:`SafetyConfig`
 and returns the :class:`Fault` s it finds: missing replies for N cycles, corrupt frames on a bus,
 joints beyond their soft limits, velocity or torque beyond limits, base tilt beyond the fall
-threshold, motor error codes, over-temperature, a silent IMU. The runtime adds the faults it sees
-itself (non-finite policy or controller output, controller exceptions, signals, task termination).
+threshold, motor error codes, a motor that left motor mode (Damiao state 0), over-temperature, a
+silent IMU, a bus whose driver refuses every frame (bus-off) or raises what no CAN driver should
+(a driver bug). The runtime adds the faults it sees itself (non-finite policy or controller
+output, controller exceptions and fallbacks, signals, ``KeyboardInterrupt``, task termination), and
+its watchdog the loop that stopped producing cycles.
 
 Any fault leads to the same safe stop, run by the runtime: damping (``kp = 0``, ``kd`` = damping
 gain, ``tau_ff = 0``, see :func:`damping_command`) from the next exchange on (within two control
 cycles of the detection), held for ``damping_time``, then motors off (exit motor mode), with the
 cause logged. :class:`SignalWatch` turns SIGINT/SIGTERM into such a stop: it only records the
-signal (installed and restored by the runtime, never at import).
+signal (installed and restored by the runtime, never at import); the control loop polls it
+through the interpreter's wake-up fd, so a signal is seen at the next cycle whichever thread runs
+the loop.
 """
 
 from __future__ import annotations
@@ -19,11 +24,13 @@ from __future__ import annotations
 import enum
 import math
 import signal
+import socket
 import threading
 from dataclasses import dataclass, field
 from types import FrameType
 from typing import TYPE_CHECKING, Any
 
+import can
 import numpy as np
 
 from giwbc.robot.interface import ImpedanceCommand, ImuReading
@@ -43,6 +50,9 @@ class FaultKind(str, enum.Enum):
     TORQUE_LIMIT = "torque_limit"
     FALL = "fall"
     MOTOR_ERROR = "motor_error"
+    MOTOR_DISABLED = "motor_disabled"  # a motor left motor mode (e.g. an exit frame from another node)
+    BUS_OFF = "bus_off"  # a bus's driver refuses every frame (bus-off, interface down)
+    DRIVER_ERROR = "driver_error"  # a bus driver raised what no CAN driver should (a driver bug)
     OVER_TEMPERATURE = "over_temperature"
     IMU = "imu"
     TIMING = "timing"
@@ -50,8 +60,11 @@ class FaultKind(str, enum.Enum):
     NONFINITE_COMMAND = "nonfinite_command"
     POLICY_ERROR = "policy_error"
     CONTROLLER_ERROR = "controller_error"
+    CONTROLLER_FAILED = "controller_failed"  # the controller fell back (infeasible QP, invalid state)
     TASK_TERMINATED = "task_terminated"
     SIGNAL = "signal"
+    INTERRUPTED = "interrupted"  # KeyboardInterrupt raised inside the loop
+    WATCHDOG = "watchdog"  # the loop stopped producing cycles (or its stop overran): the watchdog stopped the motors
     STARTUP = "startup"
     INTERNAL = "internal_error"
 
@@ -94,13 +107,17 @@ class SafetyConfig:
     max_stall: float = 0.1  # s a control cycle may start after its deadline (a stalled loop)
     damping_kd_scale: float = 1.0  # damping gain = this x the description's kd
     damping_time: float = 1.0  # s of damping before motors off
+    bus_off_cycles: int = 2  # consecutive cycles in which a bus's driver refused every frame
+    watchdog_periods: int = 50  # control periods (wall clock; unpaced runs: at least 1 s) without a cycle before the watchdog stops the motors
+    stop_margin: float = 1.0  # s (wall clock) a safe stop may overrun its nominal length before the watchdog takes over
 
     def __post_init__(self) -> None:
-        for name in ("max_missing_cycles", "max_corrupt_frames", "corrupt_window", "torque_cycles", "imu_timeout_cycles"):
+        for name in ("max_missing_cycles", "max_corrupt_frames", "corrupt_window", "torque_cycles", "imu_timeout_cycles",
+                     "bus_off_cycles", "watchdog_periods"):  # fmt: skip
             if getattr(self, name) < 1:
                 raise ValueError(f"safety {name} must be >= 1")
-        if not (self.max_tilt > 0 and self.damping_time >= 0 and self.damping_kd_scale >= 0):
-            raise ValueError("safety max_tilt must be > 0, damping_time and damping_kd_scale >= 0")
+        if not (self.max_tilt > 0 and self.damping_time >= 0 and self.damping_kd_scale >= 0 and self.stop_margin > 0):
+            raise ValueError("safety max_tilt and stop_margin must be > 0, damping_time and damping_kd_scale >= 0")
 
 
 def damping_command(description: RobotDescription, config: SafetyConfig) -> ImpedanceCommand:
@@ -129,9 +146,11 @@ class SafetySupervisor:
         self._torque_over = np.zeros(description.dofs, dtype=np.int64)
         self._armed_limits = np.zeros(description.dofs, dtype=bool)
         self._imu_stale = 0
+        self._bus_down = np.zeros(self._corrupt.shape[1], dtype=np.int64)
         self.checks = 0
 
     def reset(self) -> None:
+        self._bus_down[:] = 0
         self._corrupt[:] = 0
         self._corrupt_total[:] = 0
         self._torque_over[:] = 0
@@ -171,6 +190,13 @@ class SafetySupervisor:
             error = report.error_code > 0
             codes = ", ".join(f"{names[j]}={int(report.error_code[j])}" for j in np.flatnonzero(error))
             add(FaultKind.MOTOR_ERROR, f"motor error code(s): {codes}", error)
+        if report.status is not None:
+            disabled = (report.status == 0) & ~report.missing  # Damiao state 0: out of motor mode
+            if disabled.any():
+                which = ", ".join(names[j] for j in np.flatnonzero(disabled))
+                add(FaultKind.MOTOR_DISABLED, f"motor(s) left motor mode (reply state 'disabled'): {which}", disabled)
+        if report.bus_errors is not None:
+            self._bus_faults(report, add)
         hot = report.temperature > c.max_temperature  # NaN (not reported) compares False
         if hot.any():
             temps = ", ".join(f"{names[j]}={report.temperature[j]:.0f}°C" for j in np.flatnonzero(hot))
@@ -224,34 +250,97 @@ class SafetySupervisor:
         return faults
 
 
+    def _bus_faults(self, report: CycleReport, add: Any) -> None:
+        """Bus-off (every frame of a bus refused by its driver for ``bus_off_cycles``) and driver
+        bugs (a driver raising what no CAN driver should: at once)."""
+        errors, sent = report.bus_errors, report.bus_sent
+        assert errors is not None and sent is not None
+        refused = (errors > 0) & (sent == 0)
+        self._bus_down[: len(refused)] = np.where(refused, self._bus_down[: len(refused)] + 1, 0)
+        causes = report.driver_errors or ()
+        bugs = [b for b, e in enumerate(causes) if e is not None and not isinstance(e, (can.CanError, OSError))]
+        if bugs:
+            which = "; ".join(f"{self.bus_names[b]}: {type(causes[b]).__name__}: {causes[b]}" for b in bugs)
+            add(FaultKind.DRIVER_ERROR, f"bus driver raised: {which}")
+        down = [b for b in np.flatnonzero(self._bus_down >= self.config.bus_off_cycles).tolist() if b not in bugs]
+        if down:
+            def cause(b: int) -> str:
+                e = causes[b] if b < len(causes) else None
+                return f" ({type(e).__name__}: {e})" if e is not None else ""
+
+            which = "; ".join(f"{self.bus_names[b]}{cause(b)}" for b in down)
+            add(FaultKind.BUS_OFF, f"bus-off: the driver refused every frame for {int(self._bus_down[down].min())} cycles on {which}")
+
+
 @dataclass
 class SignalWatch:
-    """Records SIGINT/SIGTERM instead of raising, between :meth:`install` and :meth:`restore`.
+    """Records SIGINT/SIGTERM/SIGHUP/SIGQUIT instead of raising (or dying), between :meth:`install`
+    and :meth:`restore`.
 
-    Outside the main thread handlers cannot be installed: :attr:`installed` stays False and the
-    caller relies on :meth:`trigger` (the same path a handler takes).
+    Handlers can only be installed from the main thread: elsewhere :attr:`installed` stays False
+    and the caller relies on :meth:`trigger` (the same path a handler takes). Python runs a
+    handler in the main thread only when that thread gets the interpreter; the control loop may
+    run in another one, so :meth:`poll` also reads the interpreter's wake-up fd (written by the C
+    signal handler at delivery): the loop sees a signal at its next cycle, whatever runs where.
     """
 
-    signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)
+    # SIGHUP too: an operator's terminal or ssh session that goes away must stop the robot, not kill
+    # the process with the motors on. (SIGKILL cannot be caught: the motors' own timeout is left.)
+    signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGQUIT)
     received: int | None = None
     installed: bool = False
     _previous: dict[int, Any] = field(default_factory=dict)
+    _wakeup: socket.socket | None = None
+    _wakeup_write: socket.socket | None = None
+    _previous_fd: int = -1
 
     def install(self) -> SignalWatch:
         if self.installed or threading.current_thread() is not threading.main_thread():
             return self
         for sig in self.signals:
             self._previous[sig] = signal.signal(sig, self._handler)
+        read, write = socket.socketpair()
+        read.setblocking(False)
+        write.setblocking(False)
+        try:
+            self._previous_fd = signal.set_wakeup_fd(write.fileno(), warn_on_full_buffer=False)
+            self._wakeup, self._wakeup_write = read, write
+        except (ValueError, OSError):  # pragma: no cover - main thread checked above
+            read.close()
+            write.close()
         self.installed = True
         return self
 
     def restore(self) -> None:
-        if not self.installed:
+        if not self.installed or threading.current_thread() is not threading.main_thread():
             return
         for sig, previous in self._previous.items():
             signal.signal(sig, previous)
         self._previous.clear()
+        if self._wakeup is not None:
+            try:
+                signal.set_wakeup_fd(self._previous_fd)
+            except (ValueError, OSError):  # pragma: no cover
+                pass
+            for sock in (self._wakeup, self._wakeup_write):
+                if sock is not None:
+                    sock.close()
+            self._wakeup = self._wakeup_write = None
         self.installed = False
+
+    def poll(self) -> int | None:
+        """The first watched signal delivered so far (also read from the wake-up fd, see the class
+        docstring), or None. Costs one non-blocking read."""
+        if self.received is None and self._wakeup is not None:
+            try:
+                data = self._wakeup.recv(256)
+            except OSError:  # nothing waiting (BlockingIOError), or closed
+                data = b""
+            for signum in data:
+                if signum in self.signals:
+                    self.trigger(signum)
+                    break
+        return self.received
 
     def trigger(self, signum: int) -> None:
         """What the handler does: remember the first signal."""

@@ -22,10 +22,22 @@ between two cycles, while the motors hold their last command, and the schedule r
 (:meth:`DeadlineClock.resync`): a whole-body controller's first tick lays out and cold-solves its
 QP (milliseconds), which would otherwise overrun the first running cycle. The pause is logged.
 
-Any fault (:mod:`giwbc.hal.safety`), a signal, a non-finite action or command, an exception in
-the policy, the controller or the task: damping goes out at the next exchange (within two cycles
-of the detection), is held for ``damping_time``, then the motors are switched off; the cause is
-logged and nothing escapes :meth:`RealtimeRuntime.run`.
+Any fault (:mod:`giwbc.hal.safety`), a signal, a non-finite action or command, an exception of
+any type (``KeyboardInterrupt`` included) in the policy, the controller, the task or a bus driver,
+a controller that fell back (infeasible QP): damping goes out at the next exchange (within two
+cycles of the detection), is held for ``damping_time``, then the motors are switched off; the
+cause is logged and nothing escapes :meth:`RealtimeRuntime.run`.
+
+Why this cannot hang: the runtime's time is the deadline slot's, so every cycle advances it
+whether its exchange worked or not (a dead bus, a driver that raises), and every stop is a
+bounded number of cycles. What a cycle cannot bound, a call that never returns (a driver blocked
+forever, a hung policy), the **watchdog** (:mod:`giwbc.runtimes.watchdog`, a thread of its own)
+handles: when the loop produces no cycle for ``watchdog_periods`` periods, or a safe stop overruns
+its length by ``stop_margin``, it abandons the loop and stops the motors itself, damping then
+off, from frames encoded in advance and sent by one thread per bus (a bus whose driver is stuck
+cannot hold up the others; its motors fall back on their own timeout).
+:meth:`RealtimeRuntime.run` runs the loop in a thread of its own and returns once the loop ended
+or the watchdog's stop is done, so the caller (``giwbc deploy``) always gets its exit code.
 """
 
 from __future__ import annotations
@@ -33,6 +45,8 @@ from __future__ import annotations
 import gc
 import math
 import os
+import signal
+import threading
 import time
 import traceback
 from collections.abc import Callable
@@ -47,9 +61,11 @@ from giwbc.hal.can_robot import COMMAND, ENTER, EXIT, CanRobot, CycleReport, Non
 from giwbc.hal.runlog import RunLogWriter
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
 from giwbc.robot.interface import ImpedanceCommand, Robot, quat_to_matrix
+from giwbc.runtimes.watchdog import EmergencyStop, LoopWatchdog
 from giwbc.tasks.rates import Rates
 from giwbc.tasks.task import Task
 
+UNPACED_WATCHDOG = 1.0  # s: the watchdog's least timeout when the loop is not paced by the wall clock
 IDLE, ENABLE, SETTLE, RAMP, RUNNING, SHUTDOWN, DAMPING, OFF = (
     "idle", "enable", "settle", "ramp", "running", "shutdown", "damping", "off",
 )  # fmt: skip
@@ -251,6 +267,11 @@ class StandingTask(Task):
     def apply_command(self) -> None:
         self.robot.set_joint_impedance(self.controller(self.robot))
 
+    def controller_failure(self) -> str | None:
+        """The controller's ``failure()`` (a WBC that fell back), if it has one."""
+        failure = getattr(self.controller, "failure", None)
+        return failure() if failure is not None else None
+
     def get_observation(self) -> np.ndarray:
         robot = self.robot
         imu = robot.imu()
@@ -301,14 +322,32 @@ class RunResult:
     phase_times: dict[str, float]
     log_path: str | None = None
 
+    loop_abandoned: bool = False  # the watchdog stopped the motors; the loop's thread never came back
+    unconfirmed_off: tuple[str, ...] = ()  # joints whose motors never confirmed exit-motor-mode (a dead bus)
+
     @property
     def exit_code(self) -> int:
-        """0 clean, 130 / 143 for SIGINT / SIGTERM, 1 for any other fault."""
-        if self.fault is None:
-            return 0
-        if self.fault.kind is FaultKind.SIGNAL:
-            return 130 if "SIGINT" in self.fault.message else 143
-        return 1
+        """0 clean, 128 + signal number for a signal (130 SIGINT, 143 SIGTERM), 130 for a
+        ``KeyboardInterrupt``, 1 for any other fault (see :func:`exit_code_for`)."""
+        return exit_code_for(self.fault)
+
+
+def exit_code_for(fault: Fault | None) -> int:
+    """The process exit code for a run that ended on ``fault``: 0 clean, 128 + the signal's number
+    for a signal (130 SIGINT, 143 SIGTERM, 129 SIGHUP, 131 SIGQUIT), 130 for a ``KeyboardInterrupt``
+    raised inside the loop, 1 for any other fault."""
+    if fault is None:
+        return 0
+    if fault.kind is FaultKind.INTERRUPTED:
+        return 130
+    if fault.kind is FaultKind.SIGNAL:
+        name = fault.message.rsplit(" ", 1)[-1]
+        return 128 + signal.Signals[name].value if name in signal.Signals.__members__ else 143
+    return 1
+
+
+class LoopAbandoned(BaseException):
+    """Raised in the loop's thread once the watchdog took over: the loop must not touch the motors."""
 
 
 class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
@@ -392,6 +431,19 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._wall0 = 0.0
         self._cycles = 0
         self._clamp_noted = False
+        self._now = 0.0  # the current cycle's slot time: advances every cycle, whatever the exchange did
+        self._fault_lock = threading.RLock()
+        self._log_lock = threading.RLock()  # the run log is written by the loop and, once, by the watchdog
+        self._exchange_lock = threading.Lock()  # held by the loop during an exchange
+        self._abandoned = False  # the watchdog took over: the loop's thread must not touch the motors again
+        self.taken_over = threading.Event()  # set once the watchdog's stop is done
+        self.stop_deadline: float | None = None  # perf_counter time by which a running stop must have ended
+        self.watchdog: LoopWatchdog | None = None
+        self.emergency: dict[str, Any] | None = None  # what the watchdog's stop reached
+        self._driver_errors_seen: set[int] = set()
+        self._loop_thread: threading.Thread | None = None
+        self._wake = threading.Event()
+        self.unconfirmed_off: tuple[str, ...] = ()  # joints whose motors did not confirm exit-motor-mode
 
     # --- gymnasium API ----------------------------------------------------------------------
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
@@ -409,8 +461,13 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                 self._observation = self._observe()
             except NonFiniteCommand as error:
                 self._fail(FaultKind.NONFINITE_COMMAND, f"controller output is not finite: {error}")
-            except Exception as error:  # noqa: BLE001 - no exception escapes the loop
-                self._fail(FaultKind.CONTROLLER_ERROR, f"task reset failed: {_describe(error)}")
+            except LoopAbandoned:
+                raise
+            except BaseException as error:  # noqa: BLE001 - no exception escapes the loop
+                self._fail_on(error, FaultKind.CONTROLLER_ERROR, "task reset failed")
+            failure = self._controller_failure()
+            if failure is not None and self.fault is None:
+                self._fail(FaultKind.CONTROLLER_FAILED, failure)
         return self._last_observation(), self._info()
 
     def _hand_over(self) -> None:
@@ -430,53 +487,71 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         if self.phase != RUNNING or self.fault is not None:
             return self._last_observation(), 0.0, True, False, self._info()
         try:
-            array = np.asarray(action, dtype=float)
-            if array.shape != self.action_space.shape or not np.all(np.isfinite(array)):
-                return self._abort(FaultKind.NONFINITE_POLICY, f"policy action is not {self.action_space.shape} finite numbers: {array}")
-            self.task.set_action(self.task.validate_action(array))
-        except Exception as error:  # noqa: BLE001
-            return self._abort(FaultKind.POLICY_ERROR, f"action rejected: {_describe(error)}")
-        for _ in range(self._ticks_per_step):
-            self._cycle(self._control_tick)
+            try:
+                array = np.asarray(action, dtype=float)
+                if array.shape != self.action_space.shape or not np.all(np.isfinite(array)):
+                    return self._abort(FaultKind.NONFINITE_POLICY, f"policy action is not {self.action_space.shape} finite numbers: {array}")
+                self.task.set_action(self.task.validate_action(array))
+            except LoopAbandoned:
+                raise
+            except BaseException as error:  # noqa: BLE001
+                return self._abort_on(error, FaultKind.POLICY_ERROR, "action rejected")
+            for _ in range(self._ticks_per_step):
+                self._cycle(self._control_tick)
+                if self.fault is not None:
+                    break
             if self.fault is not None:
-                break
-        if self.fault is not None:
-            self._safe_stop()
+                self._safe_stop()
+                return self._last_observation(), 0.0, True, False, self._info()
+            try:
+                self._observation = self._observe()
+                reward = float(self.task.get_reward())
+                if self.task.is_terminated():
+                    return self._abort(FaultKind.TASK_TERMINATED, f"the task ended the episode (fall): {self.task.get_info()}")
+                truncated = bool(self.task.is_truncated())
+            except LoopAbandoned:
+                raise
+            except BaseException as error:  # noqa: BLE001
+                return self._abort_on(error, FaultKind.CONTROLLER_ERROR, "task raised")
+            return self._observation, reward, False, truncated, self._info()
+        except LoopAbandoned:  # the watchdog stopped the motors (this thread was stuck)
             return self._last_observation(), 0.0, True, False, self._info()
-        try:
-            self._observation = self._observe()
-            reward = float(self.task.get_reward())
-            if self.task.is_terminated():
-                return self._abort(FaultKind.TASK_TERMINATED, f"the task ended the episode (fall): {self.task.get_info()}")
-            truncated = bool(self.task.is_truncated())
-        except Exception as error:  # noqa: BLE001
-            return self._abort(FaultKind.CONTROLLER_ERROR, f"task raised: {_describe(error)}")
-        return self._observation, reward, False, truncated, self._info()
 
     def close(self) -> None:
         """Stop the motors if they are on (after a fault: damping then off; otherwise the clean
         shutdown ramp), then restore the signal handlers. Never raises."""
         try:
-            if self.fault is not None or self.phase in (ENABLE, SHUTDOWN, DAMPING):
+            if self._abandoned:
+                pass  # the watchdog stopped the motors
+            elif self.fault is not None or self.phase in (ENABLE, SHUTDOWN, DAMPING):
                 self._safe_stop()
             elif self.phase in (SETTLE, RAMP, RUNNING):
                 self._shut_down()
-        except Exception as error:  # noqa: BLE001 - last resort: motors off
-            self._record(Fault(FaultKind.INTERNAL, f"shutdown raised: {_describe(error)}", max(0, self.robot.cycle - 1), self.robot.time()))
+        except LoopAbandoned:
+            pass
+        except BaseException as error:  # noqa: BLE001 - last resort: motors off
+            self._fail_on(error, FaultKind.INTERNAL, "shutdown raised")
             try:
-                self._motors_off()
-            except Exception:  # noqa: BLE001
+                if not self._abandoned:
+                    self._motors_off()
+            except BaseException:  # noqa: BLE001
                 pass
         finally:
+            if self.watchdog is not None and not self._abandoned:
+                self.watchdog.stop()
             self.signals.restore()
             self._restore_priority()
-            if self._gc_was_enabled is not None:
-                if self._gc_was_enabled:
-                    gc.enable()
-                self._gc_was_enabled = None
-            if self._gc_frozen:
-                gc.unfreeze()
-                self._gc_frozen = False
+            self._restore_process_state()
+
+    def _restore_process_state(self) -> None:
+        """The garbage collector as it was before the motors started."""
+        if self._gc_was_enabled is not None:
+            if self._gc_was_enabled:
+                gc.enable()
+            self._gc_was_enabled = None
+        if self._gc_frozen:
+            gc.unfreeze()
+            self._gc_frozen = False
 
     def _raise_priority(self) -> None:
         """``SCHED_FIFO`` for the loop's thread (the run log is written by a process of its own,
@@ -506,26 +581,62 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     # --- the deploy loop --------------------------------------------------------------------
     def run(self, policy: Callable[[np.ndarray], np.ndarray] | None = None, seconds: float = 10.0) -> RunResult:
         """Start, run ``policy`` (None: zero actions) for ``seconds`` of control, shut down.
-        Never raises: the outcome is in the :class:`RunResult`."""
+        Never raises: the outcome is in the :class:`RunResult`.
+
+        The loop runs in a thread of its own ("giwbc-control"); this thread installs the signal
+        handlers (only the main thread can) and waits until the loop ended, or until the watchdog
+        stopped the motors of a loop that never came back (then the result says
+        ``loop_abandoned``), so it always returns."""
         self._wall0 = time.perf_counter()
+        self.signals.install()
+        done = threading.Event()
+        self._wake = wake = threading.Event()  # set when the loop ends or the watchdog's stop is done
+        self._loop_thread = thread = threading.Thread(target=self._loop, args=(policy, seconds, done), name="giwbc-control", daemon=True)
         try:
-            observation, _ = self.reset()
-            zeros = np.zeros(self.action_space.shape, dtype=np.float32)
-            end = self.robot.time() + seconds
-            while self.fault is None and self.robot.time() < end - 1e-9:
+            thread.start()
+            while not done.is_set():
                 try:
-                    action = zeros if policy is None else policy(observation)
-                except Exception as error:  # noqa: BLE001
-                    self._abort(FaultKind.POLICY_ERROR, f"policy raised: {_describe(error)}")
-                    break
-                observation, _, terminated, truncated, _ = self.step(action)
-                if terminated or truncated:
-                    break
-        except Exception as error:  # noqa: BLE001 - a bug must still end in damping and motors off
-            self._fail(FaultKind.INTERNAL, f"runtime error: {_describe(error)}\n{traceback.format_exc(limit=4)}")
+                    wake.wait()  # (no polling: every wake-up would take the interpreter lock from the loop)
+                    if not done.is_set() and self.taken_over.is_set():
+                        done.wait(max(0.05, 5 * self.period))  # a last chance for the loop's thread to leave
+                        break
+                except KeyboardInterrupt:  # only without our handler (not the main thread): stop as SIGINT would
+                    self.signals.trigger(signal.SIGINT)
         finally:
-            self.close()
+            self.signals.restore()
+            if not done.is_set():  # the loop's thread never came back: undo what it changed for the process
+                self._restore_process_state()
         return self.result()
+
+    def _loop(self, policy: Callable[[np.ndarray], np.ndarray] | None, seconds: float, done: threading.Event) -> None:
+        """The control loop (see :meth:`run`): every way out of it ends in :meth:`close`."""
+        try:
+            try:
+                observation, _ = self.reset()
+                zeros = np.zeros(self.action_space.shape, dtype=np.float32)
+                end = self._now + seconds
+                while self.fault is None and self._now < end - 1e-9:
+                    try:
+                        action = zeros if policy is None else policy(observation)
+                    except LoopAbandoned:
+                        raise
+                    except BaseException as error:  # noqa: BLE001 - KeyboardInterrupt included
+                        self._abort_on(error, FaultKind.POLICY_ERROR, "policy raised")
+                        break
+                    observation, _, terminated, truncated, _ = self.step(action)
+                    if terminated or truncated:
+                        break
+            except LoopAbandoned:
+                pass
+            except BaseException as error:  # noqa: BLE001 - a bug must still end in damping and motors off
+                self._fail_on(error, FaultKind.INTERNAL, f"runtime error\n{traceback.format_exc(limit=4)}")
+            finally:
+                self.close()
+        except BaseException:  # noqa: BLE001 - nothing escapes this thread (close() never raises)
+            pass
+        finally:
+            done.set()
+            self._wake.set()
 
     def result(self) -> RunResult:
         return RunResult(
@@ -533,17 +644,25 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             fault=self.fault,
             faults=tuple(self.faults),
             cycles=self._cycles,
-            robot_time=self.robot.time(),
+            robot_time=self._now,
             wall_time=time.perf_counter() - self._wall0 if self._wall0 else 0.0,
             timing=self.clock.stats.summary(self.period),
             phase_times=dict(self.phase_times),
             log_path=self.log_path,
+            loop_abandoned=self._abandoned and self._loop_thread is not None and self._loop_thread.is_alive(),
+            unconfirmed_off=self.unconfirmed_off,
         )
 
     # --- phases -----------------------------------------------------------------------------
     def _set_phase(self, phase: str) -> None:
         self.phase = phase
-        t = self.robot.time()
+        t = self._now
+        if phase in (SHUTDOWN, DAMPING) and self.stop_deadline is None and self.clock.realtime:
+            # The watchdog takes over a stop that runs longer than its nominal length plus a margin
+            # (paced runs: robot time follows the wall clock; an unpaced run may be slower than it).
+            s, c = self.startup, self.safety
+            nominal = (s.shutdown_time + s.off_delay if phase == SHUTDOWN else c.damping_time) + (s.exit_attempts + 2) * self.period
+            self.stop_deadline = time.perf_counter() + nominal + c.stop_margin
         self.phase_times.setdefault(phase, t)
         self.phase_cycles.setdefault(phase, len(self.clock.stats.lateness))
         self._event("phase", {"phase": phase})
@@ -559,6 +678,11 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             self._gc_was_enabled = gc.isenabled()
             gc.disable()  # collections happen between cycles: see the class docstring
         self._raise_priority()
+        if self.watchdog is None:
+            timeout = self.safety.watchdog_periods * self.period
+            if not self.clock.realtime:  # an unpaced run (rehearsal, test) may be descheduled for a while: not a stuck loop
+                timeout = max(timeout, UNPACED_WATCHDOG)
+            self.watchdog = LoopWatchdog(self, timeout, rt_priority=self.rt_priority).start()
         self._set_phase(ENABLE)
         self.armed = False
         report = self._special_frames(ENTER, s.enable_attempts, stop_on_fault=True)
@@ -581,10 +705,10 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         d = self.description
         target, kp, kd = d.default_positions, d.kp, d.kd
         profile = PROFILES[s.ramp_profile]
-        t0, duration = self.robot.time(), max(s.ramp_time, self.period)
+        t0, duration = self._now, max(s.ramp_time, self.period)
 
         def ramp() -> None:
-            x = (self.robot.time() + self.period - t0) / duration  # the command acts from the next cycle
+            x = (self._now + self.period - t0) / duration  # the command acts from the next cycle
             phi, dphi = profile(x)
             g = min(1.0, x / s.gain_ramp) if s.gain_ramp > 0 else 1.0
             g, _ = cosine(g)
@@ -606,10 +730,10 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self._set_phase(SHUTDOWN)
         self.armed = False
         last = self.robot.command
-        t0, duration = self.robot.time(), max(s.shutdown_time, self.period)
+        t0, duration = self._now, max(s.shutdown_time, self.period)
 
         def ramp_down() -> None:
-            x = (self.robot.time() + self.period - t0) / duration
+            x = (self._now + self.period - t0) / duration
             phi, _ = cosine(x)
             self.robot.set_joint_impedance(ImpedanceCommand(
                 last.q_ref, (1 - phi) * last.v_ref, (1 - phi) * last.kp,
@@ -631,13 +755,19 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self.robot.set_joint_impedance(self.damping)
         if self.phase != DAMPING:
             self._set_phase(DAMPING)
-        until = self._stop_at if self._stop_at is not None else self.robot.time() + self.safety.damping_time
-        self._run_for(until - self.robot.time(), None)
+        until = self._stop_at if self._stop_at is not None else self._now + self.safety.damping_time
+        self._run_for(until - self._now, None)
         self._motors_off()
 
     def _abort(self, kind: FaultKind, message: str) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """A fault found between cycles: record it, stop safely, return a terminal step."""
         self._fail(kind, message)
+        self._safe_stop()
+        return self._last_observation(), 0.0, True, False, self._info()
+
+    def _abort_on(self, error: BaseException, kind: FaultKind, what: str) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        """:meth:`_abort` for an exception (see :meth:`_fail_on`)."""
+        self._fail_on(error, kind, what)
         self._safe_stop()
         return self._last_observation(), 0.0, True, False, self._info()
 
@@ -658,18 +788,22 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     def _motors_off(self) -> None:
         if self.phase == OFF:
             return
-        self._special_frames(EXIT, self.startup.exit_attempts, stop_on_fault=False)
+        report = self._special_frames(EXIT, self.startup.exit_attempts, stop_on_fault=False)
+        # Motors that never confirmed it (a dead bus): left to their own timeout.
+        missing = report.missing if report is not None else np.ones(self.description.dofs, dtype=bool)
+        self.unconfirmed_off = tuple(self.description.joint_names[j] for j in np.flatnonzero(missing))
         if self._gc_was_enabled is not None:
             self._event("garbage_collection", {"young_collections": self.gc_collections, "longest_us": round(1e6 * self.gc_seconds_max, 1)})
         self._set_phase(OFF)
-        self._event("motors_off", {"fault": None if self.fault is None else str(self.fault)})
+        self._event("motors_off", {"fault": None if self.fault is None else str(self.fault), "unconfirmed": list(self.unconfirmed_off)})
 
     def _run_for(self, seconds: float, compute: Callable[[], None] | None) -> None:
         """Cycles until ``seconds`` of robot time passed (skipped slots count: time is the
-        deadline slot's); stops early on a new fault unless already stopping."""
+        deadline slot's, and advances every cycle, whatever the exchange did: this ends); stops
+        early on a new fault unless already stopping."""
         stopping = self.phase in (DAMPING, SHUTDOWN)
-        end = self.robot.time() + seconds - 0.5 * self.period
-        while self.robot.time() < end:
+        end = self._now + seconds - 0.5 * self.period
+        while self._now < end:
             self._cycle(compute)
             if self.fault is not None and not stopping:
                 return
@@ -682,18 +816,32 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self.task.apply_command()
 
     def _cycle(self, compute: Callable[[], None] | None, kind: str = COMMAND) -> CycleReport | None:
-        """Wait for the slot, exchange, check, compute the next command, log. Never raises."""
+        """Wait for the slot, exchange, check, compute the next command, log. Never raises, but
+        :class:`LoopAbandoned` once the watchdog took over."""
+        if self._abandoned:
+            raise LoopAbandoned
         robot, log = self.robot, self.log
         slot, lateness = self.clock.wait()
-        t = slot * self.period
+        self._now = t = slot * self.period
         sent = robot.command
         report: CycleReport | None = None
         try:
-            # A full period for the exchange from the cycle's actual start: a late cycle still sends.
-            report = robot.exchange(t, deadline=self.clock.cycle_start + self.period if self.clock.realtime else None, kind=kind)
-        except Exception as error:  # noqa: BLE001
-            self._fail(FaultKind.INTERNAL, f"exchange raised: {_describe(error)}")
+            with self._exchange_lock:  # the watchdog's stop never sends while an exchange is under way
+                if self._abandoned:
+                    raise LoopAbandoned
+                # A full period for the exchange from the cycle's actual start: a late cycle still sends.
+                report = robot.exchange(t, deadline=self.clock.cycle_start + self.period if self.clock.realtime else None, kind=kind)
+        except LoopAbandoned:
+            raise
+        except BaseException as error:  # noqa: BLE001 - KeyboardInterrupt included; the next cycle tries again
+            if self._abandoned:
+                raise LoopAbandoned from None
+            self._fail_on(error, FaultKind.DRIVER_ERROR, "exchange raised")
+        if self._abandoned:
+            raise LoopAbandoned
         self._cycles += 1
+        if self.signals.poll() is not None and not any(f.kind is FaultKind.SIGNAL for f in self.faults):
+            self._fail(FaultKind.SIGNAL, f"stopped by {self.signals.name}")
         if report is not None:
             imu = robot.latest_imu
             if self.armed:
@@ -704,17 +852,26 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                     self._fail(FaultKind.INTERNAL, f"safety check raised: {_describe(error)}")
             if self.armed and lateness > self.safety.max_stall:
                 self._fail(FaultKind.TIMING, f"control loop stalled: cycle started {1e3 * lateness:.1f} ms after its deadline")
-            if self.signals.received is not None and not any(f.kind is FaultKind.SIGNAL for f in self.faults):
-                self._fail(FaultKind.SIGNAL, f"stopped by {self.signals.name}")
+            if report.driver_errors and any(e is not None for e in report.driver_errors):
+                self._driver_error_event(report)
             if compute is not None and self.fault is None:
                 try:
                     compute()
                 except NonFiniteCommand as error:
                     self._fail(FaultKind.NONFINITE_COMMAND, f"controller output is not finite: {error}")
-                except Exception as error:  # noqa: BLE001
-                    self._fail(FaultKind.CONTROLLER_ERROR, f"controller raised: {_describe(error)}")
+                except LoopAbandoned:
+                    raise
+                except BaseException as error:  # noqa: BLE001 - KeyboardInterrupt included
+                    self._fail_on(error, FaultKind.CONTROLLER_ERROR, "controller raised")
+                if compute == self._control_tick and self.fault is None:
+                    failure = self._controller_failure()
+                    if failure is not None:
+                        self._fail(FaultKind.CONTROLLER_FAILED, failure)
             if log is not None:
                 try:
+                    self._log_lock.acquire()
+                    if self._abandoned:
+                        raise LoopAbandoned
                     if report.cycle % self.log_every == 0:
                         self._log_cycle(report, sent, kind, imu)
                     if report.clamped and not self._clamp_noted:
@@ -725,6 +882,8 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
                         log.event(report.cycle, t, "clamped", {"note": "command fields clamped to the motors' ranges", "fields": counts})
                 except Exception as error:  # noqa: BLE001 - the robot must not depend on its log
                     self._log_failed(error)
+                finally:
+                    self._log_lock.release()
         work, overrun = self.clock.done()
         if self._gc_was_enabled is not None and self._cycles % self.gc_every == 0:  # type: ignore[operator]
             started = time.perf_counter()
@@ -734,27 +893,32 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         if self.log is not None and report is not None and report.cycle % self.log_every == 0:
             st = self.clock.stats
             period = st.periods[-1] * 1e6 if st.periods and math.isfinite(st.periods[-1]) else None
-            try:
-                self.log.timing(report.cycle, t, slot, lateness * 1e6, period, work * 1e6, report.send_s * 1e6,
-                                report.receive_s * 1e6, overrun)  # fmt: skip
-                self.log.flush()  # the cycle's records, to the logger process in one datagram
-            except Exception as error:  # noqa: BLE001
-                self._log_failed(error)
+            with self._log_lock:
+                if self._abandoned:
+                    raise LoopAbandoned
+                try:
+                    self.log.timing(report.cycle, t, slot, lateness * 1e6, period, work * 1e6, report.send_s * 1e6,
+                                    report.receive_s * 1e6, overrun)  # fmt: skip
+                    self.log.flush()  # the cycle's records, to the logger process in one datagram
+                except Exception as error:  # noqa: BLE001
+                    self._log_failed(error)
         return report
 
     def _event(self, name: str, detail: dict[str, Any]) -> None:
-        if self.log is not None:
+        if self.log is not None and self._log_lock.acquire(timeout=0.5):  # (a loop stuck in the log: the watchdog logs nothing)
             try:
-                self.log.event(max(0, self.robot.cycle - 1), self.robot.time(), name, detail)
+                self.log.event(max(0, self.robot.cycle - 1), self._now, name, detail)
             except Exception as error:  # noqa: BLE001
                 self._log_failed(error)
+            finally:
+                self._log_lock.release()
 
     def _log_failed(self, error: BaseException) -> None:
         """Logging broke: stop logging (kept in the faults as an internal error), keep controlling."""
         self.log = None
         if not any(f.kind is FaultKind.INTERNAL for f in self.faults):
             self.faults.append(Fault(FaultKind.INTERNAL, f"run log failed, logging stopped: {_describe(error)}",
-                                     max(0, self.robot.cycle - 1), self.robot.time()))  # fmt: skip
+                                     max(0, self.robot.cycle - 1), self._now))  # fmt: skip
 
     def _log_cycle(self, report: CycleReport, sent: ImpedanceCommand, kind: str, imu: Any) -> None:
         log, robot, t = self.log, self.robot, report.time
@@ -770,26 +934,90 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     def _fail(self, kind: FaultKind, message: str, joints: tuple[str, ...] = ()) -> None:
         """Record a fault (at the last exchange's cycle); the first one switches the command to
         damping at once, so the next exchange sends it."""
-        fault = Fault(kind, message, max(0, self.robot.cycle - 1), self.robot.time(), tuple(joints))
-        if self.fault is None:
-            try:
-                self.robot.set_joint_impedance(self.damping)  # first: the next exchange sends it
-            except Exception:  # noqa: BLE001 - the damping command is valid by construction
-                pass
-            self.fault = fault
-            self.armed = False
-            self._stop_at = self.robot.time() + self.safety.damping_time
-        self._record(fault)
+        fault = Fault(kind, message, max(0, self.robot.cycle - 1), self._now, tuple(joints))
+        with self._fault_lock:  # the watchdog's thread records faults too
+            if self.fault is None:
+                try:
+                    self.robot.set_joint_impedance(self.damping)  # first: the next exchange sends it
+                except Exception:  # noqa: BLE001 - the damping command is valid by construction
+                    pass
+                self.fault = fault
+                self.armed = False
+                self._stop_at = self._now + self.safety.damping_time
+            self._record(fault)
+
+    def _fail_on(self, error: BaseException, kind: FaultKind, what: str) -> None:
+        """Record an exception as a fault: ``KeyboardInterrupt`` as :attr:`FaultKind.INTERRUPTED`,
+        ``SystemExit`` and the like as internal errors, anything else as ``kind``."""
+        if isinstance(error, KeyboardInterrupt):
+            self._fail(FaultKind.INTERRUPTED, f"KeyboardInterrupt raised inside the loop ({what})")
+        elif not isinstance(error, Exception):
+            self._fail(FaultKind.INTERNAL, f"{what}: {_describe(error)}")
+        else:
+            self._fail(kind, f"{what}: {_describe(error)}")
+
+    def _controller_failure(self) -> str | None:
+        """Why the task's last controller tick fell back (infeasible QP, ...), or None."""
+        check = getattr(self.task, "controller_failure", None)
+        if check is None:
+            return None
+        try:
+            return check()
+        except Exception as error:  # noqa: BLE001
+            return f"controller status unreadable: {_describe(error)}"
+
+    def _driver_error_event(self, report: CycleReport) -> None:
+        """Log a bus driver's first exception (per bus): the cause a bus-off or a missing reply needs."""
+        names = self.supervisor.bus_names
+        for b, error in enumerate(report.driver_errors):
+            if error is not None and b not in self._driver_errors_seen:
+                self._driver_errors_seen.add(b)
+                sent = None if report.bus_sent is None else int(report.bus_sent[b])
+                errors = None if report.bus_errors is None else int(report.bus_errors[b])
+                self._event("driver_error", {"bus": names[b] if b < len(names) else b, "error": _describe(error),
+                                             "sent": sent, "errors": errors})  # fmt: skip
+
+    # --- the watchdog's way out ---------------------------------------------------------------
+    def take_over(self, reason: str) -> bool:
+        """Called by the watchdog from its own thread: abandon the loop and stop the motors without
+        it (damping for ``damping_time``, then exit motor mode; see the module docstring).
+        Returns False when there was nothing to do (motors already off, already taken over)."""
+        with self._fault_lock:
+            if self.phase in (IDLE, OFF) or self._abandoned:
+                return False
+            self._abandoned = True
+        self._fail(FaultKind.WATCHDOG, reason)
+        # A loop still cycling (a stop that overran) finishes its exchange first; one stuck in it does not.
+        held = self._exchange_lock.acquire(timeout=2 * self.period)
+        try:
+            stop = EmergencyStop(self.robot, self.damping)
+            self.emergency = stop.run(self._now, self.period, self.safety.damping_time, self.startup.exit_attempts,
+                                      realtime=self.clock.realtime)  # fmt: skip
+            self._now = self.emergency["time"]
+        except Exception as error:  # noqa: BLE001 - whatever happens, the loop stays abandoned
+            self.emergency = {"error": _describe(error)}
+        finally:
+            if held:
+                self._exchange_lock.release()
+        self.phase = OFF
+        self.phase_times.setdefault(OFF, self._now)
+        self._event("watchdog", {"reason": reason, **{k: v for k, v in (self.emergency or {}).items() if k != "time"}})
+        self._event("motors_off", {"fault": None if self.fault is None else str(self.fault), "by": "watchdog"})
+        self.taken_over.set()
+        self._wake.set()
+        return True
 
     def _record(self, fault: Fault) -> None:
         if any(f.kind is fault.kind for f in self.faults):
             return  # one record per kind: a lost motor would otherwise be reported every cycle
         self.faults.append(fault)
-        if self.log is not None:
+        if self.log is not None and self._log_lock.acquire(timeout=0.5):
             try:
                 self.log.fault(fault)
             except Exception:  # noqa: BLE001 - logging must not stop the stop
                 pass
+            finally:
+                self._log_lock.release()
 
     # --- helpers ----------------------------------------------------------------------------
     def _observe(self) -> np.ndarray:
@@ -803,7 +1031,7 @@ class RealtimeRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         return np.zeros(self.observation_space.shape, dtype=self.observation_space.dtype)
 
     def _info(self) -> dict[str, Any]:
-        info: dict[str, Any] = {"time": self.robot.time(), "phase": self.phase, "cycle": self.robot.cycle}
+        info: dict[str, Any] = {"time": self._now, "phase": self.phase, "cycle": self.robot.cycle}
         if self.fault is not None:
             info["fault"] = self.fault.as_dict()
         return info
@@ -824,10 +1052,12 @@ __all__ = [
     "Controller",
     "DeadlineClock",
     "RealtimeRuntime",
+    "LoopAbandoned",
     "RunResult",
     "StandingTask",
     "StartupConfig",
     "TimingStats",
     "cosine",
+    "exit_code_for",
     "min_jerk",
 ]

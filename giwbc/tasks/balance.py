@@ -153,6 +153,13 @@ class _WholeBody:
         self.result = self.balance.update(q, v, robot.time())
         robot.set_joint_torques(self.result.tau)
 
+    def failure(self) -> str | None:
+        """Why the last tick fell back (see :meth:`Task.controller_failure`), or None."""
+        result = self.result
+        if result is None or result.ok:
+            return None
+        return f"whole-body controller {result.status.value} ({result.qp_status.value if result.qp_status else 'no QP'}): {result.message}"
+
     def posture_reference(self) -> np.ndarray:
         return self.posture
 
@@ -264,6 +271,10 @@ class G1Balance(Task):
 
     def apply_command(self) -> None:
         self.controller.apply(self.robot)
+
+    def controller_failure(self) -> str | None:
+        failure = getattr(self.controller, "failure", None)
+        return failure() if failure is not None else None
 
     # --- outputs --------------------------------------------------------------------------
     def get_observation(self) -> np.ndarray:

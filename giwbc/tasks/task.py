@@ -175,6 +175,12 @@ class Task(abc.ABC):
         Called at every controller tick; a feedback controller (the WBC) lives here. Default: nothing.
         """
 
+    def controller_failure(self) -> str | None:
+        """Why the last controller tick fell back to a safe command (an infeasible QP, a state
+        it could not use), or None. A simulation may go on on the fallback; a deployment stops
+        on it. Default: None (no controller that can fall back)."""
+        return None
+
     @abc.abstractmethod
     def get_observation(self) -> np.ndarray: ...
 
