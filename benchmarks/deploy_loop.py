@@ -43,7 +43,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from giwbc.deploy import make_controller  # noqa: E402
+from giwbc.apps.deploy import make_controller  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig  # noqa: E402
 from giwbc.hal.emulator_process import EmulatorProcess  # noqa: E402
@@ -119,7 +119,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     estimator = None
     if controller == "wbc":
-        from giwbc.robot.estimator import StateEstimator
+        from giwbc.estimation.estimator import StateEstimator
 
         estimator = StateEstimator(description)
     cpus = sorted(os.sched_getaffinity(0))

@@ -16,8 +16,10 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from giwbc.robot import load  # noqa: E402
-from giwbc.robot.estimation.evaluation import BalanceOnEstimate, PdHold, evaluate, push_sequence  # noqa: E402
-from giwbc.robot.estimator import EstimatorConfig  # noqa: E402
+from giwbc.control.balance import BalanceOnEstimate  # noqa: E402
+from giwbc.estimation.evaluation import evaluate, push_sequence  # noqa: E402
+from giwbc.robot.standing import PdHold  # noqa: E402
+from giwbc.estimation.estimator import EstimatorConfig  # noqa: E402
 from giwbc.robot.noise import SensorNoiseConfig  # noqa: E402
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import time
@@ -29,9 +30,12 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--robot", default="g1")
     parser.add_argument("--steps", type=int, default=5000)
+    parser.add_argument("--feet-only", action="store_true", help="without the whole-body collision shapes (feet boxes only)")
     args = parser.parse_args()
 
     description = load(args.robot)
+    if args.feet_only:
+        description = dataclasses.replace(description, collision=())
     robot = MujocoRobot(description)
     robot.set_joint_impedance(pd_hold_command(description))
     model, data = robot.model, robot.data
@@ -58,6 +62,7 @@ def main() -> None:
     print(json.dumps({
         "benchmark": "sim_step",
         "robot": args.robot,
+        "collision": "feet only" if args.feet_only else f"whole body ({len(description.collision)} shapes)",
         "samples": args.steps,
         "mujoco_timestep_s": model.opt.timestep,
         "mujoco_step_median_us": round(median_us(step_times), 2),

@@ -15,7 +15,7 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from giwbc.evaluation import add_evaluate_command  # noqa: E402
+from giwbc.apps.evaluation import add_evaluate_command  # noqa: E402
 
 POLICY = Path(__file__).resolve().parents[1] / "policies" / "g1_balance_residual.onnx"
 

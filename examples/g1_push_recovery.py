@@ -1,6 +1,6 @@
 """G1Balance-v0 with zero residual: the whole-body controller alone under random pushes.
 
-    MUJOCO_GL=osmesa python examples/g1_push_recovery.py --seconds 10 --video g1.mp4
+    python examples/g1_push_recovery.py --seconds 10 --video g1.mp4   # video: EGL or OSMesa, found when it renders
 
 Prints, per episode, how long the robot stood and how many pushes it took; the baseline a
 residual policy trained on this environment has to beat.
@@ -14,7 +14,7 @@ import gymnasium
 import numpy as np
 
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
-from giwbc.policy import write_video
+from giwbc.apps.play import write_video
 
 
 def main() -> None:

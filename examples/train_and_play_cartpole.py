@@ -4,8 +4,8 @@
     python examples/train_and_play_cartpole.py --timesteps 60000 --video runs/cartpole/play.mp4
 
 Same as ``giwbc train --env giwbc/CartPoleBalance-v0 --timesteps 60000 --n-envs 2`` then
-``giwbc play --policy runs/cartpole/policy.onnx --video runs/cartpole/play.mp4`` (MUJOCO_GL=egl or
-osmesa for the video on a headless machine).
+``giwbc play --policy runs/cartpole/policy.onnx --video runs/cartpole/play.mp4`` (the video needs EGL or
+OSMesa, libegl1 or libosmesa6, found when it renders).
 """
 
 from __future__ import annotations
@@ -13,8 +13,9 @@ from __future__ import annotations
 import argparse
 import json
 
-from giwbc.policy import OnnxPolicy, play
-from giwbc.training import TrainConfig, train
+from giwbc.apps.play import play
+from giwbc.policy import OnnxPolicy
+from giwbc.apps.training import TrainConfig, train
 
 
 def main() -> None:

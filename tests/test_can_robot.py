@@ -13,7 +13,7 @@ from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, NonFiniteCommand
 from giwbc.hal.frames import FastMessage, fast_message
 from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.hal.hardware import ImuConfig, load_hardware
-from giwbc.robot.estimator import StateEstimator
+from giwbc.estimation.estimator import StateEstimator
 from giwbc.robot.interface import ImpedanceCommand
 from giwbc.robot.standing import pd_hold_command
 
@@ -55,7 +55,10 @@ def rig(g1, plan, model):
 
     def make(hardware=None, estimator=False, **config):
         emulator = ActuatorEmulator(hardware or plan, g1, EmulatorConfig(**config), model=copy.copy(model))
-        robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator,
+        # The emulator answers before collection starts (lockstep): a generous reply timeout only
+        # matters when a reply is really missing, and (with the send budget) keeps a descheduled
+        # test process from reading in-time replies as missing or dropping sends on a loaded machine.
+        robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, reply_timeout=0.02, send_budget=0.5,
                          estimator=StateEstimator(g1) if estimator else None)  # fmt: skip
         made.append((robot, emulator))
         return robot, emulator

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from giwbc.cli import main
+from giwbc.apps.cli import main
 
 
 def test_robots_lists_dofs_and_mass(capsys: pytest.CaptureFixture[str]) -> None:

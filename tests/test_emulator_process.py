@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from giwbc.deploy import DeployOptions, deploy
+from giwbc.apps.deploy import DeployOptions, deploy
 from giwbc.hal.emulator import EmulatorConfig, FaultInjection
 from giwbc.hal.emulator_process import EmulatorProcess, SharedImuChannel
 from giwbc.hal.hardware import load_hardware

@@ -119,7 +119,7 @@ def test_a_given_perturbed_robot_is_not_wrapped_twice(cartpole) -> None:
     robot = PerturbedRobot(PybulletRobot(cartpole))
     latency = {"parameters": [{"parameter": "actuator_latency", "distribution": "uniform", "low": 2.0, "high": 2.0, "operation": "absolute"}]}
     env = SimulatedRuntime(CartPoleSwingUp(), robot, agent_rate=50.0, randomizer=latency)
-    assert env.engine == "pybullet" and env.sim_robot is robot and env.engine_robot is robot.inner
+    assert env.engine == "pybullet" and env.sim_robot is robot and env.engine_robot is robot.robot
     env.reset(seed=0)
     assert robot.latency == 2
-    robot.inner.close()
+    robot.robot.close()

@@ -15,6 +15,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from giwbc.envs import CARTPOLE_BALANCE, ENVIRONMENTS
+from giwbc.runtimes.rendering import RenderingUnavailableError, find_offscreen_backend
 
 ENV_IDS = sorted(ENVIRONMENTS)
 
@@ -96,24 +97,15 @@ RENDER_SCRIPT = textwrap.dedent(
 )
 
 
-def _gl_backend() -> str | None:
-    """The first offscreen GL backend MuJoCo can import here (EGL, then OSMesa), else None."""
-    for backend in ("egl", "osmesa"):
-        probe = f"import mujoco; mujoco.GLContext(8, 8).free()"
-        result = subprocess.run([sys.executable, "-c", probe], env={**os.environ, "MUJOCO_GL": backend},
-                                capture_output=True, timeout=60)
-        if result.returncode == 0:
-            return backend
-    return None
-
-
 def test_rgb_array_rendering() -> None:
-    """Offscreen frames are (H, W, 3) uint8 and show something (MUJOCO_GL is read at import: a subprocess)."""
-    backend = _gl_backend()
-    if backend is None:
-        pytest.skip("no offscreen OpenGL backend (EGL or OSMesa) is importable")
+    """Offscreen frames are (H, W, 3) uint8 and show something; the backend is found when rendering starts."""
+    try:
+        find_offscreen_backend()
+    except RenderingUnavailableError as error:
+        pytest.skip(str(error))
     env_ids = [CARTPOLE_BALANCE] + [i for i in ENV_IDS if "G1" in i]
-    result = subprocess.run([sys.executable, "-c", RENDER_SCRIPT % (env_ids,)], env={**os.environ, "MUJOCO_GL": backend},
+    env = {k: v for k, v in os.environ.items() if k not in ("MUJOCO_GL", "PYOPENGL_PLATFORM")}
+    result = subprocess.run([sys.executable, "-c", RENDER_SCRIPT % (env_ids,)], env=env,
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-3000:]
     frames = json.loads(result.stdout.strip().splitlines()[-1])

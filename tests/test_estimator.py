@@ -11,12 +11,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from giwbc.robot import MujocoRobot, RobotDescription
-from giwbc.robot.estimation import so3
-from giwbc.robot.estimation.contacts import ContactDetector
-from giwbc.robot.estimation.evaluation import EvaluationResult, Push, evaluate, push_sequence
-from giwbc.robot.estimation.orientation import OrientationFilter
-from giwbc.robot.estimator import (
+from giwbc.control.balance import BalanceOnEstimate
+from giwbc.estimation.contacts import ContactDetector
+from giwbc.estimation.evaluation import EvaluationResult, Push, evaluate, push_sequence
+from giwbc.estimation.orientation import OrientationFilter
+from giwbc.robot import MujocoRobot, RobotDescription, so3
+from giwbc.estimation.estimator import (
     EstimatedRobot,
     Estimate,
     EstimatorConfig,
@@ -67,9 +67,6 @@ def test_push_run_detects_contacts_and_reports_no_unexpected_fault(push_run: Eva
 
 
 def test_balance_controller_on_the_estimate_survives_a_60_N_lateral_push(g1: RobotDescription, g1_mujoco) -> None:
-    pytest.importorskip("giwbc.control.balance")
-    from giwbc.robot.estimation.evaluation import BalanceOnEstimate
-
     controller = BalanceOnEstimate(g1)
     result = evaluate(
         g1, seed=1, duration=3.0, pushes=(Push(1.0, 0.2, (0.0, 60.0, 0.0)),), controller=controller, mujoco_model=g1_mujoco

@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
-from giwbc.evaluation import (  # noqa: E402
+from giwbc.apps.evaluation import (  # noqa: E402
     DEFAULT_ENV_KWARGS,
     PushProtocol,
     add_evaluate_command,
@@ -45,7 +45,7 @@ def test_wilson_interval() -> None:
 
 def _zero_policy(tmp_path, env_kwargs):
     """A policy file whose network outputs exactly zero: it must reproduce the WBC arm."""
-    from giwbc.training import describe_env
+    from giwbc.apps.training import describe_env
 
     described = describe_env("giwbc/G1Balance-v0", env_kwargs)
     n_obs, n_act = len(described["observation_names"]), len(described["action_names"])
@@ -99,7 +99,7 @@ def test_evaluate_command(capsys) -> None:
 def test_training_is_reproducible_and_a_checkpoint_is_the_final_policy_of_a_shorter_run(tmp_path) -> None:
     """Same seed => same policy file, bit for bit; ``step_N`` of a longer run == the policy of ``--timesteps N``."""
     pytest.importorskip("stable_baselines3")
-    from giwbc.training import TrainConfig, train
+    from giwbc.apps.training import TrainConfig, train
 
     def run(name: str, steps: int, every: int):
         return train(TrainConfig(total_timesteps=steps, n_envs=2, seed=3, out_dir=str(tmp_path / name), vectorization="dummy",

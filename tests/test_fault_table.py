@@ -1,4 +1,4 @@
-"""The fault table: every fault kind of :data:`giwbc.testing.faults.FAULT_CASES`, injected into an
+"""The fault table: every fault kind of :data:`giwbc.runtimes.faults.FAULT_CASES`, injected into an
 emulated G1 run (lockstep, unpaced), must be detected within its bound after its onset, damping
 must go out at the next cycle, the cause must be named in the summary and the run log, the motors
 must be off at the end (those of a bus that cannot be reached: limp on their own timeout), and
@@ -13,12 +13,12 @@ import threading
 import numpy as np
 import pytest
 
-from giwbc.deploy import DeployOptions, deploy
+from giwbc.apps.deploy import DeployOptions, deploy
 from giwbc.hal.emulator import EmulatorConfig
 from giwbc.hal.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig
 from giwbc.runtimes.realtime import StartupConfig, exit_code_for
-from giwbc.testing.faults import FAULT_CASES, TARGET_JOINT
+from giwbc.runtimes.faults import FAULT_CASES, TARGET_JOINT
 
 ONSET = 0.3  # s: after the 0.22 s start-up, while the controller runs
 DT = 0.002
@@ -33,7 +33,7 @@ def model(g1):
 
 
 def _metadata(g1) -> dict:
-    from giwbc.runtimes.rates import Rates
+    from giwbc.tasks.rates import Rates
     from giwbc.tasks.balance import G1Balance
 
     class _Joints:
@@ -48,9 +48,6 @@ def _metadata(g1) -> dict:
     }  # fmt: skip
 
 
-# Foreign traffic and duplicated replies are the codec's part of issue #13 (items 6 and 7: foreign
-# frames taken for replies or counted as corrupt, a stray frame hiding a reply): they pass once it is merged.
-NEEDS_CODEC = {"foreign_sync", "foreign_ids", "zero_byte", "duplicate_replies"}
 HANG_GUARD = 120.0  # s of wall time: a run still going then is a hang (the guard interrupts the main thread)
 
 
@@ -85,10 +82,7 @@ def _is_damping(command, g1) -> bool:
     return max(command["kp"]) == 0 and max(abs(x) for x in command["tau_ff"]) == 0 and np.allclose(command["kd"], SAFETY.damping_kd_scale * g1.kd)
 
 
-@pytest.mark.parametrize("kind", [
-    pytest.param(k, marks=pytest.mark.xfail(reason="needs the codec part of issue #13 (items 6-7)", strict=False)) if k in NEEDS_CODEC else k
-    for k in FAULT_CASES
-])  # fmt: skip
+@pytest.mark.parametrize("kind", list(FAULT_CASES))
 def test_fault_table(kind, g1, model, tmp_path):
     case = FAULT_CASES[kind]
     outcome = run_case(kind, g1, model, tmp_path)

@@ -262,7 +262,7 @@ def test_mujoco_model_shows_every_sampled_value(g1: RobotDescription, g1_config:
     assert pin.computeTotalMass(oracle) == pytest.approx(physics["link_mass"].sum(), rel=1e-12)
     assert pin.computeTotalMass(model) == pytest.approx(g1.total_mass)  # the original is untouched
     # ... and its centre of mass is MuJoCo's.
-    q, _ = robot.inner.generalized_state()  # the engine's, without the wrapper's encoder noise
+    q, _ = robot.robot.generalized_state()  # the engine's, without the wrapper's encoder noise
     mujoco.mj_forward(m, robot.data)
     np.testing.assert_allclose(pin.centerOfMass(oracle, oracle.createData(), q), robot.data.subtree_com[1], atol=1e-9)
     assert np.linalg.norm(pin.centerOfMass(model, model.createData(), q) - robot.data.subtree_com[1]) > 1e-4
@@ -402,7 +402,7 @@ def test_actuator_latency_delays_commands_by_whole_physics_steps(g1: RobotDescri
     robot.set_joint_torques(torques)
     robot.step(3)
     np.testing.assert_array_equal(robot.joint_efforts(), 0.0)  # steps 0, 1, 2 ran without it
-    np.testing.assert_array_equal(robot.inner.data.ctrl, torques)  # it reached the actuators on step 3
+    np.testing.assert_array_equal(robot.robot.data.ctrl, torques)  # it reached the actuators on step 3
     robot.step(1)
     np.testing.assert_array_equal(robot.joint_efforts(), torques)
     assert robot.tick == 4
@@ -419,11 +419,11 @@ def test_sensor_noise_bias_and_imu_latency(g1: RobotDescription) -> None:
     history, noise = [], []
     for _ in range(40):
         robot.step(1)
-        history.append(robot.inner.imu())
-        np.testing.assert_array_equal(robot.joint_positions(), robot.inner.joint_positions() + 0.01)
+        history.append(robot.robot.imu())
+        np.testing.assert_array_equal(robot.joint_positions(), robot.robot.joint_positions() + 0.01)
         first = robot.joint_velocities()
         np.testing.assert_array_equal(first, robot.joint_velocities())  # one draw per physics step
-        noise.append(first - robot.inner.joint_velocities())
+        noise.append(first - robot.robot.joint_velocities())
     assert np.std(noise) == pytest.approx(0.05, rel=0.1)
     delayed = history[-3]  # 2 physics steps old
     np.testing.assert_allclose(robot.imu().angular_velocity, delayed.angular_velocity + [0.1, -0.1, 0.0], atol=1e-12)
@@ -446,7 +446,7 @@ def test_push_schedule_is_applied_on_its_physics_steps(g1: RobotDescription) -> 
     applied = []
     for _ in range(1600):  # 3.2 s: every push of the 3 s horizon has ended
         robot.step(1)
-        applied.append(robot.inner.data.xfrc_applied[pelvis, :3].copy())
+        applied.append(robot.robot.data.xfrc_applied[pelvis, :3].copy())
     applied = np.array(applied)
     pushing = np.linalg.norm(applied, axis=1) > 0
     starts = np.flatnonzero(np.diff(pushing.astype(int)) == 1) + 1

@@ -112,3 +112,34 @@ def test_joint_order_mismatch_is_explained(tmp_path: Path) -> None:
         description.build_pinocchio()
     with pytest.raises(RobotDescriptionError, match="joint order differs"):
         description.build_mujoco()
+
+
+def test_one_pinocchio_model_per_description(monkeypatch) -> None:
+    """The URDF is parsed once per description: the controller, the safety checks and the estimator
+    share it (each with its own Data); build_pinocchio() hands out independent copies."""
+    import pinocchio as pin
+
+    import giwbc.robot.description as description_module
+    from giwbc.control.balance import make_balance_controller
+    from giwbc.estimation.estimator import StateEstimator
+    from giwbc.hal.safety import SafetyConfig, SafetySupervisor
+
+    parses = []
+    original = description_module.build_pinocchio_model
+    monkeypatch.setattr(description_module, "build_pinocchio_model", lambda d: parses.append(d) or original(d))
+    g1 = load("g1")
+    make_balance_controller(g1)
+    SafetySupervisor(g1, SafetyConfig())
+    StateEstimator(g1)
+    assert len(parses) == 1 and g1.pinocchio_model is g1.pinocchio_model
+    copy = g1.build_pinocchio()
+    assert copy is not g1.pinocchio_model and copy.nq == g1.pinocchio_model.nq
+    copy.inertias[1] = pin.Inertia.Zero()
+    assert g1.pinocchio_model.inertias[1].mass > 0  # the shared model is untouched
+
+
+def test_imu_in_base_is_the_urdf_mount(g1) -> None:
+    """The G1's imu_in_pelvis joint: (0.04525, 0, -0.08339) m in the pelvis, axes aligned."""
+    placement = g1.imu_in_base
+    np.testing.assert_allclose(placement.translation, [0.04525, 0.0, -0.08339], atol=1e-9)
+    np.testing.assert_allclose(placement.rotation, np.eye(3), atol=1e-12)

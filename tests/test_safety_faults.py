@@ -11,7 +11,7 @@ import signal
 import numpy as np
 import pytest
 
-from giwbc.deploy import DeployOptions, deploy
+from giwbc.apps.deploy import DeployOptions, deploy
 from giwbc.hal.can_robot import CycleReport
 from giwbc.hal.emulator import EmulatorConfig, FaultInjection
 from giwbc.hal.runlog import read_log
@@ -46,7 +46,7 @@ def run(g1, model, tmp_path):
 
 def _metadata(g1) -> dict:
     """A test policy's metadata: the balance task's layout (joint-PD residuals), the robot's joints."""
-    from giwbc.runtimes.rates import Rates
+    from giwbc.tasks.rates import Rates
     from giwbc.tasks.balance import G1Balance
 
     class _Joints:

@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from giwbc.errors import ConfigError, NonFiniteCommand
+
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
 from giwbc.robot.noise import NoisyRobot, NotMeasuredError, SensorErrors, SensorModel, SensorNoiseConfig
 
@@ -64,7 +66,7 @@ class ScriptedRobot(Robot):
         gyro = np.array([0.01 * self.step_count, 0.0, 0.0]) if self.gyro_override is None else self.gyro_override
         return ImuReading(np.array([0.0, 0.0, 0.0, 1.0]), gyro, np.array([0.0, 0.0, 9.81]), self.time())
 
-    def set_joint_torques(self, torques: np.ndarray) -> None:
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         self.torques = torques
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
@@ -172,8 +174,8 @@ def test_base_state_links_and_contacts_are_not_measured_but_truth_stays_reachabl
             read()
     with pytest.raises(NotMeasuredError, match="estimat"):
         noisy.base_state()
-    assert noisy.ground_truth is truth
-    assert noisy.ground_truth.base_state().position[2] == 0.7
+    assert noisy.robot is truth
+    assert noisy.robot.base_state().position[2] == 0.7
     assert noisy.joint_names == truth.joint_names and noisy.floating_base
 
 
@@ -182,10 +184,26 @@ def test_commands_pass_through_unchanged() -> None:
     noisy = NoisyRobot(truth, SensorNoiseConfig(), np.random.default_rng(0))
     torques = np.array([1.0, 2.0, 3.0, 4.0])
     noisy.set_joint_torques(torques)
-    assert truth.torques is torques
+    np.testing.assert_array_equal(truth.torques, torques)
     command = ImpedanceCommand.damping(DOFS, 1.0)
     noisy.set_joint_impedance(command)
     assert truth.impedance is command
+
+
+def test_wrappers_check_commands_once_and_unwrap() -> None:
+    """Bad torques stop at the outermost wrapper with the hierarchy's errors; nothing reaches the robot."""
+    truth = ScriptedRobot()
+    noisy = NoisyRobot(truth, SensorNoiseConfig(), np.random.default_rng(0))
+    outer = NoisyRobot(noisy, SensorNoiseConfig(), np.random.default_rng(1))
+    assert outer.robot is noisy and outer.unwrapped is truth and noisy.unwrapped is truth
+    truth.torques = None
+    with pytest.raises(NonFiniteCommand, match="not finite"):
+        outer.set_joint_torques(np.array([1.0, np.nan, 0.0, 0.0]))
+    with pytest.raises(ConfigError, match=f"expected {DOFS} joint torques"):
+        outer.set_joint_torques(np.zeros(DOFS + 1))
+    assert truth.torques is None
+    with pytest.raises(TypeError, match="wraps a Robot"):
+        NoisyRobot(object(), SensorNoiseConfig(), np.random.default_rng(0))  # type: ignore[arg-type]
 
 
 def test_time_going_backwards_restarts_the_latency_buffer() -> None:

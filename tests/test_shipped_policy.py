@@ -8,7 +8,7 @@ import pytest
 
 pytest.importorskip("onnxruntime")
 
-from giwbc.deploy import DeployOptions, deploy  # noqa: E402
+from giwbc.apps.deploy import DeployOptions, deploy  # noqa: E402
 from giwbc.policy import OnnxPolicy  # noqa: E402
 from giwbc.runtimes.realtime import StartupConfig  # noqa: E402
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
-from giwbc.sim_to_sim import CONDITIONS, PushSetting, evaluate, main, markdown_table
+from giwbc.apps.sim_to_sim import CONDITIONS, PushSetting, evaluate, main, markdown_table
 
 pytest.importorskip("pybullet")
 pytest.importorskip("onnx")
@@ -61,7 +61,7 @@ def test_command_without_a_policy_reports_the_missing_column(capsys) -> None:
 def test_subcommand_for_the_giwbc_cli() -> None:
     import argparse
 
-    from giwbc.sim_to_sim import add_sim_to_sim_command, run_sim_to_sim_command
+    from giwbc.apps.sim_to_sim import add_sim_to_sim_command, run_sim_to_sim_command
 
     parser = argparse.ArgumentParser(prog="giwbc")
     add_sim_to_sim_command(parser.add_subparsers(dest="command", required=True))

@@ -40,7 +40,7 @@ def model(g1):
 def run_lockstep(g1, model, tmp_path, *, policy=None, safety=None, patch=None, seconds=0.4):
     """A standing PD run on the lockstep emulator, unpaced; ``patch(robot)`` may break the robot.
     Returns (result, runtime, emulator, log path)."""
-    from giwbc.deploy import PdHold
+    from giwbc.apps.deploy import PdHold
     from giwbc.hal.can_robot import CanRobot
     from giwbc.hal.emulator import ActuatorEmulator
     from giwbc.hal.hardware import load_hardware
@@ -218,7 +218,7 @@ def test_command_line_fault_rehearsal_with_a_driver_stuck_forever(tmp_path):
     watchdog stops the motors and the process still exits, with the documented code and cause."""
     log = tmp_path / "cli.mcap"
     proc = subprocess.run(
-        [sys.executable, "-m", "giwbc.deploy", "--emulate", "--controller", "pd", "--seconds", "1.0", "--ramp", "0.2",
+        [sys.executable, "-m", "giwbc.apps.deploy", "--emulate", "--controller", "pd", "--seconds", "1.0", "--ramp", "0.2",
          "--fault", "driver_block", "--fault-at", "0.2", "--log", str(log), "--json"],
         cwd=ROOT, capture_output=True, text=True, timeout=HANG_GUARD, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
@@ -234,7 +234,7 @@ def test_command_line_fault_rehearsal_with_a_driver_stuck_forever(tmp_path):
 def test_command_line_refuses_an_unknown_fault(capsys):
     import argparse
 
-    from giwbc.deploy import add_deploy_command
+    from giwbc.apps.deploy import add_deploy_command
 
     parser = argparse.ArgumentParser(prog="giwbc")
     add_deploy_command(parser.add_subparsers(dest="command", required=True))

@@ -74,7 +74,7 @@ class AnalyticCartPoleRobot(Robot):
     def imu(self) -> ImuReading:
         raise NotImplementedError
 
-    def set_joint_torques(self, torques: np.ndarray) -> None:
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         self.tau = np.array(torques, float)
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
@@ -212,21 +212,185 @@ def test_latency_longer_than_an_agent_step() -> None:
     assert env.task.force == 20.0  # the first action arrived at physics step 30, the second is in flight
 
 
-def test_controller_rate_ticks() -> None:
-    class CountingBalance(CartPoleBalance):
-        ticks = 0
+class CountingMujocoRobot(MujocoRobot):
+    """A MuJoCo robot that counts the physics steps it is asked to take."""
 
-        def apply_command(self) -> None:
-            CountingBalance.ticks += 1
-            super().apply_command()
+    def __init__(self, *args, **kwargs) -> None:
+        self.steps_taken = 0
+        super().__init__(*args, **kwargs)
 
-    robot = MujocoRobot(make().sim_robot.description)
-    env = SimulatedRuntime(CountingBalance(), robot, agent_rate=50.0, controller_rate=250.0)
+    def step(self, n: int = 1) -> None:
+        self.steps_taken += n
+        super().step(n)
+
+
+class TickRecordingBalance(CartPoleBalance):
+    """Records the robot's simulated time at every controller tick."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.tick_times: list[float] = []
+
+    def apply_command(self) -> None:
+        self.tick_times.append(self.robot.time())
+        super().apply_command()
+
+
+@pytest.mark.parametrize("controller_rate", [50.0, 250.0, 1000.0])
+def test_physics_steps_and_controller_ticks_are_the_ones_taken(controller_rate: float) -> None:
+    """Counted from what happened (MuJoCo's clock, the robot's step calls, the ticks' times), not from the settings."""
+    robot = CountingMujocoRobot(make().sim_robot.description)
+    task = TickRecordingBalance()
+    env = SimulatedRuntime(task, robot, agent_rate=50.0, controller_rate=controller_rate)
+    dt = robot.model.opt.timestep
+    env.reset(seed=0)
+    assert robot.steps_taken == 0 and robot.data.time == 0.0
+    for k in range(1, 4):
+        env.step([0.0])
+        assert robot.data.time == pytest.approx(k / 50.0, abs=1e-12)  # MuJoCo's own clock: k agent periods
+        assert robot.steps_taken == round(k / 50.0 / dt)
+        assert env.time == pytest.approx(robot.data.time, abs=1e-12)
+    expected = np.arange(0.0, 3 / 50.0 - 1e-9, 1.0 / controller_rate)  # a tick at every controller period, from t = 0
+    np.testing.assert_allclose(task.tick_times, expected, atol=1e-12)
+    assert env.timings.physics_steps == robot.steps_taken and env.timings.agent_steps == 3
+
+
+def test_controller_ticks_stay_on_their_period_when_an_action_arrives_between_them() -> None:
+    """An action latency of 6 physics steps splits the chunks off the 4-step controller grid; the
+    ticks must still fall every 4 steps from t = 0."""
+    robot = CountingMujocoRobot(make().sim_robot.description)
+    task = TickRecordingBalance()
+    env = SimulatedRuntime(task, robot, agent_rate=50.0, controller_rate=250.0, sim2real={"action_latency": 6})
     env.reset(seed=0)
     for _ in range(3):
         env.step([0.0])
-    assert CountingBalance.ticks == 3 * 5
-    assert env.timings.physics_steps == 60 and env.timings.agent_steps == 3
+    np.testing.assert_allclose(task.tick_times, np.arange(15) * 0.004, atol=1e-12)
+    assert robot.steps_taken == 60
+
+
+def test_step_timings_add_up_per_part(monkeypatch) -> None:
+    """On a fake clock that advances by one unit per reading: each controller tick and each physics
+    chunk costs exactly one unit, and the totals accumulate over steps."""
+    env = make(controller_rate=250.0)  # 20 physics steps per agent step, a tick every 4: 5 chunks
+    env.reset(seed=0)
+    env.timings.clear()
+    clock = FakeClock(work=1.0)
+    monkeypatch.setattr(time, "perf_counter", clock.perf_counter)
+    for _ in range(3):
+        env.step([0.0])
+    timings = env.timings
+    assert (timings.agent_steps, timings.physics_steps) == (3, 60)
+    assert timings.controller == 15.0 and timings.physics == 15.0
+    assert timings.total == 3 * (2 * 5 + 2 * 5 + 1)  # per step: two readings per tick and per chunk, one at the end
+    assert timings.other == timings.total - 30.0
+    timings.clear()
+    assert (timings.total, timings.physics, timings.controller, timings.agent_steps, timings.physics_steps) == (0, 0, 0, 0, 0)
+
+
+def test_step_before_reset_and_step_results_are_plain_bools() -> None:
+    env = make()
+    with pytest.raises(RuntimeError, match=r"^call reset\(\) before step\(\)$"):
+        env.step([0.0])
+    env.reset(seed=0)
+    _, reward, terminated, truncated, info = env.step([0.0])
+    assert terminated is False and truncated is False and type(reward) is float
+    assert info["time"] == pytest.approx(0.02) and "physics_diverged" not in info
+
+
+def test_a_diverged_simulation_terminates_the_episode() -> None:
+    env = make()
+    env.reset(seed=0)
+    env.step([0.0])
+    env.sim_robot.data.qvel[:] = np.nan  # MuJoCo flags the bad state and resets it
+    _, _, terminated, _, info = env.step([0.0])
+    assert terminated is True and info["physics_diverged"] is True
+    _, _, terminated, _, info = env.step([0.0])  # it stays flagged until the next reset
+    assert terminated is True and info["physics_diverged"] is True
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step([0.0])
+    assert terminated is False and "physics_diverged" not in info
+
+
+def test_human_render_mode_draws_at_every_reset_and_step(monkeypatch) -> None:
+    env = make()
+    frames: list[None] = []
+    monkeypatch.setattr(env, "render", lambda: frames.append(None))
+    env.reset(seed=0)
+    env.step([0.0])
+    assert frames == []  # headless: never drawn
+    env.render_mode = "human"
+    env.reset(seed=0)
+    env.step([0.0])
+    env.step([0.0])
+    assert len(frames) == 3
+
+
+def test_a_truncating_task_truncates_the_episode() -> None:
+    class Truncating(CartPoleBalance):
+        def is_truncated(self) -> bool:
+            return self.robot.time() >= 0.04
+
+    env = SimulatedRuntime(Truncating(), make().sim_robot.description, agent_rate=50.0)
+    env.reset(seed=0)
+    assert [env.step([0.0])[3] for _ in range(3)] == [False, True, True]
+
+
+def test_runtime_options_are_kept_and_checked() -> None:
+    env = make(real_time_factor=0.5)  # slower than real time is allowed
+    assert env.real_time_factor == 0.5 and env.render_mode is None
+    assert env.render_size == (480, 640)
+    assert make(agent_rate=25.0).metadata["render_fps"] == 25.0  # frames at the agent rate
+    env.reset(seed=0)
+    assert env.randomization is None  # no randomizer: nothing drawn
+    human = make(render_mode="human")  # the viewer opens at the first render, not here
+    assert human.render_mode == "human" and human.real_time_factor == 1.0  # paced to real time by default
+    assert make(render_mode="human", real_time_factor=3.0).real_time_factor == 3.0
+    assert make(render_mode="rgb_array").real_time_factor is None
+    with pytest.raises(ValueError, match=r"^render_mode must be one of \('human', 'rgb_array'\) or None, got 'movie'$"):
+        make(render_mode="movie")
+    with pytest.raises(ValueError, match=r"^rendering needs the MuJoCo engine; this runtime runs on \['pybullet'\]$"):
+        make(render_mode="rgb_array", engine="pybullet")
+    with pytest.raises(TypeError, match=r"^_NotSimulated cannot be simulated: it needs step\(\), reset\(\) and "):
+        SimulatedRuntime(CartPoleBalance(), _NotSimulated(), agent_rate=50.0)
+
+
+class _NotSimulated(AnalyticCartPoleRobot):
+    """A robot without set_external_wrench: it cannot be pushed, so the runtime refuses it."""
+
+    set_external_wrench = None  # type: ignore[assignment]
+
+
+def test_the_task_sees_what_each_reset_drew() -> None:
+    class Recording(CartPoleBalance):
+        def __init__(self) -> None:
+            super().__init__()
+            self.drawn: list[object] = []
+
+        def randomized(self, drawn) -> None:
+            self.drawn.append(drawn)
+
+    task = Recording()
+    pushes = {"pushes": {"interval": [0.05, 0.2], "duration": 0.03, "force": [1.0, 5.0], "link": "cart"}}
+    env = SimulatedRuntime(task, make().sim_robot.description, agent_rate=50.0, sim2real=pushes)
+    env.reset(seed=0)
+    env.reset(seed=1)
+    assert len(task.drawn) == 2 and task.drawn[-1] is env.randomization and env.randomization is not None
+
+
+def test_rates_edges() -> None:
+    assert Rates(agent=0.5, controller=0.5, physics=1000.0).physics_per_agent == 2000  # below 1 Hz is a rate too
+    assert Rates(agent=1.0, controller=1.0, physics=1000.0000001).physics_per_agent == 1000  # within 1e-9 relative
+    with pytest.raises(RateError, match=r"= 1\.5 is not an integer; nearest valid agent rates: 500 Hz \(2 physics steps\) or 1000 Hz"):
+        Rates(agent=1000.0 / 1.5, controller=1000.0 / 1.5, physics=1000.0)
+    for bad in (0.0, -0.001, float("nan"), float("inf")):
+        with pytest.raises(RateError, match=rf"^physics timestep must be positive, got {bad!r}$"):
+            Rates.from_timestep(bad, agent=50.0)
+
+
+def test_describe_reports_the_rates_robot_and_engine() -> None:
+    description = make(controller_rate=250.0).describe()
+    assert description["rates"] == {"agent_hz": 50.0, "controller_hz": 250.0, "physics_hz": 1000.0}
+    assert description["robot"] == "cartpole" and description["engine"] == "mujoco"
 
 
 def test_pushes_follow_their_schedule() -> None:
@@ -252,6 +416,9 @@ def test_observation_noise_has_the_requested_std() -> None:
     std = np.std(errors, axis=0)
     assert std[[0, 2, 3]].max() == 0.0
     assert std[1] == pytest.approx(0.02, rel=0.15) and std[4] == pytest.approx(0.05, rel=0.15)
+    errors = np.array(errors)
+    assert abs(errors[:, 1].mean()) < 0.004 and abs(errors[:, 4].mean()) < 0.01  # zero mean (3 sigma over 300 draws)
+    assert abs(np.corrcoef(errors[:, 1], errors[:, 4])[0, 1]) < 0.3  # an independent draw per component
 
 
 def test_sim2real_validation() -> None:
@@ -318,12 +485,35 @@ def test_balance_and_swing_up_differ_on_the_same_robot() -> None:
     assert balance.describe()["observation_names"][2] == "pole_cos"
 
 
-def test_real_time_factor_paces_the_simulation() -> None:
+class FakeClock:
+    """A wall clock that only moves when slept on (or by ``work`` per reading): pacing tested in counts."""
+
+    def __init__(self, work: float = 0.0) -> None:
+        self.now, self.work, self.sleeps = 100.0, work, []
+
+    def perf_counter(self) -> float:
+        self.now += self.work
+        return self.now
+
+    def sleep(self, seconds: float) -> None:
+        self.sleeps.append(seconds)
+        self.now += seconds
+
+
+@pytest.mark.parametrize("work", [0.0, 1e-4])
+def test_real_time_factor_paces_the_simulation(monkeypatch, work: float) -> None:
+    """At twice real time, 0.16 s simulated take 0.08 s of wall time: the runtime sleeps what the work
+    did not use, after every step, so wall time never runs behind (and never ahead of) the pace."""
     env = make(real_time_factor=2.0)
+    clock = FakeClock(work)
+    monkeypatch.setattr(time, "perf_counter", clock.perf_counter)
+    monkeypatch.setattr(time, "sleep", clock.sleep)
     env.reset(seed=0)
-    started = time.perf_counter()
-    for _ in range(8):  # 0.16 s simulated
+    started = clock.now
+    for k in range(1, 9):  # 0.02 s simulated each
         env.step([0.0])
-    assert time.perf_counter() - started >= 0.08 - 1e-3
+        assert clock.now - started == pytest.approx(0.01 * k, abs=work * 50 + 1e-12)
+    assert len(clock.sleeps) == 8 and all(s > 0 for s in clock.sleeps)
+    assert sum(clock.sleeps) < 0.08 if work else sum(clock.sleeps) == pytest.approx(0.08)
     with pytest.raises(ValueError, match="real_time_factor"):
         make(real_time_factor=0.0)

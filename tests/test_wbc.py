@@ -347,6 +347,13 @@ def test_build_returns_an_inspectable_problem(g1, g1_model, rng):
     solution = wbc.solve()
     assert solution.ok and problem.violation(solution.x) < 1e-6
     kept = problem.copy()
+    # Any tick's QP goes to another solver in one line, with the same optimum.
+    import qpsolvers
+
+    other = qpsolvers.solve_problem(problem.to_qpsolvers(), solver="osqp", eps_abs=1e-9, eps_rel=1e-9, polish=True)
+    assert other.found
+    np.testing.assert_allclose(other.x, solution.x, atol=1e-4)
+    assert problem.violation(other.x) < 1e-6
     wbc.build(*random_state(g1, g1_model, rng))
     assert not np.array_equal(kept.H, wbc.problem.H)  # the controller's buffers moved on, the copy did not
 
@@ -584,3 +591,90 @@ def test_active_set_guess_handles_active_constraints(g1, g1_model):
         np.testing.assert_allclose(np.concatenate([result.qdd, result.forces]), expected.x, rtol=1e-6, atol=1e-6)
     assert limited.solver.guess.hits == 2 and len(limited.solver.guess.active) > 0
     assert limited.problem.ub[6 + knee] == pytest.approx(result.qdd[6 + knee])
+
+
+# --- QP backends on problems with a known answer -------------------------------------------------
+def small_qp(structure: int = 1):
+    """min ½‖x − (1, 2)‖²  s.t.  x0 + x1 = 1,  x0 − x1 ≤ 0.5,  −10 ≤ x ≤ 10: the answer is (0, 1)
+    without the inequality binding (x0 − x1 = −1); the multiplier of the equality is 1."""
+    from giwbc.control.qp import QpProblem
+
+    return QpProblem(
+        H=np.eye(2), g=-np.array([1.0, 2.0]), A=np.ones((1, 2)), b=np.ones(1), C=np.array([[1.0, -1.0]]),
+        l=np.array([-np.inf]), u=np.array([0.5]), lb=np.full(2, -10.0), ub=np.full(2, 10.0), structure=structure,
+    )  # fmt: skip
+
+
+def larger_qp(structure: int = 2):
+    """min ½‖x‖² − x2  s.t.  x0 + x1 + x2 = 2,  x0 ≥ 0.9: the answer is (0.9, 0.05, 1.05)."""
+    from giwbc.control.qp import QpProblem
+
+    return QpProblem(
+        H=np.eye(3), g=np.array([0.0, 0.0, -1.0]), A=np.ones((1, 3)), b=np.array([2.0]), C=np.array([[1.0, 0.0, 0.0]]),
+        l=np.array([0.9]), u=np.array([np.inf]), structure=structure,
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_backends_solve_known_problems_and_report_what_they_did(solver):
+    import time
+
+    backend = make_solver(solver, **ACCURATE[solver])
+    for problem, expected in [(small_qp(), [0.0, 1.0]), (larger_qp(), [0.9, 0.05, 1.05]), (small_qp(), [0.0, 1.0])]:
+        before = time.perf_counter()
+        solution = backend.solve(problem)
+        elapsed = time.perf_counter() - before
+        assert solution.status is QpStatus.SOLVED and solution.ok
+        np.testing.assert_allclose(solution.x, expected, atol=1e-5)
+        assert solution.solver == backend.name == solver
+        assert type(solution.iterations) is int and solution.iterations >= 0
+        assert 0.0 <= solution.solve_time <= elapsed  # measured inside this call
+        if solution.rows is not None:  # [A; C; bounds] x, computed on the way
+            rows = np.concatenate([problem.A @ solution.x, problem.C @ solution.x])
+            np.testing.assert_allclose(solution.rows[: len(rows)], rows, atol=1e-9)
+            if len(solution.rows) > len(rows):
+                np.testing.assert_allclose(solution.rows[len(rows) :], solution.x, atol=1e-9)
+        assert solution.message in ("", "active-set guess")
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_backends_report_an_infeasible_problem(solver):
+    from giwbc.control.qp import QpProblem
+
+    backend = make_solver(solver)
+    infeasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([1.0]), C=np.ones((1, 1)),
+                           l=np.array([2.0]), u=np.array([3.0]), structure=7)  # fmt: skip
+    solution = backend.solve(infeasible)
+    assert not solution.ok and solution.status is not QpStatus.SOLVED
+    assert solution.x.shape == (1,) and np.all(np.isnan(solution.x))
+    assert solution.solver == solver
+    np.testing.assert_allclose(backend.solve(small_qp(structure=8)).x, [0.0, 1.0], atol=1e-5)  # and recovers
+
+
+def test_qp_problem_violation_copy_and_validation():
+    p = small_qp()
+    assert p.violation(np.array([0.0, 1.0])) == 0.0
+    assert p.violation(np.array([1.0, 1.0])) == pytest.approx(1.0)  # equality off by 1
+    assert p.violation(np.array([1.5, -0.5])) == pytest.approx(1.5)  # x0 − x1 = 2 > 0.5
+    assert p.violation(np.array([11.0, -10.0])) == pytest.approx(20.5)  # the inequality dominates the bound (1)
+    q = larger_qp()
+    assert q.violation(np.array([0.5, 0.5, 1.0])) == pytest.approx(0.4)  # x0 below its lower limit
+    assert q.objective(np.array([0.9, 0.05, 1.05])) == pytest.approx(0.5 * (0.81 + 0.0025 + 1.1025) - 1.05)
+    copy = p.copy()
+    copy.H[0, 0] = 5.0
+    copy.lb[0] = 0.0
+    assert p.H[0, 0] == 1.0 and p.lb[0] == -10.0 and copy.structure == p.structure
+    assert larger_qp().copy().lb is None
+    p.validate()
+    bad = small_qp()
+    bad.g = np.zeros(3)
+    with pytest.raises(ValueError, match=r"^QP g has shape \(3,\), expected \(2,\)$"):
+        bad.validate()
+    bad = small_qp()
+    bad.A = np.full((1, 2), np.nan)
+    with pytest.raises(ValueError, match=r"^QP A is not finite$"):
+        bad.validate()
+    bad = small_qp()
+    bad.ub = None
+    with pytest.raises(ValueError, match=r"^QP ub has shape None, expected \(2,\)$"):
+        bad.validate()

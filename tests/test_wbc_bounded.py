@@ -6,8 +6,6 @@ now bounds both, and the whole tick (cold retry included) shares one outer budge
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 
@@ -30,22 +28,22 @@ def g1_model(g1):
     return g1.build_pinocchio()
 
 
-def test_an_infeasible_problem_fails_within_a_few_milliseconds(g1, g1_model):
+def test_an_infeasible_problem_fails_within_its_iteration_budget(g1, g1_model):
+    """Counted, not timed: the failing tick (warm start, then the cold retry) stops within
+    ``max_iter * (max_iter_in + 1)`` inner iterations, 110 by default (~2-5 ms at ~20-40 µs each),
+    where proxsuite's own defaults ran 13 million."""
     solver = ProxsuiteSolver()
     bound = solver.max_iter * (solver.max_iter_in + 1)
+    assert bound <= 200
     q, v = g1.default_configuration(), np.zeros(35)
-    elapsed = []
     for attempt in range(3):
         wbc = infeasible_controller(g1, g1_model)
         wbc.update(q, v, 0.0)  # cold: init + solve
-        start = time.perf_counter()
         result = wbc.update(q, v, 0.002)  # warm start, then the cold retry with the rest of the budget
-        elapsed.append(time.perf_counter() - start)
         assert result.status is WbcStatus.QP_FAILED and result.qp_status is not QpStatus.SOLVED
         assert 0 < result.iterations <= bound, (result.iterations, bound)
         assert np.all(np.isfinite(result.tau))
-    # ~2–5 ms measured (110 inner iterations at most, ~20–40 µs each); generous for loaded machines.
-    assert min(elapsed) < 0.02, elapsed
+        assert wbc.failures == 2 and wbc.consecutive_failures == 2
 
 
 def test_the_budget_is_shared_by_the_cold_retry(g1, g1_model):
@@ -67,15 +65,14 @@ def test_every_tick_of_a_fall_is_bounded(g1):
     controller = make_balance_controller(g1)
     solver = controller.wbc.solver
     bound = solver.max_iter * (solver.max_iter_in + 1)
-    worst, iterations, failed = 0.0, [], 0
+    iterations, failed = [], 0
     for i in range(600):
         robot.set_external_wrench(g1.base_link, [0.0, 400.0 if 50 <= i < 150 else 0.0, 0.0])
         result = controller.step(robot)
         robot.step()
-        worst = max(worst, result.timings.solve)
         iterations.append(result.iterations)
         failed += not result.ok
         assert np.all(np.isfinite(result.tau))
     assert robot.base_state().position[2] < 0.4  # it did fall
-    assert max(iterations) <= bound and max(iterations) > 0
-    assert worst < 0.1, worst  # 844 ms for one tick before the bound
+    assert max(iterations) <= bound and max(iterations) > 0  # 844 ms for one tick before the bound
+    assert failed > 0  # the budget was reached: the bound, not an easy problem, ended those ticks

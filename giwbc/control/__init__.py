@@ -33,7 +33,7 @@ from giwbc.control.tasks import (
     FramePoseTask,
     FramePositionTask,
     PostureTask,
-    Task,
+    WbcTask,
 )
 from giwbc.control.wbc import WbcResult, WbcStatus, WbcTimings, WholeBodyController
 
@@ -60,7 +60,7 @@ __all__ = [
     "QpsolversSolver",
     "RectangleContact",
     "SurfaceContact",
-    "Task",
+    "WbcTask",
     "WbcResult",
     "WbcStatus",
     "WbcTimings",

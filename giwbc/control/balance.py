@@ -29,6 +29,7 @@ task (which moves the CoM / posture references) and the deployment use the same 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 import pinocchio as pin
@@ -103,7 +104,7 @@ class BalanceController:
             raise ValueError(f"robot {description.name!r} has a fixed base; balance needs a floating base")
         self.description = description
         self.config = config = config or BalanceConfig()
-        model = description.build_pinocchio() if model is None else model
+        model = description.pinocchio_model if model is None else model
         weight = description.total_mass * 9.81
         self.wbc = WholeBodyController(
             model,
@@ -221,3 +222,24 @@ def make_balance_controller(
     if overrides:
         config = replace(config, **overrides)  # type: ignore[arg-type]
     return BalanceController(description, config, model)
+
+
+class StateEstimate(Protocol):
+    """What a controller closing its loop on an estimate reads: Pinocchio ``(q, v)``."""
+
+    q: np.ndarray
+    v: np.ndarray
+
+
+class BalanceOnEstimate:
+    """The balance controller closing its loop on an estimate: ``(q, v)`` from the estimator, joint
+    torques to the robot. Called like :class:`giwbc.robot.standing.PdHold`: ``controller(robot, estimate)``."""
+
+    def __init__(self, description: RobotDescription, **overrides: object) -> None:
+        self.controller = make_balance_controller(description, **overrides)
+        self.failures = 0
+
+    def __call__(self, robot: Robot, estimate: StateEstimate) -> None:
+        result = self.controller.update(estimate.q, estimate.v, robot.time())
+        self.failures = result.failures
+        robot.set_joint_torques(result.tau)

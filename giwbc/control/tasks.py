@@ -8,11 +8,13 @@ An acceleration task has a Jacobian ``J`` (dim × nv), a drift ``J̇ v``, a posi
 
 and enters the cost as ``‖J q̈ − (ẍ* − J̇ v)‖²_W`` with ``W = diag(weight)``.
 
-A task only *measures*: :meth:`Task.write` puts ``J``, ``e`` and ``J̇ v`` into rows of buffers the
-controller owns. The base-class side of the contract — gains, weights, references, and turning
+A task only *measures*: :meth:`WbcTask.write` puts ``J``, ``e`` and ``J̇ v`` into rows of buffers the
+controller owns; by default from the pure :meth:`WbcTask.compute_error`, :meth:`WbcTask.compute_jacobian`
+and :meth:`WbcTask.compute_drift`, which is all a new task needs to define. The base-class side
+of the contract — gains, weights, references, and turning
 all tasks into one least-squares term — is evaluated by the controller for all tasks at once
 (:class:`TaskStack`: a handful of numpy calls per tick, whatever the number of tasks).
-:meth:`Task.compute` fills ``jacobian``, ``drift``, ``error`` and ``error_velocity`` for inspection
+:meth:`WbcTask.compute` fills ``jacobian``, ``drift``, ``error`` and ``error_velocity`` for inspection
 and for the finite-difference tests.
 
 A :class:`ContactForceRegularization` acts on the contact-force variables instead:
@@ -59,12 +61,16 @@ def critical_damping(kp: float | np.ndarray) -> np.ndarray | float:
     return 2.0 * np.sqrt(kp)
 
 
-class Task(abc.ABC):
-    """Base class of acceleration tasks (see the module docstring).
+class WbcTask(abc.ABC):
+    """Base class of the whole-body controller's acceleration tasks (see the module docstring).
 
-    Subclasses implement :meth:`write`; a task whose Jacobian is constant (``constant_jacobian``)
-    writes its rows only when ``rows_stale`` is set, and one whose drift is zero
-    (``zero_drift``) never writes it.
+    Named apart from the RL :class:`giwbc.tasks.Task`. A task author writes two pure functions of
+    the kinodynamics, :meth:`compute_error` (reference minus measured) and
+    :meth:`compute_jacobian`, plus :meth:`compute_drift` (``J̇ v``) when it is not zero; the
+    default :meth:`write` copies them into the controller's rows. Hot tasks override
+    :meth:`write` to write in place instead; a task whose Jacobian is constant
+    (``constant_jacobian``) writes its rows only when ``rows_stale`` is set, and one whose drift is
+    zero (``zero_drift``) never writes it.
     """
 
     constant_jacobian = False
@@ -129,9 +135,26 @@ class Task(abc.ABC):
         self.nv = kin.nv
         self.rows_stale = True
 
-    @abc.abstractmethod
+    def compute_error(self, kin: Kinodynamics) -> np.ndarray:
+        """``e`` (dim,): reference minus measured, at the state of ``kin``."""
+        raise NotImplementedError(f"{type(self).__name__} implements neither compute_error nor write")
+
+    def compute_jacobian(self, kin: Kinodynamics) -> np.ndarray:
+        """``J`` (dim, nv): the task's rows of the generalized velocity, at the state of ``kin``."""
+        raise NotImplementedError(f"{type(self).__name__} implements neither compute_jacobian nor write")
+
+    def compute_drift(self, kin: Kinodynamics) -> np.ndarray:
+        """``J̇ v`` (dim,); zero unless overridden."""
+        return self._zeros
+
     def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
-        """Hot path: write ``J`` into ``rows`` (dim, nv), ``e`` into ``error`` and ``J̇ v`` into ``drift``."""
+        """Hot path: write ``J`` into ``rows`` (dim, nv), ``e`` into ``error`` and ``J̇ v`` into ``drift``.
+
+        By default from :meth:`compute_jacobian`, :meth:`compute_error` and :meth:`compute_drift`.
+        """
+        rows[...] = self.compute_jacobian(kin)
+        error[...] = self.compute_error(kin)
+        drift[...] = self.compute_drift(kin)
 
     def compute(self, kin: Kinodynamics) -> None:
         """Fill ``jacobian``, ``drift``, ``error`` and ``error_velocity`` for the current state."""
@@ -177,7 +200,7 @@ class TaskStack:
     it is diagonal (it is for the balance controller).
     """
 
-    def __init__(self, tasks: list[Task], nv: int, regularization: float = 0.0) -> None:
+    def __init__(self, tasks: list[WbcTask], nv: int, regularization: float = 0.0) -> None:
         self.groups = [self._group(task) for task in tasks]
         order = sorted(range(len(tasks)), key=lambda i: self.groups[i])  # stable
         self.tasks = [tasks[i] for i in order]
@@ -218,7 +241,7 @@ class TaskStack:
         self._ones = np.ones(5)
 
     @staticmethod
-    def _group(task: Task) -> int:
+    def _group(task: WbcTask) -> int:
         if task.constant_jacobian:
             return 2
         return 1 if task.constant_gram else 0
@@ -300,7 +323,7 @@ class TaskStack:
         self._matmul(self._nb, self.Jw, out=out)
 
 
-class ComTask(Task):
+class ComTask(WbcTask):
     """Centre-of-mass position (world frame, 3 rows)."""
 
     def __init__(self, name: str = "com", *, weight: float | np.ndarray = 1.0, kp: float | np.ndarray = 100.0, kd=None) -> None:
@@ -320,7 +343,7 @@ class ComTask(Task):
         kin.com_drift_into(drift)
 
 
-class FramePoseTask(Task):
+class FramePoseTask(WbcTask):
     """Pose of a model frame: ``[position; orientation]`` rows in world axes, a subset selectable.
 
     Position error ``p_ref − p``; orientation error ``log3(R_ref Rᵀ)`` (world axes) — the rotation
@@ -444,7 +467,7 @@ class FrameOrientationTask(FramePoseTask):
         super().__init__(frame, name or f"{frame}_orientation", mask=[0, 0, 0, 1, 1, 1], **kwargs)
 
 
-class PostureTask(Task):
+class PostureTask(WbcTask):
     """Joint positions (the coordinates after the floating base):
     ``q̈_j = ẍ_ref + Kp (q_ref − q_j) + Kd (v_ref − v_j)``. Constant selection Jacobian, zero drift."""
 
@@ -491,7 +514,7 @@ class PostureTask(Task):
         np.subtract(self.position_ref, q_joints, out=error)
 
 
-class AngularMomentumTask(Task):
+class AngularMomentumTask(WbcTask):
     """Centroidal angular momentum ``L`` (world axes about the CoM, 3 rows):
     ``L̇ = A_ω q̈ + Ȧ_ω v → L̇_ref + Kd (L_ref − L)`` (no position level: ``e = 0``)."""
 

@@ -60,7 +60,7 @@ import pinocchio as pin
 from giwbc.control.contacts import Contact
 from giwbc.control.kinodynamics import LOCAL, Kinodynamics
 from giwbc.control.qp import QpProblem, QpSolution, QpSolver, QpStatus, make_solver
-from giwbc.control.tasks import ContactForceRegularization, Task, TaskStack
+from giwbc.control.tasks import ContactForceRegularization, WbcTask, TaskStack
 from giwbc.robot.interface import ImpedanceCommand
 
 _frame_jacobian = pin.getFrameJacobian
@@ -267,7 +267,7 @@ class WholeBodyController:
         self.fallback_decay = float(fallback_decay)
         self.fallback_kd = self.impedance_kd.copy() if fallback_kd is None else _as_joint_array(fallback_kd, nj, "fallback_kd")
 
-        self.tasks: list[Task] = []
+        self.tasks: list[WbcTask] = []
         self.force_regularization: ContactForceRegularization | None = None
         self._slots: dict[str, _ContactSlot] = {}
         self._structure = 0
@@ -281,14 +281,14 @@ class WholeBodyController:
         self.problem: QpProblem | None = None
 
     # --- tasks -----------------------------------------------------------------------------------
-    def add_task(self, task: Task | ContactForceRegularization) -> Task | ContactForceRegularization:
+    def add_task(self, task: WbcTask | ContactForceRegularization) -> WbcTask | ContactForceRegularization:
         """Add a task (or the contact-force regularisation); returns it. Names must be unique."""
         if isinstance(task, ContactForceRegularization):
             self.force_regularization = task
             self._layout_dirty = True
             return task
-        if not isinstance(task, Task):
-            raise TypeError(f"expected a Task, got {type(task).__name__}")
+        if not isinstance(task, WbcTask):
+            raise TypeError(f"expected a WbcTask, got {type(task).__name__}")
         if any(existing.name == task.name for existing in self.tasks):
             raise ValueError(f"a task named {task.name!r} already exists")
         task.bind(self.kin)
@@ -308,7 +308,7 @@ class WholeBodyController:
                 return
         raise KeyError(f"no task named {name!r}")
 
-    def task(self, name: str) -> Task:
+    def task(self, name: str) -> WbcTask:
         for task in self.tasks:
             if task.name == name:
                 return task

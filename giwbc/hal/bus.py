@@ -34,6 +34,7 @@ from giwbc.hal.protocols.base import (
     FrameTraffic,
     MotorReply,
 )
+from giwbc.errors import BusCapacityError
 
 DEFAULT_MAX_LOAD = 0.8
 CLASSIC_CAN_MAX_BITRATE = 1_000_000
@@ -77,10 +78,6 @@ class BusLoad:
             f"bus {self.bus!r}: {self.n_motors} motors at {self.rate_hz:g} Hz on {self.bitrate} bit/s: "
             f"load {100 * self.nominal:.1f}% nominal, {100 * self.worst_case:.1f}% worst-case with bit stuffing"
         )
-
-
-class BusCapacityError(ValueError):
-    """A bus plan needs more bandwidth than allowed."""
 
 
 def bus_load(
@@ -274,16 +271,21 @@ class CanBusLink:
         """
         expected = set(self.protocol.index) if expect is None else set(expect)
         replies: dict[int, MotorReply] = {}
+        done = False
         while True:
-            waiting = len(expected.difference(replies)) if expected else None
-            received = self.receive_frames(deadline, waiting)
+            # Once all replied, the frames already waiting are read too: a reply's newest copy counts.
+            waiting = None if done or not expected else len(expected.difference(replies))
+            received = self.receive_frames(None if done else deadline, waiting)
             decoded = self.protocol.decode_frames(received.frames)
             self.tally(decoded)
             for k in np.flatnonzero(decoded.valid):
                 reply = decoded.reply(int(k))
                 assert reply is not None
                 replies[reply.motor_id] = reply
-            if received.error is not None or (expected and expected.issubset(replies)) or time.perf_counter() >= deadline:
+            if done or received.error is not None:
+                break
+            done = bool(expected) and expected.issubset(replies)
+            if not done and time.perf_counter() >= deadline:
                 break
         missing = tuple(sorted(expected.difference(replies)))
         return ReceiveResult(replies, missing, self.counters)

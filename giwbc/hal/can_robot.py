@@ -16,7 +16,7 @@ measured when the command arrived, so the command computed from them goes out at
   are drained and counted as late, never taken as this cycle's replies.
 - **IMU** comes from an :class:`ImuSource` (``emulated``: the emulator's :class:`ImuChannel`).
 - **Base state** is not measured on hardware: it comes from an attached
-  :class:`~giwbc.robot.estimator.StateEstimator`, updated once per exchange. Without one,
+  :class:`~giwbc.estimation.estimator.StateEstimator`, updated once per exchange. Without one,
   :meth:`base_state` raises :class:`BaseStateUnavailable` (never ground truth from a simulator).
 - ``peer``: an in-process stand-in for the motors (:class:`Peer`, the emulator): told that time
   reached the cycle time before draining (``advance``), and to answer after sending (``answer``),
@@ -39,22 +39,15 @@ from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import CORRUPT, REPLY, DecodedReplies
 from giwbc.hal.protocols.multibus import MultiBusCodec
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading
+from giwbc.errors import BaseStateUnavailable, NonFiniteCommand
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
-    from giwbc.robot.estimator import Estimate, StateEstimator
+    from giwbc.estimation.estimator import Estimate, StateEstimator
 
 COMMAND, ENTER, EXIT = "command", "enter", "exit"
 _SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
 _SEND_BUDGET = 5e-3  # s: how long sending may take when the caller gives no deadline
-
-
-class BaseStateUnavailable(RuntimeError):
-    """The CAN robot measures no base state: attach an estimator."""
-
-
-class NonFiniteCommand(ValueError):
-    """A command with NaN or infinite entries (from a policy or controller): never sent."""
 
 
 class Peer(Protocol):
@@ -133,6 +126,7 @@ class CanRobot(DescribedRobot):
 
     ``links``: open :class:`CanBusLink` per bus in plan order (default: opened from the plan).
     ``reply_timeout``: how long after sending a cycle waits for replies at most (s).
+    ``send_budget``: how long a cycle's sends may take when :meth:`exchange` is given no deadline (s).
     ``wait_for_replies=False``: a cycle does not wait; it first takes the frames that arrived
     since the last one (the replies to the previous cycle's commands: state one period old), then
     sends. The loop then never blocks on the bus, which suits motors that answer later than a
@@ -151,6 +145,7 @@ class CanRobot(DescribedRobot):
         links: Sequence[CanBusLink] | None = None,
         reply_timeout: float = 0.8e-3,
         wait_for_replies: bool = True,
+        send_budget: float = _SEND_BUDGET,
     ) -> None:
         self.description = description
         self.plan = plan
@@ -163,6 +158,7 @@ class CanRobot(DescribedRobot):
         self.estimator = estimator
         self.peer = peer
         self.reply_timeout = float(reply_timeout)
+        self.send_budget = float(send_budget)
         self.wait_for_replies = bool(wait_for_replies)
         if peer is not None and not self.wait_for_replies:
             raise ValueError("a lockstep peer answers within the cycle: wait_for_replies=False needs motors with a clock of their own")
@@ -185,6 +181,7 @@ class CanRobot(DescribedRobot):
             link.counts = self._link_counts[b]
         self._plan_order = np.arange(len(self.motors))  # the steady state: one reply per motor, in plan order
         self._no_corrupt = np.zeros(len(self.links), dtype=np.int64)
+        self._no_frames = np.zeros(len(self.links), dtype=np.int64)  # expected per bus when draining
 
         dofs = description.dofs
         self._joint_state = np.zeros((3, dofs))  # q, dq, tau: written in one assignment per cycle
@@ -242,7 +239,7 @@ class CanRobot(DescribedRobot):
             late, corrupt_late, unknown_late = self._drain()
         t0 = time.perf_counter()
         if deadline is None:
-            deadline = t0 + _SEND_BUDGET
+            deadline = t0 + self.send_budget
         batch, clamped = self._frames(kind)
         ports = self.ports.ports
         for port in ports:
@@ -270,7 +267,7 @@ class CanRobot(DescribedRobot):
         imu_fresh = self._read_imu()
         self._time = float(t)
         if self.estimator is not None and imu_fresh:
-            from giwbc.robot.estimator import Measurement
+            from giwbc.estimation.estimator import Measurement
 
             self._estimate = self.estimator.update(Measurement(self._imu, self._q.copy(), self._dq.copy(), self._tau.copy()))
         report = CycleReport(
@@ -293,39 +290,67 @@ class CanRobot(DescribedRobot):
             np.add.at(self.clamp_counts, self.joint_index, clamp.astype(np.int64))
         return batch, n_clamped
 
-    def _receive(self, deadline: float | None) -> tuple[DecodedReplies, np.ndarray, int]:
-        """Frames from every bus, decoded in one call: until each bus's motors all replied or
-        ``deadline`` passed, or (``deadline`` None) those already waiting. Returns the decoded
-        frames (in arrival order per bus), the bus of each, and how many frames no protocol can
-        read (CAN FD on a classic bus)."""
-        got = self.ports.receive(deadline, self._bus_sizes, drain=deadline is None)
-        batch, bus = got.frames, got.bus
-        decoded = self.codec.decode_replies(bus, batch)
-        skipped = sum(got.skipped)
-        failed = {b for b, error in enumerate(got.errors) if error is not None}
-        while deadline is not None and time.perf_counter() < deadline:
-            # A bus that gave frames other than one reply per motor (corrupt, unknown, repeated)
-            # is read again for the motors still missing, until the deadline.
-            heard = np.zeros(len(self.motors), dtype=bool)
-            heard[decoded.index[decoded.verdict == REPLY]] = True
-            need = self._bus_sizes - np.add.reduceat(heard, self._bus_starts)
-            again = [b for b in np.flatnonzero(need > 0).tolist() if b not in failed]
-            if not again:
-                break
-            more = self.ports.receive(deadline, need, again)
-            skipped += sum(more.skipped)
-            failed.update(b for b, error in enumerate(more.errors) if error is not None)
-            self._count_received(more)
-            if not len(more.frames):
-                continue
-            order = np.argsort(np.concatenate([bus, more.bus]), kind="stable")  # keep bus order
-            batch = np.frombuffer(batch.tobytes() + more.frames.tobytes(), dtype=batch.dtype)[order]
-            bus = np.concatenate([bus, more.bus])[order]
-            decoded = self.codec.decode_replies(bus, batch)
-        self._count_received(got)
+    def _receive(self, deadline: float | None, expect: bool = True) -> tuple[DecodedReplies, np.ndarray, int]:
+        """Frames from every bus, decoded together: until each bus's motors all replied or
+        ``deadline`` passed, or (``deadline`` None) those already waiting (``expect``: one reply per
+        motor is expected to wait, read without probing). Returns the decoded frames (in arrival
+        order per bus), the bus of each, and how many frames no protocol can read (CAN FD on a
+        classic bus).
+
+        All buses are served together (a silent motor on one bus does not hold up the others), and
+        a bus whose frames were not one reply per motor (stray, corrupt or repeated frames) is read
+        again for the motors still missing; at the deadline, whatever already waits on those buses
+        is read too, so a stray frame never hides a reply that came in time. Copies of a reply
+        already waiting when all replied are read as well: the newest copy counts, as it does when
+        replies are read at the next cycle."""
+        ports, codec = self.ports, self.codec
+        if deadline is None:
+            got = ports.receive(None, self._bus_sizes if expect else self._no_frames, drain=True)
+            received = [got]
+            batch, bus = got.frames, got.bus
+            decoded = codec.decode_replies(bus, batch)
+        else:
+            got = ports.receive(deadline, self._bus_sizes)
+            received = [got]
+            batch, bus = got.frames, got.bus
+            decoded = codec.decode_replies(bus, batch)
+            failed = {b for b, error in enumerate(got.errors) if error is not None}
+            while True:
+                heard = np.zeros(len(self.motors), dtype=bool)
+                heard[decoded.index[decoded.verdict == REPLY]] = True
+                need = self._bus_sizes - np.add.reduceat(heard, self._bus_starts)
+                again = [b for b in np.flatnonzero(need > 0).tolist() if b not in failed]
+                if not again:
+                    break
+                past = time.perf_counter() >= deadline
+                more = ports.receive(None, None, again) if past else ports.receive(deadline, need, again)
+                received.append(more)
+                failed.update(b for b, error in enumerate(more.errors) if error is not None)
+                if len(more.frames):
+                    batch, bus = self._merge(batch, bus, more)
+                    decoded = codec.decode_replies(bus, batch)
+                if past:
+                    break
+            live = [b for b in range(len(self.links)) if b not in failed]
+            more = ports.receive(None, self._no_frames, live, drain=True)  # copies already waiting: one select()
+            if len(more.frames):
+                received.append(more)
+                batch, bus = self._merge(batch, bus, more)
+                decoded = codec.decode_replies(bus, batch)
+        skipped = 0
+        for part in received:
+            self._count_received(part)
+            skipped += sum(part.skipped)
         if len(bus):
             self._link_counts += np.bincount(bus * 8 + VERDICT_COLUMNS[decoded.verdict], minlength=self._link_counts.size).reshape(self._link_counts.shape)
         return decoded, bus, skipped
+
+    @staticmethod
+    def _merge(batch: np.ndarray, bus: np.ndarray, more: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``batch`` and the frames of ``more``, in bus order, arrival order within a bus."""
+        order = np.argsort(np.concatenate([bus, more.bus]), kind="stable")
+        merged = np.frombuffer(batch.tobytes() + more.frames.tobytes(), dtype=batch.dtype)[order]
+        return merged, np.concatenate([bus, more.bus])[order]
 
     def _count_received(self, got: Any) -> None:
         """Datagrams a read skipped (CAN FD frames) and driver errors, per bus."""
@@ -335,7 +360,7 @@ class CanRobot(DescribedRobot):
 
     def _drain(self) -> tuple[int, np.ndarray, int]:
         """Read frames already waiting (late replies, stray frames): (late, corrupt per bus, unknown)."""
-        decoded, bus, skipped = self._receive(None)
+        decoded, bus, skipped = self._receive(None, expect=False)
         late = decoded.count(REPLY)
         self.late_frames += late
         corrupt = np.bincount(bus[decoded.verdict == CORRUPT], minlength=len(self.links))
@@ -433,7 +458,7 @@ class CanRobot(DescribedRobot):
         import pinocchio as pin
 
         if self._pin is None:
-            model = self.description.build_pinocchio()
+            model = self.description.pinocchio_model
             self._pin = (model, model.createData())
         model, data = self._pin
         frame = model.getFrameId(link)
@@ -457,13 +482,8 @@ class CanRobot(DescribedRobot):
         return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[k]))
 
     # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         """Torque commands: impedance frames with ``kp = kd = 0``, clipped to the effort limits."""
-        torques = np.asarray(torques, dtype=float)
-        if torques.shape != (self.dofs,):
-            raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
-        if not np.all(np.isfinite(torques)):
-            raise NonFiniteCommand(f"joint torques are not finite: {torques}")
         zeros = np.zeros(self.dofs)
         self.command = ImpedanceCommand(self._q.copy(), zeros, zeros.copy(), zeros.copy(), np.clip(torques, -self._effort, self._effort))
 

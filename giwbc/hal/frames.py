@@ -29,6 +29,7 @@ at the latest; a driver error ends it early and is returned, not raised.
 from __future__ import annotations
 
 import errno
+import queue
 import select
 import socket
 import time
@@ -61,6 +62,8 @@ def frames(arbitration_ids: Any, data: Any, lengths: Any = 8, extended: Any = Fa
     """A batch from identifiers, payloads ``(N, 8)`` uint8 (zero-padded), lengths and the
     extended-id flag (scalars broadcast)."""
     ids = np.asarray(arbitration_ids, dtype=np.uint32).reshape(-1)
+    if (np.asarray(lengths) > 8).any() or (np.asarray(lengths) < 0).any():
+        raise ValueError(f"a classic CAN frame carries 0..8 data bytes, got lengths {lengths!r} (CAN FD is not supported)")
     out = np.zeros(ids.size, dtype=FRAME)
     out["can_id"] = np.where(np.asarray(extended, dtype=bool), ids | np.uint32(CAN_EFF_FLAG), ids)
     out["len"] = lengths
@@ -73,8 +76,8 @@ def frames_of(can_frames: Sequence[CanFrame]) -> np.ndarray:
     out = np.zeros(len(can_frames), dtype=FRAME)
     for k, f in enumerate(can_frames):
         n = len(f.data)
-        if n > 8:
-            raise ValueError(f"a classic CAN frame carries at most 8 bytes, got {n}")
+        if n > 8 or getattr(f, "is_fd", False):
+            raise ValueError(f"a classic CAN frame carries at most 8 bytes, got {n} (CAN FD is not supported)")
         out[k]["can_id"] = f.arbitration_id | (CAN_EFF_FLAG if f.is_extended_id else 0)
         out[k]["len"] = n
         out[k]["data"][:n] = np.frombuffer(bytes(f.data), dtype=np.uint8)
@@ -106,12 +109,15 @@ def fields(batch: np.ndarray) -> FrameFields:
 
 
 def payload(record: np.void) -> bytes:
-    """The payload bytes of one record (``len`` of them, at most 8)."""
+    """The payload bytes of one record (``len`` of them; a record cannot hold more than 8)."""
     return record["data"].tobytes()[: min(int(record["len"]), 8)]
 
 
 def to_message(record: np.void) -> can.Message:
-    """One record as a python-can message."""
+    """One record as a python-can message (``ValueError`` for a record saying more than 8 bytes:
+    a classic frame cannot carry them, and they are never cut)."""
+    if record["len"] > 8:
+        raise ValueError(f"a classic CAN frame record says {int(record['len'])} data bytes (at most 8); not sent")
     can_id = int(record["can_id"])
     extended = bool(can_id & CAN_EFF_FLAG)
     return fast_message(
@@ -229,6 +235,14 @@ class FramePort(ABC):
         o = self.send(np.frombuffer(raw, dtype=FRAME), deadline, timeout=timeout, retries=retries)
         return o.sent, o.dropped, o.retries, o.errors
 
+    def wait_fd(self) -> int | None:
+        """A descriptor that becomes readable when frames arrive, or None (then the port is polled)."""
+        return None
+
+    def pending(self) -> bool | None:
+        """Whether frames are waiting, when the port can tell without reading one (None: unknown)."""
+        return None
+
     def receive_raw(self, chunks: list[bytes], deadline: float | None, limit: int | None) -> tuple[int, int, Exception | None]:
         """:meth:`receive` appending the frames' bytes to ``chunks``: (frames read, skipped, error)."""
         received = self.receive(deadline, limit)
@@ -239,13 +253,21 @@ class FramePort(ABC):
 
 def frame_port(bus: can.BusABC) -> FramePort:
     """The fastest port for ``bus``: :class:`SocketPort` where its frames are classic
-    ``struct can_frame`` datagrams on a socket we can read (giwbc-unix; socketcan without CAN FD
-    and without software filters), :class:`MessagePort` otherwise."""
+    ``struct can_frame`` datagrams on a socket we can read (giwbc-unix; socketcan without software
+    filters), :class:`MessagePort` otherwise.
+
+    Batches are classic frames: a bus opened for CAN FD (``fd=True``) is refused with
+    ``can.CanInitializationError``, as giwbc-unix refuses it, rather than having its FD frames cut
+    or dropped. (A classic port that still meets an FD frame skips it and counts it.)"""
+    if getattr(bus, "protocol", None) in (can.CanProtocol.CAN_FD, can.CanProtocol.CAN_FD_NON_ISO):
+        raise can.CanInitializationError(
+            f"{getattr(bus, 'channel_info', bus)!s}: the batched frame path carries classic CAN frames only "
+            "(struct can_frame, 8 data bytes); open the bus without fd=True"
+        )
     if hasattr(type(bus), "frame_socket"):  # giwbc-unix: its socket, or None until the peer connects
         return SocketPort(bus, lambda: bus.frame_socket)  # type: ignore[attr-defined]
     if type(bus).__name__ == "SocketcanBus" and isinstance(getattr(bus, "socket", None), socket.socket):
-        classic = getattr(bus, "protocol", None) is can.CanProtocol.CAN_20
-        if classic and not bus.filters:  # CAN FD sockets deliver 72-byte frames; software filters need python-can's path
+        if not bus.filters:  # software filters need python-can's path
             sock = bus.socket  # type: ignore[attr-defined]
             return SocketPort(bus, lambda: sock)
     return MessagePort(bus)
@@ -253,6 +275,7 @@ def frame_port(bus: can.BusABC) -> FramePort:
 
 _FULL = (errno.EAGAIN, errno.EWOULDBLOCK, errno.ENOBUFS)  # SocketCAN reports a full queue as ENOBUFS
 _NO_FRAMES = np.zeros(0, dtype=FRAME)
+_POLL_SLICE = 100e-6  # s: how long a group waits before polling again buses it cannot select() on
 
 
 def _send_frame(sock: socket.socket, frame: bytes, timeout: float) -> bool:
@@ -349,6 +372,13 @@ class SocketPort(FramePort):
             self._socket = self._socket_of_bus()
         return self._socket
 
+    def wait_fd(self) -> int | None:
+        try:
+            sock = self.socket()
+        except (can.CanError, OSError):
+            return None
+        return None if sock is None else sock.fileno()
+
     def send(self, batch: np.ndarray, deadline: float, *, timeout: float = 200e-6, retries: int = 2) -> SendOutcome:
         return SendOutcome(*self.send_raw(batch.tobytes(), deadline, timeout, retries))
 
@@ -420,54 +450,115 @@ class PortGroup:
 
     def receive(self, deadline: float | None = None, need: Sequence[int] | None = None, buses: Sequence[int] | None = None,
                 *, drain: bool = False) -> GroupReceived:  # fmt: skip
-        """Frames of every bus (or of ``buses``, ascending): until ``deadline`` (None: those already
-        waiting), at most ``need[b]`` from bus ``b``. With ``drain`` (and no deadline), ``need`` is
-        what each bus is expected to hold and everything waiting is read: the expected frames
+        """Frames of every bus (or of ``buses``, ascending), all buses served together: each bus is
+        read until it gave ``need[b]`` frames (None: everything) or ``deadline`` passed (None: only
+        the frames already waiting). A bus waiting for frames never holds up another: what is
+        waiting is read from every bus first, then one ``select()`` over the buses still short
+        wakes on whichever has frames, until the deadline. With ``drain`` and no deadline, ``need``
+        is what each bus is expected to hold and everything waiting is read: the expected frames
         first, then one ``select()`` over all sockets finds the buses holding more (late or stray
         frames), instead of probing every bus for "nothing left" (a raised BlockingIOError each).
-        Buses are read one after the other (their frames are in flight together), so the call
-        returns by the deadline."""
+        Returns by the deadline (plus one read per bus)."""
         n = len(self.ports)
         per_bus: list[list[bytes]] = [[] for _ in range(n)]
         counts = np.zeros(n, dtype=np.int64)
         skipped = [0] * n
         errors: list[Exception | None] = [None] * n
         order = self._buses if buses is None else buses
-        expected = drain and need is not None and deadline is None
+        ports = self.ports
+        short = []
         for b in order:
             limit = None if need is None else int(need[b])
-            counts[b], skipped[b], errors[b] = self.ports[b].receive_raw(per_bus[b], deadline, limit)
-        if expected:
+            if limit == 0:
+                continue
+            counts[b], skipped[b], errors[b] = ports[b].receive_raw(per_bus[b], None, limit)
+            if errors[b] is None and (limit is None or counts[b] < limit):
+                short.append(b)
+        if deadline is not None:
+            clock = time.perf_counter
+            while short:
+                left = deadline - clock()
+                if left <= 0:
+                    break
+                for b in self._ready(short, left):
+                    limit = None if need is None else int(need[b]) - int(counts[b])
+                    got, more, errors[b] = ports[b].receive_raw(per_bus[b], None, limit)
+                    counts[b] += got
+                    skipped[b] += more
+                short = [b for b in short if errors[b] is None and (need is None or counts[b] < need[b])]
+        elif drain and need is not None:
             for b in self._more_waiting([b for b in order if errors[b] is None]):
-                got, more, errors[b] = self.ports[b].receive_raw(per_bus[b], None, None)
+                got, more, errors[b] = ports[b].receive_raw(per_bus[b], None, None)
                 counts[b] += got
                 skipped[b] += more
         raw = b"".join(chunk for chunks in per_bus for chunk in chunks)
         batch = np.frombuffer(raw, dtype=FRAME) if raw else _NO_FRAMES
         return GroupReceived(batch, np.repeat(self._buses, counts), tuple(skipped), tuple(errors))
 
+    def _sockets(self, buses: Sequence[int]) -> tuple[dict[int, int], list[int]]:
+        """The descriptors of ``buses`` to wait on ({fd: bus}) and the buses without one (a port
+        with no socket yet, a python-can bus that has no descriptor): those are polled."""
+        sockets: dict[int, int] = {}
+        polled = []
+        ports = self.ports
+        for b in buses:
+            port = ports[b]
+            sock = port._socket if type(port) is SocketPort else None  # the common case, without calls
+            fd = port.wait_fd() if sock is None else sock.fileno()
+            if fd is None or fd < 0:
+                polled.append(b)
+            else:
+                sockets[fd] = b
+        return sockets, polled
+
+    def _ready(self, buses: Sequence[int], timeout: float) -> list[int]:
+        """The buses among ``buses`` with frames waiting, waiting at most ``timeout`` for one. Buses
+        that cannot be waited on are polled: returned at once when their port says frames are
+        waiting, after a short slice when it cannot tell."""
+        sockets, polled = self._sockets(buses)
+        pending = [(b, self.ports[b].pending()) for b in polled]
+        waiting = [b for b, p in pending if p]
+        unknown = [b for b, p in pending if p is None]
+        if waiting:
+            timeout = 0.0
+        elif polled:
+            timeout = min(timeout, _POLL_SLICE)
+        ready = select.select(list(sockets), [], [], timeout)[0] if sockets else (time.sleep(timeout) or [])
+        return sorted(waiting + unknown + [sockets[fd] for fd in ready])
+
     def _more_waiting(self, buses: Sequence[int]) -> list[int]:
         """The buses among ``buses`` with frames still waiting: one select() over their sockets
-        (a bus without a socket counts as possibly waiting)."""
-        sockets: dict[int, int] = {}
-        unknown = []
-        for b in buses:
-            port = self.ports[b]
-            sock = port.socket() if isinstance(port, SocketPort) else None
-            if sock is None or sock.fileno() < 0:
-                unknown.append(b)
-            else:
-                sockets[sock.fileno()] = b
+        (a bus that cannot be waited on counts as possibly waiting, unless its port knows better)."""
+        sockets, polled = self._sockets(buses)
+        polled = [b for b in polled if self.ports[b].pending() is not False]
         ready = select.select(list(sockets), [], [], 0)[0] if sockets else []
-        return sorted(unknown + [sockets[fd] for fd in ready])
+        return sorted(polled + [sockets[fd] for fd in ready])
 
 
 class MessagePort(FramePort):
     """Frames as ``can.Message`` objects through python-can's own ``send`` and ``recv``."""
 
+    def __init__(self, bus: can.BusABC) -> None:
+        super().__init__(bus)
+        try:
+            fd = bus.fileno()
+        except (NotImplementedError, can.CanError, OSError, AttributeError):
+            fd = None
+        self._fd = fd if isinstance(fd, int) and fd >= 0 else None
+        queue_ = getattr(bus, "queue", None)  # python-can's virtual bus: its receive queue
+        self._queue = queue_ if isinstance(queue_, queue.Queue) else None
+
+    def wait_fd(self) -> int | None:
+        return self._fd
+
+    def pending(self) -> bool | None:
+        return None if self._queue is None else not self._queue.empty()
+
     def send(self, batch: np.ndarray, deadline: float, *, timeout: float = 200e-6, retries: int = 2) -> SendOutcome:
         bus, clock = self.bus, time.perf_counter
         n = len(batch)
+        if n and batch["len"].max() > 8:
+            raise ValueError("a classic CAN frame record says more than 8 data bytes; nothing was sent")
         sent = retried = errors = 0
         for k in range(n):
             msg = to_message(batch[k])

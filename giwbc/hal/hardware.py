@@ -9,6 +9,10 @@ Schema::
     bitrate = 1000000
     max_load = 0.8                 # optional, nominal utilisation limit (default 0.8)
     protocol = "mit"               # optional, default "mit"
+    host_id = 0                    # optional (MIT): the id the motors reply with (their master
+                                   # id); only frames with it are replies. Without it replies are
+                                   # told by length and byte 0 alone, and some foreign frames
+                                   # pass for replies (a Damiao bus: byte 0 has a 4-bit id)
 
     [[motors]]
     bus = "can0"
@@ -47,12 +51,9 @@ import can
 from giwbc.hal.bus import DEFAULT_MAX_LOAD, BusCapacityError, BusLoad, BusPlanSpec, CanBusLink, plan_bus_loads
 from giwbc.hal.motor import RANGE_FIELDS, MotorConfig, motor_preset
 from giwbc.hal.protocols import ActuatorProtocol, ProtocolConfigError, protocol_class
+from giwbc.errors import HardwareConfigError
 
 IMU_SOURCES = ("emulated", "serial", "can")
-
-
-class HardwareConfigError(ValueError):
-    """A hardware plan is malformed or cannot work; the message names the file and the problem."""
 
 
 @dataclass(frozen=True)
@@ -66,9 +67,12 @@ class BusConfig:
     max_load: float = DEFAULT_MAX_LOAD
     protocol: str = "mit"
     motors: tuple[MotorConfig, ...] = ()
+    host_id: int | None = None
 
     def make_protocol(self, **kwargs: Any) -> ActuatorProtocol:
-        """The protocol instance for this bus's motors."""
+        """The protocol instance for this bus's motors (with the bus's ``host_id``, if any)."""
+        if self.host_id is not None:
+            kwargs.setdefault("host_id", self.host_id)
         return protocol_class(self.protocol)(self.motors, **kwargs)
 
     def open(self, **kwargs: Any) -> can.BusABC:
@@ -209,7 +213,7 @@ def validate_joints(
 
 
 # ----------------------------------------------------------------------------- internals
-_BUS_KEYS = {"name", "interface", "channel", "bitrate", "max_load", "protocol"}
+_BUS_KEYS = {"name", "interface", "channel", "bitrate", "max_load", "protocol", "host_id"}
 _MOTOR_KEYS = {"bus", "id", "joint", "model", "sign", "zero_offset", "gear_ratio", "reply", *RANGE_FIELDS}
 _TOP_KEYS = {"buses", "motors", "imu", "description"}
 
@@ -279,7 +283,11 @@ def _build(data: Mapping[str, Any], control_rate: float, source: str, interface:
             protocol_class(protocol)
         except ValueError as e:
             raise _fail(source, where, str(e)) from None
+        host_id = _int(source, where, b, "host_id") if "host_id" in b else None
+        if host_id is not None and not 0 <= host_id <= 0x7FF:
+            raise _fail(source, where, f"host_id must be a standard 11-bit id (0..0x7FF), got {host_id}")
         buses[name] = dict(
+            host_id=host_id,
             name=name,
             interface=interface or _str(source, where, b, "interface"),
             channel=_channel(source, where, b["channel"]),

@@ -138,7 +138,7 @@ class SafetySupervisor:
         self.soft_upper = upper - c.soft_limit_margin
         self.velocity_limit = c.velocity_scale * description.velocity_limits
         self.torque_limit = np.where(description.effort_limits > 0, c.torque_scale * description.effort_limits, np.inf)
-        self._imu_in_base = _imu_in_base(description)
+        self._imu_in_base = np.array(description.imu_in_base.rotation)
         self._base_z_in_imu = self._imu_in_base.T[:, 2].tolist()
         self.bus_names = bus_names or tuple(f"bus{b}" for b in range(n_buses))
         self._corrupt = np.zeros((c.corrupt_window, max(1, len(self.bus_names))), dtype=np.int64)
@@ -270,20 +270,6 @@ class SafetySupervisor:
 
             which = "; ".join(f"{self.bus_names[b]}{cause(b)}" for b in down)
             add(FaultKind.BUS_OFF, f"bus-off: the driver refused every frame for {int(self._bus_down[down].min())} cycles on {which}")
-
-
-def _imu_in_base(description: RobotDescription) -> np.ndarray:
-    """Rotation of the IMU frame in the base frame (identity without an IMU frame)."""
-    if not description.imu_frame or not description.floating_base:
-        return np.eye(3)
-    import pinocchio as pin
-
-    model = description.build_pinocchio()
-    data = model.createData()
-    pin.framesForwardKinematics(model, data, description.default_configuration())
-    base = data.oMf[model.getFrameId(description.base_link)].rotation
-    imu = data.oMf[model.getFrameId(description.imu_frame)].rotation
-    return base.T @ imu
 
 
 @dataclass

@@ -15,6 +15,15 @@ no other node, frames sent before the peer is there are lost (counted in :attr:`
 ``send`` waits at most ``timeout`` for room in the socket buffer, then raises
 ``can.CanOperationError`` (a full transmit queue); a closed peer raises ``can.CanOperationError``
 on send and receive. Registered with python-can through the ``can.interface`` entry point.
+
+Classic CAN only. The channel carries ``struct can_frame`` (at most 8 data bytes), what the
+emulator and every protocol here (MIT mode) use, and what the batched frame path
+(:mod:`giwbc.hal.frames`) moves; nothing is cut to fit: ``fd=True`` is refused when the bus is
+opened (``can.CanInitializationError``), an FD message or a payload over 8 bytes when it is sent
+(``can.CanOperationError``), and a datagram that is not a classic frame when it is received
+(``can.CanOperationError``, never read as a shorter frame). A protocol that needs CAN FD (moteus)
+would add the ``struct canfd_frame`` layout (72-byte datagrams, BRS/ESI flags) to both ends and to
+the frame batches together.
 """
 
 from __future__ import annotations
@@ -31,6 +40,7 @@ import can
 from giwbc.hal.frames import CAN_EFF_FLAG, CAN_EFF_MASK, CAN_ERR_FLAG, CAN_RTR_FLAG, CAN_SFF_MASK, fast_message
 
 _FRAME = struct.Struct("=IB3x8s")  # struct can_frame: can_id, len, pad, data[8]
+_MAX_DATAGRAM = 256  # recv size: larger than any CAN datagram, so a non-classic one is seen whole, never cut to 16 bytes
 
 
 def channel_address(channel: str) -> bytes:
@@ -49,9 +59,15 @@ class UnixCanBus(can.BusABC):
         *,
         serve: bool = False,
         connect_timeout: float = 5.0,
+        fd: bool = False,
         _socket: socket.socket | None = None,
         **kwargs: Any,
     ) -> None:
+        if fd:
+            raise can.CanInitializationError(
+                f"giwbc-unix channel {channel!r}: CAN FD is not supported (the channel carries classic frames, "
+                "struct can_frame, at most 8 data bytes); open it with fd=False"
+            )
         self.channel = channel
         self.channel_info = f"giwbc-unix {channel}" + (" (motor side)" if serve else "")
         self.unsent = 0
@@ -151,6 +167,22 @@ class UnixCanBus(can.BusABC):
             return
         sock = self._sock
         assert sock is not None
+        frame = self._frame(msg)
+        if self._try_send(sock, frame):
+            return
+        # The buffer is full: wait for room, at most `timeout` (select: microsecond timeouts).
+        if (timeout is None or timeout > 0) and select.select([], [sock], [], timeout)[1] and self._try_send(sock, frame):
+            return
+        raise can.CanOperationError(f"{self.channel_info}: transmit buffer full")
+
+    def _frame(self, msg: can.Message) -> bytes:
+        """``msg`` as a ``struct can_frame``; ``can.CanOperationError`` for what one cannot carry."""
+        data = bytes(msg.data)
+        if msg.is_fd or len(data) > 8 or not 0 <= msg.dlc <= 8:
+            raise can.CanOperationError(
+                f"{self.channel_info}: a CAN FD frame or a payload over 8 bytes cannot be sent (classic CAN only: "
+                f"is_fd={msg.is_fd}, {len(data)} data bytes, dlc {msg.dlc}); nothing was sent"
+            )
         can_id = msg.arbitration_id
         if msg.is_extended_id:
             can_id |= CAN_EFF_FLAG
@@ -158,13 +190,8 @@ class UnixCanBus(can.BusABC):
             can_id |= CAN_RTR_FLAG
         if msg.is_error_frame:
             can_id |= CAN_ERR_FLAG
-        frame = _FRAME.pack(can_id, msg.dlc, bytes(msg.data))
-        if self._try_send(sock, frame):
-            return
-        # The buffer is full: wait for room, at most `timeout` (select: microsecond timeouts).
-        if (timeout is None or timeout > 0) and select.select([], [sock], [], timeout)[1] and self._try_send(sock, frame):
-            return
-        raise can.CanOperationError(f"{self.channel_info}: transmit buffer full")
+        length = msg.dlc if msg.is_remote_frame else len(data)  # a remote frame: the requested length, no data
+        return _FRAME.pack(can_id, length, b"" if msg.is_remote_frame else data)
 
     def _try_send(self, sock: socket.socket, frame: bytes) -> bool:
         """Send without waiting: False when the buffer is full, an error when the peer is gone."""
@@ -189,14 +216,14 @@ class UnixCanBus(can.BusABC):
             sock = self._sock
             assert sock is not None
         try:
-            data = sock.recv(16)
+            data = sock.recv(_MAX_DATAGRAM)
         except BlockingIOError:
             if timeout is not None and timeout <= 0:
                 return None, False
             if not select.select([sock], [], [], timeout)[0]:  # (select: microsecond timeouts, poll: milliseconds)
                 return None, False
             try:
-                data = sock.recv(16)
+                data = sock.recv(_MAX_DATAGRAM)
             except BlockingIOError:
                 return None, False
             except OSError as error:
@@ -210,13 +237,20 @@ class UnixCanBus(can.BusABC):
     @staticmethod
     def _message(data: bytes) -> can.Message:
         if len(data) != _FRAME.size:
-            raise can.CanOperationError(f"giwbc-unix: a {len(data)}-byte datagram is not a CAN frame")
+            raise can.CanOperationError(
+                f"giwbc-unix: a {len(data)}-byte datagram is not a classic CAN frame (CAN FD is not supported); dropped"
+            )
         can_id, length, payload = _FRAME.unpack(data)
+        if length > 8:
+            raise can.CanOperationError(f"giwbc-unix: a classic CAN frame says {length} data bytes (at most 8); dropped")
         extended = bool(can_id & CAN_EFF_FLAG)
-        return fast_message(
-            can_id & (CAN_EFF_MASK if extended else CAN_SFF_MASK), payload[: min(length, 8)], extended,
-            remote=bool(can_id & CAN_RTR_FLAG), error=bool(can_id & CAN_ERR_FLAG), timestamp=time.time(),
+        remote = bool(can_id & CAN_RTR_FLAG)
+        msg = fast_message(
+            can_id & (CAN_EFF_MASK if extended else CAN_SFF_MASK), b"" if remote else payload[:length], extended,
+            remote=remote, error=bool(can_id & CAN_ERR_FLAG), timestamp=time.time(),
         )  # fmt: skip
+        msg.dlc = length
+        return msg
 
     def shutdown(self) -> None:
         if self._closed:

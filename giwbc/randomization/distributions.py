@@ -11,12 +11,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from giwbc.errors import RandomizationError
 
 KINDS = {"uniform": ("low", "high"), "loguniform": ("low", "high"), "gaussian": ("mean", "std")}
-
-
-class RandomizationError(ValueError):
-    """An invalid randomization config: unknown parameter, link or joint, or bad distribution."""
 
 
 @dataclass(frozen=True)

@@ -27,18 +27,33 @@ from typing import Any
 import numpy as np
 
 from giwbc.randomization.sampling import Push, Sample
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
+from giwbc.robot.interface import ImpedanceCommand, ImuReading, Robot, RobotWrapper
 from giwbc.robot.noise import SensorErrors, SensorModel
 
 
-class PerturbedRobot(Robot):
+def sensor_errors(episode: Sample) -> SensorErrors:
+    """The sensor part of a randomization episode sample (per-joint noise and bias, IMU latency)."""
+    return SensorErrors(
+        joint_position_noise=episode["joint_position_noise"].copy(),
+        joint_position_bias=episode["joint_position_bias"].copy(),
+        joint_velocity_noise=episode["joint_velocity_noise"].copy(),
+        gyro_noise=episode.scalar("gyro_noise"),
+        gyro_bias=episode["gyro_bias"].copy(),
+        accel_noise=episode.scalar("accelerometer_noise"),
+        accel_bias=episode["accelerometer_bias"].copy(),
+        orientation_noise=episode.scalar("imu_orientation_noise"),
+        imu_latency=int(episode.scalar("imu_latency")),
+    )
+
+
+class PerturbedRobot(RobotWrapper):
     """Wraps a simulated robot; :meth:`set_perturbations` installs one episode's samples."""
 
     def __init__(self, robot: Robot) -> None:
         for method in ("step", "reset", "set_external_wrench"):
             if not callable(getattr(robot, method, None)):
                 raise TypeError(f"{type(robot).__name__} is not a simulated robot: it has no {method}()")
-        self.inner = robot
+        super().__init__(robot)
         n = robot.dofs
         self.latency = 0
         self.kp_scale, self.kd_scale = np.ones(n), np.ones(n)
@@ -57,9 +72,9 @@ class PerturbedRobot(Robot):
 
     def __getattr__(self, name: str) -> Any:
         """Everything else (``model``, ``data``, ``description``, ``sensor``, ``client``...) is the engine's."""
-        if name == "inner":
+        if name == "robot":
             raise AttributeError(name)
-        return getattr(self.inner, name)
+        return getattr(self.robot, name)
 
     # --- configuration --------------------------------------------------------------------------
     def set_perturbations(self, physics: Sample | None, episode: Sample | None) -> None:
@@ -73,9 +88,9 @@ class PerturbedRobot(Robot):
         self.sensors = None
         self.pushes = ()
         if episode is not None:
-            errors = SensorErrors.from_sample(episode)
+            errors = sensor_errors(episode)
             if not errors.is_ideal():
-                self.sensors = SensorModel(self.inner, errors, np.random.default_rng(episode.noise_seed), imu=self._has_imu)
+                self.sensors = SensorModel(self.robot, errors, np.random.default_rng(episode.noise_seed), imu=self._has_imu)
             self.pushes = episode.pushes
         self._schedule_pushes()
 
@@ -92,10 +107,10 @@ class PerturbedRobot(Robot):
 
     @property
     def timestep(self) -> float:
-        model = getattr(self.inner, "model", None)
+        model = getattr(self.robot, "model", None)
         if model is not None and hasattr(model, "opt"):
             return float(model.opt.timestep)
-        return float(getattr(self.inner, "timestep", None) or self.inner.description.timestep)
+        return float(getattr(self.robot, "timestep", None) or self.robot.description.timestep)
 
     @property
     def tick(self) -> int:
@@ -108,7 +123,7 @@ class PerturbedRobot(Robot):
 
     # --- simulation -----------------------------------------------------------------------------
     def reset(self, q: np.ndarray | None = None, v: np.ndarray | None = None) -> None:
-        self.inner.reset(q, v)
+        self.robot.reset(q, v)
         self._tick = 0
         self._queue.clear()
         self._event_index = 0
@@ -128,7 +143,7 @@ class PerturbedRobot(Robot):
         while self._tick < end:
             following = self._tick + 1 if every_step else min(end, self._next_event())
             self._acting = dict(self._push_force)
-            self.inner.step(following - self._tick)
+            self.robot.step(following - self._tick)
             self._tick = following
             if every_step:
                 self.sensors.record()
@@ -157,7 +172,7 @@ class PerturbedRobot(Robot):
 
     def _apply_wrench(self, link: str) -> None:
         force, torque = self._user_wrenches.get(link, (np.zeros(3), np.zeros(3)))
-        self.inner.set_external_wrench(link, force + self._push_force.get(link, 0.0), torque)
+        self.robot.set_external_wrench(link, force + self._push_force.get(link, 0.0), torque)
 
     @property
     def push_force(self) -> dict[str, np.ndarray]:
@@ -175,12 +190,7 @@ class PerturbedRobot(Robot):
         return int(np.searchsorted(self._push_starts, self._tick, side="left"))
 
     # --- commands -------------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        torques = np.array(torques, dtype=float)
-        if torques.shape != (self.dofs,):
-            raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
-        if not np.all(np.isfinite(torques)):
-            raise ValueError(f"joint torques must be finite, got {torques}")
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         self._command("torques", torques)
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
@@ -203,27 +213,27 @@ class PerturbedRobot(Robot):
 
     def _forward(self, kind: str, payload: Any) -> None:
         if kind == "torques":
-            self.inner.set_joint_torques(payload)
+            self.robot.set_joint_torques(payload)
         else:
-            self.inner.set_joint_impedance(payload)
+            self.robot.set_joint_impedance(payload)
 
     # --- reads ----------------------------------------------------------------------------------
     def joint_positions(self) -> np.ndarray:
-        return self.inner.joint_positions() if self.sensors is None else self.sensors.joint_positions()
+        return self.robot.joint_positions() if self.sensors is None else self.sensors.joint_positions()
 
     def joint_velocities(self) -> np.ndarray:
-        return self.inner.joint_velocities() if self.sensors is None else self.sensors.joint_velocities()
+        return self.robot.joint_velocities() if self.sensors is None else self.sensors.joint_velocities()
 
     def joint_efforts(self) -> np.ndarray:
-        return self.inner.joint_efforts() if self.sensors is None else self.sensors.joint_efforts()
+        return self.robot.joint_efforts() if self.sensors is None else self.sensors.joint_efforts()
 
     def imu(self) -> ImuReading:
         """The IMU reading ``imu_latency`` physics steps old, with bias and noise."""
-        return self.inner.imu() if self.sensors is None else self.sensors.imu()
+        return self.robot.imu() if self.sensors is None else self.sensors.imu()
 
     def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Engine base state (ground truth) with the measured joint readings."""
-        q, v = self.inner.generalized_state()
+        q, v = self.robot.generalized_state()
         if self.sensors is None:
             return q, v
         n = self.dofs
@@ -232,27 +242,3 @@ class PerturbedRobot(Robot):
         v[-n:] = self.sensors.joint_velocities()
         return q, v
 
-    def base_state(self) -> BaseState:
-        return self.inner.base_state()
-
-    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
-        return self.inner.link_pose(link)
-
-    def contact_wrench(self, link: str) -> ContactWrench:
-        return self.inner.contact_wrench(link)
-
-    # --- identity -------------------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return self.inner.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.inner.joint_names
-
-    @property
-    def floating_base(self) -> bool:
-        return self.inner.floating_base
-
-    def time(self) -> float:
-        return self.inner.time()

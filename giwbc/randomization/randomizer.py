@@ -64,7 +64,7 @@ class DomainRandomizer:
         return drawn
 
     def apply(self, robot: Robot, drawn: Randomization) -> None:
-        engine = robot.inner if isinstance(robot, PerturbedRobot) else robot
+        engine = robot.robot if isinstance(robot, PerturbedRobot) else robot
         self._applier(engine).apply(drawn.physics)
         if isinstance(robot, PerturbedRobot):
             robot.set_perturbations(drawn.physics, drawn.episode)
@@ -77,7 +77,7 @@ class DomainRandomizer:
 
     def restore(self, robot: Robot) -> None:
         """The nominal model and no perturbation."""
-        engine = robot.inner if isinstance(robot, PerturbedRobot) else robot
+        engine = robot.robot if isinstance(robot, PerturbedRobot) else robot
         self._applier(engine).restore()
         if isinstance(robot, PerturbedRobot):
             robot.set_perturbations(None, None)

@@ -1,5 +1,6 @@
 """Robots: descriptions that build matching Pinocchio and MuJoCo models, and the Robot interface."""
 
+from giwbc.robot.collision import CollisionShape
 from giwbc.robot.description import (
     ContactRectangle,
     JointSpec,
@@ -13,6 +14,7 @@ from giwbc.robot.mujoco_robot import MujocoRobot
 
 __all__ = [
     "BaseState",
+    "CollisionShape",
     "ContactRectangle",
     "ContactWrench",
     "DescribedRobot",

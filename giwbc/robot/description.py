@@ -19,6 +19,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from giwbc.errors import RobotDescriptionError
+
+from giwbc.robot.collision import CollisionError, CollisionShape, UrdfGeometry, excluded_pairs, parse_shape
+from giwbc.robot.mujoco_model import build_mujoco_model
+from giwbc.robot.pinocchio_model import build_pinocchio_model
+
 if TYPE_CHECKING:
     import mujoco
     import pinocchio
@@ -26,10 +32,6 @@ if TYPE_CHECKING:
 CONFIG_NAME = "robot.toml"
 ERD_PREFIX = "erd:"  # a path inside the example-robot-data wheel's share folder
 PROJECT_ROBOTS = Path(__file__).resolve().parents[2] / "robots"
-
-
-class RobotDescriptionError(ValueError):
-    """A robot description is missing, malformed or inconsistent with its model."""
 
 
 @dataclass(frozen=True)
@@ -86,6 +88,9 @@ class RobotDescription:
     base_link: str
     joints: tuple[JointSpec, ...]
     contacts: tuple[ContactRectangle, ...] = ()
+    collision: tuple[CollisionShape, ...] = ()  # whole-body primitives; the feet's boxes come from ``contacts``
+    self_collision: bool = True
+    collision_exclude: tuple[tuple[str, str], ...] = ()  # declared pairs, beyond the automatic adjacent ones
     imu_frame: str | None = None
     timestep: float = 0.002
     integrator: str = "implicitfast"
@@ -140,13 +145,24 @@ class RobotDescription:
         raise KeyError(f"robot {self.name!r} has no contact {name!r}; it has {[c.name for c in self.contacts]}")
 
     @cached_property
+    def collision_links(self) -> tuple[str, ...]:
+        """Links that carry collision geometry (shapes or a foot's contact box), in first-declared order."""
+        return tuple(dict.fromkeys([*(c.link for c in self.contacts), *(s.link for s in self.collision)]))
+
+    @cached_property
+    def self_collision_exclusions(self) -> frozenset[tuple[str, str]]:
+        """Sorted pairs of :attr:`collision_links` that must not collide with each other (see giwbc.robot.collision)."""
+        urdf = UrdfGeometry.parse(self.urdf_path, self.urdf_path.read_text())
+        return excluded_pairs(urdf.parents, self.collision_links, self.collision_exclude)
+
+    @cached_property
     def default_base_position(self) -> np.ndarray:
         """Base position at the default pose with the lowest sole corner on the floor (z = 0)."""
         if not self.floating_base or not self.contacts:
             return np.zeros(3)
         import pinocchio as pin
 
-        model = self.build_pinocchio()
+        model = self.pinocchio_model
         data = model.createData()
         q = np.concatenate([np.zeros(3), [0.0, 0.0, 0.0, 1.0], self.default_positions])
         pin.framesForwardKinematics(model, data, q)
@@ -164,20 +180,34 @@ class RobotDescription:
     # --- models ----------------------------------------------------------------------------
     def urdf_text(self) -> str:
         """The URDF with ``package://`` URIs resolved to absolute paths."""
-        text = self.urdf_path.read_text()
-        share = _example_robot_data_share()
-        if share is not None:
-            text = text.replace("package://example-robot-data/", f"{share}/")
-        return text
+        return _resolve_package_uris(self.urdf_path.read_text())
 
-    def build_pinocchio(self) -> "pinocchio.Model":
-        from giwbc.robot.pinocchio_model import build_pinocchio_model
+    @cached_property
+    def imu_in_base(self) -> "pinocchio.SE3":
+        """Placement of the IMU frame in the base frame at the default pose (identity without one)."""
+        import pinocchio as pin
 
+        if not self.imu_frame or not self.floating_base:
+            return pin.SE3.Identity()
+        model = self.pinocchio_model
+        data = model.createData()
+        pin.framesForwardKinematics(model, data, self.default_configuration())
+        return data.oMf[model.getFrameId(self.base_link)].actInv(data.oMf[model.getFrameId(self.imu_frame)])
+
+    @cached_property
+    def pinocchio_model(self) -> "pinocchio.Model":
+        """The Pinocchio model, parsed from the URDF once per description and shared: read it, make
+        your own ``Data`` (``model.createData()``); never modify it (take :meth:`build_pinocchio`)."""
         return build_pinocchio_model(self)
 
-    def build_mujoco(self) -> "mujoco.MjModel":
-        from giwbc.robot.mujoco_model import build_mujoco_model
+    def build_pinocchio(self) -> "pinocchio.Model":
+        """A new Pinocchio model of its own (a copy of :attr:`pinocchio_model`), free to modify."""
+        import pinocchio as pin
 
+        return pin.Model(self.pinocchio_model)
+
+    def build_mujoco(self) -> "mujoco.MjModel":
+        """A new MuJoCo model (floor, actuators, contact boxes, collision shapes, sensors)."""
         return build_mujoco_model(self)
 
     @cached_property
@@ -238,6 +268,12 @@ def _example_robot_data_share() -> Path | None:
         if str(file).replace(os.sep, "/").endswith(marker):
             return Path(str(distribution.locate_file(file))).parent
     return None
+
+
+def _resolve_package_uris(urdf: str) -> str:
+    """``package://example-robot-data/`` URIs rewritten to the installed wheel's share folder."""
+    share = _example_robot_data_share()
+    return urdf if share is None else urdf.replace("package://example-robot-data/", f"{share}/")
 
 
 def _resolve_model_path(source: str, config_path: Path) -> Path:
@@ -355,6 +391,8 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
             raise RobotDescriptionError(f"{cwhere}: half_length and half_width must be > 0")
         contacts.append(contact)
 
+    collision, self_collision, exclude = _parse_collision(config, where, urdf_path, contacts)
+
     simulation = config.get("simulation", {})
     integrator = simulation.get("integrator", "implicitfast")
     if integrator not in ("euler", "implicit", "implicitfast", "rk4"):
@@ -367,6 +405,9 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
         base_link=_require(model, "base_link", str, f"{where} [model]"),
         joints=tuple(joints),
         contacts=tuple(contacts),
+        collision=collision,
+        self_collision=self_collision,
+        collision_exclude=exclude,
         imu_frame=model.get("imu_frame"),
         timestep=_number(simulation, "timestep", 0.002, f"{where} [simulation]"),
         integrator=integrator,
@@ -382,3 +423,43 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
         if link is not None and link not in links:
             raise RobotDescriptionError(f"{where}: {label} {link!r} is not a link of {urdf_path.name}")
     return description
+
+
+def _parse_collision(
+    config: dict[str, Any], where: str, urdf_path: Path, contacts: list[ContactRectangle]
+) -> tuple[tuple[CollisionShape, ...], bool, tuple[tuple[str, str], ...]]:
+    """``[[collision]]`` shapes and the ``[self_collision]`` table."""
+    tables = config.get("collision", [])
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise RobotDescriptionError(f"{where}: 'collision' should be an array of tables ([[collision]])")
+    shapes: list[CollisionShape] = []
+    if tables:
+        try:
+            urdf = UrdfGeometry.parse(urdf_path, _resolve_package_uris(urdf_path.read_text()))
+            shapes = [parse_shape(table, f"{where} [[collision]] #{i}", urdf) for i, table in enumerate(tables)]
+        except CollisionError as error:
+            raise RobotDescriptionError(str(error)) from error
+    names = [s.name for s in shapes] + [f"{c.name}_sole" for c in contacts]
+    duplicates = sorted({n for n in names if names.count(n) > 1})
+    if duplicates:
+        raise RobotDescriptionError(f"{where}: collision shape names must be unique (give 'name'); repeated: {duplicates}")
+
+    table = config.get("self_collision", {})
+    if not isinstance(table, dict):
+        raise RobotDescriptionError(f"{where}: [self_collision] should be a table")
+    unknown = set(table) - {"enabled", "exclude"}
+    if unknown:
+        raise RobotDescriptionError(f"{where} [self_collision]: unknown keys {sorted(unknown)}")
+    enabled = table.get("enabled", True)
+    if not isinstance(enabled, bool):
+        raise RobotDescriptionError(f"{where} [self_collision]: 'enabled' should be true or false, got {enabled!r}")
+    carriers = {c.link for c in contacts} | {s.link for s in shapes}
+    exclude = []
+    for pair in table.get("exclude", []):
+        if not (isinstance(pair, list) and len(pair) == 2 and all(isinstance(p, str) for p in pair)):
+            raise RobotDescriptionError(f"{where} [self_collision]: 'exclude' entries should be pairs of link names, got {pair!r}")
+        bare = [p for p in pair if p not in carriers]
+        if bare:
+            raise RobotDescriptionError(f"{where} [self_collision]: exclude pair {pair} names links without collision shapes: {bare}")
+        exclude.append((pair[0], pair[1]))
+    return tuple(shapes), enabled, tuple(exclude)

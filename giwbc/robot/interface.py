@@ -22,6 +22,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from giwbc.errors import ConfigError, NonFiniteCommand
+
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
 
@@ -157,9 +159,27 @@ class Robot(abc.ABC):
     def imu(self) -> ImuReading: ...
 
     # --- commands -------------------------------------------------------------------------
-    @abc.abstractmethod
     def set_joint_torques(self, torques: np.ndarray) -> None:
-        """Command joint torques (clipped to the effort limits by the backend)."""
+        """Command joint torques (clipped to the effort limits by the backend).
+
+        Checked here once for every backend (one per joint, all finite: a :class:`ConfigError` or
+        :class:`NonFiniteCommand` before anything is sent), then handed to the backend's
+        :meth:`_send_joint_torques`, as python-can's ``BusABC.send`` hands frames to its interface.
+        """
+        self._send_joint_torques(self.checked_torques(torques))
+
+    def checked_torques(self, torques: np.ndarray) -> np.ndarray:
+        """``torques`` as a new float array of one entry per joint, all finite; else a clear error."""
+        array = np.array(torques, dtype=float)
+        if array.shape != (self.dofs,):
+            raise ConfigError(f"expected {self.dofs} joint torques, got shape {array.shape}")
+        if not np.isfinite(array).all():
+            raise NonFiniteCommand(f"joint torques are not finite: {array}")
+        return array
+
+    @abc.abstractmethod
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
+        """Backend hook: send torques already checked by :meth:`set_joint_torques` (a fresh array)."""
 
     @abc.abstractmethod
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
@@ -197,6 +217,80 @@ class DescribedRobot(Robot):
     @property
     def floating_base(self) -> bool:
         return self.description.floating_base
+
+
+class RobotWrapper(Robot):
+    """A Robot around another, in the manner of ``gymnasium.Wrapper``: everything is forwarded.
+
+    The wrapped robot is :attr:`robot`, the innermost one :attr:`unwrapped`; a subclass overrides
+    only what it changes (sensor noise, perturbations, an estimated base state).
+    """
+
+    def __init__(self, robot: Robot) -> None:
+        if not isinstance(robot, Robot):
+            raise TypeError(f"{type(self).__name__} wraps a Robot, got {type(robot).__name__}")
+        self.robot = robot
+
+    @property
+    def unwrapped(self) -> Robot:
+        """The innermost robot (the engine or the hardware)."""
+        robot = self.robot
+        return robot.unwrapped if isinstance(robot, RobotWrapper) else robot
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.robot!r})"
+
+    # --- identity and time ------------------------------------------------------------------
+    @property
+    def name(self) -> str:
+        return self.robot.name
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.robot.joint_names
+
+    @property
+    def dofs(self) -> int:
+        return self.robot.dofs
+
+    @property
+    def floating_base(self) -> bool:
+        return self.robot.floating_base
+
+    def time(self) -> float:
+        return self.robot.time()
+
+    # --- readings -----------------------------------------------------------------------------
+    def joint_positions(self) -> np.ndarray:
+        return self.robot.joint_positions()
+
+    def joint_velocities(self) -> np.ndarray:
+        return self.robot.joint_velocities()
+
+    def joint_efforts(self) -> np.ndarray:
+        return self.robot.joint_efforts()
+
+    def base_state(self) -> BaseState:
+        return self.robot.base_state()
+
+    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        return self.robot.link_pose(link)
+
+    def contact_wrench(self, link: str) -> ContactWrench:
+        return self.robot.contact_wrench(link)
+
+    def imu(self) -> ImuReading:
+        return self.robot.imu()
+
+    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
+        return self.robot.generalized_state()
+
+    # --- commands -------------------------------------------------------------------------------
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
+        self.robot.set_joint_torques(torques)
+
+    def set_joint_impedance(self, command: ImpedanceCommand) -> None:
+        self.robot.set_joint_impedance(command)
 
 
 def base_velocity_local(base: BaseState) -> np.ndarray:

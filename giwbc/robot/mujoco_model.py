@@ -3,23 +3,31 @@
 What the builder adds to the URDF (through ``mujoco.MjSpec``): a free joint for a floating base,
 a floor, one impedance actuator per actuated joint (force = ctrl + bias, the bias holding
 ``-kp q - kd qdot`` so torque and MIT-style impedance commands share one actuator and the implicit
-integrator sees the damping), box collision geometry for the feet (meshes stay visual only),
-IMU sensors at the IMU frame, and force/torque/touch sensors at each foot.
+integrator sees the damping), box collision geometry for the feet and the description's primitive
+whole-body shapes (meshes stay visual only), self-collision exclusions between adjacent collision
+bodies, IMU sensors at the IMU frame, and force/torque/touch sensors at each foot.
 """
 
 from __future__ import annotations
 
 import math
 import re
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
 
-from giwbc.robot.description import RobotDescription, RobotDescriptionError
+from giwbc.errors import RobotDescriptionError
+from giwbc.robot.collision import CollisionShape
+
+if TYPE_CHECKING:
+    from giwbc.robot.description import RobotDescription
 
 SOLE_THICKNESS = 0.01  # half-height of a foot collision box below... above the sole plane, m
 MUJOCO_COMPILER = '<mujoco><compiler fusestatic="false" discardvisual="false" strippath="false" balanceinertia="false"/></mujoco>'
-COLLISION_BIT = 1
+COLLISION_BIT = 1  # every colliding geom, as MuJoCo's defaults (contype = conaffinity = 1)
+ROBOT_ONLY_BIT = 2  # the robot's contype when self-collision is off: it then meets the floor (affinity 1|2), not itself
+GEOM_TYPES = {"box": mujoco.mjtGeom.mjGEOM_BOX, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE, "sphere": mujoco.mjtGeom.mjGEOM_SPHERE}
 
 
 def imu_sensor_names() -> dict[str, str]:
@@ -73,7 +81,7 @@ def _add_world(spec: mujoco.MjSpec, description: RobotDescription) -> None:
             size=[0, 0, 0.05],
             friction=[description.floor_friction, 0.005, 0.0001],
             contype=COLLISION_BIT,
-            conaffinity=COLLISION_BIT,
+            conaffinity=COLLISION_BIT | ROBOT_ONLY_BIT,
             rgba=[0.45, 0.5, 0.55, 1],
         )
 
@@ -110,6 +118,43 @@ def _add_feet(spec: mujoco.MjSpec, description: RobotDescription) -> None:
             ("touch", mujoco.mjtSensor.mjSENS_TOUCH, f"{contact.name}_touch_site"),
         ]:
             spec.add_sensor(name=names[kind], type=sensor_type, objtype=mujoco.mjtObj.mjOBJ_SITE, objname=site)
+
+
+def _add_body_shapes(spec: mujoco.MjSpec, description: RobotDescription) -> None:
+    """Primitive whole-body collision geoms, and exclusions for adjacent collision bodies."""
+    friction = [description.floor_friction, 0.005, 0.0001]
+    for shape in description.collision:
+        _add_shape(spec, shape, friction)
+    if not description.self_collision:
+        for geom in spec.geoms:
+            if geom.contype & COLLISION_BIT and geom.name != "floor":
+                geom.contype = ROBOT_ONLY_BIT
+        return
+    for a, b in sorted(description.self_collision_exclusions):
+        spec.add_exclude(bodyname1=a, bodyname2=b)
+
+
+def _add_shape(spec: mujoco.MjSpec, shape: CollisionShape, friction: list[float]) -> None:
+    try:
+        body = spec.body(shape.link)
+    except Exception:
+        body = None
+    if body is None:
+        raise RobotDescriptionError(f"collision shape {shape.name!r}: MuJoCo model has no body {shape.link!r}")
+    size = list(shape.size) + [0.0] * (3 - len(shape.size))
+    body.add_geom(
+        name=shape.name,
+        type=GEOM_TYPES[shape.kind],
+        size=size,
+        pos=list(shape.position),
+        quat=list(shape.quaternion),
+        contype=COLLISION_BIT,
+        conaffinity=COLLISION_BIT,
+        condim=3,
+        friction=friction,
+        group=3,
+        rgba=[0.3, 0.5, 0.8, 0.4],
+    )
 
 
 def _add_imu(spec: mujoco.MjSpec, description: RobotDescription) -> None:
@@ -163,6 +208,7 @@ def build_mujoco_spec(description: RobotDescription) -> mujoco.MjSpec:
         root.pos = description.default_base_position
     _add_world(spec, description)
     _add_feet(spec, description)
+    _add_body_shapes(spec, description)
     _add_imu(spec, description)
     _configure_joints(spec, description)
     spec.worldbody.add_camera(

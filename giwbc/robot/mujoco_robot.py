@@ -151,12 +151,7 @@ class MujocoRobot(DescribedRobot):
             raise KeyError(f"no sensor {name!r}; available: {sorted(self._sensor_slices)}") from None
 
     # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        torques = np.asarray(torques, dtype=float)
-        if torques.shape != (self.dofs,):
-            raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
-        if not np.all(np.isfinite(torques)):
-            raise ValueError(f"joint torques must be finite, got {torques}")
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         if self._impedance_active:  # torque mode: no stiffness or damping in the actuator
             bias = self.model.actuator_biasprm
             bias[:, _BIAS_POSITION] = 0.0

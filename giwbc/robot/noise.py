@@ -10,10 +10,10 @@ true readings sampled from a robot. Two wrappers use it:
   It does *not* report the base pose and twist, link poses and contact wrenches: on hardware
   nothing measures them, so :meth:`NoisyRobot.base_state`, :meth:`~NoisyRobot.link_pose`,
   :meth:`~NoisyRobot.contact_wrench` (and hence ``generalized_state``) raise
-  :class:`NotMeasuredError`; a state estimator (:mod:`giwbc.robot.estimator`) provides them, and
-  the truth stays reachable for evaluation as :attr:`NoisyRobot.ground_truth`.
+  :class:`NotMeasuredError`; a state estimator (:mod:`giwbc.estimation.estimator`) provides them, and
+  the truth stays reachable for evaluation as :attr:`NoisyRobot.robot`.
 * :class:`~giwbc.randomization.PerturbedRobot` builds a :class:`SensorModel` from each episode's
-  randomized noise and bias (:meth:`SensorErrors.from_sample`) and passes the ground truth through.
+  randomized noise and bias (:func:`giwbc.randomization.perturbed.sensor_errors`) and passes the ground truth through.
 
 Sampling: a model takes one sample of every channel per distinct ``robot.time()`` it is read at
 (or per physics step, when its owner records every step); latency counts those samples. Every
@@ -26,21 +26,14 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import asdict, dataclass, fields
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from giwbc.robot.estimation.so3 import quat_multiply
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
-
-if TYPE_CHECKING:
-    from giwbc.randomization.sampling import Sample
+from giwbc.robot.so3 import quat_multiply
+from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
+from giwbc.errors import NotMeasuredError
 
 __all__ = ["NoisyRobot", "NotMeasuredError", "SensorErrors", "SensorModel", "SensorNoiseConfig"]
-
-
-class NotMeasuredError(RuntimeError):
-    """A quantity a real robot does not measure (base pose/twist, link poses, contact wrenches)."""
 
 
 @dataclass(frozen=True)
@@ -68,21 +61,6 @@ class SensorErrors:
     imu_dropout: float = 0.0  # probability a sample repeats the previous IMU sample
     imu_latency: int = 0  # samples
     joint_latency: int = 0  # samples
-
-    @classmethod
-    def from_sample(cls, episode: "Sample") -> "SensorErrors":
-        """The sensor part of a randomization episode sample (per-joint noise and bias, IMU latency)."""
-        return cls(
-            joint_position_noise=episode["joint_position_noise"].copy(),
-            joint_position_bias=episode["joint_position_bias"].copy(),
-            joint_velocity_noise=episode["joint_velocity_noise"].copy(),
-            gyro_noise=episode.scalar("gyro_noise"),
-            gyro_bias=episode["gyro_bias"].copy(),
-            accel_noise=episode.scalar("accelerometer_noise"),
-            accel_bias=episode["accelerometer_bias"].copy(),
-            orientation_noise=episode.scalar("imu_orientation_noise"),
-            imu_latency=int(episode.scalar("imu_latency")),
-        )
 
     @property
     def latency(self) -> int:
@@ -287,36 +265,20 @@ class SensorModel:
         return ImuReading(quaternion, gyro, accel, truth.time)
 
 
-class NoisyRobot(Robot):
+class NoisyRobot(RobotWrapper):
     """A :class:`Robot` reporting what a real robot measures, with noise and latency; see the module doc.
 
-    ``ground_truth`` is the wrapped robot: step and reset the simulation through it, and read it
-    to evaluate an estimator. A wrapped robot whose time goes backwards (a reset) restarts the
-    latency buffers; biases persist, as they would across a controller restart.
+    ``robot`` is the wrapped robot, the ground truth: step and reset the simulation through it, and
+    read it to evaluate an estimator. A wrapped robot whose time goes backwards (a reset) restarts
+    the latency buffers; biases persist, as they would across a controller restart.
     """
 
     def __init__(self, robot: Robot, config: SensorNoiseConfig | None = None, rng: np.random.Generator | None = None) -> None:
         if rng is None:
             raise ValueError("NoisyRobot needs a seeded numpy.random.Generator (rng=np.random.default_rng(seed))")
-        self.ground_truth = robot
+        super().__init__(robot)
         self.config = config if config is not None else SensorNoiseConfig()
         self.sensors = SensorModel(robot, self.config.errors(rng), rng)
-
-    # --- identity -------------------------------------------------------------------------
-    @property
-    def name(self) -> str:
-        return self.ground_truth.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.ground_truth.joint_names
-
-    @property
-    def floating_base(self) -> bool:
-        return self.ground_truth.floating_base
-
-    def time(self) -> float:
-        return self.ground_truth.time()
 
     # --- measured ---------------------------------------------------------------------------
     def imu(self) -> ImuReading:
@@ -334,19 +296,16 @@ class NoisyRobot(Robot):
     # --- not measured on hardware -------------------------------------------------------------
     def base_state(self) -> BaseState:
         raise NotMeasuredError(
-            "a real robot does not measure its base state: estimate it (giwbc.robot.estimator.StateEstimator, "
-            "or EstimatedRobot), or read noisy.ground_truth.base_state() to evaluate"
+            "a real robot does not measure its base state: estimate it (giwbc.estimation.estimator.StateEstimator, "
+            "or EstimatedRobot), or read noisy.robot.base_state() to evaluate"
         )
+
+    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joints only on a fixed base; a floating base needs the base state (not measured)."""
+        return Robot.generalized_state(self)
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
         raise NotMeasuredError(f"link poses need the base pose, which a real robot does not measure (link {link!r})")
 
     def contact_wrench(self, link: str) -> ContactWrench:
         raise NotMeasuredError(f"this robot has no force/torque sensor at {link!r}: estimate contacts from joint efforts")
-
-    # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        self.ground_truth.set_joint_torques(torques)
-
-    def set_joint_impedance(self, command: ImpedanceCommand) -> None:
-        self.ground_truth.set_joint_impedance(command)

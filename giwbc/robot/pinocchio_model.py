@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 import pinocchio as pin
 
-from giwbc.robot.description import RobotDescription, RobotDescriptionError
+from giwbc.errors import RobotDescriptionError
+
+if TYPE_CHECKING:
+    from giwbc.robot.description import RobotDescription
 
 
 def build_pinocchio_model(description: RobotDescription) -> pin.Model:

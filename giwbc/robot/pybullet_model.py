@@ -1,8 +1,10 @@
 """Build the PyBullet world of a robot description from the same URDF as the MuJoCo and Pinocchio models.
 
 What the builder changes in the URDF before PyBullet reads it (the MuJoCo builder does the same
-through ``MjSpec``): every ``<collision>`` is dropped and each foot gets a collision box whose sole
-matches the description's contact rectangle, so only the feet touch the floor; links without
+through ``MjSpec``): every ``<collision>`` is dropped; each foot gets a collision box whose sole
+matches the description's contact rectangle and each whole-body primitive of the description
+(``[[collision]]``) becomes a ``<box>``, ``<sphere>`` or ``<capsule>``; self-collision is on, less the
+description's excluded (adjacent) pairs, as in MuJoCo; links without
 ``<inertial>`` get an explicit zero mass (PyBullet would otherwise give each of them 1 kg, where
 Pinocchio and MuJoCo give 0); visuals are dropped unless asked for (loading the G1 meshes costs
 ~0.35 s, the bare model ~2 ms). Inertial overrides let a domain randomizer move a link's centre of
@@ -16,13 +18,14 @@ from __future__ import annotations
 import functools
 import tempfile
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from giwbc.robot.collision import CollisionShape
 from giwbc.robot.description import RobotDescription, RobotDescriptionError
 from giwbc.robot.mujoco_model import SOLE_THICKNESS
 
@@ -90,7 +93,7 @@ def pybullet_urdf(
     inertials: Mapping[str, LinkInertial] | None = None,
     source: str | None = None,
 ) -> str:
-    """The URDF PyBullet loads: foot boxes only for collision, explicit zero masses, optional overrides.
+    """The URDF PyBullet loads: foot boxes and primitive shapes for collision, explicit zero masses, optional overrides.
 
     ``source``: the description's ``urdf_text()`` when the caller has it (resolving it costs ~30 ms).
     """
@@ -119,7 +122,26 @@ def pybullet_urdf(
         ET.SubElement(collision, "origin", xyz=" ".join(f"{c:.17g}" for c in center), rpy="0 0 0")
         size = (2 * contact.half_length, 2 * contact.half_width, 2 * SOLE_THICKNESS)
         ET.SubElement(ET.SubElement(collision, "geometry"), "box", size=" ".join(f"{s:.17g}" for s in size))
+    for shape in description.collision:
+        _add_collision(links[shape.link], shape)
     return ET.tostring(root, encoding="unicode")
+
+
+def _numbers(values: Sequence[float]) -> str:
+    return " ".join(f"{v:.17g}" for v in values)
+
+
+def _add_collision(link: ET.Element, shape: CollisionShape) -> None:
+    """A primitive as a URDF ``<collision>`` (PyBullet's capsule: ``length`` is the cylinder's, along z)."""
+    collision = ET.SubElement(link, "collision", name=shape.name)
+    ET.SubElement(collision, "origin", xyz=_numbers(shape.position), rpy=_numbers(shape.rpy()))
+    geometry = ET.SubElement(collision, "geometry")
+    if shape.kind == "box":
+        ET.SubElement(geometry, "box", size=_numbers([2 * h for h in shape.size]))
+    elif shape.kind == "capsule":
+        ET.SubElement(geometry, "capsule", radius=f"{shape.size[0]:.17g}", length=f"{2 * shape.size[1]:.17g}")
+    else:
+        ET.SubElement(geometry, "sphere", radius=f"{shape.size[0]:.17g}")
 
 
 def _override_inertial(inertial: ET.Element, override: LinkInertial) -> None:
@@ -143,6 +165,8 @@ def load_robot(client: PybulletClient, description: RobotDescription, urdf: str,
     """Load URDF text into ``client`` (through a file in a private temporary folder, removed at once)."""
     pb = require_pybullet()
     flags = pb.URDF_USE_INERTIA_FROM_FILE | pb.URDF_MAINTAIN_LINK_ORDER
+    if description.self_collision:
+        flags |= pb.URDF_USE_SELF_COLLISION
     with tempfile.TemporaryDirectory(prefix="giwbc-pybullet-") as folder:
         path = Path(folder) / f"{description.name}.urdf"
         path.write_text(urdf)
@@ -151,7 +175,24 @@ def load_robot(client: PybulletClient, description: RobotDescription, urdf: str,
         )
     if body < 0:
         raise RobotDescriptionError(f"{description.urdf_path}: PyBullet cannot load the URDF")
+    if description.self_collision:
+        exclude_adjacent_pairs(client, description, body)
     return body
+
+
+def link_indices(client: PybulletClient, description: RobotDescription, body: int) -> dict[str, int]:
+    """``link name -> PyBullet link index`` (the base is -1)."""
+    indices = {description.base_link: -1}
+    for index in range(client.getNumJoints(body)):
+        indices[client.getJointInfo(body, index)[12].decode()] = index
+    return indices
+
+
+def exclude_adjacent_pairs(client: PybulletClient, description: RobotDescription, body: int) -> None:
+    """Switch off self-collision between the description's excluded link pairs (adjacent collision bodies)."""
+    indices = link_indices(client, description, body)
+    for a, b in sorted(description.self_collision_exclusions):
+        client.setCollisionFilterPair(body, body, indices[a], indices[b], enableCollision=0)
 
 
 def add_floor(client: PybulletClient, friction: float) -> int:

@@ -25,7 +25,10 @@ same way. Differences from the MuJoCo model that no setting removes, measured in
   ``F t`` to 0.1 % over 20 ms.
 * **Contacts.** Bullet's contacts are rigid with Baumgarte stabilisation, MuJoCo's are soft: the
   feet sink differently (sub-millimetre here). Friction combines as the product of the two
-  bodies' coefficients (MuJoCo takes the maximum): the feet get 1.0, the floor the description's.
+  bodies' coefficients (MuJoCo takes the maximum): the feet and the whole-body shapes get 1.0, the
+  floor the description's. The whole-body shapes get restitution 0 (no bounce between links; the
+  feet keep 1 so that the floor's randomized restitution applies to them). Both engines build the
+  same primitives (tests/test_collision.py: link-to-floor distances agree to 1e-6 m).
 * **Foot force/torque sensors** (``sensor("left_foot_force")``) come from PyBullet's joint
   reaction at the foot link's joint (reported in the link's inertial frame, torque about its CoM),
   moved to the sole centre: the same convention as MuJoCo's force/torque sites (the wrench the
@@ -148,6 +151,8 @@ class PybulletRobot(DescribedRobot):
         self._pb = require_pybullet()
         for link in [-1, *range(c.getNumJoints(self.body))]:
             c.changeDynamics(self.body, link, linearDamping=0.0, angularDamping=0.0, jointDamping=0.0)
+        for shape in description.collision:  # the floor's friction, as the feet; no bounce, even between links
+            c.changeDynamics(self.body, self._link_index[shape.link], lateralFriction=FEET_FRICTION, restitution=0.0)
         for contact in description.contacts:
             c.changeDynamics(self.body, self._link_index[contact.link], lateralFriction=FEET_FRICTION, restitution=1.0)
         links = [-1, *range(c.getNumJoints(self.body))]
@@ -496,12 +501,7 @@ class PybulletRobot(DescribedRobot):
         return force, torque_com - cross3(np.asarray(contact.center, dtype=float) - com, force)
 
     # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        torques = np.asarray(torques, dtype=float)
-        if torques.shape != (self.dofs,):
-            raise ValueError(f"expected {self.dofs} joint torques, got shape {torques.shape}")
-        if not np.all(np.isfinite(torques)):
-            raise ValueError(f"joint torques must be finite, got {torques}")
+    def _send_joint_torques(self, torques: np.ndarray) -> None:
         self._kp[:] = 0.0
         self._kd[:] = 0.0
         self._q_ref[:] = 0.0

@@ -16,6 +16,22 @@ def pd_hold_command(description: RobotDescription) -> ImpedanceCommand:
     return ImpedanceCommand(description.default_positions, zeros.copy(), description.kp, description.kd, zeros.copy())
 
 
+class PdHold:
+    """The joint-PD standing hold as a controller, commanded once (the actuators hold it).
+
+    Called like any controller closing a loop (``controller(robot, estimate)``); it needs no state.
+    """
+
+    def __init__(self, description: RobotDescription) -> None:
+        self.command = pd_hold_command(description)
+        self._sent = False
+
+    def __call__(self, robot: Robot, estimate: object = None) -> None:
+        if not self._sent:
+            robot.set_joint_impedance(self.command)
+            self._sent = True
+
+
 @dataclass(frozen=True)
 class StandingSummary:
     """What a standing run did, in numbers a person can check."""

@@ -1,7 +1,7 @@
 """Runtimes: the ``gymnasium.Env`` objects that run a Task, and their rates and sim-to-real knobs."""
 
 from giwbc.runtimes.engines import EnginePool, engine_of
-from giwbc.runtimes.rates import RateError, Rates
+from giwbc.tasks.rates import RateError, Rates
 from giwbc.runtimes.realtime import RealtimeRuntime, RunResult, StandingTask, StartupConfig
 from giwbc.runtimes.sim2real import PushConfig, SimToReal
 from giwbc.runtimes.simulated import SimulatedRobot, SimulatedRuntime, StepTimings

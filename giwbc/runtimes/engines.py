@@ -22,7 +22,7 @@ EngineSpec = str | EngineChoice | Mapping[str, float]
 def engine_of(robot: Robot) -> str:
     """The engine name of a simulated robot (``"mujoco"``, ``"pybullet"``, else its class name)."""
     if isinstance(robot, PerturbedRobot):
-        robot = robot.inner
+        robot = robot.robot
     model = getattr(robot, "model", None)
     if model is not None and hasattr(model, "opt"):
         return "mujoco"
@@ -75,7 +75,7 @@ class EnginePool:
                 raise RandomizationError(f"a runtime given a robot runs on its engine ({engine_of(robot)}); got engine={engine!r}")
             self.choice: str | EngineChoice = engine_of(robot)
             if isinstance(robot, PerturbedRobot):  # already wrapped: never wrap twice
-                self._wrapped[self.choice], robot = robot, robot.inner
+                self._wrapped[self.choice], robot = robot, robot.robot
             self._engines[self.choice] = robot
         else:
             self.choice = parse_engine(engine)

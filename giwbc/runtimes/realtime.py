@@ -61,8 +61,8 @@ from giwbc.hal.can_robot import COMMAND, ENTER, EXIT, CanRobot, CycleReport, Non
 from giwbc.hal.runlog import RunLogWriter
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
 from giwbc.robot.interface import ImpedanceCommand, Robot, quat_to_matrix
-from giwbc.runtimes.rates import Rates
 from giwbc.runtimes.watchdog import EmergencyStop, LoopWatchdog
+from giwbc.tasks.rates import Rates
 from giwbc.tasks.task import Task
 
 UNPACED_WATCHDOG = 1.0  # s: the watchdog's least timeout when the loop is not paced by the wall clock

@@ -35,7 +35,8 @@ from giwbc.randomization.randomizer import RandomizerSpec
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
 from giwbc.runtimes.engines import EnginePool, EngineSpec
-from giwbc.runtimes.rates import Rates
+from giwbc.tasks.rates import Rates
+from giwbc.runtimes.rendering import offscreen_renderer
 from giwbc.runtimes.sim2real import ActionQueue, SimToReal
 
 if TYPE_CHECKING:
@@ -47,7 +48,7 @@ RENDER_MODES = ("human", "rgb_array")
 
 
 @runtime_checkable
-class SimulatedRobot(Protocol):
+class SimulatedRobot(Protocol):  # pragma: no mutate block (mutmut would add members to the protocol)
     """What the runtime needs beyond the Robot interface: a simulator's step, reset and push."""
 
     def step(self, n: int = 1) -> None: ...
@@ -303,20 +304,10 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         return model, data
 
     def _render_frame(self) -> np.ndarray:
-        import mujoco
-
         model, data = self._mujoco()
         if self._renderer is None:
             height, width = self.render_size
-            model.vis.global_.offheight = max(model.vis.global_.offheight, height)
-            model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
-            try:
-                self._renderer = mujoco.Renderer(model, height, width)
-            except Exception as error:  # no display, no EGL/OSMesa
-                raise RuntimeError(
-                    f"cannot create an offscreen MuJoCo renderer ({error}); set MUJOCO_GL=egl or MUJOCO_GL=osmesa "
-                    "before importing mujoco"
-                ) from error
+            self._renderer = offscreen_renderer(model, height, width)
             self._camera = _default_camera(self.sim_robot, model)
         self._renderer.update_scene(data, camera=self._camera)
         return self._renderer.render()

@@ -194,7 +194,7 @@ class G1Balance(Task):
         self.rewards = BalanceRewards(**rewards) if isinstance(rewards, dict) else rewards or BalanceRewards()
         self.initial_joint_noise = float(initial_joint_noise)
         self.max_tilt = float(max_tilt)
-        self._pin_model = description.build_pinocchio()
+        self._pin_model = description.pinocchio_model
         self._pin_data = self._pin_model.createData()
         if controller not in ("wbc", "pd"):
             raise ValueError(f"controller must be 'wbc' or 'pd', got {controller!r}")

@@ -26,13 +26,10 @@ import numpy as np
 from gymnasium import spaces
 
 from giwbc.robot.interface import Robot
+from giwbc.errors import InvalidActionError
 
 if TYPE_CHECKING:
-    from giwbc.runtimes.rates import Rates
-
-
-class InvalidActionError(ValueError):
-    """An action with the wrong shape or a NaN/inf entry; raised before anything changes."""
+    from giwbc.tasks.rates import Rates
 
 
 @dataclass(frozen=True)

@@ -21,30 +21,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from giwbc.hal.motor import RANGE_FIELDS, MotorConfig, MotorGroup
-
-
-class CanProtocolError(Exception):
-    """A received frame is not a valid reply from a configured motor."""
-
-
-class FrameLengthError(CanProtocolError):
-    """The frame's payload length fits no reply variant expected for it."""
-
-
-class UnknownMotorError(CanProtocolError):
-    """The frame is not addressed from a motor configured on this bus (unknown id, foreign frame)."""
-
-
-class CorruptFrameError(CanProtocolError):
-    """The frame is addressed correctly but its content cannot be a reply (or the input is not bytes)."""
-
-
-class ProtocolConfigError(ValueError):
-    """The motors given to a protocol cannot work together (bad id, ambiguous replies, bad variant)."""
-
-
-class CommandValueError(ValueError):
-    """A command cannot be encoded at all (NaN); out-of-range values are clamped instead."""
+from giwbc.errors import (
+    CanProtocolError,
+    CommandValueError,
+    CorruptFrameError,
+    FrameLengthError,
+    ProtocolConfigError,
+    UnknownMotorError,
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -307,9 +291,10 @@ class ActuatorProtocol(ABC):
         """Decode a batch of :data:`~giwbc.hal.frames.FRAME` records at once (error frames get
         :data:`ERROR_FRAME`, remote frames :data:`UNKNOWN`). This default calls :meth:`decode`
         per frame; a protocol may vectorize it, with exactly the same results."""
-        from giwbc.hal.frames import fields
+        from giwbc.hal.frames import CAN_EFF_MASK, fields
 
         f = fields(batch)
+        raw_ids = (batch["can_id"] & CAN_EFF_MASK).tolist()  # a standard frame's junk id bits stay: decode() rejects them
         verdicts, indexes, replies = [], [], []
         for k in range(len(batch)):
             reply, verdict = None, UNKNOWN
@@ -320,7 +305,7 @@ class ActuatorProtocol(ABC):
                 data = batch[k]["data"].tobytes()
                 data = data[:length] if length <= 8 else data + bytes(length - 8)  # a longer frame keeps its length
                 try:
-                    reply, verdict = self.decode(int(f.arbitration_id[k]), data, bool(f.extended[k])), REPLY
+                    reply, verdict = self.decode(raw_ids[k], data, bool(f.extended[k])), REPLY
                 except UnknownMotorError:
                     verdict = UNKNOWN
                 except CanProtocolError:

@@ -24,14 +24,35 @@ original    6      id, p16, v12, t12 (Ben Katz firmware)
 voltage     7      original + byte 6 = bus voltage. ASSUMPTION: unsigned, ``voltage_lsb``
                    volts per count (default 0.25 V: 0..63.75 V covers 24 V and 48 V packs);
                    no vendor standard exists for this trailing byte, set it per firmware.
-cubemars    8      original + byte 6 = temperature, °C + 40 (-40..215 °C, CubeMars AK
-                   manual) + byte 7 = error code (0 = none, see ``CUBEMARS_ERRORS``)
+cubemars    8      original + byte 6 = temperature, °C + 40 (-40..215 °C, see below) + byte 7
+                   = error code, 0..7 (``CUBEMARS_ERRORS``; another value: corrupt)
 damiao      8      byte 0 = state << 4 | (id & 0x0F), p16, v12, t12, MOS temperature °C,
-                   rotor temperature °C. ``error_code`` = state if state >= 8 else 0.
+                   rotor temperature °C. States are ``DAMIAO_STATES`` (0, 1, 8..14);
+                   ``error_code`` = state if state >= 8 else 0. Byte 0 with an undefined
+                   state (2..7, 15) names no motor: the frame is not a reply (unknown).
 ==========  =====  ======================================================================
 
 The variant is a property of the motor (``MotorConfig.reply``); two motors whose replies could be
 confused (same length and byte 0) are refused when the protocol is built.
+
+What a reply is (the same rules in :meth:`MitProtocol.decode` and :class:`MitReplyDecoder`):
+
+- a standard data frame (extended, remote and error frames are not replies), with an 11-bit id
+  (a record with junk in id bits 11..28 is corrupt), equal to ``host_id`` when one is given;
+- ``(length, byte 0)`` is one motor's key: its variant's length and its id (Damiao: a defined
+  state and the id's low nibble). No payload at all (a CANopen SYNC) or a byte 0 that names no
+  motor is *unknown* (foreign traffic, counted); a motor's byte 0 with another length is *corrupt*;
+- the arbitration id is not the command id of *another* motor of the bus: a node whose replies
+  carried motor j's id would command motor j, so such a frame is traffic for j (unknown). (CubeMars
+  firmware replies with its own id, "0x00 + driver ID", which stays allowed);
+- not a special command frame (``FF .. FF FB..FE``), and a CubeMars error byte is a defined code.
+
+CubeMars temperature: T-Motor support told a host-library author to subtract 40 from byte 6
+(neurobionics/TMotorCANControl pull request 4), which is what this module does; the AK manual
+V1.0.8 (MIT mode reply table) names byte 6 "motor temperature" without a scale, that library and
+the same author's AK60-6 V1.1 firmware read it raw (room temperature came out right without the
+offset), while other public hosts subtract 40. It depends on the firmware: verify on the drive
+(read it at a known temperature) before trusting over-temperature margins.
 """
 
 from __future__ import annotations
@@ -81,7 +102,7 @@ CLEAR_ERRORS = b"\xff" * 7 + b"\xfb"  # Damiao
 _SPECIAL_LAST = frozenset({0xFB, 0xFC, 0xFD, 0xFE})
 _SPECIAL_NAMES = MappingProxyType({0xFC: "enter", 0xFD: "exit", 0xFE: "zero", 0xFB: "clear"})
 
-CUBEMARS_TEMPERATURE_OFFSET = -40.0  # °C = byte + offset
+CUBEMARS_TEMPERATURE_OFFSET = -40.0  # °C = byte + offset (firmware dependent: see the module docstring)
 DEFAULT_VOLTAGE_LSB = 0.25  # V per count of the 7-byte variant's trailing byte (assumption, see module doc)
 MAX_STANDARD_ID = 0x7FF
 
@@ -131,6 +152,7 @@ DAMIAO_STATES: Mapping[int, str] = MappingProxyType(
         0xE: "overload",
     }
 )
+CUBEMARS_MAX_ERROR = max(CUBEMARS_ERRORS)
 
 
 def _code(x: float, lo: float, hi: float, span: float, levels: int) -> tuple[int, bool]:
@@ -155,11 +177,23 @@ def pack_command(
     return _pack(_bounds(motor), (position, velocity, kp, kd, torque))
 
 
+def _real(name: str, x: Any) -> float:
+    """``x`` as a float if it is a real number (int, float, numpy scalar; not bool, str, ...)."""
+    if type(x) is float:
+        return x
+    if isinstance(x, (bool, np.bool_)) or not isinstance(x, (int, float, np.integer, np.floating)):
+        raise CommandValueError(f"command field {name} must be a real number, got {type(x).__name__} {x!r}")
+    try:
+        return float(x)
+    except OverflowError:
+        raise CommandValueError(f"command field {name} = {x} is beyond any float (clamping needs a number)") from None
+
+
 def _pack(bounds: tuple[tuple[float, float, float, int], ...], values: tuple[float, ...]) -> tuple[bytes, Any]:
     word = 0
     clamped = []
-    for (lo, hi, span, levels), shift, x in zip(bounds, _SHIFTS, values):
-        x = float(x)
+    for (lo, hi, span, levels), shift, x, name in zip(bounds, _SHIFTS, values, RANGE_FIELDS):
+        x = _real(name, x)
         if lo <= x <= hi:
             word |= math.ceil((x - lo) * levels / span - 0.5) << shift
             clamped.append(False)
@@ -171,6 +205,57 @@ def _pack(bounds: tuple[tuple[float, float, float, int], ...], values: tuple[flo
         else:
             raise CommandValueError(f"NaN in command fields {dict(zip(RANGE_FIELDS, values))}")
     return word.to_bytes(8, "big"), tuple(clamped)
+
+
+class MitCommandEncoder:
+    """MIT command payloads of a list of motors (any number, any ids: payloads do not contain the
+    id), vectorized: the arithmetic of :func:`pack_command`, row by row."""
+
+    def __init__(self, motors: Sequence[MotorConfig]) -> None:
+        n = self.n = len(motors)
+        self.names = tuple(m.joint for m in motors)
+        self._lo = np.array([[r.min for r in m.model.ranges] for m in motors], dtype=float).reshape(n, 5)
+        self._hi = np.array([[r.max for r in m.model.ranges] for m in motors], dtype=float).reshape(n, 5)
+        self._span = self._hi - self._lo
+
+    def encode(self, *fields: ArrayLike) -> tuple[NDArray[np.uint8], NDArray[np.bool_]]:
+        """Payloads ``(N, 8)`` and the clamp mask ``(N, 5)`` from position, velocity, kp, kd and
+        torque (arrays in motor order or scalars). Non-numbers and NaN raise CommandValueError."""
+        n = self.n
+        x = np.empty((n, 5), dtype=float)
+        for j, (name, v) in enumerate(zip(RANGE_FIELDS, fields)):
+            if not (type(v) is np.ndarray and v.dtype.kind == "f"):
+                v = _real_array(name, v)
+            x[:, j] = v
+        nan = np.isnan(x)
+        if nan.any():
+            bad = [f"{self.names[i]}.{RANGE_FIELDS[j]}" for i, j in zip(*np.nonzero(nan))]
+            raise CommandValueError(f"NaN in commands: {', '.join(bad)}")
+        clamped = (x < self._lo) | (x > self._hi)
+        np.clip(x, self._lo, self._hi, out=x)
+        x -= self._lo
+        x *= _LEVELS_F
+        x /= self._span
+        x -= 0.5
+        np.ceil(x, out=x)
+        words = np.bitwise_or.reduce(x.astype(np.uint64) << _SHIFTS_U, axis=1)
+        return words.astype(">u8").view(np.uint8).reshape(n, 8), clamped
+
+
+def _real_array(name: str, v: Any) -> NDArray[np.float64]:
+    """``v`` (a scalar or array of real numbers) as floats; CommandValueError otherwise."""
+    try:
+        a = np.asarray(v)
+    except (OverflowError, ValueError, TypeError) as e:
+        raise CommandValueError(f"command field {name}: not an array of real numbers ({e})") from None
+    if a.dtype.kind not in "fiu":
+        if a.dtype.kind == "O" and all(not isinstance(x, (bool, np.bool_)) and isinstance(x, (int, float, np.integer, np.floating)) for x in a.flat):
+            try:
+                return a.astype(float)
+            except OverflowError:
+                raise CommandValueError(f"command field {name}: a value is beyond any float") from None
+        raise CommandValueError(f"command field {name} must be real numbers, got {a.dtype} {v!r}")
+    return a.astype(float, copy=False)
 
 
 class MitProtocol(ActuatorProtocol):
@@ -193,13 +278,11 @@ class MitProtocol(ActuatorProtocol):
             raise ProtocolConfigError(f"voltage_lsb must be > 0, got {voltage_lsb}")
         self.host_id = host_id
         self.voltage_lsb = float(voltage_lsb)
-        n = len(self.motors)
         self._variants: tuple[ReplyVariant, ...] = tuple(self._variant(m) for m in self.motors)
         self._bounds = [_bounds(m) for m in self.motors]
-        # Demultiplexing table: key (length << 8 | byte 0) -> motor index.
+        # Demultiplexing table: key (length << 8 | byte 0) -> motor index; byte 0 -> a motor using it.
         self._lut: dict[int, int] = {}
         self._by_byte0: dict[int, int] = {}
-        lut = np.full((9, 256), -1, dtype=np.int64)
         for i, (m, var) in enumerate(zip(self.motors, self._variants)):
             if not 0 <= m.can_id <= MAX_STANDARD_ID:
                 raise ProtocolConfigError(f"motor {m.joint!r}: MIT mode uses 11-bit ids, got 0x{m.can_id:X}")
@@ -210,7 +293,7 @@ class MitProtocol(ActuatorProtocol):
                     )
                 keys = [m.can_id]
             else:
-                keys = [(s << 4) | (m.can_id & 0x0F) for s in range(16)]
+                keys = [(s << 4) | (m.can_id & 0x0F) for s in DAMIAO_STATES]
             for b0 in keys:
                 key = (var.length << 8) | b0
                 other = self._lut.get(key)
@@ -223,7 +306,6 @@ class MitProtocol(ActuatorProtocol):
                     )
                 self._lut[key] = i
                 self._by_byte0.setdefault(b0, i)
-                lut[var.length, b0] = i
         # Per-motor decode scales (u * scale + lo, same expression in scalar and vector paths).
         self._dec = [
             (m.model.position.min, m.model.position.span / _P_LEVELS,
@@ -231,11 +313,8 @@ class MitProtocol(ActuatorProtocol):
              m.model.torque.min, m.model.torque.span / _VT_LEVELS)
             for m in self.motors
         ]  # fmt: skip
-        self._dec_array = np.array(self._dec, dtype=float).reshape(n, 6)
-        self._lo = np.array([[r.min for r in m.model.ranges] for m in self.motors], dtype=float).reshape(n, 5)
-        self._hi = np.array([[r.max for r in m.model.ranges] for m in self.motors], dtype=float).reshape(n, 5)
-        self._span = self._hi - self._lo
         self._arb_ids = np.array([m.can_id for m in self.motors], dtype=np.int64)
+        self._encoder = MitCommandEncoder(self.motors)
         self._decoder: MitReplyDecoder | None = None
 
     @staticmethod
@@ -264,26 +343,7 @@ class MitProtocol(ActuatorProtocol):
     def encode_commands(
         self, position: ArrayLike, velocity: ArrayLike, kp: ArrayLike, kd: ArrayLike, torque: ArrayLike
     ) -> CommandBatch:
-        n = len(self.motors)
-        x = np.empty((n, 5), dtype=float)
-        x[:, 0] = position
-        x[:, 1] = velocity
-        x[:, 2] = kp
-        x[:, 3] = kd
-        x[:, 4] = torque
-        nan = np.isnan(x)
-        if nan.any():
-            bad = [f"{self.motors[i].joint}.{RANGE_FIELDS[j]}" for i, j in zip(*np.nonzero(nan))]
-            raise CommandValueError(f"NaN in commands: {', '.join(bad)}")
-        clamped = (x < self._lo) | (x > self._hi)
-        np.clip(x, self._lo, self._hi, out=x)
-        x -= self._lo
-        x *= _LEVELS_F
-        x /= self._span
-        x -= 0.5
-        np.ceil(x, out=x)
-        words = np.bitwise_or.reduce(x.astype(np.uint64) << _SHIFTS_U, axis=1)
-        data = words.astype(">u8").view(np.uint8).reshape(n, 8)
+        data, clamped = self._encoder.encode(position, velocity, kp, kd, torque)
         return CommandBatch(self._arb_ids, data, clamped)
 
     def _special(self, motor_id: int, payload: bytes) -> CanFrame:
@@ -327,10 +387,10 @@ class MitProtocol(ActuatorProtocol):
         if self.host_id is not None and arbitration_id != self.host_id:
             raise UnknownMotorError(f"frame id 0x{arbitration_id:X} is not the host id 0x{self.host_id:X}")
         n = len(data)
-        if n == 0 or n > 8:
-            raise FrameLengthError(f"MIT replies have 6 to 8 bytes, got {n}")
+        if n == 0:
+            raise UnknownMotorError("a frame without payload (a CANopen SYNC, ...) names no motor")
         b0 = data[0]
-        i = self._lut.get((n << 8) | b0)
+        i = self._lut.get((n << 8) | b0) if n <= 8 else None
         if i is None:
             j = self._by_byte0.get(b0)
             if j is not None:
@@ -339,6 +399,11 @@ class MitProtocol(ActuatorProtocol):
                     f"motor id {self.motors[j].can_id} replies with {var.length} bytes ({var.name}), got {n}"
                 )
             raise UnknownMotorError(f"no motor on this bus replies with byte 0 = 0x{b0:02X} in {n} bytes")
+        r = self.index.get(arbitration_id)
+        if r is not None and r != i:
+            raise UnknownMotorError(
+                f"frame id 0x{arbitration_id:X} commands motor {arbitration_id}: not a reply of motor {self.motors[i].can_id}"
+            )
         if n == 8 and data[7] in _SPECIAL_LAST and data[:7] == b"\xff" * 7:
             raise CorruptFrameError("a special command frame, not a reply")
         p_lo, p_sc, v_lo, v_sc, t_lo, t_sc = self._dec[i]
@@ -353,6 +418,8 @@ class MitProtocol(ActuatorProtocol):
         if code == _VOLTAGE:
             return MotorReply(motor_id, position, velocity, torque, voltage=data[6] * self.voltage_lsb)
         if code == _CUBEMARS:
+            if data[7] > CUBEMARS_MAX_ERROR:
+                raise CorruptFrameError(f"CubeMars error byte {data[7]} is no defined error code (0..{CUBEMARS_MAX_ERROR})")
             return MotorReply(
                 motor_id, position, velocity, torque,
                 temperature=data[6] + CUBEMARS_TEMPERATURE_OFFSET, error_code=data[7],
@@ -454,7 +521,9 @@ class MitReplyDecoder:
     buses are told apart. Exactly the checks and arithmetic of :meth:`MitProtocol.decode` (the
     tests compare them frame by frame on random input): one table lookup per frame on (bus,
     length, byte 0) gives the motor or the reason it is none, one gather gives the motor's
-    constants, and the bit fields come out of one exact integer product.
+    constants, and the bit fields come out of one exact integer product. The rarer checks (flags,
+    junk id bits, host id, another motor's command id, special frames, CubeMars error codes) cost
+    one test each when no frame needs them.
     """
 
     # Bit fields of the payload read as one big-endian 64-bit word: position (bytes 1-2), velocity
@@ -466,17 +535,23 @@ class MitReplyDecoder:
         self.protocols = tuple(protocols)
         motors = [m for p in self.protocols for m in p.motors]
         n = self.n_motors = len(motors)
+        buses = len(self.protocols)
         unknown, corrupt = n, n + 1
         first = np.cumsum([0] + [len(p.motors) for p in self.protocols])
-        # lut[bus, min(length, 9), byte 0]: the global motor index, or n (unknown), or n + 1 (corrupt:
-        # length 0 or > 8, or the byte 0 of a motor of this bus with a length it does not reply with).
-        lut = np.full((len(self.protocols), 10, 256), unknown, dtype=np.int64)
+        # lut[bus, min(length, 9), byte 0]: the global motor index, or n (unknown: no payload, or a
+        # byte 0 no motor of the bus uses), or n + 1 (corrupt: the byte 0 of a motor of this bus
+        # with a length it does not reply with, longer than 8 bytes included).
+        lut = np.full((buses, 10, 256), unknown, dtype=np.int64)
+        # reserved[bus, 11-bit id]: the global index of the motor whose command id it is, or -1.
+        reserved = np.full((buses, MAX_STANDARD_ID + 1), -1, dtype=np.int64)
         for b, p in enumerate(self.protocols):
-            lut[b, :, list(p._by_byte0)] = corrupt
-            lut[b, 0, :] = lut[b, 9, :] = corrupt
+            lut[b, 1:, list(p._by_byte0)] = corrupt
             for key, i in p._lut.items():
                 lut[b, key >> 8, key & 0xFF] = first[b] + i
+            for i, m in enumerate(p.motors):
+                reserved[b, m.can_id] = first[b] + i
         self._lut = lut.reshape(-1)
+        self._reserved = reserved.reshape(-1)
         self._unknown, self._corrupt = unknown, corrupt
         self._host_id = np.array([-1 if p.host_id is None else p.host_id for p in self.protocols], dtype=np.int64)
         self._any_host_id = bool((self._host_id >= 0).any())
@@ -493,40 +568,58 @@ class MitReplyDecoder:
                 rotor = 0.0 if v.code == _DAMIAO else nan
                 rows.append((*p._dec[i], temperature, volts, rotor, float(v.code == _CUBEMARS), float(v.code == _DAMIAO)))
         none = (*(nan,) * 9, 0.0, 0.0)
-        self._table = np.array([*rows, none, none], dtype=float)
+        self._table = np.array([*rows, none, none], dtype=float).reshape(n + 2, 11)
         self._verdict = np.array([REPLY] * n + [UNKNOWN, CORRUPT], dtype=np.int64)
         self._index = np.array([*range(n), -1, -1], dtype=np.int64)
         self._can_id = np.array([m.can_id for m in motors] + [-1, -1], dtype=np.int64)
+        self._is_cubemars = self._table[:, 9] != 0
+        self._has_cubemars = bool(self._is_cubemars.any())
         self._has_error_field = any(v.code in (_CUBEMARS, _DAMIAO) for p in self.protocols for v in p._variants)
 
     def decode(self, bus: ArrayLike, batch: NDArray[Any]) -> DecodedReplies:
         """Decode ``batch`` (:data:`~giwbc.hal.frames.FRAME` records); ``bus[k]`` is the index (in
         this decoder's protocols) of the bus frame ``k`` arrived on."""
         m = len(batch)
+        n = self.n_motors
         word = batch["data"].view(">u8").reshape(m).astype(np.uint64)
         length = batch["len"]
         can_id = batch["can_id"]
         b0 = (word >> np.uint64(56)).astype(np.int64)
         bus = np.asarray(bus, dtype=np.int64).reshape(m)
         k = self._lut[(bus * 10 + np.minimum(length, 9)) * 256 + b0]
-        flags = can_id >> 29  # EFF, RTR, ERR
-        any_flags = bool(flags.any())
-        if any_flags or self._any_host_id:
-            host = self._host_id[bus]
-            foreign = (flags != 0) | ((host >= 0) & ((can_id & 0x7FF) != host))
-            k = np.where(foreign, self._unknown, k)
-        maybe_special = (b0 == 0xFF) & (k < self.n_motors)
+        some_id = bool(can_id.any())  # replies to host id 0, the usual case, skip the id checks
+        sid = can_id & MAX_STANDARD_ID if some_id or self._any_host_id else can_id
+        if some_id:
+            r = self._reserved[bus * (MAX_STANDARD_ID + 1) + sid]
+            clash = (r >= 0) & (r != k) & (k < n)  # another motor's command id: traffic for it
+            if clash.any():
+                k = np.where(clash, self._unknown, k)
+        maybe_special = (b0 == 0xFF) & (k < n)
         if maybe_special.any():  # 8 bytes FF .. FF FB..FE: a special command frame, no reply
             last = word & np.uint64(0xFF)
             special = maybe_special & (length == 8) & ((word >> np.uint64(8)) == np.uint64(0xFFFFFFFFFFFFFF)) & (last >= 0xFB) & (last <= 0xFE)
             k = np.where(special, self._corrupt, k)
+        d7 = (word & np.uint64(0xFF)).astype(np.int64)
+        if self._has_cubemars:
+            undefined = d7 > CUBEMARS_MAX_ERROR
+            if undefined.any():
+                k = np.where(undefined & self._is_cubemars[k], self._corrupt, k)
+        if self._any_host_id:
+            host = self._host_id[bus]
+            k = np.where((host >= 0) & (sid != host), self._unknown, k)
+        any_high = False
+        if some_id:
+            high = can_id >> 11  # flags (EFF, RTR, ERR) and, in a standard frame, junk id bits
+            flags = high >> 18
+            any_high = bool(high.any())
+            if any_high:
+                k = np.where(flags != 0, self._unknown, np.where(high != 0, self._corrupt, k))
         verdict = self._verdict[k]
-        if any_flags:
+        if any_high:
             verdict[(flags & 1) != 0] = ERROR_FRAME
         t = self._table[k]
         values = ((word[:, None] >> self._SHIFTS) & self._MASKS) * t[:, 1:6:2] + t[:, 0:6:2]
         d6 = ((word >> np.uint64(8)) & np.uint64(0xFF)).astype(np.int64)
-        d7 = (word & np.uint64(0xFF)).astype(np.int64)
         if self._has_error_field:
             state = b0 >> 4
             damiao = t[:, 10] != 0

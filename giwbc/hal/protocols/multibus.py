@@ -12,7 +12,6 @@ Motors are numbered in bus order, then each bus's motor order (a hardware plan's
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -20,7 +19,7 @@ from numpy.typing import NDArray
 
 from giwbc.hal.frames import frames, frames_of
 from giwbc.hal.protocols.base import ActuatorProtocol, DecodedReplies
-from giwbc.hal.protocols.mit import MitProtocol, MitReplyDecoder
+from giwbc.hal.protocols.mit import MitCommandEncoder, MitProtocol, MitReplyDecoder
 
 SPECIAL_FRAMES = ("enter", "exit", "zero")
 
@@ -35,12 +34,12 @@ class MultiBusCodec:
         self.motors = tuple(m for p in self.protocols for m in p.motors)
         self._can_ids = np.array([m.can_id for m in self.motors], dtype=np.int64)
         self._mit = all(type(p) is MitProtocol for p in self.protocols)
-        self._encoder: MitProtocol | None = None
+        self._encoder: MitCommandEncoder | None = None
         self._decoder: MitReplyDecoder | None = None
         if self._mit:
-            # Command payloads do not depend on CAN ids: one protocol over every motor, renumbered
-            # to make ids unique across buses, encodes them in one call.
-            self._encoder = MitProtocol([replace(m, can_id=i + 1, reply="original") for i, m in enumerate(self.motors)])
+            # Command payloads do not depend on CAN ids: one encoder over every motor (any number of
+            # them: ids are per bus) encodes them in one call.
+            self._encoder = MitCommandEncoder(self.motors)
             self._decoder = MitReplyDecoder(self.protocols)  # type: ignore[arg-type]
             self._template = frames(self._can_ids, np.zeros((len(self.motors), 8), dtype=np.uint8))
         self._special: dict[str, NDArray[Any]] = {}
@@ -49,10 +48,10 @@ class MultiBusCodec:
         """Command frames for every motor (arrays in motor order, motor side) and which of their
         fields (position, velocity, kp, kd, torque) were clamped to the motors' ranges."""
         if self._encoder is not None:
-            batch = self._encoder.encode_commands(position, velocity, kp, kd, torque)
+            data, clamped = self._encoder.encode(position, velocity, kp, kd, torque)
             out = self._template.copy()
-            out["data"] = batch.data
-            return out, batch.clamped
+            out["data"] = data
+            return out, clamped
         parts, clamped = [], []
         values = [np.broadcast_to(np.asarray(v, dtype=float), (len(self.motors),)) for v in (position, velocity, kp, kd, torque)]
         for p, a, b in zip(self.protocols, self.bounds[:-1], self.bounds[1:]):

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg import lapack
 
-from giwbc.robot.estimation.so3 import as_floats
+from giwbc.robot.so3 import as_floats
 
 __all__ = ["LegKalmanFilter", "LegKalmanNoise"]
 

@@ -10,13 +10,14 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from giwbc.deploy import add_deploy_command
-from giwbc.evaluation import add_evaluate_command
-from giwbc.policy import add_play_command
-from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, load
+from giwbc.apps.deploy import add_deploy_command
+from giwbc.apps.evaluation import add_evaluate_command
+from giwbc.apps.play import add_play_command
+from giwbc.apps.sim_to_sim import add_sim_to_sim_command
+from giwbc.apps.training import add_train_command
+from giwbc.errors import GiwbcError
+from giwbc.robot import MujocoRobot, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
-from giwbc.sim_to_sim import add_sim_to_sim_command
-from giwbc.training import add_train_command
 
 GRAVITY = 9.81
 
@@ -80,7 +81,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: what giwbc can do today, end to end."""
-    from giwbc.demo import run_demo
+    from giwbc.apps.demo import run_demo
 
     return run_demo(seconds=args.seconds)
 
@@ -109,7 +110,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return args.run(args)
-    except RobotDescriptionError as error:
+    except GiwbcError as error:
         print(f"giwbc: error: {error}", file=sys.stderr)
         return 2
 

@@ -21,7 +21,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from giwbc.policy import MlpWeights, ObservationNormalization, PlayResult, export_onnx, play
+from giwbc.apps.play import PlayResult, play
+from giwbc.policy import MlpWeights, ObservationNormalization, export_onnx
 
 if TYPE_CHECKING:
     from stable_baselines3 import PPO

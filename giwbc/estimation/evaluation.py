@@ -16,13 +16,13 @@ import mujoco
 import numpy as np
 
 from giwbc.robot.description import RobotDescription
-from giwbc.robot.estimator import Estimate, EstimatorConfig, Measurement, StateEstimator
+from giwbc.estimation.estimator import Estimate, EstimatorConfig, Measurement, StateEstimator
 from giwbc.robot.interface import Robot
 from giwbc.robot.mujoco_robot import MujocoRobot
 from giwbc.robot.noise import NoisyRobot, SensorNoiseConfig
-from giwbc.robot.standing import pd_hold_command
+from giwbc.robot.standing import PdHold
 
-__all__ = ["BalanceOnEstimate", "Controller", "EvaluationResult", "PdHold", "Push", "evaluate", "push_sequence"]
+__all__ = ["Controller", "EvaluationResult", "Push", "evaluate", "push_sequence"]
 
 # A controller: reads the measured robot and the estimate, writes the robot's commands.
 Controller = Callable[[Robot, Estimate], None]
@@ -59,35 +59,6 @@ def push_sequence(
     forces = [(0.0, lateral, 0.0), (sagittal, 0.0, 0.0), (0.0, -lateral, 0.0), (-sagittal, 0.0, 0.0)]
     starts = np.arange(first, duration - push_duration, period)
     return tuple(Push(float(s), push_duration, forces[i % 4], link) for i, s in enumerate(starts))
-
-
-class PdHold:
-    """The joint-PD standing hold, commanded once (the actuators hold it)."""
-
-    def __init__(self, description: RobotDescription) -> None:
-        self.command = pd_hold_command(description)
-        self._sent = False
-
-    def __call__(self, robot: Robot, estimate: Estimate) -> None:
-        if not self._sent:
-            robot.set_joint_impedance(self.command)
-            self._sent = True
-
-
-class BalanceOnEstimate:
-    """The whole-body balance controller (:mod:`giwbc.control.balance`) closing its loop on the
-    estimate: ``(q, v)`` from the estimator, joint torques to the robot."""
-
-    def __init__(self, description: RobotDescription, **overrides: object) -> None:
-        from giwbc.control.balance import make_balance_controller  # control is optional here
-
-        self.controller = make_balance_controller(description, **overrides)
-        self.failures = 0
-
-    def __call__(self, robot: Robot, estimate: Estimate) -> None:
-        result = self.controller.update(estimate.q, estimate.v, robot.time())
-        self.failures = result.failures
-        robot.set_joint_torques(result.tau)
 
 
 @dataclass(frozen=True)

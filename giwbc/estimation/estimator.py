@@ -37,16 +37,16 @@ import numpy as np
 import pinocchio as pin
 
 from giwbc.robot.description import RobotDescription
-from giwbc.robot.estimation import so3
-from giwbc.robot.estimation.contacts import ContactDetector
-from giwbc.robot.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
+from giwbc.robot import so3
+from giwbc.estimation.contacts import ContactDetector
+from giwbc.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
 
 _HOLDING = int(HOLDING_FAULTS)
 UNKNOWN_VARIANCE = 1e6  # covariance diagonal of an estimate not yet initialized (finite on purpose)
-from giwbc.robot.estimation.kalman import GRAVITY, LegKalmanFilter, LegKalmanNoise
-from giwbc.robot.estimation.kinematics import LegKinematics
-from giwbc.robot.estimation.orientation import OrientationFilter
-from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, ImuReading, Robot
+from giwbc.estimation.kalman import GRAVITY, LegKalmanFilter, LegKalmanNoise
+from giwbc.estimation.kinematics import LegKinematics
+from giwbc.estimation.orientation import OrientationFilter
+from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
 
 __all__ = [
     "EstimatedRobot",
@@ -440,7 +440,7 @@ class StateEstimator:
                         np.array(self.orientation.gyro_bias_floats), faults)
 
 
-class EstimatedRobot(Robot):
+class EstimatedRobot(RobotWrapper):
     """A robot whose base state comes from a :class:`StateEstimator` fed by its measurements.
 
     Wraps a robot that does not measure its base (hardware, a :class:`~giwbc.robot.noise.NoisyRobot`);
@@ -449,7 +449,7 @@ class EstimatedRobot(Robot):
     """
 
     def __init__(self, robot: Robot, estimator: StateEstimator) -> None:
-        self.robot = robot
+        super().__init__(robot)
         self.estimator = estimator
         self._updated_at: float | None = None
         self._plan: np.ndarray | None = None
@@ -466,34 +466,6 @@ class EstimatedRobot(Robot):
             self.estimator.update_from_robot(self.robot, self._plan)
             self._updated_at = now
         return self.estimator.estimate
-
-    # --- identity, time, joints and IMU: the wrapped robot's ---------------------------------
-    @property
-    def name(self) -> str:
-        return self.robot.name
-
-    @property
-    def joint_names(self) -> tuple[str, ...]:
-        return self.robot.joint_names
-
-    @property
-    def floating_base(self) -> bool:
-        return self.robot.floating_base
-
-    def time(self) -> float:
-        return self.robot.time()
-
-    def joint_positions(self) -> np.ndarray:
-        return self.robot.joint_positions()
-
-    def joint_velocities(self) -> np.ndarray:
-        return self.robot.joint_velocities()
-
-    def joint_efforts(self) -> np.ndarray:
-        return self.robot.joint_efforts()
-
-    def imu(self) -> ImuReading:
-        return self.robot.imu()
 
     # --- estimated ------------------------------------------------------------------------
     def base_state(self) -> BaseState:
@@ -527,9 +499,3 @@ class EstimatedRobot(Robot):
         lever = rotation @ np.asarray(self.estimator.description.contacts[index].center, float)
         return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[index]))
 
-    # --- commands -------------------------------------------------------------------------
-    def set_joint_torques(self, torques: np.ndarray) -> None:
-        self.robot.set_joint_torques(torques)
-
-    def set_joint_impedance(self, command: ImpedanceCommand) -> None:
-        self.robot.set_joint_impedance(command)

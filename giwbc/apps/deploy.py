@@ -21,7 +21,7 @@ Procedure (:func:`deploy`):
    inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
 
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
-(:data:`giwbc.testing.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
+(:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
 """
 
@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from giwbc.errors import DeployError
 
 if TYPE_CHECKING:
     import mujoco
@@ -64,10 +65,6 @@ def _runtime_keys() -> frozenset[str]:
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     make_options = {name for name, p in inspect.signature(gymnasium.make).parameters.items() if p.kind in named} - {"id"}
     return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS, *make_options})
-
-
-class DeployError(RuntimeError):
-    """A deployment that cannot start: configuration, policy or hardware mismatch (exit code 2)."""
 
 
 # ----------------------------------------------------------------------------- policy metadata
@@ -288,7 +285,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     for line in loads:
         say(f"  {line}")
 
-    from giwbc.testing.faults import HostFaults
+    from giwbc.runtimes.faults import HostFaults
 
     host_faults = HostFaults(options.faults)
     if host_faults and not options.emulate:
@@ -325,7 +322,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
-            from giwbc.robot.estimator import StateEstimator
+            from giwbc.estimation.estimator import StateEstimator
 
             estimator = StateEstimator(description)
         clock: list[Callable[[], float]] = []  # robot time for host-side faults (set once the robot exists)
@@ -468,7 +465,7 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     parser.add_argument("--fault", default=None, metavar="KIND",
-                        help="with --emulate: inject one fault of the fault table (giwbc.testing.faults.FAULT_CASES), e.g. bus_off")
+                        help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
     parser.set_defaults(run=run_deploy_command)
     return parser
@@ -480,7 +477,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
     startup = StartupConfig(ramp_time=args.ramp)
     faults: tuple[Any, ...] = ()
     if getattr(args, "fault", None):
-        from giwbc.testing.faults import fault_case
+        from giwbc.runtimes.faults import fault_case
 
         try:
             case = fault_case(args.fault)
@@ -514,7 +511,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m giwbc.deploy ...`` (the same as ``giwbc deploy ...``)."""
+    """``python -m giwbc.apps.deploy ...`` (the same as ``giwbc deploy ...``)."""
     parser = argparse.ArgumentParser(prog="giwbc")
     add_deploy_command(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["deploy", *(sys.argv[1:] if argv is None else argv)])

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from giwbc.robot.estimation import so3
+from giwbc.robot import so3
 
 __all__ = ["OrientationFilter"]
 

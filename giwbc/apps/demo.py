@@ -121,7 +121,7 @@ def run_demo(seconds: float = 10.0) -> int:
     print("results (QP whole-body controller vs joint-PD hold):")
     _print_report(wbc)
     _print_report(pd)
-    from giwbc.evaluation import demo_residual
+    from giwbc.apps.evaluation import demo_residual
 
     demo_residual(episodes=12, force=80.0)  # the shipped residual policy (policies/) over the same WBC
     return 0 if wbc.stood else 1

@@ -10,12 +10,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from functools import cached_property
+from giwbc.errors import RateError
 
 _RELATIVE_TOLERANCE = 1e-9
-
-
-class RateError(ValueError):
-    """Rates that are not positive, or whose ratios are not integers."""
 
 
 def _check_positive(name: str, rate: float) -> float:

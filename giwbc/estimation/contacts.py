@@ -4,7 +4,7 @@ A foot goes into contact when its normal force rises above ``on_force`` and leav
 force falls below ``off_force`` (< ``on_force``), so noise around one threshold cannot chatter;
 a first-order low-pass (``time_constant``) first takes the spikes off forces estimated from noisy
 joint efforts. The forces come from joint efforts
-(:class:`~giwbc.robot.estimation.kinematics.LegKinematics`) or foot force sensors; a
+(:class:`~giwbc.estimation.kinematics.LegKinematics`) or foot force sensors; a
 controller's contact plan can override the result per update.
 """
 

@@ -1,0 +1,214 @@
+"""The MIT codec and the decoded-reply batches at their edges: what each error says (a log line
+is all an operator gets), configuration limits, values at and beyond their ranges, integer ids of
+numpy types, and the batch operations (rows, selection, concatenation) the bus loop relies on."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from giwbc.hal.motor import MotorConfig, MotorModel, Range
+from giwbc.hal.protocols import (
+    CORRUPT,
+    REPLY,
+    UNKNOWN,
+    CommandValueError,
+    CorruptFrameError,
+    FrameLengthError,
+    MitProtocol,
+    MotorReply,
+    ProtocolConfigError,
+    UnknownMotorError,
+    pack_command,
+)
+from giwbc.hal.protocols.base import CommandBatch, DecodedReplies
+
+REF = MotorModel("ref", Range(-12.5, 12.5), Range(-65.0, 65.0), Range(0.0, 500.0), Range(0.0, 5.0), Range(-18.0, 18.0))
+
+
+def motor(can_id: int = 1, reply: str = "original", joint: str | None = None) -> MotorConfig:
+    return MotorConfig(can_id, REF, joint or f"j{can_id}", reply=reply)
+
+
+# --- decoded batches ---------------------------------------------------------------------------
+REPLIES = [
+    MotorReply(3, 1.0, -2.0, 0.5, temperature=40.0, error_code=0, voltage=24.5),
+    None,
+    MotorReply(7, -1.0, 2.0, -0.5, rotor_temperature=55.0, error_code=9, status=2),
+]
+
+
+def batch() -> DecodedReplies:
+    return DecodedReplies.from_replies([REPLY, CORRUPT, REPLY], [0, -1, 1], REPLIES)
+
+
+def test_rows_built_from_replies_give_the_replies_back() -> None:
+    d = batch()
+    assert len(d) == 3 and d.count(REPLY) == 2 and d.count(CORRUPT) == 1 and d.count(UNKNOWN) == 0
+    assert d.valid.tolist() == [True, False, True]
+    assert d.reply(0) == REPLIES[0] and d.reply(1) is None and d.reply(2) == REPLIES[2]
+    assert d.motor_id.tolist() == [3, -1, 7] and d.index.tolist() == [0, -1, 1]
+    np.testing.assert_array_equal(d.position, [1.0, np.nan, -1.0])
+    np.testing.assert_array_equal(d.velocity, [-2.0, np.nan, 2.0])
+    np.testing.assert_array_equal(d.torque, [0.5, np.nan, -0.5])
+    np.testing.assert_array_equal(d.temperature, [40.0, np.nan, np.nan])
+    np.testing.assert_array_equal(d.rotor_temperature, [np.nan, np.nan, 55.0])
+    np.testing.assert_array_equal(d.voltage, [24.5, np.nan, np.nan])
+    assert d.error_code.tolist() == [0, -1, 9] and d.status.tolist() == [-1, -1, 2]
+    for name, kind in (("verdict", "i"), ("index", "i"), ("motor_id", "i"), ("error_code", "i"), ("status", "i"),
+                       ("state", "f"), ("temperature", "f"), ("rotor_temperature", "f"), ("voltage", "f")):  # fmt: skip
+        assert getattr(d, name).dtype.kind == kind, name
+    assert d.state.shape == (3, 3)
+    assert len(DecodedReplies.from_replies([], [], [])) == 0
+
+
+def test_taking_and_concatenating_rows() -> None:
+    d = batch()
+    picked = d.take(np.array([2, 0]))
+    assert picked.reply(0) == REPLIES[2] and picked.reply(1) == REPLIES[0] and len(picked) == 2
+    both = DecodedReplies.concatenate([d, d], [0, 10])
+    assert both.index.tolist() == [0, -1, 1, 10, -1, 11]  # invalid rows stay -1
+    assert [both.reply(k) for k in range(6)] == REPLIES + REPLIES
+    assert DecodedReplies.concatenate([d, d]).index.tolist() == [0, -1, 1, 0, -1, 1]
+    assert len(DecodedReplies.concatenate([])) == 0
+
+
+def test_a_command_batch_splits_into_frames() -> None:
+    p = MitProtocol([motor(1), motor(2)])
+    commands = p.encode_commands([0.0, 1.0], 0.0, 0.0, 0.0, [0.0, 99.0])
+    assert len(commands) == 2 and commands.clamp_count == 1
+    frames = commands.frames()
+    assert [f.arbitration_id for f in frames] == [1, 2]
+    assert [f.data for f in frames] == [p.encode_command(i, *v).frame.data for i, v in ((1, (0, 0, 0, 0, 0)), (2, (1, 0, 0, 0, 99)))]
+    assert all(not f.is_extended_id for f in frames)
+    empty = CommandBatch(np.zeros(0, np.int64), np.zeros((0, 8), np.uint8), np.zeros((0, 5), bool))
+    assert len(empty) == 0 and empty.frames() == []
+
+
+# --- configuration -----------------------------------------------------------------------------
+def test_protocol_configuration_limits_and_messages() -> None:
+    with pytest.raises(ProtocolConfigError, match=r"^host_id must be a standard 11-bit id, got 2048$"):
+        MitProtocol([motor()], host_id=0x800)
+    for bad in (0.0, -1.0, math.inf, math.nan):
+        with pytest.raises(ProtocolConfigError, match=r"^voltage_lsb must be > 0, got "):
+            MitProtocol([motor()], voltage_lsb=bad)
+    with pytest.raises(ProtocolConfigError, match=r"^motor 'j1': unknown MIT reply variant 'nope'; known: original, voltage, cubemars, damiao"):
+        MitProtocol([motor(1, "nope")])
+    # The whole 11-bit range, both ends, for a variant whose replies carry 4 bits of the id.
+    assert MitProtocol([motor(0, "damiao"), motor(0x7FF, "damiao", "far")]).index == {0: 0, 0x7FF: 1}
+    with pytest.raises(ProtocolConfigError, match=r"^motor 'big': MIT mode uses 11-bit ids, got 0x800$"):
+        MitProtocol([motor(0x800, "damiao", "big")])
+
+
+# --- commands ----------------------------------------------------------------------------------
+def test_command_errors_name_what_is_wrong() -> None:
+    p = MitProtocol([motor(1, joint="knee"), motor(2, joint="hip")])
+    with pytest.raises(CommandValueError, match=r"^NaN in commands: knee\.velocity, hip\.kd$"):
+        p.encode_commands([0.0, 0.0], [np.nan, 0.0], 0.0, [0.0, np.nan], 0.0)
+    with pytest.raises(CommandValueError, match=r"^NaN in command fields \{'position': 0\.0, 'velocity': nan"):
+        pack_command(motor(), 0.0, math.nan, 0.0, 0.0, 0.0)
+    for make in (lambda: p.encode_command(9, 0, 0, 0, 0, 0), lambda: p.enter_motor_mode(9), lambda: p.encode_reply(9, 0, 0, 0)):
+        with pytest.raises(UnknownMotorError, match=r"^no motor with id 9 on this bus$"):
+            make()
+    with pytest.raises(CommandValueError, match=r"^NaN in reply for motor 1$"):
+        p.encode_reply(1, math.nan, 0.0, 0.0)
+
+
+def test_reply_values_beyond_the_range_saturate_at_its_ends() -> None:
+    p = MitProtocol([motor()])
+    low = p.decode(0, p.encode_reply(1, -100.0, -100.0, -100.0).data)
+    assert (low.position, low.velocity, low.torque) == (-12.5, -65.0, -18.0)
+    high = p.decode(0, p.encode_reply(1, 100.0, 100.0, 100.0).data)
+    assert (high.position, high.velocity, high.torque) == (12.5, 65.0, 18.0)
+
+
+def test_reply_encoding_limits_and_defaults() -> None:
+    cubemars = MitProtocol([motor(1, "cubemars")])
+    with pytest.raises(ValueError, match=r"^error code must be 0\.\.255, got 256$"):
+        cubemars.encode_reply(1, 0, 0, 0, error_code=256)
+    assert cubemars.decode(0, cubemars.encode_reply(1, 0, 0, 0, error_code=7).data).error_code == 7
+    with pytest.raises(CorruptFrameError, match="no defined error code"):  # encodable, but no drive sends it
+        cubemars.decode(0, cubemars.encode_reply(1, 0, 0, 0, error_code=255).data)
+    damiao = MitProtocol([motor(1, "damiao")])
+    with pytest.raises(ValueError, match=r"^Damiao state must be 0\.\.15, got 16$"):
+        damiao.encode_reply(1, 0, 0, 0, status=16)
+    assert damiao.decode(0, damiao.encode_reply(1, 0, 0, 0, status=14).data).status == 14  # 15 is undefined
+    reply = damiao.decode(0, damiao.encode_reply(1, 0, 0, 0).data)  # defaults: enabled, 25 °C
+    assert (reply.status, reply.error_code, reply.temperature, reply.rotor_temperature) == (1, 0, 25.0, 25.0)
+    voltage = MitProtocol([motor(1, "voltage")])
+    assert voltage.decode(0, voltage.encode_reply(1, 0, 0, 0).data).voltage == pytest.approx(24.0, abs=0.2)
+    assert MitProtocol([motor()]).encode_reply(1, 0, 0, 0).arbitration_id == 0  # the host id by default
+    assert MitProtocol([motor()], host_id=5).encode_reply(1, 0, 0, 0).arbitration_id == 5
+    assert MitProtocol([motor()]).encode_reply(1, 0, 0, 0, arbitration_id=0x33).arbitration_id == 0x33
+
+
+def test_damiao_error_states_start_at_eight() -> None:
+    p = MitProtocol([motor(1, "damiao")])
+    for state, error in ((0, 0), (1, 0), (8, 8), (9, 9), (14, 14)):
+        reply = p.decode(0, p.encode_reply(1, 0, 0, 0, status=state).data)
+        assert (reply.status, reply.error_code) == (state, error)
+    for undefined in (2, 7, 15):  # no such state in the firmware: not a reply
+        with pytest.raises(UnknownMotorError):
+            p.decode(0, p.encode_reply(1, 0, 0, 0, status=undefined).data)
+
+
+# --- decoding ----------------------------------------------------------------------------------
+def test_decode_errors_say_why() -> None:
+    p = MitProtocol([motor(1), motor(0x22, "cubemars")], host_id=None)
+    data = p.encode_reply(1, 0, 0, 0).data
+    cases = [
+        ((1.5, data), CorruptFrameError, r"^arbitration id must be an integer, got float$"),
+        ((True, data), CorruptFrameError, r"^arbitration id must be an integer, got bool$"),
+        ((0x800, data), CorruptFrameError, r"^arbitration id 0x800 out of range$"),
+        ((0, b""), UnknownMotorError, r"^a frame without payload \(a CANopen SYNC, ...\) names no motor$"),
+        ((0, bytes([1])), FrameLengthError, r"^motor id 1 replies with 6 bytes \(original\), got 1$"),
+        ((0, bytes(8)), UnknownMotorError, r"^no motor on this bus replies with byte 0 = 0x00 in 8 bytes$"),
+        ((0, bytes([0x22]) + bytes(5)), FrameLengthError, r"^motor id 34 replies with 8 bytes \(cubemars\), got 6$"),
+        ((0, bytes([0xFF] * 7 + [0xFC])), UnknownMotorError, r"byte 0 = 0xFF"),
+        ((0, 5), CorruptFrameError, r"^frame data must be bytes, got int$"),
+    ]
+    for args, error, message in cases:
+        with pytest.raises(error, match=message):
+            p.decode(*args)
+    with pytest.raises(UnknownMotorError, match=r"^extended frame 0x100 is not an MIT reply$"):
+        p.decode(0x100, data, is_extended_id=True)
+    with pytest.raises(CorruptFrameError, match=r"^arbitration id 0x20000000 out of range$"):
+        p.decode(0x20000000, data, is_extended_id=True)
+    hosted = MitProtocol([motor(1)], host_id=3)
+    with pytest.raises(UnknownMotorError, match=r"^frame id 0x2 is not the host id 0x3$"):
+        hosted.decode(2, data)
+    special = MitProtocol([motor(0xFF, "cubemars")])
+    with pytest.raises(CorruptFrameError, match=r"^a special command frame, not a reply$"):
+        special.decode(0, bytes([0xFF] * 7 + [0xFC]))
+    with pytest.raises(CorruptFrameError, match=r"^undecodable input: TypeError: "):
+        p.decode(0, [1, "x"])
+
+
+def test_numpy_integer_ids_decode_like_python_ints() -> None:
+    p = MitProtocol([motor(1)], host_id=2)
+    data = p.encode_reply(1, 1.0, 2.0, 3.0).data
+    assert p.decode(np.int64(2), data) == p.decode(2, data)
+    assert p.decode(np.uint16(2), data).motor_id == 1
+
+
+def test_command_decoding_errors_and_specials() -> None:
+    p = MitProtocol([motor(1)])
+    frame = p.encode_command(1, 1.0, 2.0, 3.0, 0.5, -1.0).frame
+    command = p.decode_command(1, frame.data)
+    assert command.motor_id == 1 and command.special is None
+    assert command.position == pytest.approx(1.0, abs=2e-4) and command.kp == pytest.approx(3.0, abs=0.07)
+    enter = p.decode_command(1, p.enter_motor_mode(1).data)
+    assert enter.motor_id == 1 and enter.special == "enter"
+    assert all(math.isnan(x) for x in (enter.position, enter.velocity, enter.kp, enter.kd, enter.torque))
+    with pytest.raises(UnknownMotorError, match=r"^extended frames are not MIT commands$"):
+        p.decode_command(1, frame.data, is_extended_id=True)
+    with pytest.raises(UnknownMotorError, match=r"^no motor with id 2 on this bus$"):
+        p.decode_command(2, frame.data)
+    with pytest.raises(UnknownMotorError, match=r"^no motor with id '1' on this bus$"):
+        p.decode_command("1", frame.data)
+    with pytest.raises(FrameLengthError, match=r"^MIT commands have 8 bytes, got 6$"):
+        p.decode_command(1, frame.data[:6])
+    with pytest.raises(CorruptFrameError, match=r"^undecodable input: TypeError: "):
+        p.decode_command(1, [1, "x"])

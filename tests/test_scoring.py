@@ -1,0 +1,165 @@
+"""Scoring on episodes that must fail: a push no controller survives, and an episode that survives
+but does not end upright. Short episodes (well under a second of simulated time) keep them cheap."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from giwbc.apps.evaluation import (
+    ArmResult,
+    Comparison,
+    EpisodeResult,
+    PushProtocol,
+    mcnemar_exact,
+    run_episodes,
+    wilson_interval,
+)
+from giwbc.apps.sim_to_sim import Cell, PushSetting, evaluate
+
+# 2000 N for 0.2 s is 400 N s on a 33 kg robot (12 m/s): no controller stays up.
+HOPELESS = PushProtocol(force=2000.0, duration=0.2, interval=(0.2, 0.2), episode_seconds=0.6)
+# 30 N for 0.1 s: the WBC stands through it (test_evaluation.py), but never ends *exactly* level.
+GENTLE = PushProtocol(force=30.0, duration=0.1, interval=(0.2, 0.2), episode_seconds=0.5)
+
+
+@pytest.fixture(scope="module")
+def g1_model(g1):
+    return g1.build_mujoco()
+
+
+def test_a_push_no_controller_survives_is_scored_as_a_fall() -> None:
+    arm = run_episodes(None, protocol=HOPELESS, episodes=1, seed=5, workers=1)
+    (episode,) = arm.episodes
+    assert not episode.survived and not episode.success
+    assert episode.survival_time < HOPELESS.episode_seconds - 0.05  # terminated early, not at the time limit
+    assert episode.max_tilt > 0.5 or episode.final_tilt > 0.5
+    assert math.isfinite(episode.push_time)
+    assert arm.success_rate == 0.0 and arm.survival_rate == 0.0
+
+
+def test_an_episode_that_survives_tilted_is_not_a_success() -> None:
+    """Survival and success are scored apart: with an upright limit tighter than the robot's final
+    tilt, an episode that ran to the time limit still fails."""
+    standing = run_episodes(None, protocol=GENTLE, episodes=1, seed=5, workers=1)
+    (episode,) = standing.episodes
+    assert episode.survived and episode.success
+    assert episode.survival_time == pytest.approx(GENTLE.episode_seconds)
+    strict = PushProtocol(**{**GENTLE.__dict__, "upright_tilt": episode.final_tilt / 2})
+    (tilted,) = run_episodes(None, protocol=strict, episodes=1, seed=5, workers=1).episodes
+    assert tilted.survived and not tilted.success
+    assert tilted.final_tilt == episode.final_tilt  # the same episode, only scored differently
+
+
+def test_sim_to_sim_scores_a_fall_as_a_failure(g1_model) -> None:
+    cells = evaluate(episodes=1, seconds=0.6, pushes=PushSetting(force=2000.0, duration=0.2, interval=(0.2, 0.2)),
+                     workers=0, seed=4, conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})
+    cell = cells["wbc_only"]["mujoco_nominal"]
+    assert cell.episodes == 1 and cell.successes == 0 and cell.success_rate == 0.0
+    assert cell.failed_seeds == [4]
+    assert cell.simulated_s < 0.55  # it stopped at the fall, not at the end
+
+
+def test_sim_to_sim_scores_a_standing_episode_as_a_success(g1_model) -> None:
+    cells = evaluate(episodes=1, seconds=0.3, pushes=PushSetting(force=30.0, duration=0.1, interval=(0.1, 0.2)),
+                     workers=0, seed=4, conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})
+    cell = cells["wbc_only"]["mujoco_nominal"]
+    assert (cell.episodes, cell.successes, cell.failed_seeds) == (1, 1, [])
+    assert cell.simulated_s == pytest.approx(0.3)
+
+
+# --- the arithmetic of the scores, on made-up episodes -------------------------------------------
+def episode(seed: int, survived: bool, success: bool, time: float, tilt: float, force=(80.0, 0.0, 0.0), push_time=1.3,
+            ret: float = 10.0) -> EpisodeResult:
+    return EpisodeResult(seed, survived, success, time, tilt, 2 * tilt, push_time, force, ret)
+
+
+ARM = ArmResult("wbc", PushProtocol(), (
+    episode(1, True, True, 2.6, 0.1, ret=30.0),
+    episode(2, True, False, 2.6, 0.5, ret=20.0),
+    episode(3, False, False, 1.4, 1.0, ret=-5.0),
+    episode(4, False, False, 1.7, 1.2, ret=-5.0),
+))
+
+
+def test_arm_scores_count_successes_and_survivals_apart() -> None:
+    assert (ARM.n, ARM.successes) == (4, 1)
+    assert ARM.success_rate == 0.25 and ARM.survival_rate == 0.5
+    assert ARM.mean_survival_time == pytest.approx((2.6 + 2.6 + 1.4 + 1.7) / 4)
+    low, high = wilson_interval(1, 4)
+    assert ARM.summary() == {
+        "arm": "wbc", "episodes": 4, "success_rate": 0.25, "success_rate_95ci": [low, high], "survival_rate": 0.5,
+        "mean_survival_time_s": pytest.approx(2.075), "mean_return": 10.0, "mean_max_tilt_rad": pytest.approx(1.4),
+    }  # fmt: skip
+    empty = ArmResult("none", PushProtocol(), ())
+    assert empty.success_rate == 0.0 and empty.survival_rate == 0.0
+
+
+def test_wilson_interval_matches_published_values() -> None:
+    for (successes, n), expected in {(25, 50): (0.3664, 0.6336), (0, 10): (0.0, 0.2775), (10, 10): (0.7225, 1.0),
+                                     (3, 20): (0.0524, 0.3604)}.items():  # fmt: skip
+        assert wilson_interval(successes, n) == pytest.approx(expected, abs=1e-4)
+
+
+def test_paired_comparison_counts_saved_and_lost_episodes() -> None:
+    residual = ArmResult("policy.onnx", PushProtocol(), (
+        episode(1, True, False, 2.6, 0.5),  # lost
+        episode(2, True, True, 2.6, 0.1),  # saved
+        episode(3, True, True, 2.6, 0.1, push_time=1.5),  # saved; a different push time is fine when the WBC arm fell
+        episode(4, False, False, 1.9, 1.1),  # both fail
+    ))
+    comparison = Comparison(ARM, residual, "giwbc/G1Balance-v0")
+    assert (comparison.saved, comparison.lost) == (2, 1)
+    assert comparison.same_pushes
+    assert comparison.paired_p_value == mcnemar_exact(2, 1) == 1.0
+    summary = comparison.summary()
+    assert summary["paired"] == {"saved": 2, "lost": 1, "mcnemar_exact_p": 1.0}
+    assert summary["env_id"] == "giwbc/G1Balance-v0" and summary["same_pushes"] is True
+    assert summary["wbc"] == ARM.summary() and summary["residual"] == residual.summary()
+    assert summary["protocol"]["force"] == 80.0
+    other_push = ArmResult("p", PushProtocol(), (episode(1, True, True, 2.6, 0.1, force=(0.0, 80.0, 0.0)),) + residual.episodes[1:])
+    assert not Comparison(ARM, other_push, "x").same_pushes
+    other_time = ArmResult("p", PushProtocol(), (episode(1, True, True, 2.6, 0.1, push_time=1.4),) + residual.episodes[1:])
+    assert not Comparison(ARM, other_time, "x").same_pushes  # both survived: the push must have come at the same time
+
+
+def test_push_protocol_is_validated() -> None:
+    for bad in ({"interval": (0.0, 1.0)}, {"interval": (1.6, 1.2)}, {"duration": 0.0}, {"force": -1.0}):
+        with pytest.raises(ValueError, match="bad push protocol"):
+            PushProtocol(**bad)
+    PushProtocol(force=0.0, interval=(1.2, 1.2), episode_seconds=2.0)  # the edges that are allowed
+    with pytest.raises(ValueError, match=r"must be <= 2\*interval\[0\] \+ duration = 2\.60 s"):
+        PushProtocol(episode_seconds=2.7)
+
+
+def test_sim_to_sim_cells_and_their_summary() -> None:
+    cell = Cell(episodes=4, successes=3, simulated_s=30.0, wall_s=8.0, failed_seeds=[7, 2])
+    assert cell.success_rate == 0.75
+    assert cell.summary() == {"episodes": 4, "successes": 3, "success_rate": 0.75, "mean_survival_s": 7.5,
+                              "wall_s_per_episode": 2.0, "failed_seeds": [2, 7]}  # fmt: skip
+    empty = Cell()
+    assert math.isnan(empty.success_rate) and empty.summary()["mean_survival_s"] is None
+    assert empty.summary()["wall_s_per_episode"] is None
+    assert PushSetting(force=50.0, duration=0.1, interval=(1.0, 2.0)).sim2real() == {
+        "pushes": {"force": [50.0, 50.0], "duration": 0.1, "interval": [1.0, 2.0]}}
+
+
+def test_sim_to_sim_refuses_bad_requests() -> None:
+    with pytest.raises(ValueError, match="episodes must be >= 1 and seconds > 0, got 0, 1.0"):
+        evaluate(episodes=0, seconds=1.0)
+    with pytest.raises(ValueError, match="episodes must be >= 1 and seconds > 0, got 1, 0.0"):
+        evaluate(episodes=1, seconds=0.0)
+    with pytest.raises(ValueError, match=r"unknown conditions \['moon'\]"):
+        evaluate(episodes=1, seconds=1.0, conditions=("mujoco_nominal", "moon"))
+
+
+def test_sim_to_sim_chunks_and_workers_do_not_change_the_result(g1_model) -> None:
+    """Seven episodes: two chunks of seeds (5 + 2); in this process or on two workers, the same cells."""
+    kwargs = dict(episodes=7, seconds=0.1, pushes=PushSetting(force=30.0, duration=0.05, interval=(0.05, 0.06)), seed=11,
+                  conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})  # fmt: skip
+    here = evaluate(workers=0, **kwargs)["wbc_only"]["mujoco_nominal"]
+    pooled = evaluate(workers=2, **kwargs)["wbc_only"]["mujoco_nominal"]
+    assert (here.episodes, here.successes, here.failed_seeds) == (7, 7, [])
+    assert here.simulated_s == pytest.approx(0.7)
+    assert (pooled.episodes, pooled.successes, pooled.simulated_s) == (here.episodes, here.successes, here.simulated_s)

@@ -1,0 +1,224 @@
+"""Mutation testing of giwbc's core modules with mutmut 3, one module group at a time.
+
+Why per group: mutmut runs, for each mutant, only the tests that reach the mutated function, but
+it first runs the selected tests once to learn that mapping. A small, fast test selection per
+group keeps that affordable on a 2-vCPU machine; the slow closed-loop tests stay out.
+
+Each group runs in its own scratch copy of the repository (``.mutation/<group>/``, gitignored):
+the source, the tests, the robot and policy files, and a generated ``pyproject.toml`` holding
+that group's ``[tool.mutmut]`` settings. A group's results are kept there, so a later run
+resumes (``--fresh`` starts over; ``--rerun-survivors`` tests the surviving mutants again after
+tests were added). Each group stops at its time budget; unfinished mutants count as not run.
+
+The report (default ``mutation-report.txt``, gitignored) gives killed / total per group, the
+equivalent mutants excluded (listed with a reason in ``tests/mutation_equivalents.md``), and the
+diff of every surviving mutant.
+
+    python tools/mutation.py                       # every group, default budgets
+    python tools/mutation.py safety protocols      # some groups
+    python tools/mutation.py --budget-scale 0.5    # half the time
+"""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRATCH = ROOT / ".mutation"
+EQUIVALENTS = ROOT / "tests" / "mutation_equivalents.md"
+COPIED = ("giwbc", "tests", "robots", "policies")
+KILLED = {"killed", "timeout", "caught by type check"}
+
+
+@dataclass(frozen=True)
+class Group:
+    """Modules mutated together and the fast tests that should kill their mutants."""
+
+    name: str
+    modules: tuple[str, ...]  # globs relative to the repository root
+    tests: tuple[str, ...]  # pytest arguments selecting the tests
+    budget_s: float  # wall-clock budget of the mutation run on 2 vCPUs
+    functions: tuple[str, ...] = ()  # mutant-name globs: only these are run and scored (default: all)
+
+    def selects(self, name: str) -> bool:
+        return not self.functions or any(fnmatch.fnmatchcase(name, pattern) for pattern in self.functions)
+
+
+GROUPS: tuple[Group, ...] = (
+    Group("safety", ("giwbc/hal/safety.py",),
+          ("tests/test_safety_supervisor.py", "tests/test_safety_faults.py", "-k", "supervisor or signal_watch or safety_supervisor"), 600),
+    Group("protocols", ("giwbc/hal/protocols/*",),
+          ("tests/test_mit_protocol.py", "tests/test_protocol_details.py",
+           "tests/test_frames.py::test_the_multibus_codec_equals_each_buses_protocol"), 1200),
+    Group("estimator", ("giwbc/estimation/estimator.py",),
+          ("tests/test_estimator.py", "tests/test_estimator_truth.py", "-k", "not 20_s and not push_run and not 60_N"), 900),
+    Group("stepping", ("giwbc/runtimes/simulated.py", "giwbc/tasks/rates.py"), ("tests/test_tasks_runtimes.py", "tests/test_engines.py"), 900,
+          ("giwbc.tasks.rates.*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ__init__*",
+           "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁreset*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁstep*",
+           "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_observe*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_pace*",
+           "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁtime*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_info*",
+           "giwbc.runtimes.simulated.xǁStepTimings*", "giwbc.runtimes.simulated.x_timestep*")),
+    Group("scoring", ("giwbc/apps/evaluation.py", "giwbc/apps/sim_to_sim.py"),
+          ("tests/test_scoring.py", "tests/test_evaluation.py", "tests/test_sim_to_sim.py", "-k", "not training"), 900,
+          ("giwbc.apps.evaluation.x_run_chunk*", "giwbc.apps.evaluation.x_run_episodes*", "giwbc.apps.evaluation.xǁArmResultǁ*",
+           "giwbc.apps.evaluation.xǁComparisonǁ*", "giwbc.apps.evaluation.x_wilson_interval*", "giwbc.apps.evaluation.x_mcnemar_exact*",
+           "giwbc.apps.evaluation.xǁPushProtocolǁ*", "giwbc.apps.sim_to_sim.x_run_job*", "giwbc.apps.sim_to_sim.x_evaluate*",
+           "giwbc.apps.sim_to_sim.xǁCellǁ*", "giwbc.apps.sim_to_sim.xǁPushSettingǁ*")),
+    Group("control", ("giwbc/control/*",),
+          ("tests/test_wbc.py", "tests/test_wbc_mujoco_dynamics.py", "tests/test_kinodynamics.py", "tests/test_wbc_reset.py", "tests/test_wbc_bounded.py",
+           "tests/test_analytic_dynamics.py", "-m", "not slow"), 2400),
+)
+
+
+def _toml_list(values: tuple[str, ...] | list[str]) -> str:
+    return "[" + ", ".join(f'"{v}"' for v in values) + "]"
+
+
+def prepare(group: Group, fresh: bool) -> Path:
+    """The group's scratch copy of the repository, with its mutmut settings; mutmut's state kept
+    unless ``fresh``."""
+    work = SCRATCH / group.name
+    if fresh and work.exists():
+        shutil.rmtree(work)
+    work.mkdir(parents=True, exist_ok=True)
+    for name in COPIED:
+        target = work / name
+        if target.exists():
+            shutil.rmtree(target)
+        shutil.copytree(ROOT / name, target, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    (work / "pyproject.toml").write_text(
+        "[tool.mutmut]\n"
+        'source_paths = ["giwbc/"]\n'
+        f"only_mutate = {_toml_list(group.modules)}\n"
+        f"pytest_add_cli_args_test_selection = {_toml_list(group.tests)}\n"
+        'pytest_add_cli_args = ["-p", "no:cacheprovider"]\n'
+        'also_copy = ["robots/", "policies/"]\n'
+        "timeout_multiplier = 5.0\n"
+        "\n[tool.pytest.ini_options]\n"
+        'testpaths = ["tests"]\n'
+        'markers = ["slow: closed-loop simulations that take several seconds"]\n'
+    )
+    return work
+
+
+def _mutmut(work: Path, args: list[str], budget_s: float | None, log: Path) -> int:
+    """Run ``mutmut args`` in ``work``; past the budget, the whole process group is stopped."""
+    env = {**os.environ, "OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "PYTHONPATH": ""}
+    env.pop("MUJOCO_GL", None)
+    command = [sys.executable, "-m", "mutmut", *args]
+    with log.open("a") as out:
+        process = subprocess.Popen(command, cwd=work, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        try:
+            return process.wait(timeout=budget_s)
+        except subprocess.TimeoutExpired:
+            os.killpg(process.pid, signal.SIGINT)  # mutmut saves its results on interrupt
+            try:
+                return process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(process.pid, signal.SIGKILL)
+                return process.wait()
+
+
+def results(work: Path) -> dict[str, str]:
+    """Mutant name -> status, from mutmut's saved state."""
+    done = subprocess.run([sys.executable, "-m", "mutmut", "results", "--all", "true"], cwd=work, capture_output=True,
+                          text=True, env={**os.environ, "PYTHONPATH": ""})
+    found = {}
+    for line in done.stdout.splitlines():
+        match = re.match(r"\s+(\S+): (.+)$", line)
+        if match:
+            found[match.group(1)] = match.group(2).strip()
+    return found
+
+
+def equivalents() -> dict[str, str]:
+    """Mutant name -> reason, from the table rows of tests/mutation_equivalents.md (``| `name` | reason |``)."""
+    if not EQUIVALENTS.exists():
+        return {}
+    found = {}
+    for line in EQUIVALENTS.read_text().splitlines():
+        match = re.match(r"\|\s*`([^`]+)`\s*\|\s*(.+?)\s*\|\s*$", line)
+        if match:
+            found[match.group(1)] = match.group(2)
+    return found
+
+
+def diff(work: Path, name: str) -> str:
+    done = subprocess.run([sys.executable, "-m", "mutmut", "show", name], cwd=work, capture_output=True, text=True,
+                          env={**os.environ, "PYTHONPATH": ""})
+    return done.stdout.strip()
+
+
+def run_group(group: Group, args: argparse.Namespace) -> list[str]:
+    """Run one group and return its report lines."""
+    work = prepare(group, args.fresh)
+    log = work / "mutmut.log"
+    budget = group.budget_s * args.budget_scale
+    started = time.monotonic()
+    names: list[str] = list(group.functions)
+    if args.rerun_survivors:
+        names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)
+                 and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
+    if names or not args.rerun_survivors:
+        _mutmut(work, ["run", "--max-children", str(args.jobs), *names], budget, log)
+    elapsed = time.monotonic() - started
+    status = {n: s for n, s in results(work).items() if group.selects(n)}
+    excluded = equivalents()
+    counted = {n: s for n, s in status.items() if n not in excluded}
+    killed = sum(s in KILLED for s in counted.values())
+    not_run = sum(s == "not checked" for s in counted.values())
+    survivors = sorted(n for n, s in counted.items() if s not in KILLED and s != "not checked")
+    score = killed / max(1, len(counted) - not_run)
+    lines = [
+        f"== {group.name}: {', '.join(group.modules)}",
+        f"   tests: {' '.join(group.tests)}",
+        *([f"   functions: {' '.join(group.functions)}"] if group.functions else []),
+        f"   killed {killed} / {len(counted) - not_run} run ({100 * score:.1f} %); {not_run} not run within the budget;"
+        f" {len(status) - len(counted)} equivalent excluded; {elapsed:.0f} s",
+    ]
+    for name in survivors:
+        lines.append(f"-- {name}: {counted[name]}")
+        if not args.no_diffs:
+            lines += ["   " + line for line in diff(work, name).splitlines()]
+    return lines
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("groups", nargs="*", help=f"groups to run (default: all): {[g.name for g in GROUPS]}")
+    parser.add_argument("--report", default=str(ROOT / "mutation-report.txt"))
+    parser.add_argument("--budget-scale", type=float, default=1.0, help="multiplies every group's time budget")
+    parser.add_argument("--jobs", type=int, default=2, help="mutants tested in parallel")
+    parser.add_argument("--fresh", action="store_true", help="forget earlier results of these groups")
+    parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived")
+    parser.add_argument("--only", nargs="*", default=[], help="with --rerun-survivors: only mutants matching these globs")
+    parser.add_argument("--no-diffs", action="store_true", help="list surviving mutants without their diffs")
+    args = parser.parse_args(argv)
+    known = {g.name: g for g in GROUPS}
+    unknown = set(args.groups) - set(known)
+    if unknown:
+        parser.error(f"unknown groups {sorted(unknown)}; known: {list(known)}")
+    chosen = [known[name] for name in args.groups] if args.groups else list(GROUPS)
+    report = Path(args.report)
+    lines = [f"mutmut over giwbc's core modules ({time.strftime('%Y-%m-%d %H:%M')}); score = killed / run, "
+             "equivalent mutants excluded (tests/mutation_equivalents.md)"]
+    for group in chosen:
+        lines += run_group(group, args)
+        report.write_text("\n".join(lines) + "\n")
+    print("\n".join(line for line in lines if line.startswith(("==", "   killed"))))
+    print(f"report: {report}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
