@@ -1,4 +1,4 @@
-"""The fault table: every fault kind of :data:`giwbc.testing.faults.FAULT_CASES`, injected into an
+"""The fault table: every fault kind of :data:`giwbc.runtimes.faults.FAULT_CASES`, injected into an
 emulated G1 run (lockstep, unpaced), must be detected within its bound after its onset, damping
 must go out at the next cycle, the cause must be named in the summary and the run log, the motors
 must be off at the end (those of a bus that cannot be reached: limp on their own timeout), and
@@ -18,7 +18,7 @@ from giwbc.hal.emulator import EmulatorConfig
 from giwbc.hal.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig
 from giwbc.runtimes.realtime import StartupConfig, exit_code_for
-from giwbc.testing.faults import FAULT_CASES, TARGET_JOINT
+from giwbc.runtimes.faults import FAULT_CASES, TARGET_JOINT
 
 ONSET = 0.3  # s: after the 0.22 s start-up, while the controller runs
 DT = 0.002
@@ -48,8 +48,6 @@ def _metadata(g1) -> dict:
     }  # fmt: skip
 
 
-# Foreign traffic and duplicated replies are the codec's part of issue #13 (items 6 and 7: foreign
-# frames taken for replies or counted as corrupt, a stray frame hiding a reply): they pass once it is merged.
 HANG_GUARD = 120.0  # s of wall time: a run still going then is a hang (the guard interrupts the main thread)
 
 
@@ -84,7 +82,7 @@ def _is_damping(command, g1) -> bool:
     return max(command["kp"]) == 0 and max(abs(x) for x in command["tau_ff"]) == 0 and np.allclose(command["kd"], SAFETY.damping_kd_scale * g1.kd)
 
 
-@pytest.mark.parametrize("kind", FAULT_CASES)
+@pytest.mark.parametrize("kind", list(FAULT_CASES))
 def test_fault_table(kind, g1, model, tmp_path):
     case = FAULT_CASES[kind]
     outcome = run_case(kind, g1, model, tmp_path)

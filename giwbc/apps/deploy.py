@@ -21,7 +21,7 @@ Procedure (:func:`deploy`):
    inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
 
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
-(:data:`giwbc.testing.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
+(:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
 """
 
@@ -285,7 +285,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     for line in loads:
         say(f"  {line}")
 
-    from giwbc.testing.faults import HostFaults
+    from giwbc.runtimes.faults import HostFaults
 
     host_faults = HostFaults(options.faults)
     if host_faults and not options.emulate:
@@ -465,7 +465,7 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     parser.add_argument("--fault", default=None, metavar="KIND",
-                        help="with --emulate: inject one fault of the fault table (giwbc.testing.faults.FAULT_CASES), e.g. bus_off")
+                        help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
     parser.set_defaults(run=run_deploy_command)
     return parser
@@ -477,7 +477,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
     startup = StartupConfig(ramp_time=args.ramp)
     faults: tuple[Any, ...] = ()
     if getattr(args, "fault", None):
-        from giwbc.testing.faults import fault_case
+        from giwbc.runtimes.faults import fault_case
 
         try:
             case = fault_case(args.fault)

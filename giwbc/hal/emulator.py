@@ -39,7 +39,7 @@ traffic on the motors' buses before each poll's replies (``foreign_sync``: a CAN
 ``reorder`` (a poll's replies on a bus sent in reverse order) and ``encoder`` (the position
 reported shifted by ``offset`` rad, joint side: a slipped encoder, a joint reported beyond its
 limits). The kinds in :data:`HOST_FAULT_KINDS` act on the host (its policy, controller, bus
-drivers, process): :mod:`giwbc.testing.faults` applies them; the emulator ignores them.
+drivers, process): :mod:`giwbc.runtimes.faults` applies them; the emulator ignores them.
 A :class:`Gantry` can hold the base while the motors start (start-up rehearsals).
 
 Speed: every bus speaks MIT mode in the shipped plans, so commands are decoded and replies encoded
@@ -81,7 +81,7 @@ EMULATOR_FAULT_KINDS = (
     "drop", "delay", "corrupt", "error", "overheat", "silent", "dead", "push",
     "motor_exit", "foreign_sync", "foreign_ids", "zero_byte", "duplicate", "reorder", "encoder",
 )  # fmt: skip
-# Faults of the host side (policy, controller, bus drivers, the process): see giwbc.testing.faults.
+# Faults of the host side (policy, controller, bus drivers, the process): see giwbc.runtimes.faults.
 HOST_FAULT_KINDS = (
     "policy_nan", "controller_nan", "controller_raise", "qp_infeasible", "driver_raise", "driver_block", "bus_off",
     "keyboard_interrupt", "sigint", "sigterm", "sighup",
@@ -90,6 +90,7 @@ FAULT_KINDS = EMULATOR_FAULT_KINDS + HOST_FAULT_KINDS
 _REPLY_FAULTS = frozenset({"drop", "delay", "corrupt", "silent", "duplicate", "reorder"})
 _FOREIGN_FAULTS = frozenset({"foreign_sync", "foreign_ids", "zero_byte"})
 CANOPEN_SYNC_ID = 0x080
+_SEND_DEADLINE = 20e-3  # s a poll's replies may take to send (see ActuatorEmulator._send)
 OFF, MOTOR = 0, 1
 
 # Error codes a motor reports, by reply variant (see giwbc.hal.protocols.mit: CUBEMARS_ERRORS,
@@ -614,13 +615,14 @@ class ActuatorEmulator:
 
     def _send(self, b: int, batch: np.ndarray) -> None:
         """Send on bus ``b`` now or never: a full host queue loses the reply, as a real bus under
-        overload would."""
-        self.ports[b].send(batch, time.perf_counter() + 1e-3, timeout=0.0, retries=0)
+        overload would: no waiting for room. The deadline only bounds a send the host machine
+        preempts (firmware is not preempted: a loaded test machine must not drop replies)."""
+        self.ports[b].send(batch, time.perf_counter() + _SEND_DEADLINE, timeout=0.0, retries=0)
 
     def _send_by_bus(self, bus: np.ndarray, batch: np.ndarray) -> None:
         """Send each frame of ``batch`` on its bus (``bus`` ascending, as frames are received)."""
         bounds = np.searchsorted(bus, np.arange(len(self.ports) + 1)).tolist()
-        self._ports.send(batch, bounds, time.perf_counter() + 1e-3, timeout=self._no_wait[0], retries=self._no_wait[1])
+        self._ports.send(batch, bounds, time.perf_counter() + _SEND_DEADLINE, timeout=self._no_wait[0], retries=self._no_wait[1])
 
     def _commands(self, index: np.ndarray, values: np.ndarray, t: float) -> bool:
         """Plain command frames, one per motor in ``index`` (the every-cycle path, vectorized)."""

@@ -116,8 +116,10 @@ class SafetyConfig:
                      "bus_off_cycles", "watchdog_periods"):  # fmt: skip
             if getattr(self, name) < 1:
                 raise ValueError(f"safety {name} must be >= 1")
-        if not (self.max_tilt > 0 and self.damping_time >= 0 and self.damping_kd_scale >= 0 and self.stop_margin > 0):
-            raise ValueError("safety max_tilt and stop_margin must be > 0, damping_time and damping_kd_scale >= 0")
+        if not (self.max_tilt > 0 and self.damping_time >= 0 and self.damping_kd_scale >= 0):
+            raise ValueError("safety max_tilt must be > 0, damping_time and damping_kd_scale >= 0")
+        if not self.stop_margin > 0:
+            raise ValueError(f"safety stop_margin must be > 0, got {self.stop_margin}")
 
 
 def damping_command(description: RobotDescription, config: SafetyConfig) -> ImpedanceCommand:
