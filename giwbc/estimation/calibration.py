@@ -5,9 +5,13 @@ accelerometer reads gravity (plus its bias), and its leg kinematics give the bas
 feet. :class:`StandstillDetector` decides, from the samples themselves, when that holds: samples
 are summed in blocks of ``block_time``; a block is still when the gyro's and accelerometer's
 spread are at noise level, the leg joints' mean positions did not move since the last block, and
-both feet carried load throughout; two consecutive still blocks whose mean gyro and mean specific
-force agree (a slow constant rotation shows as a change of the gravity direction between blocks)
-make a :class:`StandstillWindow`. Everything per sample is a few float additions; the tests run once
+both feet carried load throughout; ``blocks`` consecutive still blocks whose first and last mean
+gyro agree to within what the sensors' noise explains, whose gravity direction turns slower than
+``max_tilt_rate`` and whose leg joints did not move make a :class:`StandstillWindow`. A slow
+rotation about a horizontal axis (a robot rocking on its soles moves no joint), which the gyro
+alone cannot tell from a bias, shows as the turn of the gravity direction between the first and
+last block: where that turn is significant, :attr:`StandstillWindow.tilt_rate` carries it and
+the gyro bias is the mean gyro less it. Everything per sample is a few float additions; the tests run once
 per block.
 
 :class:`CalibrationReport` is what the estimator found in its start-up calibration, for a log or
@@ -29,17 +33,24 @@ __all__ = ["CalibrationReport", "StandstillConfig", "StandstillDetector", "Stand
 class StandstillConfig:
     """Thresholds of standstill detection (per axis for the IMU, per joint for the legs)."""
 
-    block_time: float = 0.25  # s: two still blocks make a window
+    block_time: float = 0.25  # s
+    blocks: int = 3  # consecutive still blocks make a window
     gyro_std: float = 0.05  # rad/s: largest spread of the gyro within a block
     accel_std: float = 0.35  # m/s^2: largest spread of the specific force within a block
-    gyro_change: float = 0.01  # rad/s: largest change of the mean gyro between the two blocks
-    accel_change: float = 0.05  # m/s^2: largest change of the mean specific force between them (0.02 rad/s of tilt rate)
-    joint_change: float = 2e-3  # rad: largest change of a leg joint's mean position between them
+    # Change of the block means between the window's first and last block: at most `noise_sigmas`
+    # standard deviations of the difference of two means of noise, within [floor, cap].
+    noise_sigmas: float = 3.0
+    gyro_change: tuple[float, float] = (0.01, 0.02)  # rad/s
+    max_tilt_rate: float = 0.02  # rad/s: the gravity direction turns slower than this
+    joint_change: float = 1e-3  # rad: largest change of a leg joint's mean position
     min_load: float = 0.5  # both feet's load confidence stays above this (double support)
 
     def __post_init__(self) -> None:
-        if self.block_time <= 0 or min(self.gyro_std, self.accel_std, self.gyro_change, self.accel_change, self.joint_change) <= 0:
-            raise ValueError("standstill thresholds and block_time must be > 0")
+        if self.block_time <= 0 or self.blocks < 2 or min(self.gyro_std, self.accel_std, self.joint_change) <= 0:
+            raise ValueError("standstill thresholds and block_time must be > 0, blocks >= 2")
+        for floor, cap in (self.gyro_change,):
+            if not 0 < floor <= cap:
+                raise ValueError("standstill change bounds need 0 < floor <= cap")
 
 
 @dataclass(frozen=True)
@@ -49,6 +60,7 @@ class StandstillWindow:
 
     gyro: np.ndarray
     accel: np.ndarray
+    tilt_rate: np.ndarray  # rad/s, IMU frame: the rotation rate the gravity direction's turn shows (0 where not significant)
     gyro_std: np.ndarray
     accel_std: np.ndarray
     joint_positions: np.ndarray
@@ -130,9 +142,8 @@ class StandstillDetector:
 
     def reset(self) -> None:
         self._block: _Block | None = None
-        self._last: tuple | None = None  # stats of the last still block
-        self._last_block_time = 0.0
-        self.still = False  # the last two blocks made a window
+        self._still: list[tuple] = []  # (block, stats) of the last consecutive still blocks
+        self.still = False  # the last blocks made a window
 
     def add(self, time: float, gyro: Sequence[float], accel: Sequence[float], joint_positions: np.ndarray, load: float) -> StandstillWindow | None:
         """One sample (``load``: the least loaded foot's confidence, 0 when a foot is off the
@@ -158,29 +169,44 @@ class StandstillDetector:
     def _finish(self, block: _Block, time: float) -> StandstillWindow | None:
         c = self.config
         stats = block.stats()
-        gyro, accel, gyro_std, accel_std, joints = stats
+        _, _, gyro_std, accel_std, _ = stats
         quiet = block.n >= 2 and block.min_load >= c.min_load and gyro_std.max() <= c.gyro_std and accel_std.max() <= c.accel_std
-        last, self._last = self._last, ((block, stats, time) if quiet else None)
         self.still = False
-        if not quiet or last is None:
+        if not quiet:
+            self._still = []
             return None
-        last_block, (g0, a0, gs0, as0, j0), _ = last
-        if (
-            np.abs(gyro - g0).max() > c.gyro_change
-            or np.abs(accel - a0).max() > c.accel_change
-            or np.abs(joints - j0).max() > c.joint_change
-        ):
+        self._still = (self._still + [(block, stats)])[-c.blocks :]
+        if len(self._still) < c.blocks:
             return None
-        n0, n1 = last_block.n, block.n
-        n = n0 + n1
+        (first, (g0, a0, gs0, as0, j0)), (last, (g1, a1, gs1, as1, j1)) = self._still[0], self._still[-1]
+        root = math.sqrt(1.0 / first.n + 1.0 / last.n)  # std of a difference of two block means, per unit noise
+        floor, cap = c.gyro_change
+        if (np.abs(g1 - g0) > np.clip(c.noise_sigmas * root * np.maximum(gs0, gs1), floor, cap)).any():
+            return None
+        if np.abs(j1 - j0).max() > c.joint_change:
+            return None
+        # The turn of the gravity direction between the block centres: d(up)/dt = up x omega.
+        span = 0.5 * (time - first.start) * (1.0 - 1.0 / c.blocks) * 2.0  # first to last block centre
+        norm = float(np.linalg.norm(a1 + a0)) * 0.5
+        rate_up = (a1 - a0) / (norm * max(span, 1e-9))
+        up = (a0 + a1) / (2.0 * norm)
+        rate = np.cross(up, rate_up)  # the omega (perpendicular to up) that turns up at rate_up
+        if np.linalg.norm(rate) > c.max_tilt_rate:
+            return None
+        rate_noise = 2.0 * root * np.maximum(as0, as1) / (norm * max(span, 1e-9))  # 2 sigma, per axis
+        rate = np.where(np.abs(rate) > rate_noise, rate, 0.0)
+        counts = np.array([b.n for b, _ in self._still], float)
+        weights = counts / counts.sum()
+        mean = [sum(w * st[k] for w, (_, st) in zip(weights, self._still)) for k in (0, 1, 4)]
         self.still = True
         return StandstillWindow(
-            gyro=(n0 * g0 + n1 * gyro) / n,
-            accel=(n0 * a0 + n1 * accel) / n,
-            gyro_std=np.maximum(gs0, gyro_std),
-            accel_std=np.maximum(as0, accel_std),
-            joint_positions=(n0 * j0 + n1 * joints) / n,
-            duration=time - last_block.start,
-            samples=n,
+            gyro=mean[0],
+            accel=mean[1],
+            tilt_rate=rate,
+            gyro_std=np.max([st[2] for _, st in self._still], axis=0),
+            accel_std=np.max([st[3] for _, st in self._still], axis=0),
+            joint_positions=mean[2],
+            duration=time - first.start,
+            samples=int(counts.sum()),
             end_time=time,
         )

@@ -326,6 +326,8 @@ class StateEstimator:
             accel = [ax - bx, ay - by, az - bz]
         if starting or self._restart_filter:
             self._initialize_filter(stance)
+            if self._restart_filter and self.calibration is not None:
+                self._ready = True  # calibrated, and the filter restarted from it
             self._restart_filter = False
         elif self._restart_pending:  # calibrated in this update: restart the filter on the next one's kinematics
             self._restart_filter, self._restart_pending = True, False
@@ -470,7 +472,7 @@ class StateEstimator:
             return
         k = c.zero_velocity_gain
         bias = np.asarray(self.orientation.gyro_bias_floats)
-        self.orientation.set_gyro_bias(bias + k * (window.gyro - bias))
+        self.orientation.set_gyro_bias(bias + k * (window.gyro - window.tilt_rate - bias))
         if self.reference == "feet" and all(self._flat):
             rotation = np.asarray(base_rotation).reshape(3, 3) @ self.kinematics.imu_rotation
             accel_bias = np.asarray(self._accel_bias)
@@ -497,7 +499,8 @@ class StateEstimator:
             yaw = math.atan2(base_from_output[1, 0], base_from_output[0, 0])
         base = tilt_from_gravity(up, yaw)
         imu = so3.matrix_to_quat(base @ imu_in_base)
-        self.orientation.reset_to(imu, window.gyro)
+        gyro_bias = window.gyro - window.tilt_rate
+        self.orientation.reset_to(imu, gyro_bias)
         if source == "feet":
             accel_bias = accel - GRAVITY_NORM * (imu_in_base.T @ up)
         else:  # tilt and a horizontal bias are one unknown: only the magnitude is calibrated
@@ -509,10 +512,9 @@ class StateEstimator:
             offset = math.sqrt(sum(e * e for e in self._output_offset))
         self._foot_yaw = [None] * kin.n_feet
         self._specific_force_lp = self._leg_velocity_lp = None
-        self._ready = True
         self._restart_pending = True
         self.calibration = CalibrationReport(
-            time=window.end_time, gyro_bias=window.gyro.copy(), accel_bias=accel_bias, roll=math.atan2(base[2, 1], base[2, 2]),
+            time=window.end_time, gyro_bias=gyro_bias, accel_bias=accel_bias, roll=math.atan2(base[2, 1], base[2, 2]),
             pitch=-math.asin(max(-1.0, min(1.0, base[2, 0]))), tilt_source=source,
             accel_tilt_disagreement=math.acos(max(-1.0, min(1.0, float(accel_up @ up)))),
             orientation_output_offset=offset, window_duration=window.duration, window_samples=window.samples,

@@ -5,7 +5,8 @@ the pelvis every few seconds), feeding the estimator only what a :class:`NoisyRo
 comparing its output with the simulator's truth. The controller is pluggable: the joint-PD hold
 by default, or any callable that closes its loop on the estimate (the whole-body controller).
 Until the estimator is ``ready`` (its start-up standstill calibration) the joint-PD hold stands
-the robot, as a deployment's settle phase would; errors are scored from then on.
+the robot, unpushed, as a deployment's settle phase would; the scenario (``duration`` s, pushes
+timed from then) and its scoring start when it is ready.
 """
 
 from __future__ import annotations
@@ -103,12 +104,15 @@ def evaluate(
     controller: Controller | None = None,
     config: EstimatorConfig | None = None,
     mujoco_model: mujoco.MjModel | None = None,
+    calibration_timeout: float = 5.0,
 ) -> EvaluationResult:
     """Run ``duration`` s of standing with ``pushes`` (default :func:`push_sequence`), estimating
     at every physics step from noisy measurements, and compare with truth. The estimator's
     world frame is aligned with the simulator's by ``initial_base_xy`` and ``initial_yaw`` (the
     truth at start); ``config`` defaults to :meth:`EstimatorConfig.for_sensors` of ``noise``.
-    ``mujoco_model``: a compiled model of ``description`` to reuse (compiling takes ~1 s)."""
+    ``mujoco_model``: a compiled model of ``description`` to reuse (compiling takes ~1 s).
+    The scenario starts when the estimator is ready; an estimator not ready after
+    ``calibration_timeout`` s runs it anyway (``ready_time_s`` nan) and is scored throughout."""
     sim = MujocoRobot(description, mujoco_model)
     noise = noise if noise is not None else SensorNoiseConfig()
     robot = NoisyRobot(sim, noise, np.random.default_rng(seed))
@@ -121,7 +125,7 @@ def evaluate(
     controller = controller if controller is not None else hold
     pushes = tuple(push_sequence(duration) if pushes is None else pushes)
     touch = [f"{c.name}_touch" for c in description.contacts]
-    steps = int(round(duration / description.timestep))
+    steps = int(round((duration + calibration_timeout) / description.timestep))
     true_q, est_q = np.empty((steps, 4)), np.empty((steps, 4))
     true_p, est_p = np.empty((steps, 3)), np.empty((steps, 3))
     true_v, est_v = np.empty((steps, 3)), np.empty((steps, 3))
@@ -129,14 +133,23 @@ def evaluate(
     agree = np.empty(steps, dtype=bool)
     ready = np.empty(steps, dtype=bool)
     timings = np.empty(steps)
+    started: float | None = None  # when the scenario started (the estimator was ready)
+    k = 0
     for k in range(steps):
         now = sim.time()
-        _apply_pushes(sim, pushes, now)
+        if started is None and now >= calibration_timeout:
+            started = now
+        if started is not None:
+            if now - started >= duration - 0.5 * description.timestep:
+                break
+            _apply_pushes(sim, pushes, now - started)
         measurement = Measurement.from_robot(robot)
         start = time.perf_counter()
         estimate = estimator.update(measurement)
         timings[k] = time.perf_counter() - start
         ready[k] = estimate.ready
+        if started is None and estimate.ready:
+            started = now
         (controller if estimate.ready else hold)(robot, estimate)
         truth = sim.base_state()
         true_p[k], true_q[k] = truth.position, truth.quaternion
@@ -145,6 +158,10 @@ def evaluate(
         est_p[k], est_q[k], est_v[k], est_w[k] = base.position, base.quaternion, base.linear_velocity, base.angular_velocity
         agree[k] = np.array_equal(estimate.contacts, [sim.sensor(name)[0] > 0.0 for name in touch])
         sim.step()
+    else:
+        k = steps
+    true_q, est_q, true_p, est_p, true_v, est_v = true_q[:k], est_q[:k], true_p[:k], est_p[:k], true_v[:k], est_v[:k]
+    true_w, est_w, agree, ready, timings = true_w[:k], est_w[:k], agree[:k], ready[:k], timings[:k]
     tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (true_q[:, 0] ** 2 + true_q[:, 1] ** 2), -1.0, 1.0)))
     stood = bool(tilt.max() < 20.0 and true_p[:, 2].min() > 0.5 * true_p[0, 2])
     first = int(np.argmax(ready)) if ready.any() else 0
@@ -160,7 +177,7 @@ def evaluate(
     position_error = est_p - true_p
     return EvaluationResult(
         duration_s=duration,
-        updates=steps,
+        updates=len(timings),
         orientation_error_rms_deg=_rms(orientation_error),
         tilt_error_rms_deg=_rms(tilt_error),
         linear_velocity_error_rms_mps=_rms(np.linalg.norm(est_v - true_v, axis=1)),
