@@ -107,6 +107,7 @@ class EstimatorConfig:
     flat_min_load: float = 0.5  # a foot counts as flat with at least this load confidence ...
     flat_cop_margin: float = 0.6  # ... and its centre of pressure within this fraction of the sole's half sizes
     accel_compensation_time: float = 0.1  # s: low-pass matching the accelerometer with the legs' velocity change
+    foot_twist: float = math.radians(0.2)  # rad: a foot whose heading moved more than this twisted on the ground
     orientation_offset_time: float = 5.0  # s: time constant of the orientation output's offset from the feet's
 
     @classmethod
@@ -234,6 +235,7 @@ class StateEstimator:
         self.standstill.reset()
         self.calibration: CalibrationReport | None = None
         self.zero_velocity_updates = 0
+        self.foot_twists = 0  # stance feet whose heading changed (slipped): re-anchored
         self._ready = not self.config.calibrate
         self._restart_filter = False
         self._restart_pending = False
@@ -403,11 +405,22 @@ class StateEstimator:
         valid = position_ok.tolist()
         ex = ey = ez = 0.0
         count = 0
+        yaw_error, yaw_count = 0.0, 0
         for i, (standing, load) in enumerate(zip(flags, loads)):
-            flat = standing and load >= c.flat_min_load and valid[i]
+            loaded = standing and load >= c.flat_min_load and valid[i]
+            flat = loaded
             if not standing:
                 self._foot_yaw[i] = None
             (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = kin.foot_rotations[i].tolist()
+            if loaded:  # a loaded foot keeps its heading, even rolling on an edge ...
+                heading = math.atan2(m10, m00)
+                held = self._foot_yaw[i]
+                error = 0.0 if held is None else math.remainder(held - heading, math.tau)
+                if held is None or abs(error) > c.foot_twist:  # ... unless it twisted (a slip): take its new heading
+                    self._foot_yaw[i], error = heading, 0.0
+                    self.foot_twists += held is not None
+                yaw_error += error
+                yaw_count += 1
             if flat and wrenches is not None:
                 _, _, fz, tx, ty, _ = wrenches[i]
                 if fz <= 0.0:
@@ -429,7 +442,7 @@ class StateEstimator:
             ez += 0.5 * (sy * m00 + cy * m01 - cy * m10 + sy * m11)
             count += 1
         if not count:
-            return None
+            return None if not yaw_count else (0.0, 0.0, yaw_error / yaw_count)
         return (ex / count, ey / count, ez / count)
 
     def _compensated_up(self, accel: list[float], base_rotation: so3.Matrix3, flags: list[bool], loads: list[float], dt: float) -> so3.Vector3:
