@@ -157,3 +157,17 @@ def test_wbc_on_a_mems_estimate_stands_through_pushes(g1: RobotDescription) -> N
                       controller=BalanceOnEstimate(g1))
     assert result.stood and result.ready_time_s < 3.0
     assert result.tilt_error_rms_deg < 0.5 and result.linear_velocity_error_rms_mps < 0.03 and result.height_drift_m < 0.005
+
+
+def test_randomization_config_draws_an_imu_profile_per_episode(g1: RobotDescription) -> None:
+    from giwbc.randomization import RandomizationConfig
+    from giwbc.randomization.perturbed import sensor_errors
+    from giwbc.randomization.sampling import sample_group
+
+    config = RandomizationConfig.from_dict({"imu_profile": "cheap"}, g1)
+    draws = [sensor_errors(sample_group(config, "episode", np.random.default_rng(seed))) for seed in range(200)]
+    gyro = np.array([d.gyro_bias for d in draws])
+    assert np.std(gyro) == pytest.approx(math.radians(2.0), rel=0.15)  # the datasheet's turn-on spread
+    assert np.std([d.accel_bias for d in draws]) == pytest.approx(0.060 * 9.80665, rel=0.15)
+    assert np.std([d.mounting for d in draws]) > 0 and all(d.imu_latency == 2 and d.imu_dropout == 0.02 for d in draws)
+    assert draws[0].encoder_resolution == pytest.approx(MIT_ENCODER_RESOLUTION)
