@@ -137,6 +137,8 @@ class StandstillDetector:
 
     def __init__(self, config: StandstillConfig | None = None, leg_joints: np.ndarray | None = None) -> None:
         self.config = config if config is not None else StandstillConfig()
+        if leg_joints is not None and len(leg_joints) and np.array_equal(leg_joints, np.arange(leg_joints[0], leg_joints[0] + len(leg_joints))):
+            leg_joints = slice(int(leg_joints[0]), int(leg_joints[0]) + len(leg_joints))  # a view, not a gather
         self._leg_joints = leg_joints
         self.reset()
 

@@ -400,23 +400,24 @@ class StateEstimator:
         the flat feet; None without one. A foot is flat while loaded and with its centre of
         pressure (from the leg's efforts) well inside the sole."""
         c, kin = self.config, self.kinematics
-        margin = c.flat_cop_margin
+        margin, min_load, twist = c.flat_cop_margin, c.flat_min_load, c.foot_twist
         wrenches = kin.foot_wrenches.tolist() if use_efforts else None
-        valid = position_ok.tolist()
+        rotations = kin.foot_rotations.tolist()
+        valid = [True] * len(flags) if position_ok is self._all_feet else position_ok.tolist()
         ex = ey = ez = 0.0
         count = 0
         yaw_error, yaw_count = 0.0, 0
         for i, (standing, load) in enumerate(zip(flags, loads)):
-            loaded = standing and load >= c.flat_min_load and valid[i]
+            loaded = standing and load >= min_load and valid[i]
             flat = loaded
             if not standing:
                 self._foot_yaw[i] = None
-            (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = kin.foot_rotations[i].tolist()
+            (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotations[i]
             if loaded:  # a loaded foot keeps its heading, even rolling on an edge ...
                 heading = math.atan2(m10, m00)
                 held = self._foot_yaw[i]
                 error = 0.0 if held is None else math.remainder(held - heading, math.tau)
-                if held is None or abs(error) > c.foot_twist:  # ... unless it twisted (a slip): take its new heading
+                if held is None or abs(error) > twist:  # ... unless it twisted (a slip): take its new heading
                     self._foot_yaw[i], error = heading, 0.0
                     self.foot_twists += held is not None
                 yaw_error += error
@@ -453,7 +454,7 @@ class StateEstimator:
         ax, ay, az = accel
         bx, by, bz = self._accel_bias
         fx, fy, fz = so3.rotate(base_rotation, so3.rotate(self._imu_rotation, (ax - bx, ay - by, az - bz)))
-        total = sum(w for w, standing in zip(loads, flags) if standing)
+        total = sum(loads)  # swing feet have 0
         if total > 0.0:
             vx = vy = vz = 0.0
             for (ux, uy, uz), w in zip(self.kinematics.foot_velocities.tolist(), loads):
@@ -727,6 +728,11 @@ class EstimatedRobot(RobotWrapper):
         self.estimator = estimator
         self._updated_at: float | None = None
         self._plan: np.ndarray | None = None
+
+    @property
+    def ready(self) -> bool:
+        """Whether the estimator finished its start-up calibration (the estimate may be used)."""
+        return self.estimate.ready
 
     def set_contact_plan(self, contacts: np.ndarray | None) -> None:
         """The controller's contact plan (None: detect contacts from forces)."""
