@@ -107,7 +107,8 @@ class EstimatorConfig:
     flat_min_load: float = 0.5  # a foot counts as flat with at least this load confidence ...
     flat_cop_margin: float = 0.6  # ... and its centre of pressure within this fraction of the sole's half sizes
     accel_compensation_time: float = 0.1  # s: low-pass matching the accelerometer with the legs' velocity change
-    foot_twist: float = math.radians(0.2)  # rad: a foot whose heading moved more than this twisted on the ground
+    foot_twist: float = math.radians(0.4)  # rad: a foot whose heading moved more than this twisted on the ground
+    max_gyro_bias: float = math.radians(20.0)  # rad/s per axis: the largest gyro bias the estimator believes
     orientation_offset_time: float = 5.0  # s: time constant of the orientation output's offset from the feet's
 
     @classmethod
@@ -204,7 +205,7 @@ class StateEstimator:
         self.kinematics = LegKinematics(description, model)
         n_feet, dofs = self.kinematics.n_feet, description.dofs
         weight = description.total_mass * -GRAVITY[2]
-        self.orientation = OrientationFilter(c.orientation_gain, c.gravity_gain, c.gyro_bias_gain)
+        self.orientation = OrientationFilter(c.orientation_gain, c.gravity_gain, c.gyro_bias_gain, c.max_gyro_bias)
         self.filter = LegKalmanFilter(n_feet, c.noise, use_ground_height=c.ground_height is not None, velocity_gate=c.velocity_gate)
         self.detector = ContactDetector(
             n_feet, c.contact_on * weight, c.contact_off * weight, c.contact_filter_time, c.contact_full * weight
@@ -246,6 +247,7 @@ class StateEstimator:
         self._specific_force_lp: list[float] | None = None  # world frame, low-passed
         self._leg_velocity_lp: list[float] | None = None  # IMU velocity from the stance legs, world, low-passed
         self.reference = "none"  # the orientation reference of the last update: feet, orientation_output, gravity
+        self._output_heading: list[float] | None = None  # low-passed (cos, sin) of the base heading the orientation output gives
         self._time: float | None = None
         self._positions = self.description.default_positions.copy()
         self._velocities = np.zeros(self._dofs)
@@ -370,6 +372,8 @@ class StateEstimator:
         """Pick this update's orientation reference (flat feet, the IMU's orientation output, or
         compensated gravity) and hand its error to the orientation filter."""
         c, filt = self.config, self.orientation
+        if output is not None and not self._ready:  # average the output's heading for the calibration
+            self._average_output_heading(output)
         up = self._compensated_up(accel, base_rotation, flags, loads, dt) if accel is not None else None
         feet = self._flat_feet_error(flags, loads, use_efforts, position_ok) if c.use_flat_feet else None
         if feet is not None:
@@ -391,6 +395,21 @@ class StateEstimator:
         else:
             filt.correct(None, 0.0, 0.0, dt)
             self.reference = "none"
+
+    def _average_output_heading(self, output: list[float]) -> None:
+        """Low-pass (0.25 s at 500 Hz) the base heading of the orientation output: its per-sample
+        noise would otherwise set the heading the feet then hold."""
+        r = so3.quat_to_matrix_floats(so3.quat_multiply_floats(output, self._imu_to_base))
+        cos, sin = r[0], r[3]
+        norm = math.hypot(cos, sin)
+        if norm < 1e-6:
+            return
+        heading = self._output_heading
+        if heading is None:
+            self._output_heading = [cos / norm, sin / norm]
+        else:
+            heading[0] += 0.008 * (cos / norm - heading[0])
+            heading[1] += 0.008 * (sin / norm - heading[1])
 
     def _flat_feet_error(
         self, flags: list[bool], loads: list[float], use_efforts: bool, position_ok: np.ndarray
@@ -508,9 +527,8 @@ class StateEstimator:
         else:
             up, source = accel_up, "gravity"
         yaw = c.initial_yaw
-        if output is not None:
-            base_from_output = so3.quat_to_matrix(np.asarray(output)) @ imu_in_base.T
-            yaw = math.atan2(base_from_output[1, 0], base_from_output[0, 0])
+        if output is not None and self._output_heading is not None:
+            yaw = math.atan2(self._output_heading[1], self._output_heading[0])
         base = tilt_from_gravity(up, yaw)
         imu = so3.matrix_to_quat(base @ imu_in_base)
         gyro_bias = window.gyro - window.tilt_rate
