@@ -3,8 +3,17 @@
 Inputs are only what a real robot measures (the Robot interface's IMU, joints, efforts and time),
 so the same code runs on MuJoCo sensor data and on CAN/IMU data:
 
-1. orientation: a complementary filter on SO(3) (gyro propagation, pulled toward the IMU's own
-   orientation or the accelerometer's gravity, gyro bias estimated);
+0. calibration: the estimator is not ``ready`` until it has seen the robot stand still on both feet
+   (:mod:`~giwbc.estimation.calibration`, detected from the samples, never assumed); from that
+   window it takes the gyro bias, the base tilt (from flat feet, else gravity), the accelerometer
+   bias and the offset of the IMU's orientation output, and restarts from them. Later standstill
+   windows in double support re-estimate the gyro bias (zero-velocity updates);
+1. orientation: a complementary filter on SO(3) (gyro propagation, gyro bias estimated) pulled
+   toward, best first: the base orientation that flat stance feet imply (tilt from the joint
+   encoders, heading held while the foot stays down; a foot counts as flat while its centre of
+   pressure, from the leg's efforts, is well inside the sole), the IMU's own orientation output
+   (less its calibrated offset), or the accelerometer's gravity direction corrected by the base
+   acceleration the stance legs measure;
 2. contacts: normal force per foot from joint efforts (``J^T`` of each leg) or foot sensors,
    low-passed, through a hysteresis threshold, or the controller's contact plan passed to
    :meth:`StateEstimator.update`; a stance foot's load also sets how much it is trusted not to
@@ -38,17 +47,20 @@ import pinocchio as pin
 
 from giwbc.robot.description import RobotDescription
 from giwbc.robot import so3
+from giwbc.estimation.calibration import CalibrationReport, StandstillConfig, StandstillDetector, StandstillWindow
 from giwbc.estimation.contacts import ContactDetector
 from giwbc.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
 
 _HOLDING = int(HOLDING_FAULTS)
+GRAVITY_NORM = 9.81
 UNKNOWN_VARIANCE = 1e6  # covariance diagonal of an estimate not yet initialized (finite on purpose)
 from giwbc.estimation.kalman import GRAVITY, LegKalmanFilter, LegKalmanNoise
 from giwbc.estimation.kinematics import LegKinematics
-from giwbc.estimation.orientation import OrientationFilter
+from giwbc.estimation.orientation import OrientationFilter, gravity_error, quaternion_error, tilt_from_gravity
 from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
 
 __all__ = [
+    "CalibrationReport",
     "EstimatedRobot",
     "Estimate",
     "EstimatorConfig",
@@ -86,12 +98,36 @@ class EstimatorConfig:
     max_dt: float = 0.02  # s: a longer gap between IMU samples is flagged (TIME_GAP)
     initial_base_xy: tuple[float, float] = (0.0, 0.0)  # world x, y of the base at start (defines the frame)
     initial_ground_height: float = 0.0  # height of the ground the feet stand on at start
+    initial_yaw: float = 0.0  # rad: base heading at start (defines the frame) when the IMU has no orientation output
+    calibrate: bool = True  # not ready until a standstill calibration (False: ready at the first good sample)
+    standstill: StandstillConfig = field(default_factory=StandstillConfig)
+    zero_velocity_gain: float = 0.5  # share of a later standstill window's gyro mean taken into the bias
+    use_flat_feet: bool = True  # orientation from flat stance feet (tilt, and heading held in stance)
+    feet_gain: float = 2.0  # 1/s, pull toward the flat feet's base orientation (integral gain: feet_gain^2 / 4)
+    flat_min_load: float = 0.5  # a foot counts as flat with at least this load confidence ...
+    flat_cop_margin: float = 0.6  # ... and its centre of pressure within this fraction of the sole's half sizes
+    accel_compensation_time: float = 0.1  # s: low-pass matching the accelerometer with the legs' velocity change
+    foot_twist: float = math.radians(0.4)  # rad: a foot whose heading moved more than this twisted on the ground
+    max_gyro_bias: float = math.radians(20.0)  # rad/s per axis: the largest gyro bias the estimator believes
+    orientation_offset_time: float = 5.0  # s: time constant of the orientation output's offset from the feet's
+
+    @classmethod
+    def for_sensors(cls, sensors: object, **overrides: object) -> "EstimatorConfig":
+        """The configuration for an IMU described by ``sensors`` (a
+        :class:`~giwbc.robot.noise.SensorNoiseConfig` or anything with an ``orientation_output``
+        flag): its orientation output is used when it has one."""
+        use = bool(getattr(sensors, "orientation_output", True))
+        return cls(**{"use_imu_orientation": use, **overrides})  # type: ignore[arg-type]
 
     def __post_init__(self) -> None:
         if not 0 <= self.contact_off < self.contact_on:
             raise ValueError("contact thresholds need 0 <= contact_off < contact_on")
-        if min(self.orientation_gain, self.gravity_gain, self.gyro_bias_gain) < 0 or self.max_dt <= 0:
+        if min(self.orientation_gain, self.gravity_gain, self.gyro_bias_gain, self.feet_gain) < 0 or self.max_dt <= 0:
             raise ValueError("gains must be >= 0 and max_dt > 0")
+        if not 0 <= self.zero_velocity_gain <= 1 or not 0 < self.flat_cop_margin <= 1:
+            raise ValueError("zero_velocity_gain must be in [0, 1] and flat_cop_margin in (0, 1]")
+        if self.accel_compensation_time <= 0 or self.orientation_offset_time <= 0:
+            raise ValueError("accel_compensation_time and orientation_offset_time must be > 0")
 
 
 @dataclass(frozen=True)
@@ -130,7 +166,8 @@ class Estimate:
     measured). ``covariance``: base position/velocity covariance (6, 6, world); ``gyro_bias``:
     estimated gyro bias (IMU frame); ``time``: timestamp of the last accepted measurement;
     ``faults``: what was wrong with this update; ``initialized``: False until the first good
-    measurement (until then the description's default pose).
+    measurement (until then the description's default pose); ``ready``: the start-up calibration
+    is done (never before the robot stood still): hand the estimate to a controller only then.
     """
 
     time: float
@@ -144,6 +181,7 @@ class Estimate:
     gyro_bias: np.ndarray
     faults: FaultReport
     initialized: bool = True
+    ready: bool = True
 
     @property
     def covariance_trace(self) -> float:
@@ -167,7 +205,7 @@ class StateEstimator:
         self.kinematics = LegKinematics(description, model)
         n_feet, dofs = self.kinematics.n_feet, description.dofs
         weight = description.total_mass * -GRAVITY[2]
-        self.orientation = OrientationFilter(c.orientation_gain, c.gravity_gain, c.gyro_bias_gain)
+        self.orientation = OrientationFilter(c.orientation_gain, c.gravity_gain, c.gyro_bias_gain, c.max_gyro_bias)
         self.filter = LegKalmanFilter(n_feet, c.noise, use_ground_height=c.ground_height is not None, velocity_gate=c.velocity_gate)
         self.detector = ContactDetector(
             n_feet, c.contact_on * weight, c.contact_off * weight, c.contact_filter_time, c.contact_full * weight
@@ -183,20 +221,49 @@ class StateEstimator:
         self._nq, self._nv = self.kinematics.model.nq, self.kinematics.model.nv
         self._all_feet = np.ones(n_feet, dtype=bool)
         self._all_feet.flags.writeable = False
+        self._leg_joint_index = np.flatnonzero(self._leg_mask.any(axis=0))
+        self._sole_half = [(c.half_length, c.half_width) for c in description.contacts]
+        self.standstill = StandstillDetector(c.standstill, self._leg_joint_index)
         self.reset()
 
     # --- public ---------------------------------------------------------------------------
     def reset(self) -> None:
-        """Forget everything: the next good measurement initializes the estimate."""
+        """Forget everything: the next good measurement initializes the estimate, and it is not
+        :attr:`ready` until a new standstill calibration (a simulated reset, a restart)."""
         self.monitor = FaultMonitor()
         self.orientation.initialized = False
         self.detector.reset()
+        self.standstill.reset()
+        self.calibration: CalibrationReport | None = None
+        self.zero_velocity_updates = 0
+        self.foot_twists = 0  # stance feet whose heading changed (slipped): re-anchored
+        self._ready = not self.config.calibrate
+        self._restart_filter = False
+        self._restart_pending = False
+        self._accel_bias = (0.0, 0.0, 0.0)
+        self._output_offset = (0.0, 0.0, 0.0)  # rotation vector (IMU frame) from the orientation output to the estimate
+        self._foot_yaw: list[float | None] = [None] * self.kinematics.n_feet
+        self._flat = [False] * self.kinematics.n_feet
+        self._specific_force_lp: list[float] | None = None  # world frame, low-passed
+        self._leg_velocity_lp: list[float] | None = None  # IMU velocity from the stance legs, world, low-passed
+        self.reference = "none"  # the orientation reference of the last update: feet, orientation_output, gravity
+        self._output_heading: list[float] | None = None  # low-passed (cos, sin) of the base heading the orientation output gives
         self._time: float | None = None
         self._positions = self.description.default_positions.copy()
         self._velocities = np.zeros(self._dofs)
         self._efforts = np.zeros(self._dofs)
         self._forces = np.zeros((self.kinematics.n_feet, 3))
         self._estimate = self._initial_estimate()
+
+    @property
+    def ready(self) -> bool:
+        """Whether the start-up calibration is done (see :meth:`update`)."""
+        return self._ready
+
+    @property
+    def flat_feet(self) -> np.ndarray:
+        """Per contact: counted as a flat stance foot in the last update."""
+        return np.array(self._flat)
 
     @property
     def estimate(self) -> Estimate:
@@ -234,13 +301,13 @@ class StateEstimator:
         position_ok, velocity_ok, effort_ok = self._read_joints(measurement)
         starting = not self.orientation.initialized
         if starting:
-            if not self.orientation.initialize(orientation, accel):
+            if not self._start_orientation(orientation, accel):
                 monitor.flag(Fault.ORIENTATION_INVALID, "no usable IMU orientation or gravity to start from: not initialized")
                 return self._hold()
             dt = 0.0
         else:
             dt = now - self._time
-            self.orientation.update(gyro, dt, orientation, accel)
+            self.orientation.propagate(gyro, dt)
         self._time = now
 
         base_quaternion, base_rotation, base_omega = self._base_attitude(gyro)
@@ -253,8 +320,26 @@ class StateEstimator:
         stance = self._detect_contacts(measurement, effort_ok, use_efforts, plan, dt)
         flags = stance.tolist()
         loads = self._stance_confidence(flags)
-        if starting:
+        self._correct_orientation(orientation, accel, base_rotation, flags, loads, use_efforts, position_ok, dt)
+        if accel is not None:
+            window = self.standstill.add(now, gyro, accel, self._positions, min(loads))
+            if window is not None:
+                self._standstill_window(window, orientation, base_rotation, flags)
+            ax, ay, az = accel
+            bx, by, bz = self._accel_bias
+            accel = [ax - bx, ay - by, az - bz]
+        if starting or self._restart_filter:
             self._initialize_filter(stance)
+            if self._restart_filter and self.calibration is not None:
+                self._ready = True  # calibrated, and the filter restarted from it
+            self._restart_filter = False
+        elif self._restart_pending:  # calibrated in this update: restart the filter on the next one's kinematics
+            self._restart_filter, self._restart_pending = True, False
+            self.filter.predict(None if accel is None else self._world_acceleration(base_rotation, accel), dt, loads)
+            self.filter.correct(
+                self.kinematics.foot_positions, self.kinematics.foot_velocities, loads, position_ok, velocity_ok,
+                0.0 if c.ground_height is None else c.ground_height,
+            )
         else:
             self.filter.predict(None if accel is None else self._world_acceleration(base_rotation, accel), dt, loads)
             if not any(flags):
@@ -267,6 +352,206 @@ class StateEstimator:
             base_rotation, base_quaternion, base_omega, stance, np.array(loads), monitor.finish()
         )
         return self._estimate
+
+    # --- orientation references and calibration -------------------------------------------------
+    def _start_orientation(self, output: list[float] | None, accel: list[float] | None) -> bool:
+        """Start from the IMU's orientation output, else from gravity with the configured base heading."""
+        if output is not None or accel is None:
+            return self.orientation.initialize(output, None)
+        if math.sqrt(sum(a * a for a in accel)) < 0.5 * GRAVITY_NORM:
+            return False
+        imu_in_base = self.kinematics.imu_rotation
+        base = tilt_from_gravity(imu_in_base @ np.asarray(accel, float), self.config.initial_yaw)
+        self.orientation.reset_to(so3.matrix_to_quat(base @ imu_in_base), (0.0, 0.0, 0.0))
+        return True
+
+    def _correct_orientation(
+        self, output: list[float] | None, accel: list[float] | None, base_rotation: so3.Matrix3, flags: list[bool],
+        loads: list[float], use_efforts: bool, position_ok: np.ndarray, dt: float,
+    ) -> None:
+        """Pick this update's orientation reference (flat feet, the IMU's orientation output, or
+        compensated gravity) and hand its error to the orientation filter."""
+        c, filt = self.config, self.orientation
+        if output is not None and not self._ready:  # average the output's heading for the calibration
+            self._average_output_heading(output)
+        up = self._compensated_up(accel, base_rotation, flags, loads, dt) if accel is not None else None
+        feet = self._flat_feet_error(flags, loads, use_efforts, position_ok) if c.use_flat_feet else None
+        if feet is not None:
+            error = so3.rotate_back(self._imu_rotation, so3.rotate_back(base_rotation, feet))
+            filt.correct(error, c.feet_gain, 0.25 * c.feet_gain * c.feet_gain, dt)
+            self.reference = "feet"
+            if output is not None:  # learn the orientation output's offset from the feet's orientation
+                ox, oy, oz = self._output_offset
+                ex, ey, ez = quaternion_error(_rotated(output, self._output_offset), filt.quaternion_floats)
+                k = dt / c.orientation_offset_time
+                self._output_offset = (ox + k * ex, oy + k * ey, oz + k * ez)
+        elif output is not None:
+            reference = _rotated(output, self._output_offset)
+            filt.correct(quaternion_error(filt.quaternion_floats, reference), c.orientation_gain, c.gyro_bias_gain, dt)
+            self.reference = "orientation_output"
+        elif up is not None:
+            filt.correct(gravity_error(filt.quaternion_floats, up), c.gravity_gain, 0.25 * c.gravity_gain * c.gravity_gain, dt)
+            self.reference = "gravity"
+        else:
+            filt.correct(None, 0.0, 0.0, dt)
+            self.reference = "none"
+
+    def _average_output_heading(self, output: list[float]) -> None:
+        """Low-pass (0.25 s at 500 Hz) the base heading of the orientation output: its per-sample
+        noise would otherwise set the heading the feet then hold."""
+        r = so3.quat_to_matrix_floats(so3.quat_multiply_floats(output, self._imu_to_base))
+        cos, sin = r[0], r[3]
+        norm = math.hypot(cos, sin)
+        if norm < 1e-6:
+            return
+        heading = self._output_heading
+        if heading is None:
+            self._output_heading = [cos / norm, sin / norm]
+        else:
+            heading[0] += 0.008 * (cos / norm - heading[0])
+            heading[1] += 0.008 * (sin / norm - heading[1])
+
+    def _flat_feet_error(
+        self, flags: list[bool], loads: list[float], use_efforts: bool, position_ok: np.ndarray
+    ) -> so3.Vector3 | None:
+        """World-frame rotation vector from the estimated base orientation to the one the flat
+        stance feet imply (each sole level, its heading held since it came down), averaged over
+        the flat feet; None without one. A foot is flat while loaded and with its centre of
+        pressure (from the leg's efforts) well inside the sole."""
+        c, kin = self.config, self.kinematics
+        margin, min_load, twist = c.flat_cop_margin, c.flat_min_load, c.foot_twist
+        wrenches = kin.foot_wrenches.tolist() if use_efforts else None
+        rotations = kin.foot_rotations.tolist()
+        valid = [True] * len(flags) if position_ok is self._all_feet else position_ok.tolist()
+        ex = ey = ez = 0.0
+        count = 0
+        yaw_error, yaw_count = 0.0, 0
+        for i, (standing, load) in enumerate(zip(flags, loads)):
+            loaded = standing and load >= min_load and valid[i]
+            flat = loaded
+            if not standing:
+                self._foot_yaw[i] = None
+            (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotations[i]
+            if loaded:  # a loaded foot keeps its heading, even rolling on an edge ...
+                heading = math.atan2(m10, m00)
+                held = self._foot_yaw[i]
+                error = 0.0 if held is None else math.remainder(held - heading, math.tau)
+                if held is None or abs(error) > twist:  # ... unless it twisted (a slip): take its new heading
+                    self._foot_yaw[i], error = heading, 0.0
+                    self.foot_twists += held is not None
+                yaw_error += error
+                yaw_count += 1
+            if flat and wrenches is not None:
+                _, _, fz, tx, ty, _ = wrenches[i]
+                if fz <= 0.0:
+                    flat = False
+                else:
+                    px, py = -ty / fz, tx / fz  # centre of pressure from the sole centre, world axes
+                    half_length, half_width = self._sole_half[i]
+                    flat = abs(m00 * px + m10 * py) <= margin * half_length and abs(m01 * px + m11 * py) <= margin * half_width
+            self._flat[i] = flat
+            if not flat:
+                continue
+            yaw = self._foot_yaw[i]
+            if yaw is None:
+                yaw = self._foot_yaw[i] = math.atan2(m10, m00)
+            cy, sy = math.cos(yaw), math.sin(yaw)
+            # vee of (E - E^T) / 2 with E = Rz(yaw) R_foot^T: the world rotation that levels the sole at its heading
+            ex += 0.5 * (m12 - sy * m20 - cy * m21)
+            ey += 0.5 * (cy * m20 - sy * m21 - m02)
+            ez += 0.5 * (sy * m00 + cy * m01 - cy * m10 + sy * m11)
+            count += 1
+        if not count:
+            return None if not yaw_count else (0.0, 0.0, yaw_error / yaw_count)
+        return (ex / count, ey / count, ez / count)
+
+    def _compensated_up(self, accel: list[float], base_rotation: so3.Matrix3, flags: list[bool], loads: list[float], dt: float) -> so3.Vector3:
+        """The accelerometer's gravity (IMU frame): its specific force less its calibrated bias,
+        less the IMU acceleration the stance legs measure. Both are low-passed alike in the world
+        frame (the acceleration as the derivative of the low-passed leg velocity), so the legs'
+        velocity noise is not differentiated."""
+        ax, ay, az = accel
+        bx, by, bz = self._accel_bias
+        fx, fy, fz = so3.rotate(base_rotation, so3.rotate(self._imu_rotation, (ax - bx, ay - by, az - bz)))
+        total = sum(loads)  # swing feet have 0
+        if total > 0.0:
+            vx = vy = vz = 0.0
+            for (ux, uy, uz), w in zip(self.kinematics.foot_velocities.tolist(), loads):
+                vx -= w * ux; vy -= w * uy; vz -= w * uz  # noqa: E702 - a still stance foot: IMU velocity = -its relative velocity
+            vx, vy, vz = vx / total, vy / total, vz / total
+        else:
+            vx, vy, vz = self.filter.x[:, 1].tolist()
+        force, velocity = self._specific_force_lp, self._leg_velocity_lp
+        if force is None or velocity is None:
+            self._specific_force_lp, self._leg_velocity_lp = [fx, fy, fz], [vx, vy, vz]
+            mx, my, mz = fx, fy, fz
+        else:
+            tau = self.config.accel_compensation_time
+            alpha, rate = dt / (tau + dt), 1.0 / (tau + dt)
+            dvx, dvy, dvz = vx - velocity[0], vy - velocity[1], vz - velocity[2]
+            velocity[0] += alpha * dvx; velocity[1] += alpha * dvy; velocity[2] += alpha * dvz  # noqa: E702
+            force[0] += alpha * (fx - force[0]); force[1] += alpha * (fy - force[1]); force[2] += alpha * (fz - force[2])  # noqa: E702
+            mx, my, mz = force[0] - rate * dvx, force[1] - rate * dvy, force[2] - rate * dvz
+        return so3.rotate_back(self._imu_rotation, so3.rotate_back(base_rotation, (mx, my, mz)))
+
+    def _standstill_window(self, window: StandstillWindow, output: list[float] | None, base_rotation: so3.Matrix3, flags: list[bool]) -> None:
+        """A standstill window ended: the start-up calibration, or a zero-velocity update of the
+        gyro bias (and, with flat feet holding the tilt, of the accelerometer bias)."""
+        c = self.config
+        if not all(flags):
+            return
+        if self.calibration is None and c.calibrate:
+            self._calibrate(window, output, base_rotation)
+            return
+        k = c.zero_velocity_gain
+        bias = np.asarray(self.orientation.gyro_bias_floats)
+        self.orientation.set_gyro_bias(bias + k * (window.gyro - window.tilt_rate - bias))
+        if self.reference == "feet" and all(self._flat):
+            rotation = np.asarray(base_rotation).reshape(3, 3) @ self.kinematics.imu_rotation
+            accel_bias = np.asarray(self._accel_bias)
+            self._accel_bias = tuple((accel_bias + k * (window.accel - GRAVITY_NORM * rotation[2] - accel_bias)).tolist())
+        self.zero_velocity_updates += 1
+
+    def _calibrate(self, window: StandstillWindow, output: list[float] | None, base_rotation: so3.Matrix3) -> None:
+        """Start-up calibration from a standstill window in double support (module doc)."""
+        c, kin = self.config, self.kinematics
+        imu_in_base = kin.imu_rotation
+        accel = window.accel
+        accel_up = imu_in_base @ (accel / np.linalg.norm(accel))  # gravity's direction, base frame
+        rotation = np.asarray(base_rotation).reshape(3, 3)
+        if c.use_flat_feet and all(self._flat):
+            ups = rotation.T @ kin.foot_rotations[:, :, 2].T  # each sole's normal (world z if flat), base frame
+            up = ups.mean(axis=1)
+            up /= np.linalg.norm(up)
+            source = "feet"
+        else:
+            up, source = accel_up, "gravity"
+        yaw = c.initial_yaw
+        if output is not None and self._output_heading is not None:
+            yaw = math.atan2(self._output_heading[1], self._output_heading[0])
+        base = tilt_from_gravity(up, yaw)
+        imu = so3.matrix_to_quat(base @ imu_in_base)
+        gyro_bias = window.gyro - window.tilt_rate
+        self.orientation.reset_to(imu, gyro_bias)
+        if source == "feet":
+            accel_bias = accel - GRAVITY_NORM * (imu_in_base.T @ up)
+        else:  # tilt and a horizontal bias are one unknown: only the magnitude is calibrated
+            accel_bias = accel - GRAVITY_NORM * accel / np.linalg.norm(accel)
+        self._accel_bias = tuple(accel_bias.tolist())
+        offset = None
+        if output is not None:
+            self._output_offset = quaternion_error(output, imu.tolist())
+            offset = math.sqrt(sum(e * e for e in self._output_offset))
+        self._foot_yaw = [None] * kin.n_feet
+        self._specific_force_lp = self._leg_velocity_lp = None
+        self._restart_pending = True
+        self.calibration = CalibrationReport(
+            time=window.end_time, gyro_bias=gyro_bias, accel_bias=accel_bias, roll=math.atan2(base[2, 1], base[2, 2]),
+            pitch=-math.asin(max(-1.0, min(1.0, base[2, 0]))), tilt_source=source,
+            accel_tilt_disagreement=math.acos(max(-1.0, min(1.0, float(accel_up @ up)))),
+            orientation_output_offset=offset, window_duration=window.duration, window_samples=window.samples,
+            gyro_std=window.gyro_std, accel_std=window.accel_std,
+        )  # fmt: skip
 
     # --- checks ---------------------------------------------------------------------------
     def _check_time(self, now: float) -> None:
@@ -414,7 +699,7 @@ class StateEstimator:
         v = np.zeros(self.kinematics.model.nv)
         covariance = np.eye(6) * UNKNOWN_VARIANCE
         return Estimate(float("nan"), base, q, v, np.ones(n, bool), np.ones(n), np.zeros((n, 3)), covariance, np.zeros(3),
-                        FaultReport(), initialized=False)
+                        FaultReport(), initialized=False, ready=False)
 
     def _hold(self) -> Estimate:
         """The last good estimate, carrying this update's faults."""
@@ -437,7 +722,15 @@ class StateEstimator:
         q[:7], q[7:] = position + quaternion, self._positions
         v[:6], v[6:] = so3.rotate_back(rotation, velocity) + omega_local, self._velocities
         return Estimate(self._time, base, q, v, stance, confidence, self._forces.copy(), kf.base_covariance(),
-                        np.array(self.orientation.gyro_bias_floats), faults)
+                        np.array(self.orientation.gyro_bias_floats), faults, ready=self._ready)
+
+
+def _rotated(q: Sequence[float], rotation_vector: Sequence[float]) -> so3.Quaternion:
+    """``q`` turned by a small body-frame rotation vector."""
+    rx, ry, rz = rotation_vector
+    angle = math.sqrt(rx * rx + ry * ry + rz * rz)
+    s = 0.5 if angle < 1e-8 else math.sin(0.5 * angle) / angle
+    return so3.quat_multiply_floats(q, (s * rx, s * ry, s * rz, math.cos(0.5 * angle)))
 
 
 class EstimatedRobot(RobotWrapper):
@@ -453,6 +746,11 @@ class EstimatedRobot(RobotWrapper):
         self.estimator = estimator
         self._updated_at: float | None = None
         self._plan: np.ndarray | None = None
+
+    @property
+    def ready(self) -> bool:
+        """Whether the estimator finished its start-up calibration (the estimate may be used)."""
+        return self.estimate.ready
 
     def set_contact_plan(self, contacts: np.ndarray | None) -> None:
         """The controller's contact plan (None: detect contacts from forces)."""

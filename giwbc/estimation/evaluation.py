@@ -4,6 +4,9 @@
 the pelvis every few seconds), feeding the estimator only what a :class:`NoisyRobot` measures and
 comparing its output with the simulator's truth. The controller is pluggable: the joint-PD hold
 by default, or any callable that closes its loop on the estimate (the whole-body controller).
+Until the estimator is ``ready`` (its start-up standstill calibration) the joint-PD hold stands
+the robot, unpushed, as a deployment's settle phase would; the scenario (``duration`` s, pushes
+timed from then) and its scoring start when it is ready.
 """
 
 from __future__ import annotations
@@ -82,6 +85,10 @@ class EvaluationResult:
     stood: bool
     max_tilt_deg: float
     pushes: int
+    ready_time_s: float = float("nan")  # when the estimator became ready (nan: never; then scored throughout)
+    heading_drift_deg_per_min: float = 0.0  # max |heading error - its value at ready| over the scored time, per minute
+    heading_error_final_deg: float = 0.0
+    calibration: dict | None = None  # the estimator's calibration report
 
     def as_dict(self) -> dict[str, object]:
         return asdict(self)
@@ -97,33 +104,53 @@ def evaluate(
     controller: Controller | None = None,
     config: EstimatorConfig | None = None,
     mujoco_model: mujoco.MjModel | None = None,
+    calibration_timeout: float = 5.0,
 ) -> EvaluationResult:
     """Run ``duration`` s of standing with ``pushes`` (default :func:`push_sequence`), estimating
     at every physics step from noisy measurements, and compare with truth. The estimator's
-    world frame is aligned with the simulator's by ``initial_base_xy`` (the truth at start).
-    ``mujoco_model``: a compiled model of ``description`` to reuse (compiling takes ~1 s)."""
+    world frame is aligned with the simulator's by ``initial_base_xy`` and ``initial_yaw`` (the
+    truth at start); ``config`` defaults to :meth:`EstimatorConfig.for_sensors` of ``noise``.
+    ``mujoco_model``: a compiled model of ``description`` to reuse (compiling takes ~1 s).
+    The scenario starts when the estimator is ready; an estimator not ready after
+    ``calibration_timeout`` s runs it anyway (``ready_time_s`` nan) and is scored throughout."""
     sim = MujocoRobot(description, mujoco_model)
-    robot = NoisyRobot(sim, noise if noise is not None else SensorNoiseConfig(), np.random.default_rng(seed))
-    start_xy = tuple(float(x) for x in sim.base_state().position[:2])
-    estimator = StateEstimator(description, replace(config or EstimatorConfig(), initial_base_xy=start_xy))
-    controller = controller if controller is not None else PdHold(description)
+    noise = noise if noise is not None else SensorNoiseConfig()
+    robot = NoisyRobot(sim, noise, np.random.default_rng(seed))
+    start = sim.base_state()
+    start_xy = tuple(float(x) for x in start.position[:2])
+    start_yaw = float(np.arctan2(start.rotation[1, 0], start.rotation[0, 0]))
+    config = config if config is not None else EstimatorConfig.for_sensors(noise)
+    estimator = StateEstimator(description, replace(config, initial_base_xy=start_xy, initial_yaw=start_yaw))
+    hold = PdHold(description)
+    controller = controller if controller is not None else hold
     pushes = tuple(push_sequence(duration) if pushes is None else pushes)
     touch = [f"{c.name}_touch" for c in description.contacts]
-    steps = int(round(duration / description.timestep))
+    steps = int(round((duration + calibration_timeout) / description.timestep))
     true_q, est_q = np.empty((steps, 4)), np.empty((steps, 4))
     true_p, est_p = np.empty((steps, 3)), np.empty((steps, 3))
     true_v, est_v = np.empty((steps, 3)), np.empty((steps, 3))
     true_w, est_w = np.empty((steps, 3)), np.empty((steps, 3))
     agree = np.empty(steps, dtype=bool)
+    ready = np.empty(steps, dtype=bool)
     timings = np.empty(steps)
+    started: float | None = None  # when the scenario started (the estimator was ready)
+    k = 0
     for k in range(steps):
         now = sim.time()
-        _apply_pushes(sim, pushes, now)
+        if started is None and now >= calibration_timeout:
+            started = now
+        if started is not None:
+            if now - started >= duration - 0.5 * description.timestep:
+                break
+            _apply_pushes(sim, pushes, now - started)
         measurement = Measurement.from_robot(robot)
         start = time.perf_counter()
         estimate = estimator.update(measurement)
         timings[k] = time.perf_counter() - start
-        controller(robot, estimate)
+        ready[k] = estimate.ready
+        if started is None and estimate.ready:
+            started = now
+        (controller if estimate.ready else hold)(robot, estimate)
         truth = sim.base_state()
         true_p[k], true_q[k] = truth.position, truth.quaternion
         true_v[k], true_w[k] = truth.linear_velocity, truth.angular_velocity
@@ -131,14 +158,26 @@ def evaluate(
         est_p[k], est_q[k], est_v[k], est_w[k] = base.position, base.quaternion, base.linear_velocity, base.angular_velocity
         agree[k] = np.array_equal(estimate.contacts, [sim.sensor(name)[0] > 0.0 for name in touch])
         sim.step()
+    else:
+        k = steps
+    true_q, est_q, true_p, est_p, true_v, est_v = true_q[:k], est_q[:k], true_p[:k], est_p[:k], true_v[:k], est_v[:k]
+    true_w, est_w, agree, ready, timings = true_w[:k], est_w[:k], agree[:k], ready[:k], timings[:k]
+    tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (true_q[:, 0] ** 2 + true_q[:, 1] ** 2), -1.0, 1.0)))
+    stood = bool(tilt.max() < 20.0 and true_p[:, 2].min() > 0.5 * true_p[0, 2])
+    first = int(np.argmax(ready)) if ready.any() else 0
+    ready_time = first * description.timestep if ready.any() else float("nan")
+    true_q, est_q, true_p, est_p = true_q[first:], est_q[first:], true_p[first:], est_p[first:]
+    true_v, est_v, true_w, est_w, agree, timings = true_v[first:], est_v[first:], true_w[first:], est_w[first:], agree[first:], timings[first:]
+    heading_error = np.degrees(np.angle(np.exp(1j * (_yaw(est_q) - _yaw(true_q)))))
+    heading_drift = np.abs(np.degrees(np.angle(np.exp(1j * np.radians(heading_error - heading_error[0])))))
+    scored_minutes = max(len(heading_error) * description.timestep / 60.0, 1e-9)
     cos_half = np.clip(np.abs(np.sum(true_q * est_q, axis=1)), 0.0, 1.0)
     orientation_error = np.degrees(2.0 * np.arccos(cos_half))
     tilt_error = np.degrees(np.arccos(np.clip(np.sum(_z_axis(true_q) * _z_axis(est_q), axis=1), -1.0, 1.0)))
     position_error = est_p - true_p
-    tilt = np.degrees(np.arccos(np.clip(1.0 - 2.0 * (true_q[:, 0] ** 2 + true_q[:, 1] ** 2), -1.0, 1.0)))
     return EvaluationResult(
         duration_s=duration,
-        updates=steps,
+        updates=len(timings),
         orientation_error_rms_deg=_rms(orientation_error),
         tilt_error_rms_deg=_rms(tilt_error),
         linear_velocity_error_rms_mps=_rms(np.linalg.norm(est_v - true_v, axis=1)),
@@ -151,9 +190,13 @@ def evaluate(
         update_p99_us=float(np.percentile(timings, 99) * 1e6),
         faults=estimator.monitor.total,
         fault_counts={name: count for name, count in estimator.fault_counts.items() if count},
-        stood=bool(tilt.max() < 20.0 and true_p[:, 2].min() > 0.5 * true_p[0, 2]),
+        stood=stood,
         max_tilt_deg=float(tilt.max()),
         pushes=len(pushes),
+        ready_time_s=ready_time,
+        heading_drift_deg_per_min=float(heading_drift.max() / scored_minutes),
+        heading_error_final_deg=float(heading_error[-1]),
+        calibration=None if estimator.calibration is None else estimator.calibration.as_dict(),
     )
 
 
@@ -170,6 +213,12 @@ def _z_axis(quaternions: np.ndarray) -> np.ndarray:
     """Third column of the rotation matrices of quaternions (N, 4) ``(x, y, z, w)``."""
     x, y, z, w = quaternions.T
     return np.stack([2 * (x * z + y * w), 2 * (y * z - x * w), 1 - 2 * (x * x + y * y)], axis=1)
+
+
+def _yaw(quaternions: np.ndarray) -> np.ndarray:
+    """Heading of quaternions (N, 4) ``(x, y, z, w)``: the angle of their x axis in the ground plane."""
+    x, y, z, w = quaternions.T
+    return np.arctan2(2 * (x * y + z * w), 1 - 2 * (y * y + z * z))
 
 
 def _rms(values: np.ndarray) -> float:

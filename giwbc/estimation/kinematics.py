@@ -37,7 +37,8 @@ class LegKinematics:
     and ``foot_velocities[i]`` its velocity relative to an IMU that does not translate (both world
     axes), ``imu_offset`` the IMU position minus the base origin, and ``foot_wrenches[i]``
     the wrench ``(force, torque)`` the ground exerts at the sole centre, estimated quasi-statically
-    from the leg's joint efforts (``J_leg^T w = g(q) + C(q, v) v - tau``).
+    from the leg's joint efforts (``J_leg^T w = g(q) + C(q, v) v - tau``), ``foot_rotations[i]``
+    the sole's orientation in world axes at the given base orientation.
     """
 
     def __init__(self, description: RobotDescription, model: pin.Model | None = None) -> None:
@@ -83,6 +84,7 @@ class LegKinematics:
         self.foot_velocities = self._relative_motion[:, 3:]
         self.imu_offset = self._frame_motion[n, :3]
         self.foot_wrenches = np.zeros((n, 6))
+        self.foot_rotations = np.zeros((n, 3, 3))  # each sole frame in world axes (at the estimated base orientation)
 
     @staticmethod
     def _imu_placement(description: RobotDescription, model: pin.Model) -> tuple[np.ndarray, np.ndarray]:
@@ -123,8 +125,12 @@ class LegKinematics:
         v[6:] = joint_velocities[joints]
         pin.computeJointJacobians(model, data, q)
         motion, jacobians = self._frame_motion, self._jacobians
+        rotations = self.foot_rotations
         for i, frame in enumerate(self._frames):
-            motion[i, :3] = pin.updateFramePlacement(model, data, frame).translation
+            placement = pin.updateFramePlacement(model, data, frame)
+            motion[i, :3] = placement.translation
+            if i < n:
+                rotations[i] = placement.rotation
             jacobians[i] = pin.getFrameJacobian(model, data, frame, _LWA)
         np.matmul(jacobians[:, :3], v, out=motion[:, 3:])
         np.subtract(motion[:n], motion[n], out=self._relative_motion)

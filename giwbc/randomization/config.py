@@ -5,6 +5,7 @@ As a dict (or the same in TOML, under an optional ``[randomization]`` table)::
     {
         "physics_every": 1,        # episodes between physics resamples (Gym-Ignition: every N rollouts)
         "push_horizon": 60.0,      # seconds of push schedule drawn per episode
+        "imu_profile": "mems",     # optional: the IMU's turn-on errors drawn per episode (imu_profiles.py)
         "parameters": [
             {"parameter": "link_mass", "distribution": "uniform", "low": 0.9, "high": 1.1,
              "operation": "scale", "regex": ".*_(hip|knee)_.*"},
@@ -37,10 +38,11 @@ from typing import Any
 import numpy as np
 
 from giwbc.randomization.distributions import KINDS, Distribution, RandomizationError
+from giwbc.randomization.imu_profiles import imu_profile_entries
 from giwbc.randomization.parameters import PARAMETERS, PUSH_PARAMETERS, Nominal
 from giwbc.robot.description import RobotDescription
 
-_TOP_KEYS = {"physics_every", "push_horizon", "parameters"}
+_TOP_KEYS = {"physics_every", "push_horizon", "parameters", "imu_profile"}
 _ENTRY_KEYS = {"parameter", "distribution", "operation", "links", "joints", "regex", "shared", "link", "name"}
 
 
@@ -100,6 +102,8 @@ class RandomizationConfig:
         raw = config.get("parameters", [])
         if not isinstance(raw, list):
             raise RandomizationError("randomization config: 'parameters' must be a list of entries")
+        if "imu_profile" in config:
+            raw = imu_profile_entries(str(config["imu_profile"])) + raw
         nominal = Nominal.from_description(description)
         entries = tuple(_parse_entry(table, index, nominal) for index, table in enumerate(raw))
         given = {e.parameter for e in entries}

@@ -43,6 +43,12 @@ def sensor_errors(episode: Sample) -> SensorErrors:
         accel_bias=episode["accelerometer_bias"].copy(),
         orientation_noise=episode.scalar("imu_orientation_noise"),
         imu_latency=int(episode.scalar("imu_latency")),
+        mounting=episode["imu_mounting"].copy(),
+        orientation_bias=episode["imu_orientation_bias"].copy(),
+        heading_drift=episode.scalar("imu_heading_drift"),
+        imu_dropout=episode.scalar("imu_dropout"),
+        sample_jitter=episode.scalar("imu_timestamp_jitter"),
+        encoder_resolution=episode.scalar("encoder_resolution"),
     )
 
 

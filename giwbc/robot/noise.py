@@ -1,8 +1,12 @@
 """Sensor noise and latency: what a real robot's IMU, encoders and torque estimates add to the truth.
 
 The one implementation of sensor errors in giwbc is :class:`SensorModel`: bias (constant plus
-random walk), white noise, encoder quantization, saturation, IMU dropout and latency, applied to
-true readings sampled from a robot. Two wrappers use it:
+random walk), white noise, encoder quantization, saturation, IMU dropout and latency, IMU mounting
+misalignment, errors of the IMU's own orientation output (constant tilt bias, heading drift) and
+sample-time jitter, applied to true readings sampled from a robot. IMUs people actually mount are
+named profiles (:data:`IMU_PROFILES`, :meth:`SensorNoiseConfig.profile`): ``ahrs`` (an IMU with
+its own orientation output), ``mems`` (gyro and accelerometer only, datasheet turn-on biases) and
+``cheap``. Two wrappers use it:
 
 * :class:`NoisyRobot` wraps any :class:`~giwbc.robot.interface.Robot` (a ``MujocoRobot`` in
   simulation) and reports only what a robot on a CAN bus measures, with the errors of a
@@ -29,11 +33,14 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from giwbc.robot.so3 import quat_multiply
+from giwbc.robot.so3 import exp, matrix_to_quat, quat_multiply
 from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
 from giwbc.errors import NotMeasuredError
 
-__all__ = ["NoisyRobot", "NotMeasuredError", "SensorErrors", "SensorModel", "SensorNoiseConfig"]
+__all__ = ["IMU_PROFILES", "NoisyRobot", "NotMeasuredError", "SensorErrors", "SensorModel", "SensorNoiseConfig"]
+
+MIT_POSITION_RANGE = 25.0  # rad: the MIT frame's position field spans +-12.5 rad
+MIT_ENCODER_RESOLUTION = MIT_POSITION_RANGE / (2**16 - 1)  # rad: its 16-bit quantization step
 
 
 @dataclass(frozen=True)
@@ -61,6 +68,12 @@ class SensorErrors:
     imu_dropout: float = 0.0  # probability a sample repeats the previous IMU sample
     imu_latency: int = 0  # samples
     joint_latency: int = 0  # samples
+    orientation_output: bool = True  # False: the IMU reports no orientation (its quaternion is NaN)
+    orientation_bias: np.ndarray | float = 0.0  # rad, world-frame rotation vector of the orientation output's constant error
+    heading_drift: float = 0.0  # rad/s, the orientation output's heading error grows at this rate
+    mounting: np.ndarray | float = 0.0  # rad, rotation vector of the IMU's actual frame in its nominal one
+    sample_jitter: float = 0.0  # s, std of the IMU timestamp's error (clipped to +-0.4 sample)
+    sample_period: float = 0.002  # s, nominal (bounds the jitter)
 
     @property
     def latency(self) -> int:
@@ -69,9 +82,10 @@ class SensorErrors:
     def is_ideal(self) -> bool:
         """No error at all: readings are the truth (a wrapper may then skip the model)."""
         arrays = (self.joint_position_noise, self.joint_position_bias, self.joint_velocity_noise, self.joint_effort_noise,
-                  self.gyro_bias, self.accel_bias)
+                  self.gyro_bias, self.accel_bias, self.orientation_bias, self.mounting)
         scalars = (self.encoder_resolution, self.gyro_noise, self.gyro_bias_walk, self.accel_noise, self.accel_bias_walk,
-                   self.orientation_noise, self.imu_dropout, self.latency)
+                   self.orientation_noise, self.imu_dropout, self.latency, self.heading_drift, self.sample_jitter,
+                   not self.orientation_output)
         ranges = (self.gyro_range, self.accel_range)
         return not any(np.any(a) for a in arrays) and not any(scalars) and all(r == math.inf for r in ranges)
 
@@ -102,9 +116,19 @@ class SensorNoiseConfig:
     gyro_range: float = math.radians(2000.0)  # rad/s, per-axis saturation (+-2000 deg/s)
     accel_range: float = 16.0 * 9.80665  # m/s^2, per-axis saturation (+-16 g)
     imu_dropout: float = 0.0  # probability an IMU sample is not refreshed (repeats the last one)
+    # Errors of real IMUs (0 by default: the model the estimator was first built against).
+    orientation_output: bool = True  # the IMU reports its own orientation (an AHRS); False: gyro + accelerometer only
+    orientation_bias: float = 0.0  # rad, std per axis (roll, pitch) of the orientation output's constant tilt error
+    heading_drift: float = 0.0  # rad/s, std of the orientation output's heading drift rate
+    mounting_misalignment: float = 0.0  # rad, std per axis of the IMU's mounting error (drawn at turn-on)
+    sample_jitter: float = 0.0  # s, std of the IMU timestamp's error
 
     def __post_init__(self) -> None:
+        if not isinstance(self.orientation_output, bool):
+            raise ValueError(f"SensorNoiseConfig.orientation_output must be a bool, got {self.orientation_output!r}")
         for item in fields(self):
+            if item.name == "orientation_output":
+                continue
             value = getattr(self, item.name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not value >= 0:
                 raise ValueError(f"SensorNoiseConfig.{item.name} must be a number >= 0, got {value!r}")
@@ -119,17 +143,31 @@ class SensorNoiseConfig:
     @classmethod
     def ideal(cls) -> "SensorNoiseConfig":
         """Perfect sensors: no noise, no bias, no latency, unbounded range."""
-        zero = {item.name: 0.0 for item in fields(cls) if item.name not in ("sample_period", "gyro_range", "accel_range")}
+        skip = ("sample_period", "gyro_range", "accel_range", "orientation_output")
+        zero = {item.name: 0.0 for item in fields(cls) if item.name not in skip}
         return cls(**{**zero, "imu_latency": 0, "joint_latency": 0, "gyro_range": math.inf, "accel_range": math.inf})
+
+    @classmethod
+    def profile(cls, name: str, **overrides: object) -> "SensorNoiseConfig":
+        """The sensors of a named IMU class (:data:`IMU_PROFILES`), fields replaced by ``overrides``."""
+        if name not in IMU_PROFILES:
+            raise ValueError(f"unknown IMU profile {name!r}; known: {sorted(IMU_PROFILES)}")
+        return cls(**{**IMU_PROFILES[name], **overrides})  # type: ignore[arg-type]
 
     def as_dict(self) -> dict[str, float]:
         return asdict(self)
 
     def errors(self, rng: np.random.Generator) -> SensorErrors:
-        """Per-sample errors: densities over the sample period; turn-on biases drawn now (gyro, then accelerometer)."""
+        """Per-sample errors: densities over the sample period; turn-on biases drawn now (gyro, then
+        accelerometer, then, only when their std is not 0, mounting, orientation bias, heading drift)."""
         root = 1.0 / math.sqrt(self.sample_period)
         gyro_bias = self.gyro_bias * rng.standard_normal(3)
         accel_bias = self.accel_bias * rng.standard_normal(3)
+        mounting = self.mounting_misalignment * rng.standard_normal(3) if self.mounting_misalignment else 0.0
+        orientation_bias = 0.0
+        if self.orientation_bias:
+            orientation_bias = np.append(self.orientation_bias * rng.standard_normal(2), 0.0)  # roll, pitch
+        drift = float(self.heading_drift * rng.standard_normal()) if self.heading_drift else 0.0
         return SensorErrors(
             joint_position_noise=self.joint_position_noise,
             joint_velocity_noise=self.joint_velocity_noise,
@@ -147,7 +185,44 @@ class SensorNoiseConfig:
             imu_dropout=self.imu_dropout,
             imu_latency=int(self.imu_latency),
             joint_latency=int(self.joint_latency),
+            orientation_output=self.orientation_output,
+            orientation_bias=orientation_bias,
+            heading_drift=drift,
+            mounting=mounting,
+            sample_jitter=self.sample_jitter,
+            sample_period=self.sample_period,
         )
+
+
+_G = 9.80665
+_DEG = math.pi / 180.0
+# Named IMU classes (SensorNoiseConfig fields). Turn-on biases are datasheet 1-sigma figures; all
+# three sit on the same actuators: MIT-frame 16-bit positions, 1-sample joint latency.
+IMU_PROFILES: dict[str, dict[str, object]] = {
+    # An IMU with its own orientation output (AHRS, e.g. industrial grade): 0.5 deg/s gyro and
+    # 5 mg accelerometer turn-on bias, orientation output off by 0.3 deg in tilt and drifting
+    # 0.5 deg/min in heading, mounted within 0.2 deg, 1-sample latency.
+    "ahrs": dict(
+        gyro_bias=0.5 * _DEG, accel_bias=0.005 * _G, orientation_noise=0.005, orientation_bias=0.3 * _DEG,
+        heading_drift=0.5 * _DEG / 60.0, mounting_misalignment=0.2 * _DEG, sample_jitter=2e-5,
+        encoder_resolution=MIT_ENCODER_RESOLUTION, imu_latency=1, joint_latency=1,
+    ),
+    # A MEMS IMU without orientation output (gyro + accelerometer): 0.5 deg/s and 20 mg turn-on
+    # bias, 2-sample latency, 1 % dropouts, mounted within 0.2 deg, 50 us timestamp jitter.
+    "mems": dict(
+        orientation_output=False, gyro_bias=0.5 * _DEG, accel_bias=0.020 * _G, orientation_noise=0.0,
+        mounting_misalignment=0.2 * _DEG, sample_jitter=5e-5, imu_dropout=0.01,
+        encoder_resolution=MIT_ENCODER_RESOLUTION, imu_latency=2, joint_latency=1,
+    ),
+    # A cheap MEMS IMU: 2 deg/s and 60 mg turn-on bias, twice the noise and bias walk, mounted
+    # within 0.5 deg, 2-sample latency, 2 % dropouts, 100 us jitter.
+    "cheap": dict(
+        orientation_output=False, gyro_bias=2.0 * _DEG, accel_bias=0.060 * _G, orientation_noise=0.0,
+        gyro_noise_density=1e-3, gyro_bias_random_walk=2e-4, accel_noise_density=4e-3, accel_bias_random_walk=2e-3,
+        mounting_misalignment=0.5 * _DEG, sample_jitter=1e-4, imu_dropout=0.02,
+        encoder_resolution=MIT_ENCODER_RESOLUTION, imu_latency=2, joint_latency=1,
+    ),
+}
 
 
 @dataclass(frozen=True)
@@ -187,6 +262,11 @@ class SensorModel:
         self._dofs = robot.dofs
         self.gyro_bias = np.broadcast_to(np.asarray(errors.gyro_bias, dtype=float), (3,)).copy()
         self.accel_bias = np.broadcast_to(np.asarray(errors.accel_bias, dtype=float), (3,)).copy()
+        mounting = np.broadcast_to(np.asarray(errors.mounting, dtype=float), (3,))
+        self._mounting = exp(mounting) if mounting.any() else None  # actual IMU frame in the nominal one
+        self._mounting_quaternion = matrix_to_quat(self._mounting) if self._mounting is not None else None
+        self._orientation_bias = np.broadcast_to(np.asarray(errors.orientation_bias, dtype=float), (3,)).copy()
+        self._orientation_error = bool(self._orientation_bias.any() or errors.heading_drift)
         self._buffer: deque[_Sample] = deque(maxlen=errors.latency + 1)
         self._sample_time: float | None = None
 
@@ -234,9 +314,13 @@ class SensorModel:
         robot, e, n = self.robot, self.errors, self._dofs
         draws = self._rng.standard_normal(15 + 3 * n)  # fixed order: IMU (15), positions, velocities, efforts
         dropped = self._rng.random() < e.imu_dropout
+        jitter = 0.0
+        if e.sample_jitter:
+            bound = 0.4 * e.sample_period
+            jitter = min(bound, max(-bound, e.sample_jitter * float(self._rng.standard_normal())))
         imu = None
         if self._imu:
-            imu = self._measure_imu(robot.imu(), elapsed, draws[:15])
+            imu = self._measure_imu(robot.imu(), elapsed, draws[:15], jitter)
             if dropped and self._buffer:
                 imu = self._buffer[-1].imu
         positions = robot.joint_positions() + e.joint_position_bias + e.joint_position_noise * draws[15 : 15 + n]
@@ -246,9 +330,17 @@ class SensorModel:
         efforts = robot.joint_efforts() + e.joint_effort_noise * draws[15 + 2 * n :]
         return _Sample(imu, positions, velocities, efforts)
 
-    def _measure_imu(self, truth: ImuReading, elapsed: float, draws: np.ndarray) -> ImuReading:
-        """``draws``: 15 standard normals (gyro, gyro walk, accel, accel walk, orientation)."""
+    def _measure_imu(self, truth: ImuReading, elapsed: float, draws: np.ndarray, jitter: float = 0.0) -> ImuReading:
+        """``draws``: 15 standard normals (gyro, gyro walk, accel, accel walk, orientation);
+        ``jitter``: the timestamp's error (s)."""
         e, walk = self.errors, math.sqrt(max(elapsed, 0.0))
+        if self._mounting is not None:  # the IMU's actual frame is rotated in its nominal one
+            truth = ImuReading(
+                quat_multiply(np.asarray(truth.quaternion, float), self._mounting_quaternion),
+                self._mounting.T @ np.asarray(truth.angular_velocity, float),
+                self._mounting.T @ np.asarray(truth.linear_acceleration, float),
+                truth.time,
+            )
         if e.gyro_bias_walk:
             self.gyro_bias = self.gyro_bias + e.gyro_bias_walk * walk * draws[3:6]
         if e.accel_bias_walk:
@@ -259,10 +351,16 @@ class SensorModel:
             gyro = np.minimum(np.maximum(gyro, -e.gyro_range), e.gyro_range)
         if e.accel_range < math.inf:
             accel = np.minimum(np.maximum(accel, -e.accel_range), e.accel_range)
+        if not e.orientation_output:
+            return ImuReading(np.full(4, np.nan), gyro, accel, truth.time + jitter)
         quaternion = np.asarray(truth.quaternion, float)
+        if self._orientation_error:  # world-frame error: constant tilt, heading drifting with time
+            error = self._orientation_bias.copy()
+            error[2] += e.heading_drift * float(truth.time)
+            quaternion = quat_multiply(matrix_to_quat(exp(error)), quaternion)
         if e.orientation_noise:
             quaternion = _perturb(quaternion, e.orientation_noise * draws[12:15])
-        return ImuReading(quaternion, gyro, accel, truth.time)
+        return ImuReading(quaternion, gyro, accel, truth.time + jitter)
 
 
 class NoisyRobot(RobotWrapper):

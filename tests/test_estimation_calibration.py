@@ -1,0 +1,173 @@
+"""Start-up calibration, the gravity-only path, flat-foot tilt and the IMU profiles (issue #19).
+
+The calibration tests replay a still G1 (a MuJoCo snapshot after the joint-PD hold settled,
+repeated with fresh sensor noise) or the same snapshot moved on purpose, so "still" and "moving"
+are exact; the closed-loop test runs the whole-body controller on the estimate of a MEMS IMU.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from giwbc.control.balance import BalanceOnEstimate
+from giwbc.estimation.estimator import EstimatorConfig, Measurement, StateEstimator
+from giwbc.estimation.evaluation import evaluate, push_sequence
+from giwbc.estimation.orientation import OrientationFilter
+from giwbc.robot import MujocoRobot, RobotDescription, so3
+from giwbc.robot.interface import ImuReading
+from giwbc.robot.noise import IMU_PROFILES, MIT_ENCODER_RESOLUTION, NoisyRobot, SensorNoiseConfig
+from giwbc.robot.standing import PdHold
+
+DT = 0.002
+GYRO_NOISE = 0.011  # rad/s per sample (5e-4 rad/s/sqrt(Hz) at 500 Hz)
+ACCEL_NOISE = 0.045  # m/s^2 per sample
+
+
+@pytest.fixture(scope="module")
+def snapshot(g1: RobotDescription):
+    """A settled G1 under the joint-PD hold: true base rotation, joints, efforts."""
+    sim = MujocoRobot(g1)
+    hold = PdHold(g1)
+    for _ in range(int(4.0 / DT)):
+        hold(sim)
+        sim.step()
+    base = sim.base_state()
+    return base.rotation.copy(), sim.joint_positions(), sim.joint_efforts(), sim.imu()
+
+
+def _stream(g1, snapshot, rng, *, gyro_bias, accel_bias=np.zeros(3), seconds=1.0, rate=np.zeros(3), joint_wave=0.0,
+            start=0.0, quantize=True):
+    """Measurements of the snapshot (IMU without orientation output), with white noise, the given
+    biases, the base turning at ``rate`` (rad/s, IMU frame) and leg joints waving by ``joint_wave`` rad."""
+    rotation, positions, efforts, imu = snapshot
+    imu_in_base = StateEstimator(g1).kinematics.imu_rotation
+    imu_rotation = rotation @ imu_in_base
+    for k in range(int(round(seconds / DT))):
+        t = start + k * DT
+        turned = imu_rotation @ so3.exp(rate * t)
+        specific_force = turned.T @ np.array([0.0, 0.0, 9.81])
+        joints = positions + joint_wave * math.sin(2 * math.pi * t) + 5e-4 * rng.standard_normal(len(positions))
+        if quantize:
+            joints = np.round(joints / MIT_ENCODER_RESOLUTION) * MIT_ENCODER_RESOLUTION
+        reading = ImuReading(np.full(4, np.nan), rate + gyro_bias + GYRO_NOISE * rng.standard_normal(3),
+                             specific_force + accel_bias + ACCEL_NOISE * rng.standard_normal(3), t)
+        yield Measurement(reading, joints, 0.03 * rng.standard_normal(len(positions)), efforts + 0.5 * rng.standard_normal(len(efforts)))
+
+
+def _estimator(g1) -> StateEstimator:
+    return StateEstimator(g1, EstimatorConfig(use_imu_orientation=False))
+
+
+def test_standstill_calibration_recovers_a_known_gyro_bias_within_10_percent_in_1_s(g1, snapshot) -> None:
+    bias = np.array([0.03, -0.02, 0.025])  # rad/s: a cheap IMU's turn-on bias
+    estimator = _estimator(g1)
+    ready_at = None
+    for measurement in _stream(g1, snapshot, np.random.default_rng(1), gyro_bias=bias, seconds=1.0):
+        estimate = estimator.update(measurement)
+        if estimate.ready and ready_at is None:
+            ready_at = measurement.time
+    assert ready_at is not None and ready_at <= 1.0
+    report = estimator.calibration
+    assert report is not None and report.tilt_source == "feet"
+    assert np.linalg.norm(report.gyro_bias - bias) < 0.1 * np.linalg.norm(bias)
+    assert np.linalg.norm(estimator.estimate.gyro_bias - bias) < 0.1 * np.linalg.norm(bias)
+    assert "gyro bias" in report.summary()
+
+
+@pytest.mark.parametrize(
+    "motion",
+    [{"rate": np.array([0.0, 0.05, 0.0])}, {"rate": np.array([0.04, 0.0, 0.0])}, {"joint_wave": 0.02}],
+    ids=["pitching", "rolling", "legs-moving"],
+)
+def test_the_estimator_is_not_ready_while_the_robot_moves(g1, snapshot, motion) -> None:
+    estimator = _estimator(g1)
+    rng = np.random.default_rng(2)
+    for measurement in _stream(g1, snapshot, rng, gyro_bias=np.full(3, 0.01), seconds=3.0, **motion):
+        assert not estimator.update(measurement).ready
+    assert estimator.calibration is None
+    # The same estimator, once the robot stands still, calibrates within a second.
+    for measurement in _stream(g1, snapshot, rng, gyro_bias=np.full(3, 0.01), seconds=1.0, start=3.0 + DT):
+        estimator.update(measurement)
+    assert estimator.ready
+
+
+def test_flat_feet_give_the_tilt_to_encoder_resolution_despite_a_60_mg_accelerometer_bias(g1, snapshot) -> None:
+    accel_bias = np.array([0.6, -0.4, 0.2])  # ~60 mg: 3.5 degrees of tilt if gravity were trusted
+    estimator = _estimator(g1)
+    for measurement in _stream(g1, snapshot, np.random.default_rng(3), gyro_bias=np.zeros(3), accel_bias=accel_bias):
+        estimator.update(measurement)
+    report = estimator.calibration
+    assert report is not None and report.tilt_source == "feet"
+    true_up = snapshot[0][2]  # world z in the base frame: the third row of the base rotation
+    estimated = so3.quat_to_matrix(estimator.estimate.base.quaternion)[2]
+    error = math.acos(min(1.0, float(true_up @ estimated)))
+    leg = len(estimator.kinematics.leg_joints(0))
+    assert error <= leg * MIT_ENCODER_RESOLUTION  # each leg joint off by at most one quantization step
+    assert report.accel_tilt_disagreement > math.radians(2.5)  # the accelerometer alone was far off
+    np.testing.assert_allclose(report.accel_bias, accel_bias, atol=0.05)  # and its bias is calibrated
+
+
+def test_gravity_only_path_converges_from_15_degrees_without_overshoot() -> None:
+    tilted = so3.exp(np.array([0.0, math.radians(15.0), 0.0]))
+    filt = OrientationFilter(accel_gain=0.5)
+    filt.reset_to(so3.matrix_to_quat(tilted), np.zeros(3))  # starts 15 degrees off a level IMU
+    rng = np.random.default_rng(4)
+    pitch = []
+    for _ in range(int(30.0 / DT)):
+        filt.update(GYRO_NOISE * rng.standard_normal(3), DT, None, np.array([0.0, 0.0, 9.81]) + ACCEL_NOISE * rng.standard_normal(3))
+        rotation = filt.rotation
+        pitch.append(math.degrees(math.atan2(-rotation[2, 0], rotation[2, 2])))
+    pitch = np.array(pitch)
+    assert pitch.min() > -0.5  # never overshoots level by more than 0.5 degrees
+    assert abs(pitch[-1]) < 0.1 and np.abs(pitch[-2500:]).max() < 0.2
+
+
+def test_imu_profiles_are_what_their_datasheets_say() -> None:
+    mems, cheap = SensorNoiseConfig.profile("mems"), SensorNoiseConfig.profile("cheap")
+    assert not mems.orientation_output and SensorNoiseConfig.profile("ahrs").orientation_output
+    assert mems.gyro_bias == pytest.approx(math.radians(0.5)) and mems.accel_bias == pytest.approx(0.020 * 9.80665)
+    assert mems.imu_latency == 2 and mems.imu_dropout == pytest.approx(0.01)
+    assert mems.encoder_resolution == pytest.approx(25.0 / 65535)
+    assert cheap.gyro_bias == pytest.approx(math.radians(2.0)) and cheap.accel_bias == pytest.approx(0.060 * 9.80665)
+    assert set(IMU_PROFILES) == {"ahrs", "mems", "cheap"}
+    with pytest.raises(ValueError, match="unknown IMU profile"):
+        SensorNoiseConfig.profile("perfect")
+
+
+def test_sensor_model_applies_mounting_misalignment_and_reports_no_orientation_without_an_ahrs(g1) -> None:
+    sim = MujocoRobot(g1)
+    config = SensorNoiseConfig.ideal()
+    from dataclasses import replace
+
+    tilted = NoisyRobot(sim, replace(config, mounting_misalignment=math.radians(1.0), orientation_output=False),
+                        np.random.default_rng(0))
+    reading, truth = tilted.imu(), sim.imu()
+    assert np.isnan(reading.quaternion).all()
+    angle = math.acos(np.clip(reading.linear_acceleration @ truth.linear_acceleration
+                              / (np.linalg.norm(reading.linear_acceleration) * np.linalg.norm(truth.linear_acceleration)), -1, 1))
+    assert 0.1 < math.degrees(angle) < 4.0  # a 1-degree-per-axis mounting error turns the measured gravity
+
+
+def test_wbc_on_a_mems_estimate_stands_through_pushes(g1: RobotDescription) -> None:
+    noise = SensorNoiseConfig.profile("mems")
+    result = evaluate(g1, noise=noise, seed=5, duration=8.0, pushes=push_sequence(8.0, lateral=60.0, sagittal=40.0),
+                      controller=BalanceOnEstimate(g1))
+    assert result.stood and result.ready_time_s < 3.0
+    assert result.tilt_error_rms_deg < 0.5 and result.linear_velocity_error_rms_mps < 0.03 and result.height_drift_m < 0.005
+
+
+def test_randomization_config_draws_an_imu_profile_per_episode(g1: RobotDescription) -> None:
+    from giwbc.randomization import RandomizationConfig
+    from giwbc.randomization.perturbed import sensor_errors
+    from giwbc.randomization.sampling import sample_group
+
+    config = RandomizationConfig.from_dict({"imu_profile": "cheap"}, g1)
+    draws = [sensor_errors(sample_group(config, "episode", np.random.default_rng(seed))) for seed in range(200)]
+    gyro = np.array([d.gyro_bias for d in draws])
+    assert np.std(gyro) == pytest.approx(math.radians(2.0), rel=0.15)  # the datasheet's turn-on spread
+    assert np.std([d.accel_bias for d in draws]) == pytest.approx(0.060 * 9.80665, rel=0.15)
+    assert np.std([d.mounting for d in draws]) > 0 and all(d.imu_latency == 2 and d.imu_dropout == 0.02 for d in draws)
+    assert draws[0].encoder_resolution == pytest.approx(MIT_ENCODER_RESOLUTION)
