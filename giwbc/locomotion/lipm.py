@@ -81,3 +81,14 @@ def com_at(t: float, com0: np.ndarray, com_velocity0: np.ndarray, cop: np.ndarra
 def cop_for_dcm_rate(xi: np.ndarray, xi_rate: np.ndarray, omega: float) -> np.ndarray:
     """The CoP that gives the DCM the rate ``ξ̇``: ``p = ξ − ξ̇ / ω``."""
     return np.asarray(xi, dtype=float) - np.asarray(xi_rate, dtype=float) / omega
+
+
+def cop_start_for_dcm(xi0: np.ndarray, duration: float, xi_end: np.ndarray, cop_end: np.ndarray, omega: float) -> np.ndarray:
+    """The start of a linear CoP ramp ending at ``cop_end`` after ``duration`` that takes the DCM
+    from ``xi0`` to ``xi_end``: :func:`dcm_before_linear_cop` solved for the ramp's start (it is
+    affine in it). Lets a re-planned reference start *at* the measured DCM."""
+    a = 1.0 / (omega * duration)
+    decay = math.exp(-omega * duration)
+    p1 = np.asarray(cop_end, dtype=float)
+    numerator = np.asarray(xi0, dtype=float) - a * p1 - decay * (np.asarray(xi_end, dtype=float) - p1 - a * p1)
+    return numerator / (1.0 - a + a * decay)
