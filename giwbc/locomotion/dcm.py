@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from giwbc.locomotion.lipm import dcm_at_linear_cop, dcm_before_linear_cop
-from giwbc.locomotion.support import clip_to_polygon
+from giwbc.locomotion.support import clip_along_ray, clip_to_polygon
 
 
 @dataclass(frozen=True)
@@ -92,10 +92,12 @@ class DcmController:
             raise ValueError(f"DCM gain must be finite and >= 0, got {self.gain}")
 
     def desired_cop(self, xi: np.ndarray, xi_ref: np.ndarray, xi_rate_ref: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
-        """``p* = ξ − ξ̇_ref/ω + (k/ω)(ξ − ξ_ref)``, clipped into ``support`` (CCW hull) when given."""
+        """``p* = ξ − ξ̇_ref/ω + (k/ω)(ξ − ξ_ref)``, clipped into ``support`` (CCW hull) when given:
+        along the ray from ``ξ`` when ``ξ`` is inside (the DCM keeps being pushed the way the
+        controller wants), else to the nearest point."""
         xi = np.asarray(xi, dtype=float)[:2]
         cop = xi - np.asarray(xi_rate_ref)[:2] / self.omega + (self.gain / self.omega) * (xi - np.asarray(xi_ref)[:2])
-        return cop if support is None else clip_to_polygon(cop, support)
+        return cop if support is None else clip_along_ray(xi, cop, support)
 
     def com_acceleration(self, com: np.ndarray, cop: np.ndarray) -> np.ndarray:
         """``c̈ = ω² (c − p)`` (horizontal)."""

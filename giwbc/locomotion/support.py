@@ -64,3 +64,24 @@ def clip_to_polygon(point: np.ndarray, hull: np.ndarray) -> np.ndarray:
     s = np.clip(np.einsum("ij,ij->i", point - start, edges) / np.maximum(lengths, 1e-18), 0.0, 1.0)
     candidates = start + s[:, None] * edges
     return candidates[np.argmin(np.einsum("ij,ij->i", candidates - point, candidates - point))]
+
+
+def clip_along_ray(origin: np.ndarray, point: np.ndarray, hull: np.ndarray) -> np.ndarray:
+    """``point`` pulled back towards ``origin`` onto the (CCW, convex) polygon, keeping its direction
+    from ``origin`` when ``origin`` is inside: the farthest polygon point on the segment
+    origin → point. (A DCM controller clipping its CoP this way keeps the direction the DCM is
+    pushed in; the nearest-point clip can turn it along an edge.) Falls back to the nearest point
+    when ``origin`` is outside."""
+    origin = np.asarray(origin, dtype=float)[:2]
+    point = np.asarray(point, dtype=float)[:2]
+    edges = np.roll(hull, -1, axis=0) - hull
+    normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)  # outward
+    inside_origin = np.einsum("ij,ij->i", origin - hull, normals)  # <= 0 inside
+    if len(hull) < 3 or np.any(inside_origin > 0.0):
+        return clip_to_polygon(point, hull)
+    direction = point - origin
+    rates = normals @ direction
+    with np.errstate(divide="ignore", invalid="ignore"):
+        limits = np.where(rates > 0.0, -inside_origin / rates, np.inf)
+    s = min(1.0, float(limits.min()))
+    return origin + s * direction

@@ -62,7 +62,8 @@ class WalkerConfig:
     standing_dcm_gain: float = 8.0  # s⁻¹, standing (stiffer: feet-in-place balance)
     com_height_kp: float = 100.0
     swing_apex: float = 0.07  # m
-    swing_weight: float = 2.0
+    swing_weight: float = 2.0  # walking: low, the CoM task keeps the priority
+    recovery_swing_weight: float = 10.0  # recovering from a push: the foot must get there
     swing_kp: float = 400.0
     contact_ramp: float = 0.04  # s, force ramp at lift-off and touch-down
     start_shift: float = 0.3  # s, double support before the first step (weight shift)
@@ -76,7 +77,7 @@ class WalkerConfig:
     adapter: StepAdapterWeights = field(default_factory=StepAdapterWeights)
     min_swing: float = 0.22  # s, shortest single support the adapter may choose
     max_swing: float = 0.5  # s, longest
-    landing_box: tuple[tuple[float, float], tuple[float, float]] = ((-0.25, 0.4), (0.17, 0.45))  # stance frame, left foot
+    landing_box: tuple[tuple[float, float], tuple[float, float]] = ((-0.38, 0.45), (0.17, 0.55))  # stance frame, left foot
     anchor_tolerance: float = 0.08  # m: plan from the nominal footholds while the real ones are this close
     push_margin: float = 0.0  # m: step when the capture point is this far outside the polygon
     recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
@@ -263,11 +264,7 @@ class WalkingController:
                 first = self.planner.first_swing_side(self.command)
                 self._begin_double(t, stance=other_side(first), duration=cfg.start_shift)
             elif signed_distance(xi, self.support_polygon()) > cfg.push_margin:
-                # Push: the foot on the side the capture point went steps.
-                middle = 0.5 * (self.feet["left"].position + self.feet["right"].position)
-                heading = 0.5 * (self.feet["left"].yaw + self.feet["right"].yaw)
-                lateral = -math.sin(heading) * (xi[0] - middle[0]) + math.cos(heading) * (xi[1] - middle[1])
-                swing = "left" if lateral > 0.0 else "right"
+                swing = self._recovery_swing_side(xi)
                 self._recovering = True
                 self._nominal_feet = {}
                 self._begin_double(t, stance=other_side(swing), duration=max(cfg.contact_ramp, 1e-3))
@@ -336,7 +333,22 @@ class WalkingController:
         if self._recovering:
             self._nominal_offset = -side_sign(swing) * cfg.recovery_offset * np.array([-math.sin(target.yaw), math.cos(target.yaw)])
         self._reference = reference
-        self.swing_tasks[swing].set_weight(cfg.swing_weight)
+        self.swing_tasks[swing].set_weight(cfg.recovery_swing_weight if self._recovering else cfg.swing_weight)
+
+    def _recovery_swing_side(self, xi: np.ndarray) -> str:
+        """Which foot steps when the capture point ``xi`` left the polygon: a foot it passed on the
+        outside (only that foot can step there without crossing); else the foot farther from it,
+        so that the CoP goes on the nearer one."""
+        outward, distance = {}, {}
+        for side, contact in self.contacts.items():
+            foot = self.feet[side]
+            local = foot.to_local(xi)
+            outward[side] = local[1] * side_sign(side) - contact.half_width  # type: ignore[attr-defined]
+            distance[side] = signed_distance(xi, self.support_polygon((side,)))
+        beyond = [side for side in self.contacts if outward[side] > 0.0]
+        if len(beyond) == 1:
+            return beyond[0]
+        return max(self.contacts, key=lambda side: distance[side])
 
     def _recovery_target(self, t: float) -> Footstep:
         """Where a recovering foot goes at nominal timing: on the predicted capture point, shifted outward."""
@@ -383,6 +395,7 @@ class WalkingController:
         if self._recovering:
             # Settle if the capture point is back inside both feet; otherwise the other foot steps.
             if signed_distance(self.state.dcm, self.support_polygon()) > cfg.push_margin:
+                # Feet alternate: the one just landed carries, the other closes up or steps on.
                 self._begin_double(t, stance=swing, duration=max(cfg.gait.double_support, cfg.contact_ramp))
                 self.state.recovery_steps += 1
             else:
