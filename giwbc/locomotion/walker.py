@@ -56,7 +56,8 @@ class WalkerConfig:
     """Gait, gains and switching thresholds of :class:`WalkingController`."""
 
     gait: GaitConfig = field(default_factory=GaitConfig)
-    balance: BalanceConfig = field(default_factory=lambda: BalanceConfig(min_normal_force=5.0))
+    # proxsuite gets 20 outer iterations (default 10): the ticks of a contact switch need more
+    balance: BalanceConfig = field(default_factory=lambda: BalanceConfig(min_normal_force=5.0, solver_settings={"max_iter": 20}))
     com_height: float | None = None  # m above the soles; default: the standing pose's
     dcm_gain: float = 5.0  # s⁻¹, walking
     standing_dcm_gain: float = 8.0  # s⁻¹, standing (stiffer: feet-in-place balance)

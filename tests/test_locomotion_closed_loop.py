@@ -1,0 +1,98 @@
+"""The walking controller in closed loop with MuJoCo (G1, 500 Hz, torques): stepping in place,
+ten steps forward, a turn, a push recovered by stepping that feet-in-place control loses, and
+contact forces that follow the WBC's ramps at every switch. Ground truth from MuJoCo."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from giwbc.locomotion.simulation import Push, simulate_walk
+from giwbc.locomotion.walker import Phase, WalkingController
+from giwbc.robot import MujocoRobot
+
+pytestmark = pytest.mark.slow
+
+
+def _yaw(rotation):
+    return math.atan2(rotation[1, 0], rotation[0, 0])
+
+
+def test_steps_in_place_without_wandering(g1):
+    run = simulate_walk(g1, (0.0, 0.0, 0.0), 6.0, step_in_place=True)
+    assert not run.fell and run.wbc_failures == 0
+    assert run.steps >= 10
+    assert np.linalg.norm(run.distance) < 0.12, run.distance
+
+
+def test_walks_ten_steps_forward_at_the_commanded_speed(g1):
+    run = simulate_walk(g1, (0.3, 0.0, 0.0), 6.5)
+    assert not run.fell and run.wbc_failures == 0
+    assert run.steps >= 10
+    assert run.mean_velocity[0] == pytest.approx(0.3, abs=0.06)
+    assert abs(run.mean_velocity[1]) < 0.05
+    assert run.tracking_rms < 0.1
+    assert run.distance[0] > 0.3 * 6.0 * 0.7 and abs(run.distance[1]) < 0.15
+
+
+def test_turns_in_place(g1):
+    run = simulate_walk(g1, (0.0, 0.0, 0.4), 6.0)
+    assert not run.fell and run.wbc_failures == 0
+    assert run.mean_yaw_rate == pytest.approx(0.4, abs=0.1)
+    assert np.linalg.norm(run.distance) < 0.3
+
+
+def test_a_100_newton_backward_push_is_recovered_by_stepping_and_lost_feet_in_place(g1):
+    push = (Push(1.0, 100.0, math.pi),)  # 20 N·s straight backward on the pelvis
+    stepping = simulate_walk(g1, (0.0, 0.0, 0.0), 3.0, pushes=push, command_start=None)
+    in_place = simulate_walk(g1, (0.0, 0.0, 0.0), 3.0, pushes=push, command_start=None, stepping=False)
+    assert in_place.fell
+    assert not stepping.fell and stepping.steps >= 1 and stepping.recovery_steps >= 1
+
+
+def test_contact_forces_follow_the_ramps_at_every_switch(g1):
+    """Normal force of each foot never exceeds its activation times the load it ramps (the weight
+    when made, its load when broken): no jump at a touch-down or a lift-off beyond the ramp."""
+    robot = MujocoRobot(g1)
+    walker = WalkingController(g1)
+    q, _ = robot.generalized_state()
+    walker.reset(q)
+    weight = g1.total_mass * 9.81
+    names = {side: contact.name for side, contact in walker.contacts.items()}
+    switches = ramping = 0
+    previous = {name: 1.0 for name in names.values()}
+    last_normal = {name: weight / 2 for name in names.values()}
+    largest_jump = 0.0
+    for i in range(int(3.0 / g1.timestep)):
+        if i == 100:
+            walker.set_command(0.2, 0.0, 0.0)
+        result = walker.step(robot)
+        robot.step()
+        assert result.ok
+        for name in names.values():
+            activation = walker.wbc.contact_activation(name)
+            normal = result.contact_wrenches.get(name, np.zeros(6))[2]
+            assert normal <= activation * 1.2 * weight + 1.0, (i, name, activation, normal)  # the ramp's cap (load at removal ≤ 1.2 W)
+            ramping += 0.0 < activation < 1.0
+            if activation != previous[name]:  # a tick of a switch: its force moves with the ramp
+                largest_jump = max(largest_jump, abs(normal - last_normal[name]))
+            last_normal[name] = normal
+            if activation != previous[name] and activation in (0.0, 1.0):
+                switches += 1
+            previous[name] = activation
+    assert switches >= 8  # both directions, several steps
+    # Every switch went through the ramp (not a jump): ramp_time / dt ticks each, give or take one.
+    assert ramping >= switches * (walker.config.contact_ramp / g1.timestep - 1)
+    assert largest_jump < 0.1 * weight, largest_jump / weight
+    assert walker.state.steps >= 4 and walker.state.phase in (Phase.SINGLE, Phase.DOUBLE)
+
+
+def test_bad_commands_are_refused_or_clamped_with_a_message(g1):
+    walker = WalkingController(g1)
+    with pytest.raises(ValueError, match="finite"):
+        walker.set_command(math.nan, 0.0, 0.0)
+    notes = walker.set_command(3.0, 0.0, 0.0)
+    assert notes and "clamped" in notes[0]
+    assert walker.command.vx == pytest.approx(walker.planner.limits()["vx"][1])
