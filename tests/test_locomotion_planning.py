@@ -11,7 +11,7 @@ import pytest
 
 from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, GaitConfig, VelocityCommand, side_sign
 from giwbc.locomotion.lipm import dcm_at, natural_frequency
-from giwbc.locomotion.step_adapter import StepAdapter, StepAdapterWeights, solve_box_qp
+from giwbc.locomotion.step_adapter import StepAdapter, StepAdapterWeights, solve_box_qp, solve_step_qp, step_qp_matrices
 from giwbc.locomotion.swing import SwingTrajectory
 
 OMEGA = natural_frequency(0.68)
@@ -125,6 +125,22 @@ def test_box_qp_matches_a_brute_force_grid():
         costs = 0.5 * np.einsum("ij,jk,ik->i", grid, H, grid) + grid @ g
         assert 0.5 * z @ H @ z + g @ z <= costs.min() + 1e-12
         assert np.all(z >= lo - 1e-12) and np.all(z <= hi + 1e-12)
+
+
+def test_the_fast_step_qp_matches_the_generic_box_qp():
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        w_u, w_s, w_b = rng.uniform(0.1, 100.0, 3)
+        u_nom, d, k = rng.normal(0, 0.2, 2), rng.normal(0, 0.2, 2), rng.normal(0, 0.2, 2)
+        sigma_nom = rng.uniform(1.0, 6.0)
+        lower = (rng.uniform(-0.4, 0.0), rng.uniform(-0.4, 0.0), rng.uniform(1.0, 2.0))
+        upper = (rng.uniform(0.0, 0.4), rng.uniform(0.0, 0.4), rng.uniform(2.0, 8.0))
+        H, g = step_qp_matrices(w_u, w_s, w_b, u_nom, sigma_nom, d, k)
+        fast = solve_step_qp(w_u, w_s, w_b, u_nom, sigma_nom, d, k, lower, upper)
+        generic = solve_box_qp(H, g, np.array(lower), np.array(upper))
+        cost = lambda z: 0.5 * z @ H @ z + g @ z  # noqa: E731
+        assert cost(fast) <= cost(generic) + 1e-9 * max(1.0, abs(cost(generic)))
+        np.testing.assert_allclose(fast, generic, atol=1e-6)
 
 
 # --- swing ---------------------------------------------------------------------------------------

@@ -62,11 +62,24 @@ class WalkRun:
     step_velocities: np.ndarray  # (steps, 3): per-step average (vx, vy, yaw rate), heading frame
     tracking_rms: float  # RMS over steps of ‖v_step − v_cmd‖ (xy), m/s
     yaw_rate_rms: float
+    final_tilt: float  # rad, of the base at the end
     tick_seconds: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))  # WBC tick wall times
     single_support_ticks: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=bool))
     switch_ticks: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=bool))
     notes: list[str] = field(default_factory=list)
     frames: list = field(repr=False, default_factory=list)
+
+
+def perturbed_initial_state(robot: MujocoRobot, rng: np.random.Generator, joint_std: float = 0.01, velocity_std: float = 0.02) -> tuple[np.ndarray, np.ndarray]:
+    """The default standing state (Pinocchio convention) with joint positions perturbed by
+    ``joint_std`` rad and the base's linear velocity by ``velocity_std`` m/s (Gaussian): seeded runs
+    differ from the first tick."""
+    q, v = robot.generalized_state()
+    q = q.copy()
+    v = v.copy()
+    q[7:] += rng.normal(0.0, joint_std, len(q) - 7)
+    v[:2] += rng.normal(0.0, velocity_std, 2)
+    return q, v
 
 
 def _yaw(rotation: np.ndarray) -> float:
@@ -85,6 +98,7 @@ def simulate_walk(
     stepping: bool = True,
     render: object | None = None,
     render_every: int = 0,
+    seed: int | None = None,
 ) -> WalkRun:
     """Run the walking controller (``stepping=False``: the feet-in-place balance controller of
     :mod:`giwbc.control.balance`, for comparison; the command is then ignored) in MuJoCo; stop at ``seconds`` or at a fall. ``render(robot)`` is called every
@@ -92,6 +106,8 @@ def simulate_walk(
     if not (math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds must be > 0, got {seconds}")
     robot = MujocoRobot(description)
+    if seed is not None:
+        robot.reset(*perturbed_initial_state(robot, np.random.default_rng(seed)))
     controller = WalkingController(description, config)
     q, v = robot.generalized_state()
     controller.reset(q)
@@ -125,6 +141,8 @@ def simulate_walk(
                 force += push.vector()
         robot.set_external_wrench(description.base_link, force)
         result = controller.step(robot) if baseline is None else baseline.step(robot)
+        if not stepping:
+            controller.state.phase = Phase.STAND
         timings[i] = result.timings.total
         phase = controller.state.phase
         single[i] = phase is Phase.SINGLE
@@ -164,5 +182,6 @@ def simulate_walk(
     return WalkRun(
         n * dt, fell, fall_time, state.steps, state.recovery_steps, state.early_touchdowns, state.late_touchdowns,
         controller.wbc.failures, distance, mean_velocity, mean_yaw, steps, tracking, yaw_rms,
+        math.acos(min(max(float(end.rotation[2, 2]), -1.0), 1.0)),
         timings[:n], single[:n], switches[:n], notes, frames,
     )

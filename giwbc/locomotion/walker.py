@@ -79,6 +79,8 @@ class WalkerConfig:
     min_swing: float = 0.22  # s, shortest single support the adapter may choose
     max_swing: float = 0.5  # s, longest
     landing_box: tuple[tuple[float, float], tuple[float, float]] = ((-0.38, 0.45), (0.17, 0.55))  # stance frame, left foot
+    replan_distance: float = 0.01  # m: the DCM reference is re-planned when the landing spot moved this much ...
+    replan_time: float = 0.01  # s: ... or the touch-down time this much
     anchor_tolerance: float = 0.08  # m: plan from the nominal footholds while the real ones are this close
     push_margin: float = 0.0  # m: step when the capture point is this far outside the polygon
     recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
@@ -127,11 +129,10 @@ class WalkingController:
             if len(matches) != 1:
                 raise ValueError(f"walking needs one foot contact per side named left_*/right_*, got {list(contacts)}")
             self.contacts[side] = matches[0]
+        # The swing sole's pose task: in the QP only while that foot swings (no cost otherwise).
         self.swing_tasks = {
-            side: FramePoseTask(contact.link, f"{side}_swing", weight=0.0, kp=config.swing_kp) for side, contact in self.contacts.items()
+            side: FramePoseTask(contact.link, f"{side}_swing", weight=config.swing_weight, kp=config.swing_kp) for side, contact in self.contacts.items()
         }
-        for task in self.swing_tasks.values():
-            self.wbc.add_task(task)
         self._sole = {side: pin.SE3(c.offset) for side, c in self.contacts.items()}
         self._sole_inverse = {side: c.offset.inverse() for side, c in self.contacts.items()}
         self.weight = description.total_mass * 9.81
@@ -167,7 +168,8 @@ class WalkingController:
         q = self.description.default_configuration() if q is None else np.asarray(q, dtype=float)
         self.balance.reset(q)
         for task in self.swing_tasks.values():
-            task.set_weight(0.0)
+            self._remove_swing_task(task)
+        self._polygons: dict[tuple[str, ...], np.ndarray] = {}
         self._measure(q, np.zeros(self.model.nv))
         self.feet = {side: self._measured_foot(side) for side in self.contacts}
         ground = float(np.mean([self._sole_world(side).translation[2] for side in self.contacts]))
@@ -190,6 +192,7 @@ class WalkingController:
         self._nominal_target: Footstep | None = None
         self._recovering = False
         self._nominal_feet: dict[str, Footstep] = {}
+        self._planned_for: tuple[np.ndarray, float] | None = None
         self._reference: DcmReference | None = None
         self._time = 0.0
         self._anchored = True
@@ -213,12 +216,16 @@ class WalkingController:
     def support_polygon(self, sides: tuple[str, ...] | None = None) -> np.ndarray:
         """CCW hull of the soles in contact (both in double support) at their planned holds."""
         sides = tuple(self.contacts) if sides is None else sides
+        cached = self._polygons.get(sides)
+        if cached is not None:
+            return cached
         corners = []
         for side in sides:
             contact = self.contacts[side]
             foot = self.feet[side]
             corners.append(sole_corners(foot.position, foot.yaw, contact.half_length, contact.half_width))  # type: ignore[attr-defined]
-        return convex_hull(np.vstack(corners))
+        hull = self._polygons[sides] = convex_hull(np.vstack(corners))
+        return hull
 
     # --- the tick ----------------------------------------------------------------------------------
     def update(self, q: np.ndarray, v: np.ndarray, t: float, foot_forces: dict[str, float] | None = None) -> WbcResult:
@@ -334,7 +341,10 @@ class WalkingController:
         if self._recovering:
             self._nominal_offset = -side_sign(swing) * cfg.recovery_offset * np.array([-math.sin(target.yaw), math.cos(target.yaw)])
         self._reference = reference
-        self.swing_tasks[swing].set_weight(cfg.recovery_swing_weight if self._recovering else cfg.swing_weight)
+        task = self.swing_tasks[swing]
+        task.set_weight(cfg.recovery_swing_weight if self._recovering else cfg.swing_weight)
+        self._swing_reference(t)
+        self.wbc.add_task(task)
 
     def _recovery_swing_side(self, xi: np.ndarray) -> str:
         """Which foot steps when the capture point ``xi`` left the polygon: a foot it passed on the
@@ -378,19 +388,22 @@ class WalkingController:
         )
         target = Footstep(swing, adjustment.position, self._nominal_target.yaw)
         touchdown = t + adjustment.remaining_time
-        moved = np.linalg.norm(target.position - self._target.position) > 1e-3 or abs(touchdown - self._swing.t1) > 2e-3  # type: ignore[union-attr]
+        moved = np.linalg.norm(target.position - self._target.position) > 2e-3 or abs(touchdown - self._swing.t1) > 4e-3  # type: ignore[union-attr]
         if moved:
             full = np.array([*target.position, self._swing.target[2], self._swing.target[3]])
             self._swing.retarget(t, full, touchdown)
             self._target = target
-            self._reference = self._plan_single(t, target, self._swing.t1)
+            planned = self._planned_for
+            if planned is None or np.linalg.norm(target.position - planned[0]) > cfg.replan_distance or abs(self._swing.t1 - planned[1]) > cfg.replan_time:
+                self._reference = self._plan_single(t, target, self._swing.t1)
 
     def _touch_down(self, t: float) -> None:
         cfg = self.config
         swing = other_side(self._stance)
-        self.swing_tasks[swing].set_weight(0.0)
+        self._remove_swing_task(self.swing_tasks[swing])
         self.wbc.add_contact(self.contacts[swing], ramp_time=cfg.contact_ramp)
         self.feet[swing] = self._measured_foot(swing)
+        self._polygons = {}
         self.state.steps += 1
         self._swing = None
         if self._recovering:
@@ -407,6 +420,10 @@ class WalkingController:
             self._settle(t)
             return
         self._begin_double(t, stance=swing, duration=cfg.gait.double_support)
+
+    def _remove_swing_task(self, task: FramePoseTask) -> None:
+        if any(existing is task for existing in self.wbc.tasks):
+            self.wbc.remove_task(task.name)
 
     def _settle(self, t: float) -> None:
         self._phase, self._phase_start, self._phase_end = Phase.STAND, t, math.inf
@@ -438,6 +455,7 @@ class WalkingController:
         return abs(local[0]) < 0.03 and abs(abs(local[1]) - self.config.gait.step_width) < 0.03
 
     def _plan_single(self, t: float, target: Footstep, touchdown: float) -> DcmReference:
+        self._planned_for = (target.position.copy(), touchdown)
         gait = self.config.gait
         stance = self.feet[self._stance].position
         landings, final = self._landings(target)
@@ -502,12 +520,12 @@ class WalkingController:
         sole = pin.SE3(rotation, position[:3].copy())
         ankle = sole * self._sole_inverse[swing]
         # The ankle origin's velocity and acceleration (the sole turns about z only).
-        lever = ankle.translation - sole.translation
-        w = np.array([0.0, 0.0, velocity[3]])
-        alpha = np.array([0.0, 0.0, acceleration[3]])
-        linear_velocity = velocity[:3] + np.cross(w, lever)
-        linear_acceleration = acceleration[:3] + np.cross(alpha, lever) + np.cross(w, np.cross(w, lever))
-        self.swing_tasks[swing].set_reference(ankle, np.concatenate([linear_velocity, w]), np.concatenate([linear_acceleration, alpha]))
+        lx, ly = ankle.translation[0] - sole.translation[0], ankle.translation[1] - sole.translation[1]
+        wz, az = velocity[3], acceleration[3]
+        # ω × r and α × r + ω × (ω × r) for ω, α along z
+        twist = np.array([velocity[0] - wz * ly, velocity[1] + wz * lx, velocity[2], 0.0, 0.0, wz])
+        accel = np.array([acceleration[0] - az * ly - wz * wz * lx, acceleration[1] + az * lx - wz * wz * ly, acceleration[2], 0.0, 0.0, az])
+        self.swing_tasks[swing].set_reference(ankle, twist, accel)
 
     def _heading_reference(self) -> None:
         """Pelvis upright, heading the mean of the feet's (the swing target's while it flies)."""
