@@ -17,6 +17,7 @@ from giwbc.robot import MujocoRobot, RobotDescriptionError, available_robots, lo
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
 from giwbc.sim_to_sim import add_sim_to_sim_command
 from giwbc.training import add_train_command
+from giwbc.walk import add_walk_command
 
 GRAVITY = 9.81
 
@@ -102,6 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_evaluate_command(commands)
     add_sim_to_sim_command(commands)
     add_deploy_command(commands)
+    add_walk_command(commands)
     return parser
 
 
