@@ -21,6 +21,7 @@ import numpy as np
 from giwbc.control.balance import make_balance_controller
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
 from giwbc.robot.description import RobotDescription
+from giwbc.robot.mujoco_model import foot_sensor_names
 from giwbc.robot.mujoco_robot import MujocoRobot
 
 FALL_HEIGHT_FRACTION = 0.65  # fallen: base below this fraction of its standing height ...
@@ -115,6 +116,7 @@ def simulate_walk(
     if not stepping:  # the feet-in-place balance controller, untouched (the baseline of the issue)
         baseline = make_balance_controller(description)
         baseline.reset(q)
+    touch = {side: foot_sensor_names(contact.name)["touch"] for side, contact in controller.contacts.items()}
     dt = description.timestep
     base0 = robot.base_state()
     height0 = float(base0.position[2])
@@ -140,7 +142,15 @@ def simulate_walk(
             if push.start <= t < push.start + push.duration:
                 force += push.vector()
         robot.set_external_wrench(description.base_link, force)
-        result = controller.step(robot) if baseline is None else baseline.step(robot)
+        if baseline is None:
+            # The walker's own loop (its step(robot) does the same through Robot.contact_wrench;
+            # MuJoCo's foot touch sensors give the normal forces at a fraction of the cost).
+            q, v = robot.generalized_state()
+            forces = {side: float(robot.sensor(name)[0]) for side, name in touch.items()}
+            result = controller.update(q, v, robot.time(), forces)
+            robot.set_joint_torques(result.tau)
+        else:
+            result = baseline.step(robot)
         if not stepping:
             controller.state.phase = Phase.STAND
         timings[i] = result.timings.total

@@ -75,6 +75,9 @@ class WalkerConfig:
     descent_speed: float = 0.25  # m/s, of a late foot
     touchdown_depth: float = 0.003  # m, the swing aims this far below the ground
     step_adaptation: bool = True
+    # Single support without the swing foot's (force-less) contact slot: a smaller QP each
+    # single-support tick, at the price of a re-layout and cold solve at lift-off and touch-down.
+    drop_swing_contact: bool = False
     adapter: StepAdapterWeights = field(default_factory=StepAdapterWeights)
     min_swing: float = 0.22  # s, shortest single support the adapter may choose
     max_swing: float = 0.5  # s, longest
@@ -170,6 +173,9 @@ class WalkingController:
         for task in self.swing_tasks.values():
             self._remove_swing_task(task)
         self._polygons: dict[tuple[str, ...], np.ndarray] = {}
+        self._heading = math.nan
+        self._com_kp = self.config.com_height_kp
+        self.balance.com_task.set_gains(self._com_kp, np.array([0.0, 0.0, 2.0 * math.sqrt(self._com_kp)]))
         self._measure(q, np.zeros(self.model.nv))
         self.feet = {side: self._measured_foot(side) for side in self.contacts}
         ground = float(np.mean([self._sole_world(side).translation[2] for side in self.contacts]))
@@ -246,10 +252,12 @@ class WalkingController:
         controller.gain = self.config.standing_dcm_gain if self._phase is Phase.STAND else self.config.dcm_gain
         cop = controller.desired_cop(xi, xi_ref, xi_rate_ref, support)
         acceleration = controller.com_acceleration(self._com, cop)
-        com_ref = np.array([self._com[0], self._com[1], self._ground + self._com_height])
-        velocity_ref = np.array([self._com_velocity[0], self._com_velocity[1], 0.0])
-        self.balance.com_task.set_reference(com_ref, velocity_ref, np.array([acceleration[0], acceleration[1], 0.0]))
-        self.balance.force_regularization.set_support_point(np.array([cop[0], cop[1], 0.0]))
+        # The CoM task's horizontal rows have no damping (set in reset): their position error
+        # carries the acceleration, ẍ* = kp (c + c̈/kp − c) = c̈ — one reference, no rates to gather.
+        kp = self._com_kp
+        self.balance.com_task.set_reference(np.array([self._com[0] + acceleration[0] / kp, self._com[1] + acceleration[1] / kp, self._ground + self._com_height]))
+        if self._phase is not Phase.SINGLE:  # (one foot: it carries the weight, no split to set)
+            self.balance.force_regularization.set_support_point(np.array([cop[0], cop[1], 0.0]))
         self._heading_reference()
         self.state.dcm_ref, self.state.cop = xi_ref, cop
         self.state.com, self.state.com_velocity = self._com, self._com_velocity
@@ -315,6 +323,8 @@ class WalkingController:
         cfg = self.config
         self._phase, self._phase_start = Phase.SINGLE, t
         swing = other_side(self._stance)
+        if cfg.drop_swing_contact:
+            self.wbc.forget_contact(self.contacts[swing].name)
         stance_foot = self.feet[self._stance]
         if self._recovering:
             target, duration = self._recovery_target(t), cfg.gait.single_support
@@ -536,8 +546,9 @@ class WalkingController:
             else:
                 right = self._target.yaw
         yaw = left + 0.5 * wrap_angle(right - left)
-        current = self.balance.base_task.reference
+        if yaw == self._heading:
+            return
+        self._heading = yaw
         c, s = math.cos(yaw), math.sin(yaw)
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        if current is None or not np.allclose(current.rotation, rotation, atol=1e-9):
-            self.balance.base_task.set_reference(pin.SE3(rotation, np.zeros(3)))
+        self.balance.base_task.set_reference(pin.SE3(rotation, np.zeros(3)))
