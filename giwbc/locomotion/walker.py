@@ -71,6 +71,7 @@ class WalkerConfig:
     preview_steps: int = 3
     touchdown_force: float = 0.15  # fraction of the weight on the swing foot meaning "landed"
     early_touchdown: float = 0.6  # fraction of the swing after which contact means touch-down
+    touchdown_distance: float = 0.05  # m: an early contact this close to the landing spot is a touch-down
     late_touchdown: float = 0.08  # s, how long past the plan the foot may keep descending
     descent_speed: float = 0.25  # m/s, of a late foot
     touchdown_depth: float = 0.003  # m, the swing aims this far below the ground
@@ -81,11 +82,12 @@ class WalkerConfig:
     adapter: StepAdapterWeights = field(default_factory=StepAdapterWeights)
     min_swing: float = 0.22  # s, shortest single support the adapter may choose
     max_swing: float = 0.5  # s, longest
-    landing_box: tuple[tuple[float, float], tuple[float, float]] = ((-0.38, 0.45), (0.17, 0.55))  # stance frame, left foot
+    landing_box: tuple[tuple[float, float], tuple[float, float]] = ((-0.38, 0.45), (0.17, 0.65))  # stance frame, left foot
     replan_distance: float = 0.01  # m: the DCM reference is re-planned when the landing spot moved this much ...
     replan_time: float = 0.01  # s: ... or the touch-down time this much
     anchor_tolerance: float = 0.08  # m: plan from the nominal footholds while the real ones are this close
     push_margin: float = 0.0  # m: step when the capture point is this far outside the polygon
+    hurry_error: float = 0.05  # m: a DCM error this large at touch-down cuts the double support short
     recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
 
     def __post_init__(self) -> None:
@@ -302,6 +304,11 @@ class WalkingController:
             self._adapt_step(t, xi)
         force = forces.get(swing, 0.0)
         landed = force >= cfg.touchdown_force * self.weight and elapsed >= cfg.early_touchdown * (self._swing.t1 - self._phase_start)
+        if landed and t < self._swing.t1 - 0.02:
+            # An early contact counts only near the landing spot: a sole scraping the ground far
+            # from it (a leaning robot) keeps swinging.
+            sole = self._sole_world(swing).translation
+            landed = math.hypot(sole[0] - self._target.position[0], sole[1] - self._target.position[1]) < cfg.touchdown_distance
         if landed:
             if t < self._swing.t1 - 1e-9:
                 self.state.early_touchdowns += 1
@@ -392,6 +399,9 @@ class WalkingController:
         assert self._swing is not None and self._nominal_target is not None
         elapsed = t - self._phase_start
         remaining_range = (max(cfg.min_swing - elapsed, 0.02), max(cfg.max_swing - elapsed, 0.02))
+        task = self.swing_tasks[swing]
+        if task.weight[0] < cfg.recovery_swing_weight and np.linalg.norm(xi - self.state.dcm_ref) > cfg.hurry_error:
+            task.set_weight(cfg.recovery_swing_weight)  # pushed: the foot must get where the adapter sends it
         adjustment = self.adapter.adapt(  # type: ignore[union-attr]
             stance, stance.position, xi, self._nominal_target.position, self._phase_end - t, self._nominal_offset,
             self._landing_box(swing), remaining_range,
@@ -429,7 +439,11 @@ class WalkingController:
         if not self.walking and self._feet_together():
             self._settle(t)
             return
-        self._begin_double(t, stance=swing, duration=cfg.gait.double_support)
+        # A large DCM error (a push) shortens the double support to the force ramp: the next
+        # foot gets going at once.
+        error = float(np.linalg.norm(self.state.dcm - self.state.dcm_ref))
+        duration = cfg.gait.double_support if error < cfg.hurry_error else max(cfg.contact_ramp, 1e-3)
+        self._begin_double(t, stance=swing, duration=duration)
 
     def _remove_swing_task(self, task: FramePoseTask) -> None:
         if any(existing is task for existing in self.wbc.tasks):
