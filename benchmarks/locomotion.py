@@ -41,6 +41,7 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 import numpy as np  # noqa: E402
 
 from giwbc.locomotion.simulation import Push, simulate_walk  # noqa: E402
+from giwbc.locomotion.walker import WalkerConfig  # noqa: E402
 from giwbc.robot import load  # noqa: E402
 
 COMMANDS = {"forward_0.3": (0.3, 0.0, 0.0), "forward_0.5": (0.5, 0.0, 0.0), "forward_0.7": (0.7, 0.0, 0.0), "lateral_0.2": (0.0, 0.2, 0.0), "turn_0.5": (0.0, 0.0, 0.5)}
@@ -169,8 +170,10 @@ def main(argv: list[str] | None = None) -> int:
         double = [x for r in walk_results for x in r["ticks"]["double"]]
         switch = [x for r in walk_results for x in r["ticks"]["switch"]]
         standing = simulate_walk(load("g1"), (0.0, 0.0, 0.0), 3.0, command_start=None, stepping=False)
+        dropped = _tick_split(simulate_walk(load("g1"), COMMANDS["forward_0.3"], 6.0, seed=0, config=WalkerConfig(drop_swing_contact=True)))
         out["wbc_tick"] = {
             "walking_single_support": _stats(single), "walking_double_support": _stats(double), "contact_switch": _stats(switch),
+            "drop_swing_contact": {"single_support": _stats(dropped["single"]), "double_support": _stats(dropped["double"]), "contact_switch": _stats(dropped["switch"]), "seed": 0, "command": "forward_0.3"},
             "standing_feet_in_place_double_support": _stats(standing.tick_seconds[100:].tolist()),
             "note": "wall-clock WBC ticks inside the simulation loop (MuJoCo steps between ticks), one thread, not pinned; compare within this run only",
         }

@@ -87,6 +87,7 @@ class WalkerConfig:
     replan_time: float = 0.01  # s: ... or the touch-down time this much
     anchor_tolerance: float = 0.08  # m: plan from the nominal footholds while the real ones are this close
     push_margin: float = 0.0  # m: step when the capture point is this far outside the polygon
+    settle_margin: float = 0.02  # m: after a recovery step, settle once the capture point is this far inside
     hurry_error: float = 0.05  # m: a DCM error this large at touch-down cuts the double support short
     recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
 
@@ -364,19 +365,26 @@ class WalkingController:
         self.wbc.add_task(task)
 
     def _recovery_swing_side(self, xi: np.ndarray) -> str:
-        """Which foot steps when the capture point ``xi`` left the polygon: a foot it passed on the
-        outside (only that foot can step there without crossing); else the foot farther from it,
-        so that the CoP goes on the nearer one."""
-        outward, distance = {}, {}
-        for side, contact in self.contacts.items():
-            foot = self.feet[side]
-            local = foot.to_local(xi)
-            outward[side] = local[1] * side_sign(side) - contact.half_width  # type: ignore[attr-defined]
-            distance[side] = signed_distance(xi, self.support_polygon((side,)))
-        beyond = [side for side in self.contacts if outward[side] > 0.0]
-        if len(beyond) == 1:
-            return beyond[0]
-        return max(self.contacts, key=lambda side: distance[side])
+        """Which foot steps when the capture point ``xi`` left the polygon: for each choice of
+        stance foot, the CoP goes to the point of its sole nearest ``xi`` and the DCM runs on for
+        the shortest swing (``ξ_T = p + (ξ − p) e^{ωT}``); the choice whose ``ξ_T`` stays closest
+        to what it can still stand on — the stance sole, or the landing box of the other foot —
+        wins. (The foot the capture point passed on the outside steps out when it is far past;
+        when it is only just past, that foot carries and the other closes up.)"""
+        cfg = self.config
+        growth = math.exp(self.omega * (cfg.min_swing + cfg.contact_ramp))
+        scores = {}
+        for stance in self.contacts:
+            swing = other_side(stance)
+            sole = self.support_polygon((stance,))
+            cop = clip_to_polygon(xi, sole)
+            predicted = cop + (xi - cop) * growth
+            foot = self.feet[stance]
+            local = foot.to_local(predicted)
+            (x_lo, x_hi), (y_lo, y_hi) = self._landing_box(swing)
+            reach = math.hypot(local[0] - min(max(local[0], x_lo), x_hi), local[1] - min(max(local[1], y_lo), y_hi))
+            scores[swing] = min(reach, max(signed_distance(predicted, sole), 0.0))
+        return min(scores, key=lambda side: (scores[side], side))
 
     def _recovery_target(self, t: float) -> Footstep:
         """Where a recovering foot goes at nominal timing: on the predicted capture point, shifted outward."""
@@ -428,7 +436,7 @@ class WalkingController:
         self._swing = None
         if self._recovering:
             # Settle if the capture point is back inside both feet; otherwise the other foot steps.
-            if signed_distance(self.state.dcm, self.support_polygon()) > cfg.push_margin:
+            if signed_distance(self.state.dcm, self.support_polygon()) > -cfg.settle_margin:
                 # Feet alternate: the one just landed carries, the other closes up or steps on.
                 self._begin_double(t, stance=swing, duration=max(cfg.gait.double_support, cfg.contact_ramp))
                 self.state.recovery_steps += 1
