@@ -52,6 +52,12 @@ def test_a_100_newton_backward_push_is_recovered_by_stepping_and_lost_feet_in_pl
     assert not stepping.fell and stepping.steps >= 1 and stepping.recovery_steps >= 1
 
 
+def test_a_small_push_is_absorbed_without_a_step(g1):
+    """The capture point stays inside the feet: the DCM controller moves the CoP, no step."""
+    run = simulate_walk(g1, (0.0, 0.0, 0.0), 2.5, pushes=(Push(1.0, 40.0, 0.5),), command_start=None)
+    assert not run.fell and run.steps == 0 and run.recovery_steps == 0 and run.final_tilt < 0.05
+
+
 def test_contact_forces_follow_the_ramps_at_every_switch(g1):
     """Normal force of each foot never exceeds its activation times the load it ramps (the weight
     when made, its load when broken): no jump at a touch-down or a lift-off beyond the ramp."""
