@@ -188,3 +188,19 @@ def test_swing_refuses_bad_input():
         SwingTrajectory(1.0, 1.0, np.zeros(4), np.ones(4))
     with pytest.raises(ValueError):
         SwingTrajectory(0.0, 1.0, np.zeros(4), np.array([math.nan, 0, 0, 0]))
+
+
+def test_the_locomotion_layer_imports_only_the_controller_and_robot_layers():
+    """Beneath the tasks, above the WBC: giwbc.control and giwbc.robot only (never tasks, runtimes or apps)."""
+    import ast
+    import pathlib
+
+    import giwbc.locomotion
+
+    allowed = ("giwbc.locomotion", "giwbc.control", "giwbc.robot")
+    for path in pathlib.Path(giwbc.locomotion.__file__).parent.glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""] if isinstance(node, ast.ImportFrom) else []
+            for name in names:
+                if name.startswith("giwbc"):
+                    assert name.startswith(allowed), f"{path.name} imports {name}"

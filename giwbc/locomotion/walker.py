@@ -88,7 +88,8 @@ class WalkerConfig:
     anchor_tolerance: float = 0.08  # m: plan from the nominal footholds while the real ones are this close
     push_margin: float = 0.0  # m: step when the capture point is this far outside the polygon
     settle_margin: float = 0.02  # m: after a recovery step, settle once the capture point is this far inside
-    hurry_error: float = 0.05  # m: a DCM error this large at touch-down cuts the double support short
+    stiff_swing_error: float = 0.08  # m: a DCM error this large in a swing makes the swing foot task stiff
+    hurry_error: float = 0.1  # m: a DCM error this large at touch-down cuts the double support short
     recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
 
     def __post_init__(self) -> None:
@@ -408,7 +409,7 @@ class WalkingController:
         elapsed = t - self._phase_start
         remaining_range = (max(cfg.min_swing - elapsed, 0.02), max(cfg.max_swing - elapsed, 0.02))
         task = self.swing_tasks[swing]
-        if task.weight[0] < cfg.recovery_swing_weight and np.linalg.norm(xi - self.state.dcm_ref) > cfg.hurry_error:
+        if task.weight[0] < cfg.recovery_swing_weight and np.linalg.norm(xi - self.state.dcm_ref) > cfg.stiff_swing_error:
             task.set_weight(cfg.recovery_swing_weight)  # pushed: the foot must get where the adapter sends it
         adjustment = self.adapter.adapt(  # type: ignore[union-attr]
             stance, stance.position, xi, self._nominal_target.position, self._phase_end - t, self._nominal_offset,
