@@ -102,3 +102,43 @@ def test_bad_commands_are_refused_or_clamped_with_a_message(g1):
     notes = walker.set_command(3.0, 0.0, 0.0)
     assert notes and "clamped" in notes[0]
     assert walker.command.vx == pytest.approx(walker.planner.limits()["vx"][1])
+
+
+@pytest.mark.parametrize("ground", ["higher", "lower"])
+def test_touch_down_follows_the_foot_force_sensor_early_and_late(g1, ground):
+    """The contact is made when the swing foot's force sensor says so: before the planned time
+    when the ground is met early (here: the sensor reads the weight from 85 % of the swing on, near
+    the landing spot), after it when the ground is not met (the sensor reads nothing: the foot
+    keeps descending, then the contact is made at the latest allowed time)."""
+    robot = MujocoRobot(g1)
+    walker = WalkingController(g1)
+    q, _ = robot.generalized_state()
+    walker.reset(q)
+    weight = g1.total_mass * 9.81
+    touchdowns = []  # (time, planned touch-down time)
+    planned = None
+    for i in range(int(3.0 / g1.timestep)):
+        t = i * g1.timestep
+        if i == 100:
+            walker.set_command(0.0, 0.0, 0.0, step_in_place=True)
+        forces = {side: float(robot.sensor(f"{side}_foot_touch")[0]) for side in ("left", "right")}
+        swing = walker._swing
+        if walker.state.phase is Phase.SINGLE and swing is not None:
+            side = "right" if walker.state.stance == "left" else "left"
+            progress = (t - swing.t0) / (swing.t1 - swing.t0)
+            forces[side] = weight if (ground == "higher" and progress >= 0.85) else 0.0
+            planned = swing.t1
+        steps = walker.state.steps
+        q, v = robot.generalized_state()
+        result = walker.update(q, v, t, forces)
+        robot.set_joint_torques(result.tau)
+        robot.step()
+        if walker.state.steps > steps:
+            touchdowns.append((t, planned))
+    assert len(touchdowns) >= 3
+    if ground == "higher":
+        assert walker.state.early_touchdowns == len(touchdowns)
+        assert all(t < p - 0.01 for t, p in touchdowns)
+    else:
+        assert walker.state.late_touchdowns == len(touchdowns)
+        assert all(t >= p + walker.config.late_touchdown - 0.003 for t, p in touchdowns)
