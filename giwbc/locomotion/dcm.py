@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from giwbc.locomotion.lipm import dcm_at_linear_cop, dcm_before_linear_cop
-from giwbc.locomotion.support import clip_along_ray, clip_to_polygon
+from giwbc.locomotion.support import clip_along_ray
 
 
 @dataclass(frozen=True)

@@ -336,7 +336,7 @@ class WalkingController:
             self.wbc.forget_contact(self.contacts[swing].name)
         stance_foot = self.feet[self._stance]
         if self._recovering:
-            target, duration = self._recovery_target(t), cfg.gait.single_support
+            target, duration = self._predict_recovery(stance_foot, cfg.gait.single_support), cfg.gait.single_support
         else:
             # Plan from where the stance foot was *meant* to land: the step adapter's corrections do
             # not accumulate into a drift (re-anchored on the real foot when they are far apart).
@@ -386,16 +386,6 @@ class WalkingController:
             reach = math.hypot(local[0] - min(max(local[0], x_lo), x_hi), local[1] - min(max(local[1], y_lo), y_hi))
             scores[swing] = min(reach, max(signed_distance(predicted, sole), 0.0))
         return min(scores, key=lambda side: (scores[side], side))
-
-    def _recovery_target(self, t: float) -> Footstep:
-        """Where a recovering foot goes at nominal timing: on the predicted capture point, shifted outward."""
-        cfg = self.config
-        stance = self.feet[self._stance]
-        swing = other_side(self._stance)
-        xi = self.state.dcm
-        predicted = stance.position + (xi - stance.position) * math.exp(self.omega * cfg.gait.single_support)
-        outward = side_sign(swing) * cfg.recovery_offset * np.array([-math.sin(stance.yaw), math.cos(stance.yaw)])
-        return Footstep(swing, predicted + outward, stance.yaw)
 
     def _landing_box(self, swing: str) -> tuple[tuple[float, float], tuple[float, float]]:
         (x_lo, x_hi), (y_lo, y_hi) = self.config.landing_box
@@ -507,7 +497,7 @@ class WalkingController:
                 start = self.state.cop if self.state.steps or self._recovering else 0.5 * (self.feet["left"].position + self.feet["right"].position)
                 duration = self._phase_end - t
                 if self._recovering:
-                    nominal = self._predict_recovery(stance)
+                    nominal = self._predict_recovery(stance, gait.single_support + self._phase_end - t)
                     landings, final = [nominal.position], 0.5 * (nominal.position + stance.position)
                 elif self.walking or not self._feet_together():
                     first = self.planner.next_step(stance, self.command)
@@ -531,11 +521,12 @@ class WalkingController:
         xi_ref, rate, _ = self._reference.evaluate(t)
         return xi_ref, rate, self.support_polygon((self._stance,))
 
-    def _predict_recovery(self, stance: Footstep) -> Footstep:
+    def _predict_recovery(self, stance: Footstep, horizon: float) -> Footstep:
+        """Where a recovering foot goes: on the capture point ``horizon`` s ahead with the CoP on
+        the stance sole, shifted outward by ``recovery_offset`` (the step adapter refines it)."""
         swing = other_side(stance.side)
         xi = self.state.dcm
-        gait = self.config.gait
-        predicted = stance.position + (xi - stance.position) * math.exp(self.omega * (gait.single_support + self._phase_end - self._time))
+        predicted = stance.position + (xi - stance.position) * math.exp(self.omega * horizon)
         outward = side_sign(swing) * self.config.recovery_offset * np.array([-math.sin(stance.yaw), math.cos(stance.yaw)])
         return Footstep(swing, predicted + outward, stance.yaw)
 
