@@ -142,3 +142,23 @@ def test_touch_down_follows_the_foot_force_sensor_early_and_late(g1, ground):
     else:
         assert walker.state.late_touchdowns == len(touchdowns)
         assert all(t >= p + walker.config.late_touchdown - 0.003 for t, p in touchdowns)
+
+
+def test_a_zero_command_stops_the_walk_with_the_feet_side_by_side(g1):
+    robot = MujocoRobot(g1)
+    walker = WalkingController(g1)
+    q, _ = robot.generalized_state()
+    walker.reset(q)
+    for i in range(int(6.5 / g1.timestep)):
+        if i == 250:
+            walker.set_command(0.3, 0.0, 0.0)
+        if i == int(3.5 / g1.timestep):
+            walker.set_command(0.0, 0.0, 0.0)
+        walker.step(robot)
+        robot.step()
+    assert walker.state.phase is Phase.STAND
+    left, right = walker.feet["left"], walker.feet["right"]
+    local = right.to_local(left.position)
+    assert abs(local[0]) < 0.03 and abs(local[1] - walker.config.gait.step_width) < 0.03
+    base = robot.base_state()
+    assert np.linalg.norm(base.linear_velocity[:2]) < 0.05 and base.position[0] > 0.6  # it walked, then stopped
