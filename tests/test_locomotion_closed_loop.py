@@ -162,3 +162,22 @@ def test_a_zero_command_stops_the_walk_with_the_feet_side_by_side(g1):
     assert abs(local[0]) < 0.03 and abs(local[1] - walker.config.gait.step_width) < 0.03
     base = robot.base_state()
     assert np.linalg.norm(base.linear_velocity[:2]) < 0.05 and base.position[0] > 0.6  # it walked, then stopped
+
+
+def test_the_disturbance_estimate_measures_a_push_as_f_over_m_omega(g1):
+    """``d = ξ̇ − ω (ξ − p)``: zero while standing undisturbed, ``F / (m ω)`` while pushed."""
+    robot = MujocoRobot(g1)
+    walker = WalkingController(g1)
+    q, _ = robot.generalized_state()
+    walker.reset(q)
+    force = 80.0
+    before, during = [], []
+    for i in range(int(1.6 / g1.timestep)):
+        t = i * g1.timestep
+        robot.set_external_wrench(g1.base_link, [0.0, -force if 1.4 <= t < 1.6 else 0.0, 0.0])
+        walker.step(robot)
+        robot.step()
+        (before if 1.0 <= t < 1.4 else during if 1.5 <= t else []).append(walker.state.disturbance.copy())
+    expected = force / (g1.total_mass * walker.omega)
+    assert np.abs(np.array(before)).max() < 0.05 * expected
+    np.testing.assert_allclose(np.mean(during, axis=0), [0.0, -expected], atol=0.15 * expected)
