@@ -15,6 +15,7 @@ from giwbc.apps.evaluation import add_evaluate_command
 from giwbc.apps.play import add_play_command
 from giwbc.apps.sim_to_sim import add_sim_to_sim_command
 from giwbc.apps.training import add_train_command
+from giwbc.apps.walk import add_walk_command
 from giwbc.errors import GiwbcError
 from giwbc.robot import MujocoRobot, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
@@ -103,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_evaluate_command(commands)
     add_sim_to_sim_command(commands)
     add_deploy_command(commands)
+    add_walk_command(commands)
     return parser
 
 

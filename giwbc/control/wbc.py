@@ -35,7 +35,9 @@ one batch, views of the problem and of Pinocchio's ``Data`` prepared once; the K
 
 Contacts can be added and removed at run time: a contact's normal-force upper bound ramps over
 ``ramp_time`` (see :mod:`giwbc.control.contacts`); a removed contact keeps its slot with zero force
-(no re-initialisation of the solver), a new contact name grows the problem (one cold solve).
+(no re-initialisation of the solver) — a 6D-wrench contact's motion rows then pin its wrench at
+zero, so single-support ticks keep a regular KKT system — and a new contact name grows the
+problem (one cold solve).
 
 Output for a :class:`~giwbc.robot.interface.Robot`: joint torques ``tau``; and
 ``WbcResult.impedance``, an :class:`~giwbc.robot.interface.ImpedanceCommand` for actuators that
@@ -149,6 +151,7 @@ class _ContactSlot:
     engaged: bool = True  # in contact: its motion rows constrain the robot
     bounds_activation: float = -1.0  # activation the friction bounds were last written for
     in_problem: bool = False  # motion rows currently written (True) or zeroed
+    pinned: bool = False  # broken: its force variables held at zero by its motion rows (see _disengage)
     ramp_force: float = 0.0  # N: the normal force a ramp moves between 0 and
     unit_index: np.ndarray | None = None  # entries of the force vector carrying normal force
     xy: tuple[float, float] = (0.0, 0.0)  # ground position of the contact reference (cached)
@@ -400,7 +403,8 @@ class WholeBodyController:
             slot.motion_rows = slice(eq, eq + c.n_motion)
             n, eq = n + c.n_force, eq + c.n_motion
             slot.bounds_activation = -1.0
-            slot.in_problem = False
+            slot.pinned = False
+            slot.in_problem = not slot.engaged  # a broken contact is pinned again (_disengage) at the next tick
         n_eq = eq + nb
         limited = np.flatnonzero(np.isfinite(self.torque_limits))
         self._torque_all = len(limited) == nj
@@ -485,6 +489,8 @@ class WholeBodyController:
         for slot in self._slots.values():
             cols = supports[slot.contact.joint_id]
             ac_pattern[slot.motion_rows, :nv] = cols
+            if slot.contact.n_force == slot.contact.n_motion:  # f = 0 rows of a broken contact
+                ac_pattern[slot.motion_rows, slot.columns] = np.eye(slot.contact.n_force, dtype=bool)
             ac_pattern[d_rows, slot.columns] = cols[d_source][:, None]
             rows = slice(n_eq + slot.friction_rows.start, n_eq + slot.friction_rows.stop)
             ac_pattern[rows, slot.columns] = slot.contact.friction_matrix() != 0
@@ -570,6 +576,8 @@ class WholeBodyController:
                     slot.bounds_activation = activation
                     force_changed = True
             if slot.engaged:
+                if slot.pinned:
+                    self._reengage(p, slot)
                 if c.reference is None:
                     c.reference = c.placement_in_world(kin)
                 if batch is not None and (c.kd != batch[3] or c.kp != 0.0):
@@ -585,11 +593,7 @@ class WholeBodyController:
                     c.assemble(kin, slot.a_rows, slot.b_rows, slot.d_columns)
                     slot.in_problem = True
                 elif slot.in_problem:
-                    p.A[slot.motion_rows] = 0.0
-                    slot.b_rows[...] = 0.0
-                    slot.d_columns[...] = 0.0
-                    slot.in_problem = False
-                    c.reference = None
+                    self._disengage(p, slot)
 
         # The force regularisation (constant between ramps and support-point moves).
         reg = self.force_regularization
@@ -614,6 +618,32 @@ class WholeBodyController:
 
         if self.joint_limits:
             self._joint_limit_bounds(p)
+
+    def _disengage(self, p: QpProblem, slot: _ContactSlot) -> None:
+        """A broken contact keeps its slot: its motion rows no longer constrain the robot and,
+        when it has as many force variables as motion rows (a 6D wrench), they become ``f = 0``
+        instead of zero rows, its friction rows unbounded — a regular KKT system (zero rows and
+        the 16 cone faces meeting at ``f = 0`` would make every tick's first solve singular)."""
+        p.A[slot.motion_rows] = 0.0
+        slot.b_rows[...] = 0.0
+        slot.d_columns[...] = 0.0
+        slot.in_problem = False
+        slot.contact.reference = None
+        if slot.contact.n_force == slot.contact.n_motion:
+            p.A[slot.motion_rows, slot.columns] = np.eye(slot.contact.n_force)
+            rows = slot.friction_rows
+            p.l[rows] = -np.inf
+            p.u[rows] = np.inf
+            slot.bounds_activation = math.nan  # (rewritten when it is made again)
+            slot.pinned = True
+            self._force_version = -2  # the force regularisation's gradient is recomputed
+
+    def _reengage(self, p: QpProblem, slot: _ContactSlot) -> None:
+        """Undo :meth:`_disengage`'s ``f = 0`` rows and unbounded friction rows."""
+        p.A[slot.motion_rows, slot.columns] = 0.0
+        slot.contact.friction_bounds(p.l[slot.friction_rows], p.u[slot.friction_rows], slot.normal_limit())
+        slot.bounds_activation = slot.activation
+        slot.pinned = False
 
     def _assemble_contacts(self, kin: Kinodynamics, batch: tuple) -> None:
         """:meth:`Contact.assemble` for all contacts at once, when every one is engaged, has the

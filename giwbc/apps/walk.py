@@ -1,0 +1,141 @@
+"""``giwbc walk``: the walking controller in MuJoCo from a velocity command, with an optional push
+and video, and a short summary (speed, velocity tracking, steps, falls, WBC failures)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from giwbc.locomotion.simulation import Push, WalkRun, simulate_walk
+from giwbc.robot import load
+
+VIDEO_FPS = 30.0
+
+
+class _FollowCamera:
+    """Offscreen frames from a camera that follows the base (needs MUJOCO_GL=egl|osmesa headless)."""
+
+    def __init__(self, size: tuple[int, int] = (480, 640)) -> None:
+        self.size = size
+        self._renderer = None
+        self._camera = None
+
+    def __call__(self, robot: Any) -> np.ndarray:
+        import mujoco
+
+        model, data = robot.model, robot.data
+        if self._renderer is None:
+            height, width = self.size
+            model.vis.global_.offheight = max(model.vis.global_.offheight, height)
+            model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
+            try:
+                self._renderer = mujoco.Renderer(model, height, width)
+            except Exception as error:  # no display, no EGL/OSMesa
+                raise RuntimeError(f"cannot create an offscreen MuJoCo renderer ({error}); set MUJOCO_GL=egl or osmesa") from error
+            self._camera = mujoco.MjvCamera()
+            self._camera.distance, self._camera.azimuth, self._camera.elevation = 2.8, 135.0, -15.0
+        self._camera.lookat[:] = robot.base_state().position * np.array([1.0, 1.0, 0.0]) + np.array([0.0, 0.0, 0.6])
+        self._renderer.update_scene(data, camera=self._camera)
+        return self._renderer.render()
+
+
+def run_walk(
+    robot: str = "g1",
+    command: tuple[float, float, float] = (0.4, 0.0, 0.0),
+    seconds: float = 20.0,
+    *,
+    push: float = 0.0,
+    push_time: float = 3.0,
+    push_direction_deg: float = 180.0,
+    video: str | None = None,
+    seed: int | None = None,
+) -> tuple[WalkRun, str | None]:
+    """Walk ``robot`` at ``command`` for ``seconds``; an optional push of ``push`` N for 0.2 s."""
+    description = load(robot)
+    pushes = (Push(push_time, push, math.radians(push_direction_deg)),) if push > 0 else ()
+    camera = _FollowCamera() if video else None
+    every = max(1, int(round(1.0 / (VIDEO_FPS * description.timestep))))
+    run = simulate_walk(description, command, seconds, pushes=pushes, render=camera, render_every=every if video else 0, seed=seed)
+    written = None
+    if video:
+        from giwbc.policy import write_video
+
+        written = str(write_video(video, run.frames, fps=1.0 / (every * description.timestep)))
+    return run, written
+
+
+def _number(value: float) -> float | None:
+    """JSON has no NaN: None for a figure that does not exist (e.g. no steps to average)."""
+    return round(float(value), 4) if math.isfinite(value) else None
+
+
+def summary(run: WalkRun, command: tuple[float, float, float], wall: float) -> dict[str, Any]:
+    ticks = run.tick_seconds * 1e6
+    single = ticks[run.single_support_ticks]
+    return {
+        "command": list(command),
+        "seconds": round(run.seconds, 3),
+        "fell": run.fell,
+        "fall_time": run.fall_time,
+        "steps": run.steps,
+        "recovery_steps": run.recovery_steps,
+        "mean_velocity": [_number(x) for x in run.mean_velocity],
+        "mean_yaw_rate": _number(run.mean_yaw_rate),
+        "tracking_rms": _number(run.tracking_rms),
+        "distance": [round(float(x), 3) for x in run.distance],
+        "early_touchdowns": run.early_touchdowns,
+        "late_touchdowns": run.late_touchdowns,
+        "wbc_failures": run.wbc_failures,
+        "wbc_tick_median_us": round(float(np.median(ticks)), 1) if len(ticks) else None,
+        "wbc_tick_single_support_median_us": round(float(np.median(single)), 1) if len(single) else None,
+        "notes": run.notes,
+        "wall_seconds": round(wall, 2),
+    }
+
+
+def add_walk_command(commands: Any) -> None:
+    """Add ``giwbc walk`` to an argparse subparsers object."""
+    parser = commands.add_parser("walk", help="walk the robot in MuJoCo from a velocity command (model-based stepping on the WBC)")
+    parser.add_argument("--robot", default="g1")
+    parser.add_argument("--vx", type=float, default=0.4, help="forward velocity, m/s (clamped to the gait limits)")
+    parser.add_argument("--vy", type=float, default=0.0, help="lateral velocity, m/s")
+    parser.add_argument("--yaw-rate", type=float, default=0.0, help="turning rate, rad/s")
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--push", type=float, default=0.0, help="push the pelvis with this force, N, for 0.2 s")
+    parser.add_argument("--push-time", type=float, default=3.0, help="when the push starts, s")
+    parser.add_argument("--push-direction", type=float, default=180.0, help="push direction, degrees (0: forward, 180: backward)")
+    parser.add_argument("--seed", type=int, default=None, help="perturb the initial state from this seed")
+    parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs MUJOCO_GL=egl|osmesa headless")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.set_defaults(run=run_walk_command)
+
+
+def run_walk_command(args: argparse.Namespace) -> int:
+    command = (args.vx, args.vy, args.yaw_rate)
+    if not all(math.isfinite(x) for x in command):
+        raise SystemExit(f"giwbc walk: error: the velocity command must be finite, got {command}")
+    started = time.perf_counter()
+    run, video = run_walk(args.robot, command, args.seconds, push=args.push, push_time=args.push_time,
+                          push_direction_deg=args.push_direction, video=args.video, seed=args.seed)
+    result = summary(run, command, time.perf_counter() - started)
+    if video:
+        result["video"] = video
+    if args.json:
+        print(json.dumps(result))
+    else:
+        for note in run.notes:
+            print(f"note: {note}")
+        state = f"FELL at {run.fall_time:.2f} s" if run.fell else "no fall"
+        print(f"{args.robot}: walked {run.seconds:.1f} s at command (vx, vy, yaw rate) = {command}: {state}")
+        print(f"  speed {result['mean_velocity']} m/s (heading frame, per-step averages), yaw rate {result['mean_yaw_rate']} rad/s, "
+              f"RMS velocity tracking error {result['tracking_rms']} m/s")
+        print(f"  {run.steps} steps ({run.recovery_steps} for push recovery), distance {result['distance']} m, "
+              f"WBC failures {run.wbc_failures}, WBC tick median {result['wbc_tick_median_us']} µs")
+        if video:
+            print(f"  video: {video}")
+    return 1 if run.fell else 0

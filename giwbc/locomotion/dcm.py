@@ -1,0 +1,120 @@
+"""DCM reference through a footstep plan, and the DCM tracking controller.
+
+**Reference.** The CoP reference is piecewise linear in time: held on the stance sole in single
+support, moved linearly from one sole to the next in double support. The DCM reference is found
+*backwards* from the end of the plan (where it comes to rest on the final CoP) with the closed
+forms of :mod:`giwbc.locomotion.lipm`, then evaluated forwards: ``ξ_ref(t)``, ``ξ̇_ref(t)``,
+``p_ref(t)`` are exact LIPM solutions, continuous across segments.
+
+**Controller.** ``ξ̇ = ω (ξ − p)``: asking the DCM error ``e = ξ − ξ_ref`` to decay as ``ė = −k e``
+needs the CoP ``p* = ξ − ξ̇_ref / ω + (k / ω) e``; clipped into the support polygon, it sets the
+CoM acceleration ``c̈ = ω² (c − p*)`` the WBC's CoM task is asked for. What the clip cannot
+absorb is the step adapter's job (:mod:`giwbc.locomotion.step_adapter`).
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from giwbc.locomotion.lipm import dcm_at_linear_cop, dcm_before_linear_cop
+from giwbc.locomotion.support import clip_along_ray
+
+
+@dataclass(frozen=True)
+class CopSegment:
+    """The CoP moving linearly from ``start`` to ``end`` (x, y) over ``duration`` s (equal: held)."""
+
+    duration: float
+    start: np.ndarray
+    end: np.ndarray
+
+
+class DcmReference:
+    """The DCM reference of a CoP plan starting at ``t0``, at rest on the last CoP at its end."""
+
+    def __init__(self, segments: list[CopSegment], omega: float, t0: float = 0.0) -> None:
+        if not segments:
+            raise ValueError("a DCM reference needs at least one CoP segment")
+        if not (math.isfinite(omega) and omega > 0):
+            raise ValueError(f"omega must be > 0, got {omega}")
+        for segment in segments:
+            if not (math.isfinite(segment.duration) and segment.duration > 0):
+                raise ValueError(f"CoP segment durations must be > 0, got {segment.duration}")
+        self.omega = float(omega)
+        self.segments = segments
+        durations = np.array([s.duration for s in segments])
+        self.starts = t0 + np.concatenate([[0.0], np.cumsum(durations)[:-1]])
+        self.end_time = float(t0 + durations.sum())
+        self.terminal = np.asarray(segments[-1].end, dtype=float)[:2].copy()
+        # Backwards: the DCM at the start of each segment.
+        self.initial = np.zeros((len(segments), 2))
+        xi = self.terminal
+        for i in range(len(segments) - 1, -1, -1):
+            s = segments[i]
+            xi = dcm_before_linear_cop(s.duration, xi, np.asarray(s.start)[:2], np.asarray(s.end)[:2], self.omega)
+            self.initial[i] = xi
+        self._starts = self.starts.tolist()
+
+    def segment_index(self, t: float) -> int:
+        return max(0, min(bisect.bisect_right(self._starts, t) - 1, len(self.segments) - 1))
+
+    def evaluate(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(ξ_ref, ξ̇_ref, p_ref)`` at time ``t`` (before the start: the start; after the end: rest)."""
+        if t >= self.end_time:
+            return self.terminal.copy(), np.zeros(2), self.terminal.copy()
+        i = self.segment_index(t)
+        s = self.segments[i]
+        tau = min(max(t - self.starts[i], 0.0), s.duration)
+        start, end = np.asarray(s.start)[:2], np.asarray(s.end)[:2]
+        xi, rate = dcm_at_linear_cop(tau, s.duration, self.initial[i], start, end, self.omega)
+        return xi, rate, start + (end - start) * (tau / s.duration)
+
+    def dcm_at_segment_end(self, index: int) -> np.ndarray:
+        """The reference DCM at the end of segment ``index`` (the start of the next, or the terminal)."""
+        return self.initial[index + 1].copy() if index + 1 < len(self.segments) else self.terminal.copy()
+
+
+@dataclass
+class DcmController:
+    """CoP and CoM-acceleration command from the DCM error (see the module docstring)."""
+
+    omega: float
+    gain: float = 4.0  # k, s⁻¹: the DCM error's decay rate
+
+    def __post_init__(self) -> None:
+        if not (self.omega > 0 and math.isfinite(self.omega)):
+            raise ValueError(f"omega must be > 0, got {self.omega}")
+        if not (self.gain >= 0 and math.isfinite(self.gain)):
+            raise ValueError(f"DCM gain must be finite and >= 0, got {self.gain}")
+
+    def desired_cop(self, xi: np.ndarray, xi_ref: np.ndarray, xi_rate_ref: np.ndarray, support: np.ndarray | None = None) -> np.ndarray:
+        """``p* = ξ − ξ̇_ref/ω + (k/ω)(ξ − ξ_ref)``, clipped into ``support`` (CCW hull) when given:
+        along the ray from ``ξ`` when ``ξ`` is inside (the DCM keeps being pushed the way the
+        controller wants), else to the nearest point."""
+        xi = np.asarray(xi, dtype=float)[:2]
+        cop = xi - np.asarray(xi_rate_ref)[:2] / self.omega + (self.gain / self.omega) * (xi - np.asarray(xi_ref)[:2])
+        return cop if support is None else clip_along_ray(xi, cop, support)
+
+    def com_acceleration(self, com: np.ndarray, cop: np.ndarray) -> np.ndarray:
+        """``c̈ = ω² (c − p)`` (horizontal)."""
+        return self.omega**2 * (np.asarray(com, dtype=float)[:2] - np.asarray(cop, dtype=float)[:2])
+
+
+def walking_cop_plan(current: CopSegment, landings: list[np.ndarray], single_support: float, double_support: float, final_cop: np.ndarray | None = None) -> list[CopSegment]:
+    """The CoP plan of a walk: ``current`` (the rest of the present phase), then for each landing
+    spot a double support moving the CoP onto it and a single support holding it there; with
+    ``final_cop``, a last double support moving it there (where the DCM comes to rest)."""
+    segments = [current]
+    previous = np.asarray(current.end, dtype=float)[:2]
+    for landing in landings:
+        landing = np.asarray(landing, dtype=float)[:2]
+        segments.append(CopSegment(double_support, previous, landing))
+        segments.append(CopSegment(single_support, landing, landing))
+        previous = landing
+    if final_cop is not None:
+        segments.append(CopSegment(double_support, previous, np.asarray(final_cop, dtype=float)[:2]))
+    return segments

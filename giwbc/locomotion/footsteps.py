@@ -1,0 +1,202 @@
+"""Footstep planning from a velocity command ``(vx, vy, yaw_rate)`` (body frame, m/s and rad/s).
+
+Feet alternate. Every step advances the body by ``vx · T`` along the stance foot's heading
+(``T`` = single + double support); lateral motion and turning are done by the *leading* foot
+(the one on the side of the motion), which steps out by ``2 |vy| T`` and turns by
+``2 |yaw_rate| T``, the other foot following back to the nominal width and the new heading —
+so feet never cross nor narrow below the nominal width, and the averages are the command.
+
+Limits (:class:`GaitConfig`): step length forward and backward, extra lateral width, yaw per
+step, minimum width. A command beyond them is *clamped* (the notes say which and by how much); a
+non-finite command is *refused* with ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SIDES = ("left", "right")
+
+
+def side_sign(side: str) -> float:
+    """+1 for the left foot, −1 for the right (the lateral direction of that foot)."""
+    if side not in SIDES:
+        raise ValueError(f"side must be 'left' or 'right', got {side!r}")
+    return 1.0 if side == "left" else -1.0
+
+
+def other_side(side: str) -> str:
+    side_sign(side)
+    return "right" if side == "left" else "left"
+
+
+def rotation2(yaw: float) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.array([[c, -s], [s, c]])
+
+
+def wrap_angle(angle: float) -> float:
+    return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+@dataclass(frozen=True)
+class Footstep:
+    """Where a sole lands: its centre on the ground (x, y) and heading ``yaw``."""
+
+    side: str
+    position: np.ndarray
+    yaw: float = 0.0
+
+    def __post_init__(self) -> None:
+        side_sign(self.side)
+        position = np.asarray(self.position, dtype=float).reshape(-1)[:2]
+        if position.shape != (2,) or not np.all(np.isfinite(position)) or not math.isfinite(self.yaw):
+            raise ValueError(f"footstep position and yaw must be finite, got {self.position}, {self.yaw}")
+        object.__setattr__(self, "position", position)
+
+    def to_local(self, point: np.ndarray) -> np.ndarray:
+        """A world point (x, y) in this sole's frame."""
+        return rotation2(self.yaw).T @ (np.asarray(point, dtype=float)[:2] - self.position)
+
+    def to_world(self, local: np.ndarray) -> np.ndarray:
+        return self.position + rotation2(self.yaw) @ np.asarray(local, dtype=float)[:2]
+
+    def relative(self, other: "Footstep") -> tuple[np.ndarray, float]:
+        """``other``'s position in this sole's frame and its yaw relative to this one."""
+        return self.to_local(other.position), wrap_angle(other.yaw - self.yaw)
+
+
+@dataclass(frozen=True)
+class VelocityCommand:
+    vx: float = 0.0
+    vy: float = 0.0
+    yaw_rate: float = 0.0
+
+    def __post_init__(self) -> None:
+        values = (self.vx, self.vy, self.yaw_rate)
+        if not all(isinstance(v, (int, float, np.floating, np.integer)) and math.isfinite(float(v)) for v in values):
+            raise ValueError(f"velocity command (vx, vy, yaw_rate) must be finite numbers, got {values}")
+
+    @property
+    def is_zero(self) -> bool:
+        return self.vx == 0.0 and self.vy == 0.0 and self.yaw_rate == 0.0
+
+
+@dataclass(frozen=True)
+class GaitConfig:
+    """Timing and kinematic limits of the gait (G1 defaults)."""
+
+    single_support: float = 0.36  # s
+    double_support: float = 0.10  # s
+    step_width: float = 0.237  # m, nominal lateral distance between sole centres
+    min_width: float = 0.17  # m, never closer (no crossing)
+    max_extra_width: float = 0.19  # m, how much wider than nominal a step may land
+    max_step_forward: float = 0.30  # m, sole-to-sole along the stance heading
+    max_step_backward: float = 0.15  # m
+    max_step_yaw: float = 0.5  # rad, leading foot's turn per step
+    max_inward_yaw: float = 0.05  # rad, a foot turned towards the other (toe collision)
+
+    def __post_init__(self) -> None:
+        for name in ("single_support", "double_support", "step_width", "min_width", "max_step_forward", "max_step_backward", "max_step_yaw"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"gait {name} must be finite and > 0, got {value}")
+        if self.min_width > self.step_width:
+            raise ValueError(f"min_width {self.min_width} exceeds the nominal step_width {self.step_width}")
+
+    @property
+    def step_period(self) -> float:
+        return self.single_support + self.double_support
+
+
+@dataclass
+class ClampedCommand:
+    command: VelocityCommand
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def clamped(self) -> bool:
+        return bool(self.notes)
+
+
+class FootstepPlanner:
+    """Footsteps from a velocity command (see the module docstring)."""
+
+    def __init__(self, config: GaitConfig | None = None) -> None:
+        self.config = config or GaitConfig()
+
+    def limits(self) -> dict[str, tuple[float, float]]:
+        """The velocity ranges the step limits allow: ``{"vx": (lo, hi), "vy": …, "yaw_rate": …}``."""
+        c = self.config
+        T = c.step_period
+        vy = c.max_extra_width / (2.0 * T)
+        yaw = c.max_step_yaw / (2.0 * T)
+        return {"vx": (-c.max_step_backward / T, c.max_step_forward / T), "vy": (-vy, vy), "yaw_rate": (-yaw, yaw)}
+
+    def clamp(self, command: VelocityCommand | tuple[float, float, float]) -> ClampedCommand:
+        """The command inside the limits, with a note per clamped component (``ValueError`` if not finite)."""
+        if not isinstance(command, VelocityCommand):
+            command = VelocityCommand(*(float(x) for x in command))
+        values = {"vx": command.vx, "vy": command.vy, "yaw_rate": command.yaw_rate}
+        notes = []
+        for name, (lo, hi) in self.limits().items():
+            value = float(values[name])
+            clipped = min(max(value, lo), hi)
+            if clipped != value:
+                notes.append(f"{name} = {value:g} is beyond the gait limits [{lo:.3g}, {hi:.3g}]: clamped to {clipped:.3g}")
+            values[name] = clipped
+        return ClampedCommand(VelocityCommand(**values), notes)
+
+    def first_swing_side(self, command: VelocityCommand) -> str:
+        """The leading foot for lateral motion or turning; the right foot otherwise."""
+        lateral = command.vy if command.vy != 0.0 else command.yaw_rate
+        return "left" if lateral > 0.0 else "right"
+
+    def next_step(self, stance: Footstep, command: VelocityCommand) -> Footstep:
+        """The next footstep (the other foot) from ``stance`` for a command inside the limits."""
+        c = self.config
+        T = c.step_period
+        side = other_side(stance.side)
+        sign = side_sign(side)
+        dx = min(max(command.vx * T, -c.max_step_backward), c.max_step_forward)
+        lateral = command.vy * sign > 0.0
+        extra = min(2.0 * abs(command.vy) * T, c.max_extra_width) if lateral else 0.0
+        dy = sign * (c.step_width + extra)
+        leading_turn = command.yaw_rate * sign > 0.0
+        dyaw = float(np.clip(2.0 * command.yaw_rate * T, -c.max_step_yaw, c.max_step_yaw)) if leading_turn else 0.0
+        position = stance.to_world([dx, dy])
+        return Footstep(side, position, wrap_angle(stance.yaw + dyaw))
+
+    def plan(self, stance: Footstep, command: VelocityCommand | tuple[float, float, float], n: int) -> tuple[list[Footstep], list[str]]:
+        """``n`` footsteps after ``stance`` (alternating, starting with the other foot) and the
+        clamp notes of the command."""
+        if n < 0:
+            raise ValueError("the number of footsteps must be >= 0")
+        clamped = self.clamp(command)
+        steps: list[Footstep] = []
+        current = stance
+        for _ in range(n):
+            current = self.next_step(current, clamped.command)
+            steps.append(current)
+        return steps, clamped.notes
+
+    def constrain(self, stance: Footstep, step: Footstep) -> Footstep:
+        """``step`` moved into the kinematic limits relative to ``stance`` (no crossing: at least
+        ``min_width`` on its own side; length, extra width and yaw bounded)."""
+        c = self.config
+        local, yaw = stance.relative(step)
+        lo, hi = self.lateral_range(step.side)
+        local = np.array([min(max(local[0], -c.max_step_backward), c.max_step_forward), min(max(local[1], lo), hi)])
+        sign = side_sign(step.side)
+        outward = yaw * sign
+        outward = min(max(outward, -c.max_inward_yaw), c.max_step_yaw)
+        return Footstep(step.side, stance.to_world(local), wrap_angle(stance.yaw + outward * sign))
+
+    def lateral_range(self, side: str) -> tuple[float, float]:
+        """Allowed lateral position (stance frame) of a ``side`` foot: ``[lo, hi]``."""
+        c = self.config
+        near, far = c.min_width, c.step_width + c.max_extra_width
+        return (near, far) if side_sign(side) > 0 else (-far, -near)

@@ -1,0 +1,187 @@
+"""Online step adjustment: where and when the next foot lands, from the measured DCM.
+
+With the CoP held at ``p`` (the stance sole) for the rest ``T`` of the step, the DCM ends the
+step at ``ξ_end = p + (ξ − p) σ``, ``σ = e^{ωT}`` — *linear* in σ. A small QP over the next
+footstep ``u`` (x, y) and ``σ`` (Khadiv et al. 2016; Griffin et al. 2017; the ami-iit DCM step
+adapter; PlaCo's ``update_supports`` with the measured DCM)::
+
+    min  w_u ‖u − u_nom‖² + w_σ (σ − σ_nom)² + w_b ‖ξ_end(σ) − u − b_nom‖²
+    s.t. u inside the kinematic box of the stance foot, σ ∈ [e^{ωT_min}, e^{ωT_max}]
+
+``b_nom`` is the plan's DCM offset at touch-down (``ξ_end − u`` of the nominal plan): with a large
+``w_b`` the foot lands where the DCM will be, shifted by that offset. Three variables, box
+constraints only, in the stance sole's frame so that the box is axis-aligned. The footstep's
+Hessian block is diagonal, so for a fixed σ the optimal ``u`` is the unconstrained one clipped
+into the box, affine in σ between the σ where a coordinate meets a bound: the cost is a convex
+piecewise quadratic in σ, minimised exactly piece by piece in plain float arithmetic (tens of
+µs, deterministic; :func:`solve_box_qp`, the generic enumeration, checks it in the tests).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from giwbc.locomotion.footsteps import Footstep, rotation2
+
+
+@dataclass(frozen=True)
+class StepAdapterWeights:
+    position: float = 1.0  # w_u, 1/m²
+    timing: float = 0.5  # w_σ
+    offset: float = 100.0  # w_b, 1/m²
+
+    def __post_init__(self) -> None:
+        for value in (self.position, self.timing, self.offset):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"step adapter weights must be finite and > 0, got {self}")
+
+
+@dataclass(frozen=True)
+class StepAdjustment:
+    """The adapted next footstep (world x, y), the remaining step time and the predicted DCM."""
+
+    position: np.ndarray
+    remaining_time: float
+    dcm_at_touchdown: np.ndarray
+    offset: np.ndarray  # ξ_end − u, world
+
+
+def solve_box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """``argmin ½ zᵀHz + gᵀz`` s.t. ``lower ≤ z ≤ upper`` for a small positive-definite ``H``:
+    every active set (each variable free, at its lower or at its upper bound) is tried; the
+    feasible stationary point of least cost is the optimum (convexity)."""
+    n = len(gradient)
+    best, best_cost = None, math.inf
+    for pattern in itertools.product((0, -1, 1), repeat=n):
+        pattern = np.array(pattern)
+        z = np.where(pattern < 0, lower, np.where(pattern > 0, upper, 0.0)).astype(float)
+        free = pattern == 0
+        if free.any():
+            rhs = -(gradient[free] + hessian[np.ix_(free, ~free)] @ z[~free])
+            z[free] = np.linalg.solve(hessian[np.ix_(free, free)], rhs)
+        if np.any(z < lower - 1e-12) or np.any(z > upper + 1e-12):
+            continue
+        cost = 0.5 * z @ hessian @ z + gradient @ z
+        if cost < best_cost - 1e-15:
+            best, best_cost = z, cost
+    if best is None:
+        raise ValueError("the step adapter's box is empty (lower bound above upper bound)")
+    return best
+
+
+def step_qp_matrices(w_u: float, w_s: float, w_b: float, u_nom: np.ndarray, sigma_nom: float, d: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(H, g)`` of the step QP in ``z = (u_x, u_y, σ)`` (cost ``½ zᵀHz + gᵀz`` + const):
+    ``w_u ‖u − u_nom‖² + w_σ (σ − σ_nom)² + w_b ‖d σ + k − u‖²``."""
+    A = np.array([[-1.0, 0.0, d[0]], [0.0, -1.0, d[1]]])
+    H = 2.0 * w_b * A.T @ A
+    H[:2, :2] += 2.0 * w_u * np.eye(2)
+    H[2, 2] += 2.0 * w_s
+    g = 2.0 * w_b * A.T @ np.asarray(k, dtype=float)
+    g[:2] -= 2.0 * w_u * np.asarray(u_nom, dtype=float)
+    g[2] -= 2.0 * w_s * sigma_nom
+    return H, g
+
+
+def solve_step_qp(
+    w_u: float, w_s: float, w_b: float, u_nom: np.ndarray, sigma_nom: float, d: np.ndarray, k: np.ndarray,
+    lower: tuple[float, float, float], upper: tuple[float, float, float],
+) -> np.ndarray:
+    """Exact minimiser of the step QP (:func:`step_qp_matrices`) over the box, by pieces in σ."""
+    s_lo, s_hi = float(lower[2]), float(upper[2])
+    if s_lo > s_hi or lower[0] > upper[0] or lower[1] > upper[1]:
+        raise ValueError("the step adapter's box is empty (lower bound above upper bound)")
+    total = w_u + w_b
+    # Unconstrained u(σ) = a + b σ, per coordinate.
+    a = [(w_u * float(u_nom[i]) + w_b * float(k[i])) / total for i in range(2)]
+    b = [w_b * float(d[i]) / total for i in range(2)]
+    breaks = {s_lo, s_hi}
+    for i in range(2):
+        if b[i] != 0.0:
+            for bound in (lower[i], upper[i]):
+                sigma = (bound - a[i]) / b[i]
+                if s_lo < sigma < s_hi:
+                    breaks.add(sigma)
+    knots = sorted(breaks)
+    best, best_cost = None, math.inf
+    for left, right in zip(knots, knots[1:] + ([knots[0]] if len(knots) == 1 else [])):
+        middle = 0.5 * (left + right)
+        alpha, beta = [0.0, 0.0], [0.0, 0.0]
+        for i in range(2):  # the active pattern on this piece
+            u = a[i] + b[i] * middle
+            if u < lower[i]:
+                alpha[i] = lower[i]
+            elif u > upper[i]:
+                alpha[i] = upper[i]
+            else:
+                alpha[i], beta[i] = a[i], b[i]
+        # f(σ) = w_u ‖α + βσ − u_n‖² + w_σ (σ − σ_n)² + w_b ‖(d − β)σ + (k − α)‖²
+        num = w_s * sigma_nom
+        den = w_s
+        for i in range(2):
+            e, m = alpha[i] - float(u_nom[i]), float(d[i]) - beta[i]
+            r = float(k[i]) - alpha[i]
+            num -= w_u * beta[i] * e + w_b * m * r
+            den += w_u * beta[i] * beta[i] + w_b * m * m
+        sigma = min(max(num / den, left), right) if den > 0.0 else left
+        z = np.array([alpha[0] + beta[0] * sigma, alpha[1] + beta[1] * sigma, sigma])
+        z[0] = min(max(z[0], lower[0]), upper[0])
+        z[1] = min(max(z[1], lower[1]), upper[1])
+        cost = w_u * ((z[0] - u_nom[0]) ** 2 + (z[1] - u_nom[1]) ** 2) + w_s * (sigma - sigma_nom) ** 2
+        cost += w_b * ((d[0] * sigma + k[0] - z[0]) ** 2 + (d[1] * sigma + k[1] - z[1]) ** 2)
+        if cost < best_cost:
+            best, best_cost = z, cost
+    return best  # type: ignore[return-value]
+
+
+class StepAdapter:
+    """The step-adjustment QP of the module docstring for a stance foot and a box of landing spots."""
+
+    def __init__(self, omega: float, weights: StepAdapterWeights | None = None) -> None:
+        if not (math.isfinite(omega) and omega > 0):
+            raise ValueError(f"omega must be > 0, got {omega}")
+        self.omega = float(omega)
+        self.weights = weights or StepAdapterWeights()
+
+    def adapt(
+        self,
+        stance: Footstep,
+        cop: np.ndarray,
+        dcm: np.ndarray,
+        nominal_step: np.ndarray,
+        nominal_remaining: float,
+        nominal_offset: np.ndarray,
+        box: tuple[tuple[float, float], tuple[float, float]],
+        remaining_range: tuple[float, float],
+    ) -> StepAdjustment:
+        """Adapt the next step.
+
+        ``cop``: the CoP held for the rest of the step (world x, y); ``dcm``: the measured DCM;
+        ``nominal_step`` (world) and ``nominal_remaining`` (s) the plan's next foot and remaining
+        step time; ``nominal_offset`` the plan's ``ξ_end − u`` (world); ``box`` the landing box in
+        the stance sole's frame ``((x_lo, x_hi), (y_lo, y_hi))``; ``remaining_range`` the allowed
+        remaining time ``(T_min, T_max)``, s.
+        """
+        values = [cop, dcm, nominal_step, nominal_offset]
+        if not all(np.all(np.isfinite(np.asarray(x, dtype=float)[:2])) for x in values) or not math.isfinite(nominal_remaining):
+            raise ValueError("step adapter inputs must be finite")
+        t_lo, t_hi = remaining_range
+        if not (0.0 <= t_lo <= t_hi):
+            raise ValueError(f"remaining time range must satisfy 0 <= T_min <= T_max, got {remaining_range}")
+        w = self.weights
+        rotation = rotation2(stance.yaw)
+        p = stance.to_local(cop)
+        d = rotation.T @ (np.asarray(dcm, dtype=float)[:2] - np.asarray(cop, dtype=float)[:2])
+        u_nom = stance.to_local(nominal_step)
+        b_nom = rotation.T @ np.asarray(nominal_offset, dtype=float)[:2]
+        sigma_lo, sigma_hi = math.exp(self.omega * t_lo), math.exp(self.omega * t_hi)
+        sigma_nom = math.exp(self.omega * min(max(nominal_remaining, t_lo), t_hi))
+        (x_lo, x_hi), (y_lo, y_hi) = box
+        z = solve_step_qp(w.position, w.timing, w.offset, u_nom, sigma_nom, d, p - b_nom, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
+        u_local, sigma = z[:2], float(z[2])
+        xi_end_local = p + d * sigma
+        u_world = stance.to_world(u_local)
+        return StepAdjustment(u_world, math.log(sigma) / self.omega, stance.to_world(xi_end_local), rotation @ (xi_end_local - u_local))
