@@ -173,7 +173,7 @@ class _PerFrameMit(MitProtocol):
 
 def test_the_multibus_codec_equals_each_buses_protocol(g1_protocols, rng):
     fast = MultiBusCodec(g1_protocols)
-    reference = MultiBusCodec([_PerFrameMit(p.motors) for p in g1_protocols])
+    reference = MultiBusCodec([_PerFrameMit(p.motors, host_id=p.host_id) for p in g1_protocols])
     n = len(fast.motors)
     values = [rng.uniform(-30, 30, n), rng.uniform(-60, 60, n), rng.uniform(-10, 600, n), rng.uniform(-1, 7, n), rng.uniform(-250, 250, n)]
     a, clamped_a = fast.encode_commands(*values)

@@ -56,7 +56,7 @@ def test_every_cycle_count_must_be_at_least_one(name: str) -> None:
 
 
 def test_tilt_and_damping_settings_are_validated() -> None:
-    message = "safety max_tilt and stop_margin must be > 0, damping_time and damping_kd_scale >= 0"
+    message = "safety max_tilt must be > 0, damping_time and damping_kd_scale >= 0"
     for bad in ({"max_tilt": 0.0}, {"damping_time": -0.1}, {"damping_kd_scale": -1.0}, {"max_tilt": -1.0, "damping_time": 1.0}):
         with pytest.raises(ValueError) as raised:
             SafetyConfig(**bad)
