@@ -32,3 +32,10 @@ def test_shipped_policy_deploys_over_the_emulated_can_buses(g1, tmp_path) -> Non
     outcome = deploy(options, description=g1, out=None)
     assert outcome.exit_code == 0, outcome.message
     assert outcome.standing is not None and outcome.standing["stood"]
+
+
+def test_the_demo_finds_the_shipped_policy() -> None:
+    """`make demo` runs the residual policy from the repository's policies/ folder."""
+    from giwbc.apps.evaluation import SHIPPED_POLICY
+
+    assert Path(SHIPPED_POLICY) == SHIPPED and SHIPPED.is_file()

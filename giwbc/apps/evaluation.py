@@ -537,7 +537,7 @@ def evaluate_swing_up(
     return UprightResult(os.path.basename(arm), tuple(returns), tuple(fractions))
 
 
-SHIPPED_POLICY = str(Path(__file__).resolve().parents[1] / "policies" / "g1_balance_residual.onnx")
+SHIPPED_POLICY = str(Path(__file__).resolve().parents[2] / "policies" / "g1_balance_residual.onnx")
 
 
 def demo_residual(policy_path: str | os.PathLike[str] = SHIPPED_POLICY, *, episodes: int = 12, force: float = 80.0,
