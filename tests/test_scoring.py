@@ -96,6 +96,11 @@ def test_arm_scores_count_successes_and_survivals_apart() -> None:
     assert empty.success_rate == 0.0 and empty.survival_rate == 0.0
 
 
+def test_wilson_interval_stays_inside_zero_one() -> None:
+    for n in (5, 19, 23):  # all successes: the upper end rounds to 1 + 2e-16 before the clamp
+        assert wilson_interval(n, n)[1] == 1.0 and wilson_interval(0, n)[0] == 0.0
+
+
 def test_wilson_interval_matches_published_values() -> None:
     for (successes, n), expected in {(25, 50): (0.3664, 0.6336), (0, 10): (0.0, 0.2775), (10, 10): (0.7225, 1.0),
                                      (3, 20): (0.0524, 0.3604)}.items():  # fmt: skip
@@ -131,6 +136,9 @@ def test_push_protocol_is_validated() -> None:
     PushProtocol(force=0.0, interval=(1.2, 1.2), episode_seconds=2.0)  # the edges that are allowed
     with pytest.raises(ValueError, match=r"must be <= 2\*interval\[0\] \+ duration = 2\.60 s"):
         PushProtocol(episode_seconds=2.7)
+    with pytest.raises(ValueError, match=r"^the episode must outlast the latest push$"):
+        PushProtocol(interval=(1.0, 1.5), duration=0.25, episode_seconds=1.75)  # ends as the push ends
+    assert PushProtocol(interval=(1.0, 1.5), duration=0.25, episode_seconds=1.875).episode_seconds == 1.875
 
 
 def test_sim_to_sim_cells_and_their_summary() -> None:
@@ -163,3 +171,24 @@ def test_sim_to_sim_chunks_and_workers_do_not_change_the_result(g1_model) -> Non
     assert (here.episodes, here.successes, here.failed_seeds) == (7, 7, [])
     assert here.simulated_s == pytest.approx(0.7)
     assert (pooled.episodes, pooled.successes, pooled.simulated_s) == (here.episodes, here.successes, here.simulated_s)
+
+
+def test_sim_to_sim_runs_the_policy_in_the_policy_row(tmp_path, g1_model) -> None:
+    """The policy row runs the policy: one whose output is NaN is refused at its first step (the
+    WBC row alone, same seeds, runs through)."""
+    import gymnasium
+    import numpy as np
+
+    from giwbc.policy import MlpWeights, export_onnx
+    from giwbc.tasks import InvalidActionError
+
+    env = gymnasium.make("giwbc/G1Balance-v0", model=g1_model).unwrapped
+    sizes = (env.observation_space.shape[0], 8, env.action_space.shape[0])
+    mlp = MlpWeights(((np.zeros((8, sizes[0])), np.zeros(8)), (np.zeros((sizes[2], 8)), np.full(sizes[2], np.nan))))
+    metadata = {**env.describe(), "env_id": "giwbc/G1Balance-v0", "env_kwargs": {}}
+    policy = export_onnx(tmp_path / "nan.onnx", mlp, metadata, action_low=env.action_space.low, action_high=env.action_space.high)
+    common = dict(episodes=1, seconds=0.1, pushes=PushSetting(force=0.0, duration=0.05, interval=(5.0, 6.0)), workers=0, seed=3,
+                  conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})  # fmt: skip
+    assert evaluate(**common)["wbc_only"]["mujoco_nominal"].successes == 1
+    with pytest.raises(InvalidActionError, match="non-finite"):
+        evaluate(policy=policy, **common)
