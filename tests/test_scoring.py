@@ -166,7 +166,12 @@ def test_sim_to_sim_chunks_and_workers_do_not_change_the_result(g1_model) -> Non
     """Seven episodes: two chunks of seeds (5 + 2); in this process or on two workers, the same cells."""
     kwargs = dict(episodes=7, seconds=0.1, pushes=PushSetting(force=30.0, duration=0.05, interval=(0.05, 0.06)), seed=11,
                   conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})  # fmt: skip
+    import time
+
+    before = time.perf_counter()
     here = evaluate(workers=0, **kwargs)["wbc_only"]["mujoco_nominal"]
+    elapsed = time.perf_counter() - before
+    assert 0.0 < here.wall_s <= elapsed  # the episodes' own wall time, measured inside the call
     pooled = evaluate(workers=2, **kwargs)["wbc_only"]["mujoco_nominal"]
     assert (here.episodes, here.successes, here.failed_seeds) == (7, 7, [])
     assert here.simulated_s == pytest.approx(0.7)
@@ -192,3 +197,25 @@ def test_sim_to_sim_runs_the_policy_in_the_policy_row(tmp_path, g1_model) -> Non
     assert evaluate(**common)["wbc_only"]["mujoco_nominal"].successes == 1
     with pytest.raises(InvalidActionError, match="non-finite"):
         evaluate(policy=policy, **common)
+
+
+def test_evaluation_runs_the_environment_and_the_policy_it_is_given(tmp_path) -> None:
+    """The arm's options reach the environment (a joint-PD controller scores differently from the
+    WBC on the same seed), and a policy arm runs its policy (a NaN policy is refused at once)."""
+    import numpy as np
+
+    from giwbc.evaluation import DEFAULT_ENV_KWARGS
+    from giwbc.policy import MlpWeights, export_onnx
+    from giwbc.tasks import InvalidActionError
+    from giwbc.training import describe_env
+
+    (wbc,) = run_episodes(None, protocol=GENTLE, episodes=1, seed=5, workers=1).episodes
+    (pd,) = run_episodes(None, env_kwargs={"controller": "pd"}, protocol=GENTLE, episodes=1, seed=5, workers=1).episodes
+    assert pd.episode_return != wbc.episode_return
+    env_kwargs = {**DEFAULT_ENV_KWARGS, "max_episode_steps": 1000}
+    described = describe_env("giwbc/G1Balance-v0", env_kwargs)
+    n_obs, n_act = len(described["observation_names"]), len(described["action_names"])
+    weights = MlpWeights(((np.zeros((8, n_obs)), np.zeros(8)), (np.zeros((n_act, 8)), np.full(n_act, np.nan))))
+    policy = export_onnx(tmp_path / "nan.onnx", weights, {**described, "env_id": "giwbc/G1Balance-v0", "env_kwargs": env_kwargs})
+    with pytest.raises(InvalidActionError, match="non-finite"):
+        run_episodes(policy, protocol=GENTLE, episodes=1, seed=5, workers=1)
