@@ -338,7 +338,7 @@ def test_exact_sensors_give_the_base_velocity_to_a_millimetre_per_second(g1: Rob
 def test_before_any_measurement_the_estimate_is_the_default_pose(g1: RobotDescription, g1_models) -> None:
     _, pin_model = g1_models
     estimate = StateEstimator(g1, model=pin_model).estimate
-    assert not estimate.initialized and np.isnan(estimate.time) and estimate.faults.ok
+    assert estimate.initialized is False and np.isnan(estimate.time) and estimate.faults.ok
     q = g1.default_configuration()
     np.testing.assert_array_equal(estimate.q, q)
     np.testing.assert_array_equal(estimate.v, np.zeros(pin_model.nv))
