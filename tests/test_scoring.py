@@ -36,7 +36,7 @@ def test_a_push_no_controller_survives_is_scored_as_a_fall() -> None:
     assert episode.survival_time < HOPELESS.episode_seconds - 0.05  # terminated early, not at the time limit
     assert episode.max_tilt > 0.5 or episode.final_tilt > 0.5
     assert math.isfinite(episode.push_time)
-    assert arm.success_rate == 0.0 and arm.survival_rate == 0.0
+    assert arm.success_rate == 0.0 and arm.survival_rate == 0.0 and arm.name == "wbc"
 
 
 def test_an_episode_that_survives_tilted_is_not_a_success() -> None:
