@@ -37,7 +37,13 @@ def test_cartpole_ids_pass_check_env_with_a_random_engine_and_randomization() ->
     env = gymnasium.make(CARTPOLE_BALANCE, engine=COIN, randomization=randomization)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        check_env(env.unwrapped, skip_render_check=True)
+        check_env(env.unwrapped, skip_render_check=True)  # raises on any API violation
+    engines = set()
+    for seed in range(12):
+        env.reset(seed=seed)
+        engines.add(env.unwrapped.engine)
+        assert env.unwrapped.randomization is not None  # a draw at every reset
+    assert engines == {"mujoco", "pybullet"}  # the coin picked both
     env.close()
 
 

@@ -4,6 +4,8 @@ with no stance foot (the velocity then comes from the accelerometer alone, gravi
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -71,6 +73,7 @@ def test_free_fall_velocity_comes_from_the_accelerometer_with_gravity_added_back
     np.testing.assert_allclose(estimate.base.linear_velocity, truth.linear_velocity, atol=0.05)
     np.testing.assert_allclose(estimate.base.position - first, truth.position - start, atol=0.01)
     assert estimator.fault_counts.get("NO_STANCE_FOOT", 0) == int(0.3 / g1.timestep)  # every update said so
+    assert estimate.faults.reasons == ("NO_STANCE_FOOT: no foot in contact: base velocity from the IMU alone",)
 
 
 # --- foot force sensors, contact plans and the Robot wrapper ------------------------------------
@@ -177,7 +180,7 @@ def test_contact_thresholds_are_fractions_of_the_weight(g1: RobotDescription, g1
     from dataclasses import replace
 
     _, pin_model = g1_models
-    config = EstimatorConfig(contact_on=0.2, contact_off=0.1, contact_full=0.4, contact_filter_time=0.002)
+    config = EstimatorConfig(contact_on=0.2, contact_off=0.1, contact_full=0.5, contact_filter_time=0.002)
     estimator = StateEstimator(g1, config, model=pin_model)
     weight = g1.total_mass * 9.81
     seen = []
@@ -186,7 +189,7 @@ def test_contact_thresholds_are_fractions_of_the_weight(g1: RobotDescription, g1
             estimate = estimator.update(replace(standing[len(seen) * 8 + k], contact_forces=np.array([fraction * weight, weight])))
         seen.append((bool(estimate.contacts[0]), float(estimate.contact_confidence[0])))
     assert [flag for flag, _ in seen] == [True, True, False, False, True, True]
-    assert seen[0][1] == pytest.approx(1.0) and seen[5][1] == pytest.approx((0.3 - 0.1) / (0.4 - 0.1), rel=0.01)
+    assert seen[0][1] == pytest.approx(1.0) and seen[5][1] == pytest.approx((0.3 - 0.1) / (0.5 - 0.1), rel=0.01)
     assert seen[2][1] == 0.0
 
 
@@ -205,6 +208,17 @@ def test_a_reset_estimator_holds_defaults_for_bad_first_joints(g1: RobotDescript
     estimate = estimator.update(replace(first, joint_positions=positions, joint_velocities=velocities, joint_efforts=efforts))
     assert estimate.initialized
     assert estimate.q[7 + knee] == g1.default_positions[knee] and estimate.v[6 + knee] == 0.0  # the defaults, held
+    others = np.arange(g1.dofs) != knee
+    np.testing.assert_array_equal(estimate.q[7:][others], positions[others])  # the good joints are this sample's
+    np.testing.assert_array_equal(estimate.v[6:][others], velocities[others])
+    assert estimate.faults.reasons == (
+        "JOINT_POSITION_INVALID: non-finite joint position at ['left_knee_joint']: last good value held",
+        "JOINT_VELOCITY_INVALID: non-finite joint velocity at ['left_knee_joint']: last good value held",
+        "JOINT_EFFORT_INVALID: non-finite joint effort at ['left_knee_joint']: last good value held",
+    )
+    for k, name in enumerate(("velocities", "efforts")):  # (a later sample: the same timestamp would be skipped)
+        with pytest.raises(ValueError, match=rf"^joint {name} need shape \(29,\), got \(3,\)$"):
+            estimator.update(replace(standing[21 + k], **{f"joint_{name}": np.zeros(3)}))
     assert np.all(np.isfinite(estimate.q)) and np.all(np.isfinite(estimate.v)) and np.all(np.isfinite(estimate.contact_forces))
 
 
@@ -321,3 +335,45 @@ def test_exact_sensors_give_the_base_velocity_to_a_millimetre_per_second(g1: Rob
     assert np.sqrt(np.mean(np.square(speeds))) > 0.05  # it did turn
     assert rms[0] < 1.5e-3 and rms[1] < 1.5e-3 and rms[2] < 5e-4, rms
     assert np.abs(position_errors).max() < 2e-3
+
+
+def test_before_any_measurement_the_estimate_is_the_default_pose(g1: RobotDescription, g1_models) -> None:
+    _, pin_model = g1_models
+    estimate = StateEstimator(g1, model=pin_model).estimate
+    assert estimate.initialized is False and np.isnan(estimate.time) and estimate.faults.ok
+    q = g1.default_configuration()
+    np.testing.assert_array_equal(estimate.q, q)
+    np.testing.assert_array_equal(estimate.v, np.zeros(pin_model.nv))
+    np.testing.assert_array_equal(estimate.base.position, q[:3])
+    np.testing.assert_array_equal(estimate.base.quaternion, q[3:7])
+    for vector in (estimate.base.linear_velocity, estimate.base.angular_velocity, estimate.gyro_bias):
+        np.testing.assert_array_equal(vector, np.zeros(3))
+    n = len(g1.contacts)
+    assert estimate.contacts.dtype == bool and estimate.contacts.tolist() == [True] * n
+    np.testing.assert_array_equal(estimate.contact_confidence, np.ones(n))
+    np.testing.assert_array_equal(estimate.contact_forces, np.zeros((n, 3)))
+    np.testing.assert_array_equal(estimate.covariance, np.eye(6) * 1e6)
+
+
+def test_imu_orientation_must_be_a_unit_quaternion(g1: RobotDescription, g1_models, standing) -> None:
+    from dataclasses import replace
+
+    _, pin_model = g1_models
+    estimator = StateEstimator(g1, model=pin_model)
+    for m in standing[:5]:
+        estimator.update(m)
+    for k, quaternion in enumerate(([0.0, 0.0, 0.6, 0.8], [0.0, 0.6, 0.0, 0.8], [0.6, 0.0, 0.0, 0.8])):  # turned, unit
+        m = standing[5 + k]
+        assert estimator.update(replace(m, imu=replace(m.imu, quaternion=np.array(quaternion)))).faults.ok
+    m = standing[8]
+    long = np.array([0.0, 0.0, 0.0, math.sqrt(1.5)])
+    estimate = estimator.update(replace(m, imu=replace(m.imu, quaternion=long)))
+    assert estimate.faults.flags == Fault.ORIENTATION_INVALID
+    assert estimate.faults.reasons == (f"ORIENTATION_INVALID: IMU orientation {long} is not a unit quaternion: gravity used instead",)
+
+
+def test_a_contact_plan_of_integers_is_read_as_flags(g1: RobotDescription, g1_models, standing) -> None:
+    _, pin_model = g1_models
+    estimator = StateEstimator(g1, model=pin_model)
+    estimate = estimator.update(standing[0], np.array([1, 0]))
+    assert estimate.contacts.dtype == bool and estimate.contacts.tolist() == [True, False]

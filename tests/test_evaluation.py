@@ -59,6 +59,7 @@ def test_zero_policy_matches_the_wbc_arm_episode_for_episode(tmp_path) -> None:
     policy = _zero_policy(tmp_path, env_kwargs)
     comparison = compare(policy, protocol=SHORT, episodes=2, seed=7, workers=2)
     assert comparison.same_pushes
+    assert (comparison.wbc.name, comparison.residual.name) == ("wbc", "zero.onnx")  # arms named in the table
     assert [e.seed for e in comparison.wbc.episodes] == [7, 8]
     for wbc, residual in zip(comparison.wbc.episodes, comparison.residual.episodes):
         assert wbc.survived and wbc.success  # 30 N is nothing for the WBC

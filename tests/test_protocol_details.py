@@ -174,6 +174,8 @@ def test_decode_errors_say_why() -> None:
             p.decode(*args)
     with pytest.raises(UnknownMotorError, match=r"^extended frame 0x100 is not an MIT reply$"):
         p.decode(0x100, data, is_extended_id=True)
+    with pytest.raises(UnknownMotorError, match=r"^extended frame 0x1FFFFFFF is not an MIT reply$"):
+        p.decode(0x1FFFFFFF, data, is_extended_id=True)
     with pytest.raises(CorruptFrameError, match=r"^arbitration id 0x20000000 out of range$"):
         p.decode(0x20000000, data, is_extended_id=True)
     hosted = MitProtocol([motor(1)], host_id=3)
@@ -212,3 +214,72 @@ def test_command_decoding_errors_and_specials() -> None:
         p.decode_command(1, frame.data[:6])
     with pytest.raises(CorruptFrameError, match=r"^undecodable input: TypeError: "):
         p.decode_command(1, [1, "x"])
+
+
+# --- the vectorized decoder on the rows the random tests rarely draw ----------------------------
+def decode_rows(p: MitProtocol, rows: list[tuple[int, bytes]]):
+    from giwbc.hal.frames import frames
+
+    data = np.zeros((len(rows), 8), np.uint8)
+    for k, (_, payload) in enumerate(rows):
+        data[k, : len(payload)] = list(payload)
+    batch = frames([a for a, _ in rows], data, lengths=[len(payload) for _, payload in rows])
+    return p.decode_frames(batch)
+
+
+def test_vectorized_special_frame_detection_matches_the_scalar_one() -> None:
+    p = MitProtocol([motor(0xFF, "cubemars", "hip"), motor(1, "damiao", "knee"), motor(3, "original", "ankle")])
+    rows = [
+        (0, bytes([0xFF] * 7 + [0xFC])),  # enter motor mode: a special frame, corrupt as a reply
+        (0, bytes([0xFF] * 7 + [0xFB])),  # clear errors
+        (0, bytes([0xFF] * 7 + [0xFE])),  # set zero
+        (0, bytes([0xFF, 1, 2, 3, 4, 5, 6, 0xFC])),  # a real reply of motor 0xFF whose error code is 0xFC
+        (0, bytes([0xFF] * 7 + [0xFA])),  # all FF but not a special code: a real reply
+    ]
+    decoded = decode_rows(p, rows)
+    assert decoded.verdict.tolist() == [CORRUPT, CORRUPT, CORRUPT, REPLY, REPLY]
+    assert decoded.motor_id.tolist() == [-1, -1, -1, 0xFF, 0xFF] and decoded.index.tolist() == [-1, -1, -1, 0, 0]
+    assert decoded.error_code.tolist()[:3] == [-1, -1, -1] and decoded.status.tolist()[:3] == [-1, -1, -1]
+    for k, (arbitration_id, payload) in enumerate(rows):
+        if decoded.verdict[k] == REPLY:
+            assert decoded.reply(k) == p.decode(arbitration_id, payload)
+        else:
+            with pytest.raises(CorruptFrameError):
+                p.decode(arbitration_id, payload)
+    elsewhere = MitProtocol([motor(1)])  # no motor 0xFF: a special frame is simply not a reply from here
+    assert decode_rows(elsewhere, [(0, bytes([0xFF] * 7 + [0xFC]))]).verdict.tolist() == [UNKNOWN]
+
+
+def test_vectorized_error_and_status_fields_per_variant() -> None:
+    p = MitProtocol([motor(0x21, "cubemars", "a"), motor(2, "damiao", "b"), motor(3, "original", "c")])
+    rows = [(0, p.encode_reply(0x21, 0, 0, 0, error_code=7, temperature=40.0).data),
+            (0, p.encode_reply(2, 0, 0, 0, status=9, temperature=30.0, rotor_temperature=50.0).data),
+            (0, p.encode_reply(2, 0, 0, 0, status=7).data),
+            (0, p.encode_reply(3, 0, 0, 0).data)]  # fmt: skip
+    decoded = decode_rows(p, rows)
+    assert decoded.error_code.tolist() == [7, 9, 0, -1] and decoded.status.tolist() == [-1, 9, 7, -1]
+    assert decoded.error_code.dtype.kind == "i" and decoded.status.dtype.kind == "i"
+    np.testing.assert_array_equal(decoded.rotor_temperature, [np.nan, 50.0, 25.0, np.nan])
+    assert [decoded.reply(k) for k in range(4)] == [p.decode(a, d) for a, d in rows]
+    plain = MitProtocol([motor(3)])  # no variant with an error field
+    only = decode_rows(plain, [(0, plain.encode_reply(3, 0, 0, 0).data)])
+    assert only.error_code.tolist() == [-1] and only.status.tolist() == [-1] and only.error_code.dtype == np.int64
+
+
+def test_reply_bytes_saturate_and_batches_keep_the_extended_flag() -> None:
+    volts = MitProtocol([motor(1, "voltage")])
+    assert volts.decode(0, volts.encode_reply(1, 0, 0, 0, voltage=1e6).data).voltage == pytest.approx(255 * volts.voltage_lsb)
+    assert volts.decode(0, volts.encode_reply(1, 0, 0, 0, voltage=math.nan).data).voltage == 0.0
+    extended = CommandBatch(np.array([5]), np.zeros((1, 8), np.uint8), np.zeros((1, 5), bool), is_extended_id=True)
+    assert extended.frames()[0].is_extended_id is True
+    from giwbc.hal.protocols import protocol_class
+
+    assert protocol_class("mit") is MitProtocol
+    with pytest.raises(ValueError, match=r"^unknown actuator protocol 'can2'; known: mit$"):
+        protocol_class("can2")
+    with pytest.raises(UnknownMotorError, match=r"^no motor with id 4 on this bus$"):
+        MitProtocol([motor(1)]).motor(4)
+    from giwbc.hal.protocols.multibus import MultiBusCodec
+
+    with pytest.raises(ValueError, match=r"^special frames are \('enter', 'exit', 'zero'\), got 'boot'$"):
+        MultiBusCodec([MitProtocol([motor(1)])]).special_frames("boot")

@@ -36,7 +36,7 @@ def test_a_push_no_controller_survives_is_scored_as_a_fall() -> None:
     assert episode.survival_time < HOPELESS.episode_seconds - 0.05  # terminated early, not at the time limit
     assert episode.max_tilt > 0.5 or episode.final_tilt > 0.5
     assert math.isfinite(episode.push_time)
-    assert arm.success_rate == 0.0 and arm.survival_rate == 0.0
+    assert arm.success_rate == 0.0 and arm.survival_rate == 0.0 and arm.name == "wbc"
 
 
 def test_an_episode_that_survives_tilted_is_not_a_success() -> None:
@@ -96,6 +96,11 @@ def test_arm_scores_count_successes_and_survivals_apart() -> None:
     assert empty.success_rate == 0.0 and empty.survival_rate == 0.0
 
 
+def test_wilson_interval_stays_inside_zero_one() -> None:
+    for n in (5, 19, 23):  # all successes: the upper end rounds to 1 + 2e-16 before the clamp
+        assert wilson_interval(n, n)[1] == 1.0 and wilson_interval(0, n)[0] == 0.0
+
+
 def test_wilson_interval_matches_published_values() -> None:
     for (successes, n), expected in {(25, 50): (0.3664, 0.6336), (0, 10): (0.0, 0.2775), (10, 10): (0.7225, 1.0),
                                      (3, 20): (0.0524, 0.3604)}.items():  # fmt: skip
@@ -131,6 +136,9 @@ def test_push_protocol_is_validated() -> None:
     PushProtocol(force=0.0, interval=(1.2, 1.2), episode_seconds=2.0)  # the edges that are allowed
     with pytest.raises(ValueError, match=r"must be <= 2\*interval\[0\] \+ duration = 2\.60 s"):
         PushProtocol(episode_seconds=2.7)
+    with pytest.raises(ValueError, match=r"^the episode must outlast the latest push$"):
+        PushProtocol(interval=(1.0, 1.5), duration=0.25, episode_seconds=1.75)  # ends as the push ends
+    assert PushProtocol(interval=(1.0, 1.5), duration=0.25, episode_seconds=1.875).episode_seconds == 1.875
 
 
 def test_sim_to_sim_cells_and_their_summary() -> None:
@@ -158,8 +166,56 @@ def test_sim_to_sim_chunks_and_workers_do_not_change_the_result(g1_model) -> Non
     """Seven episodes: two chunks of seeds (5 + 2); in this process or on two workers, the same cells."""
     kwargs = dict(episodes=7, seconds=0.1, pushes=PushSetting(force=30.0, duration=0.05, interval=(0.05, 0.06)), seed=11,
                   conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})  # fmt: skip
+    import time
+
+    before = time.perf_counter()
     here = evaluate(workers=0, **kwargs)["wbc_only"]["mujoco_nominal"]
+    elapsed = time.perf_counter() - before
+    assert 0.0 < here.wall_s <= elapsed  # the episodes' own wall time, measured inside the call
     pooled = evaluate(workers=2, **kwargs)["wbc_only"]["mujoco_nominal"]
     assert (here.episodes, here.successes, here.failed_seeds) == (7, 7, [])
     assert here.simulated_s == pytest.approx(0.7)
     assert (pooled.episodes, pooled.successes, pooled.simulated_s) == (here.episodes, here.successes, here.simulated_s)
+
+
+def test_sim_to_sim_runs_the_policy_in_the_policy_row(tmp_path, g1_model) -> None:
+    """The policy row runs the policy: one whose output is NaN is refused at its first step (the
+    WBC row alone, same seeds, runs through)."""
+    import gymnasium
+    import numpy as np
+
+    from giwbc.policy import MlpWeights, export_onnx
+    from giwbc.tasks import InvalidActionError
+
+    env = gymnasium.make("giwbc/G1Balance-v0", model=g1_model).unwrapped
+    sizes = (env.observation_space.shape[0], 8, env.action_space.shape[0])
+    mlp = MlpWeights(((np.zeros((8, sizes[0])), np.zeros(8)), (np.zeros((sizes[2], 8)), np.full(sizes[2], np.nan))))
+    metadata = {**env.describe(), "env_id": "giwbc/G1Balance-v0", "env_kwargs": {}}
+    policy = export_onnx(tmp_path / "nan.onnx", mlp, metadata, action_low=env.action_space.low, action_high=env.action_space.high)
+    common = dict(episodes=1, seconds=0.1, pushes=PushSetting(force=0.0, duration=0.05, interval=(5.0, 6.0)), workers=0, seed=3,
+                  conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})  # fmt: skip
+    assert evaluate(**common)["wbc_only"]["mujoco_nominal"].successes == 1
+    with pytest.raises(InvalidActionError, match="non-finite"):
+        evaluate(policy=policy, **common)
+
+
+def test_evaluation_runs_the_environment_and_the_policy_it_is_given(tmp_path) -> None:
+    """The arm's options reach the environment (a joint-PD controller scores differently from the
+    WBC on the same seed), and a policy arm runs its policy (a NaN policy is refused at once)."""
+    import numpy as np
+
+    from giwbc.evaluation import DEFAULT_ENV_KWARGS
+    from giwbc.policy import MlpWeights, export_onnx
+    from giwbc.tasks import InvalidActionError
+    from giwbc.training import describe_env
+
+    (wbc,) = run_episodes(None, protocol=GENTLE, episodes=1, seed=5, workers=1).episodes
+    (pd,) = run_episodes(None, env_kwargs={"controller": "pd"}, protocol=GENTLE, episodes=1, seed=5, workers=1).episodes
+    assert pd.episode_return != wbc.episode_return
+    env_kwargs = {**DEFAULT_ENV_KWARGS, "max_episode_steps": 1000}
+    described = describe_env("giwbc/G1Balance-v0", env_kwargs)
+    n_obs, n_act = len(described["observation_names"]), len(described["action_names"])
+    weights = MlpWeights(((np.zeros((8, n_obs)), np.zeros(8)), (np.zeros((n_act, 8)), np.full(n_act, np.nan))))
+    policy = export_onnx(tmp_path / "nan.onnx", weights, {**described, "env_id": "giwbc/G1Balance-v0", "env_kwargs": env_kwargs})
+    with pytest.raises(InvalidActionError, match="non-finite"):
+        run_episodes(policy, protocol=GENTLE, episodes=1, seed=5, workers=1)

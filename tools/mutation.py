@@ -161,7 +161,7 @@ def diff(work: Path, name: str) -> str:
 
 def run_group(group: Group, args: argparse.Namespace) -> list[str]:
     """Run one group and return its report lines."""
-    work = prepare(group, args.fresh)
+    work = SCRATCH / group.name if args.report_only else prepare(group, args.fresh)
     log = work / "mutmut.log"
     budget = group.budget_s * args.budget_scale
     started = time.monotonic()
@@ -169,7 +169,7 @@ def run_group(group: Group, args: argparse.Namespace) -> list[str]:
     if args.rerun_survivors:
         names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)
                  and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
-    if names or not args.rerun_survivors:
+    if not args.report_only and (names or not args.rerun_survivors):
         _mutmut(work, ["run", "--max-children", str(args.jobs), *names], budget, log)
     elapsed = time.monotonic() - started
     status = {n: s for n, s in results(work).items() if group.selects(n)}
@@ -202,6 +202,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fresh", action="store_true", help="forget earlier results of these groups")
     parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived")
     parser.add_argument("--only", nargs="*", default=[], help="with --rerun-survivors: only mutants matching these globs")
+    parser.add_argument("--report-only", action="store_true", help="run nothing: report the groups' saved results")
     parser.add_argument("--no-diffs", action="store_true", help="list surviving mutants without their diffs")
     args = parser.parse_args(argv)
     known = {g.name: g for g in GROUPS}
@@ -213,6 +214,9 @@ def main(argv: list[str] | None = None) -> int:
     lines = [f"mutmut over giwbc's core modules ({time.strftime('%Y-%m-%d %H:%M')}); score = killed / run, "
              "equivalent mutants excluded (tests/mutation_equivalents.md)"]
     for group in chosen:
+        if args.report_only and not (SCRATCH / group.name / "mutants").exists():
+            lines.append(f"== {group.name}: never run")
+            continue
         lines += run_group(group, args)
         report.write_text("\n".join(lines) + "\n")
     print("\n".join(line for line in lines if line.startswith(("==", "   killed"))))

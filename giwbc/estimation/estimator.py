@@ -617,13 +617,13 @@ class StateEstimator:
             self._positions, self._velocities, self._efforts = readings[0], readings[1], readings[2]  # views of the copy
             return self._all_feet, self._all_feet, self._all_feet
         for name, value in (
-            ("position", measurement.joint_positions),
-            ("velocity", measurement.joint_velocities),
-            ("effort", measurement.joint_efforts),
+            ("positions", measurement.joint_positions),
+            ("velocities", measurement.joint_velocities),
+            ("efforts", measurement.joint_efforts),
         ):
             value = np.asarray(value, float)
             if value.shape != (self._dofs,):
-                raise ValueError(f"joint {name}s need shape ({self._dofs},), got {value.shape}")
+                raise ValueError(f"joint {name} need shape ({self._dofs},), got {value.shape}")
         positions, velocities, efforts = readings
         ok, held = [], []
         for name, value, last, fault in (
