@@ -233,8 +233,8 @@ def test_vectorized_special_frame_detection_matches_the_scalar_one() -> None:
         (0, bytes([0xFF] * 7 + [0xFC])),  # enter motor mode: a special frame, corrupt as a reply
         (0, bytes([0xFF] * 7 + [0xFB])),  # clear errors
         (0, bytes([0xFF] * 7 + [0xFE])),  # set zero
-        (0, bytes([0xFF, 1, 2, 3, 4, 5, 6, 0xFC])),  # a real reply of motor 0xFF whose error code is 0xFC
-        (0, bytes([0xFF] * 7 + [0xFA])),  # all FF but not a special code: a real reply
+        (0, bytes([0xFF, 1, 2, 3, 4, 5, 6, 0x07])),  # a real reply of motor 0xFF (error code 7)
+        (0, bytes([0xFF] * 7 + [0x05])),  # all FF but not a special code: a real reply (error code 5)
     ]
     decoded = decode_rows(p, rows)
     assert decoded.verdict.tolist() == [CORRUPT, CORRUPT, CORRUPT, REPLY, REPLY]
@@ -254,10 +254,10 @@ def test_vectorized_error_and_status_fields_per_variant() -> None:
     p = MitProtocol([motor(0x21, "cubemars", "a"), motor(2, "damiao", "b"), motor(3, "original", "c")])
     rows = [(0, p.encode_reply(0x21, 0, 0, 0, error_code=7, temperature=40.0).data),
             (0, p.encode_reply(2, 0, 0, 0, status=9, temperature=30.0, rotor_temperature=50.0).data),
-            (0, p.encode_reply(2, 0, 0, 0, status=7).data),
+            (0, p.encode_reply(2, 0, 0, 0, status=1).data),
             (0, p.encode_reply(3, 0, 0, 0).data)]  # fmt: skip
     decoded = decode_rows(p, rows)
-    assert decoded.error_code.tolist() == [7, 9, 0, -1] and decoded.status.tolist() == [-1, 9, 7, -1]
+    assert decoded.error_code.tolist() == [7, 9, 0, -1] and decoded.status.tolist() == [-1, 9, 1, -1]
     assert decoded.error_code.dtype.kind == "i" and decoded.status.dtype.kind == "i"
     np.testing.assert_array_equal(decoded.rotor_temperature, [np.nan, 50.0, 25.0, np.nan])
     assert [decoded.reply(k) for k in range(4)] == [p.decode(a, d) for a, d in rows]

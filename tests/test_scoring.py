@@ -204,10 +204,10 @@ def test_evaluation_runs_the_environment_and_the_policy_it_is_given(tmp_path) ->
     WBC on the same seed), and a policy arm runs its policy (a NaN policy is refused at once)."""
     import numpy as np
 
-    from giwbc.evaluation import DEFAULT_ENV_KWARGS
+    from giwbc.apps.evaluation import DEFAULT_ENV_KWARGS
     from giwbc.policy import MlpWeights, export_onnx
     from giwbc.tasks import InvalidActionError
-    from giwbc.training import describe_env
+    from giwbc.apps.training import describe_env
 
     (wbc,) = run_episodes(None, protocol=GENTLE, episodes=1, seed=5, workers=1).episodes
     (pd,) = run_episodes(None, env_kwargs={"controller": "pd"}, protocol=GENTLE, episodes=1, seed=5, workers=1).episodes
