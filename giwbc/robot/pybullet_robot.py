@@ -46,32 +46,15 @@ from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading, quat_to_matrix
 from giwbc.robot.mujoco_model import foot_sensor_names, imu_sensor_names
 from giwbc.robot.pybullet_model import LinkInertial, PybulletClient, add_floor, load_robot, pybullet_urdf, require_pybullet
+from giwbc.robot.so3 import quat_conjugate, quat_multiply
 
 STANDARD_GRAVITY = np.array([0.0, 0.0, -9.81])
 FEET_FRICTION = 1.0  # Bullet multiplies the two coefficients: floor friction x 1.0 = the description's
 
 
-def quat_multiply(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product of two ``(x, y, z, w)`` quaternions: the rotation ``a`` then ``b`` in ``a``'s frame."""
-    ax, ay, az, aw = a
-    bx, by, bz, bw = b
-    return np.array(
-        [
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-            aw * bw - ax * bx - ay * by - az * bz,
-        ]
-    )
-
-
 def cross3(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """``a x b`` for two 3-vectors (``np.cross`` costs ~10x more on single vectors, on every physics step here)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
-
-
-def quat_conjugate(q: np.ndarray) -> np.ndarray:
-    return np.array([-q[0], -q[1], -q[2], q[3]])
 
 
 def _urdf_link_mass(urdf: str, link: str) -> float:
