@@ -34,7 +34,10 @@ Speed: every bus speaks MIT mode in the shipped plans, so commands are decoded a
 for all motors at once (:class:`~giwbc.emulation.firmware.MitFirmwareCodec`, bit-identical to the protocol's scalar calls);
 python-can's per-frame cost is what remains (~5 us per send or receive on ``virtual``).
 
-Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance.
+Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance;
+with :attr:`EmulatorConfig.imu` it carries a real IMU's errors (:class:`~giwbc.robot.noise.SensorModel`:
+biases drawn once from the seed, noise, latency counted in published samples, dropouts, no orientation output
+for a ``mems`` profile); :attr:`ActuatorEmulator.imu_errors` keeps what was drawn, for judging a calibration.
 """
 
 from __future__ import annotations
@@ -59,6 +62,7 @@ from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import ActuatorProtocol, CanProtocolError
 from giwbc.robot.interface import ImpedanceCommand
 from giwbc.robot.mujoco_robot import MujocoRobot
+from giwbc.robot.noise import SensorErrors, SensorModel
 
 if TYPE_CHECKING:
     import mujoco
@@ -149,6 +153,12 @@ class ActuatorEmulator(FaultEffects):
         for f in c.faults:
             self.add_fault(f)
         self.imu_channel = ImuChannel()
+        self.imu_errors: SensorErrors | None = None  # the IMU's drawn errors (None: exact)
+        self._imu_model: SensorModel | None = None
+        if c.imu is not None:
+            imu_rng = np.random.default_rng(None if c.seed is None else (c.seed, 0x1A0))  # a stream of its own
+            self.imu_errors = c.imu.errors(imu_rng)
+            self._imu_model = SensorModel(self.robot, self.imu_errors, imu_rng)
         self.snapshots: list[AppliedSnapshot] = []
         self.truth: list[tuple[float, float, float]] = []  # ground truth for judging a dry run, never sent to the host
         self._delayed: list[tuple[float, int, np.ndarray]] = []  # (due, bus, one-frame batch)
@@ -454,7 +464,13 @@ class ActuatorEmulator(FaultEffects):
         return self.group.sign * tau / self.group.gear
 
     def _publish_imu(self) -> None:
-        self.imu_channel.publish(self.robot.imu())
+        model = self._imu_model
+        self.imu_channel.publish(self.robot.imu() if model is None else model.imu())
+
+    @property
+    def imu_gyro_bias(self) -> np.ndarray | None:
+        """The emulated IMU's gyro bias now (rad/s, IMU frame; turn-on plus random walk), None for an exact IMU."""
+        return None if self._imu_model is None else self._imu_model.gyro_bias.copy()
 
     def _snapshot(self) -> AppliedSnapshot:
         imp = self._impedance
