@@ -15,14 +15,21 @@ Procedure (:func:`deploy`):
    buses;
 4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
-   run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``;
-5. report: exit code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's
+   run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``
+   (with a state estimator, after the start-up ramp the robot holds still until the estimator's
+   IMU calibration is done: phase ``calibrate``, :mod:`giwbc.runtimes.phases`);
+5. report (with the IMU calibration found, also in the run log's ``calibration`` event): exit code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's
    number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
    inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
 
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
+
+IMU: ``--imu-profile`` names the IMU's class (:data:`giwbc.robot.noise.IMU_PROFILES`): the
+estimator is set up for it (``mems``, ``cheap``: no orientation output, tilt from gravity and the
+feet) and, with ``--emulate``, the emulated IMU carries its errors (turn-on biases drawn from the
+emulator's seed, noise, latency, dropouts).
 """
 
 from __future__ import annotations
@@ -46,7 +53,9 @@ if TYPE_CHECKING:
 
     from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
     from giwbc.emulation.process import EmulatorProcess
+    from giwbc.estimation.calibration import CalibrationReport
     from giwbc.hal.safety import SafetyConfig
+    from giwbc.robot.noise import SensorNoiseConfig
     from giwbc.robot.description import RobotDescription
     from giwbc.runtimes.phases import StartupConfig
     from giwbc.runtimes.realtime import RunResult
@@ -199,6 +208,7 @@ class DeployOptions:
     faults: tuple[FaultInjection, ...] = ()  # injected into the emulator (rehearsals, tests)
     reply_timeout: float = 0.8e-3
     rt_priority: int | None = None  # SCHED_FIFO priority of the control loop (None: the default scheduler)
+    imu_profile: str | None = None  # the IMU's class (giwbc.robot.noise.IMU_PROFILES): the emulated IMU's errors, the estimator's setup
 
 
 @dataclass
@@ -214,6 +224,7 @@ class DeployOutcome:
     standing: dict[str, float] | None = None
     emulator: ActuatorEmulator | EmulatorProcess | None = None
     fault_onsets: dict[str, float] = field(default_factory=dict)  # host-side injected faults: robot time each first acted
+    calibration: CalibrationReport | None = None  # what the state estimator's start-up calibration found
 
 
 def deploy(
@@ -290,6 +301,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
 
     from giwbc.runtimes.faults import HostFaults
 
+    sensors = _imu_profile(options)
     host_faults = HostFaults(options.faults)
     if host_faults and not options.emulate:
         raise DeployError("injected faults are for rehearsals: they need --emulate")
@@ -300,6 +312,10 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     try:
         if options.emulate:
             config = options.emulator or EmulatorConfig()
+            if sensors is not None and config.imu is None:
+                from dataclasses import replace
+
+                config = replace(config, imu=sensors)
             if options.faults:
                 from dataclasses import replace
 
@@ -325,9 +341,13 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
-            from giwbc.estimation.estimator import StateEstimator
+            from giwbc.estimation.calibration import StandstillConfig
+            from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
 
-            estimator = StateEstimator(description)
+            # The start-up holds the robot still anyway: a 3 s calibration window (12 blocks, not 0.75 s) halves the gyro bias's noise.
+            standstill = StandstillConfig(startup_blocks=12)
+            estimator = StateEstimator(description, EstimatorConfig.for_sensors(sensors, standstill=standstill) if sensors is not None
+                                       else EstimatorConfig(standstill=standstill))  # fmt: skip
         clock: list[Callable[[], float]] = []  # robot time for host-side faults (set once the robot exists)
         if isinstance(emulator, ActuatorEmulator):
             clock.append(lambda: emulator.time)  # lockstep: the emulator is at the cycle's time when the host sends
@@ -379,6 +399,11 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         if log is not None:
             log.close()
 
+    calibration = estimator.calibration if estimator is not None else None
+    if calibration is not None:
+        say(calibration.summary())
+    elif estimator is not None and estimator.config.calibrate:
+        say(f"IMU not calibrated: the state estimator was waiting for {estimator.waiting_for}")
     standing = None
     if emulator is not None and description.floating_base:
         standing = _standing(emulator, result)
@@ -410,7 +435,20 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     if len(result.faults) > 1:
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
-    return DeployOutcome(result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets))
+    return DeployOutcome(result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets),
+                         calibration)  # fmt: skip
+
+
+def _imu_profile(options: DeployOptions) -> SensorNoiseConfig | None:
+    """The IMU's sensor model: the named profile, else the emulator's configured IMU, else None."""
+    from giwbc.robot.noise import SensorNoiseConfig
+
+    if options.imu_profile is not None:
+        try:
+            return SensorNoiseConfig.profile(options.imu_profile)
+        except ValueError as error:
+            raise DeployError(str(error)) from error
+    return options.emulator.imu if options.emulate and options.emulator is not None else None
 
 
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
@@ -470,6 +508,11 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--fault", default=None, metavar="KIND",
                         help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
+    from giwbc.robot.noise import IMU_PROFILES
+
+    parser.add_argument("--imu-profile", choices=sorted(IMU_PROFILES), default=None,
+                        help="the IMU's class: with --emulate the emulated IMU's errors (mems, cheap: no orientation output); "
+                             "sets up the state estimator for it")  # fmt: skip
     parser.set_defaults(run=run_deploy_command)
     return parser
 
@@ -491,7 +534,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
-        startup=startup, rt_priority=args.rt_priority, faults=faults,
+        startup=startup, rt_priority=args.rt_priority, faults=faults, imu_profile=args.imu_profile,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
@@ -501,6 +544,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             "fault": None if result is None or result.fault is None else result.fault.as_dict(),
             "faults": [] if result is None else [f.kind.value for f in result.faults],
             "timing": None if result is None else result.timing, "standing": outcome.standing,
+            "calibration": None if outcome.calibration is None else outcome.calibration.as_dict(),
         }))  # fmt: skip
     elif outcome.exit_code:
         print(f"giwbc deploy: {outcome.message}", file=sys.stderr)

@@ -239,6 +239,8 @@ class StateEstimator:
         self.orientation.initialized = False
         self.detector.reset()
         self.standstill.reset()
+        startup = self.config.standstill.startup_blocks
+        self.standstill.blocks = startup if startup is not None and self.config.calibrate else self.config.standstill.blocks
         self.calibration: CalibrationReport | None = None
         self.zero_velocity_updates = 0
         self._ready = not self.config.calibrate
@@ -263,6 +265,17 @@ class StateEstimator:
     def ready(self) -> bool:
         """Whether the start-up calibration is done (see :meth:`update`)."""
         return self._ready
+
+    @property
+    def waiting_for(self) -> str:
+        """Why the estimator is not :attr:`ready` yet, for a person ("" once ready)."""
+        if self._ready:
+            return ""
+        if not self.orientation.initialized:
+            return "no usable IMU sample yet"
+        if self.calibration is not None:
+            return "calibrated: restarting from it at the next sample"
+        return f"a standstill on both feet ({self.standstill.rejection})"
 
     @property
     def foot_twists(self) -> int:
@@ -500,6 +513,7 @@ class StateEstimator:
         gyro bias (and, with flat feet holding the tilt, of the accelerometer bias)."""
         c = self.config
         if not all(flags):
+            self.standstill.rejection = "still, but not on both feet (contact flags)"
             return
         if self.calibration is None and c.calibrate:
             self._calibrate(window, output, base_rotation)
@@ -546,6 +560,7 @@ class StateEstimator:
         self.headings.reset()
         self._specific_force_lp = self._leg_velocity_lp = None
         self._restart_pending = True
+        self.standstill.blocks = c.standstill.blocks  # later windows: zero-velocity updates
         self.calibration = CalibrationReport(
             time=window.end_time, gyro_bias=gyro_bias, accel_bias=accel_bias, roll=math.atan2(base[2, 1], base[2, 2]),
             pitch=-math.asin(max(-1.0, min(1.0, base[2, 0]))), tilt_source=source,
