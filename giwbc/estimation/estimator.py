@@ -10,7 +10,8 @@ so the same code runs on MuJoCo sensor data and on CAN/IMU data:
    windows in double support re-estimate the gyro bias (zero-velocity updates);
 1. orientation: a complementary filter on SO(3) (gyro propagation, gyro bias estimated) pulled
    toward, best first: the base orientation that flat stance feet imply (tilt from the joint
-   encoders, heading held while the foot stays down; a foot counts as flat while its centre of
+   encoders, heading held while the foot stays down and re-anchored only when it twists fast,
+   :mod:`~giwbc.estimation.headings`, so the yaw gyro bias is learnt; a foot counts as flat while its centre of
    pressure, from the leg's efforts, is well inside the sole), the IMU's own orientation output
    (less its calibrated offset), or the accelerometer's gravity direction corrected by the base
    acceleration the stance legs measure;
