@@ -200,8 +200,9 @@ class StandstillDetector:
         if np.abs(j1 - j0).max() > c.joint_change:
             self.rejection = f"a leg joint moved by {np.abs(j1 - j0).max():.4f} rad across the window"
             return None
-        # The turn of the gravity direction over the window: d(up)/dt = up x omega, the slope a
-        # least-squares line through the blocks' mean specific force (weighted by their samples).
+        # The turn of the gravity direction over the window, d(up)/dt = up x omega (so the omega
+        # perpendicular to up is d(up)/dt x up): the slope of a least-squares line through the
+        # blocks' mean specific force (weighted by their samples).
         counts = np.array([b.n for b, _ in self._still], float)
         weights = counts / counts.sum()
         centres = np.array([b.start for b, _ in self._still]) + 0.5 * c.block_time
@@ -211,7 +212,7 @@ class StandstillDetector:
         mean_accel = weights @ accels
         norm = float(np.linalg.norm(mean_accel))
         up = mean_accel / norm
-        rate = np.cross(up, (weights * centres) @ (accels - mean_accel) / (spread * norm))  # the omega (perpendicular to up) that turns up so
+        rate = np.cross((weights * centres) @ (accels - mean_accel) / (spread * norm), up)  # the omega (perpendicular to up) that turns up so
         if np.linalg.norm(rate) > c.max_tilt_rate:
             self.rejection = f"the gravity direction turned at {np.linalg.norm(rate):.3f} rad/s (tilting)"
             return None

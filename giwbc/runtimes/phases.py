@@ -62,7 +62,7 @@ class StartupConfig:
     off_delay: float = 0.5  # damping held before motors off after a clean run
     enable_attempts: int = 5  # cycles of enter-motor-mode frames before giving up (plus the robot's reply lag)
     exit_attempts: int = 3  # cycles of exit-motor-mode frames, fewer when every motor confirmed
-    calibration_timeout: float = 10.0  # s of holding still for the state estimator's calibration before giving up
+    calibration_timeout: float = 15.0  # s of holding still for the state estimator's calibration before giving up
 
     def __post_init__(self) -> None:
         if self.ramp_profile not in PROFILES:
