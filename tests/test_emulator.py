@@ -26,6 +26,7 @@ from giwbc.hal.hardware import load_hardware
 from giwbc.hal.motor import MOTOR_PRESETS, MotorConfig
 from giwbc.hal.protocols import MitProtocol
 from giwbc.hal.protocols.mit import REPLY_VARIANTS
+from giwbc.robot.noise import SensorNoiseConfig
 
 DT = 0.002
 
@@ -373,8 +374,6 @@ def test_a_mems_imu_profile_publishes_gyro_and_accelerometer_with_its_drawn_erro
     """The ``mems`` profile: no orientation output (NaN quaternion), the turn-on gyro bias drawn from
     the seed in every sample (the robot hangs still in the gantry), 2 samples of latency, about 1 %
     of samples dropped (repeated); the same seed draws the same bias."""
-    from giwbc.robot.noise import SensorNoiseConfig
-
     mems = SensorNoiseConfig.profile("mems")
     host = rig(gantry=Gantry(until=5.0), imu=mems, seed=3)
     emu = host.emulator

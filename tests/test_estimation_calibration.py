@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from giwbc.control.balance import BalanceOnEstimate
+from giwbc.estimation.calibration import StandstillConfig
 from giwbc.estimation.estimator import EstimatorConfig, Measurement, StateEstimator
 from giwbc.estimation.evaluation import evaluate, push_sequence
 from giwbc.estimation.orientation import OrientationFilter
@@ -99,8 +100,6 @@ def test_a_slow_creep_over_a_long_start_up_window_is_not_taken_for_gyro_bias(g1,
     """A 3 s start-up window (deploy's) while the base creeps in pitch at 0.002 rad/s (a robot
     settling on soft soles, no joint moving, below every "moving" threshold): the turn of the
     gravity direction over the window tells the creep from the bias, which is found to 0.0005 rad/s."""
-    from giwbc.estimation.calibration import StandstillConfig
-
     bias = np.array([0.004, -0.006, 0.008])
     creep = np.array([0.0, 0.002, 0.0])
     estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, standstill=StandstillConfig(startup_blocks=12)))

@@ -17,6 +17,7 @@ from giwbc.emulation import EmulatorConfig, FaultInjection
 from giwbc.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig, SafetySupervisor, SignalWatch
 from giwbc.robot.interface import ImuReading
+from giwbc.robot.noise import SensorNoiseConfig
 
 T_FAULT = 0.3  # s: after the 0.22 s start-up, while the controller runs
 DT = 0.002
@@ -151,8 +152,6 @@ def test_fall(run, g1):
 def test_fall_with_a_mems_imu_without_orientation_output(run, g1):
     """The same push, the emulated IMU a MEMS one (no orientation output, biased gyro): the
     supervisor's own gyro + gravity tilt still sees the fall, as the base passes the limit."""
-    from giwbc.robot.noise import SensorNoiseConfig
-
     mems = SensorNoiseConfig.profile("mems")
     outcome = run([FaultInjection("push", force=(0.0, 300.0, 0.0), start=T_FAULT, stop=T_FAULT + 0.4)], seconds=1.2, imu=mems)
     fault, log = assert_safe_stop(outcome, FaultKind.FALL, g1)

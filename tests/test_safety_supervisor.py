@@ -13,6 +13,7 @@ import pytest
 
 from giwbc.hal.can_robot import CycleReport
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
+from giwbc.robot import so3
 from giwbc.robot.interface import ImuReading
 
 DT = 0.002
@@ -204,8 +205,6 @@ def test_without_orientation_output_a_biased_standing_imu_never_trips_and_a_tilt
     """A standing robot with a cheap IMU (2 deg/s gyro bias on every axis, no orientation output):
     60 s without a fault, the tilt within a few degrees; then the same IMU held still at a tilt
     beyond the limit (a fault injected as a tilt): FALL."""
-    from giwbc.robot import so3
-
     checker = Checker(g1)
     bias = np.full(3, math.radians(2.0))
     tilts = []
@@ -225,8 +224,6 @@ def test_without_orientation_output_a_fall_the_accelerometer_cannot_see_is_caugh
     """Tipping over the feet like a pendulum, the specific force stays along the body's z axis:
     gravity alone would read "level" all the way down. Tipping at 1 rad/s from level, the gyro
     path reports FALL before the base is 0.05 rad past the limit."""
-    from giwbc.robot import so3
-
     checker = Checker(g1)
     for k in range(int(2.0 / DT)):  # standing: the filter settles
         assert checker(imu=_mems_sample(np.eye(3), np.zeros(3), k * DT, rng)) == []
