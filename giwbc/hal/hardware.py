@@ -27,8 +27,10 @@ Schema::
                                    # {min = .., max = ..} for position, velocity, kp, kd, torque
 
     [imu]
-    source = "emulated"            # or "serial" (device = "/dev/ttyUSB0", baudrate = 921600)
-                                   # or "can" (bus = "can4", id = 0x50)
+    source = "emulated"            # or "serial": an Xsens MTi (device = "/dev/ttyUSB0",
+                                   # baudrate = 921600), see giwbc.hal.xsens
+                                   # or "can": bus = "can4", rate = 500.0 and [[imu.frames]]
+                                   # (ids, byte layout, scales), see giwbc.hal.can_imu
 
 Validation names the file and the problem: unknown keys, unknown bus, duplicate CAN id on a bus,
 duplicate joint, unknown model preset, bad ranges, ambiguous replies, and buses over capacity at
@@ -49,6 +51,7 @@ from typing import Any
 import can
 
 from giwbc.hal.bus import DEFAULT_MAX_LOAD, BusCapacityError, BusLoad, BusPlanSpec, CanBusLink, plan_bus_loads
+from giwbc.hal.can_imu import CanImuLayout, parse_can_imu_layout
 from giwbc.hal.motor import RANGE_FIELDS, MotorConfig, motor_preset
 from giwbc.hal.protocols import ActuatorProtocol, ProtocolConfigError, protocol_class
 from giwbc.errors import HardwareConfigError
@@ -86,13 +89,18 @@ class BusConfig:
 
 @dataclass(frozen=True)
 class ImuConfig:
-    """Where the IMU comes from: ``emulated``, a ``serial`` device, or a ``can`` id on a bus."""
+    """Where the IMU comes from: ``emulated``, a ``serial`` device, or frames on a ``can`` bus."""
 
     source: str
     device: str | None = None
     baudrate: int | None = None
     bus: str | None = None
-    can_id: int | None = None
+    layout: CanImuLayout | None = None
+
+    @property
+    def can_id(self) -> int | None:
+        """The first frame id of a CAN IMU (None otherwise)."""
+        return self.layout.frames[0].can_id if self.layout is not None else None
 
 
 @dataclass(frozen=True)
@@ -345,18 +353,28 @@ def _build(data: Mapping[str, Any], control_rate: float, source: str, interface:
         configs.append(cfg)
 
     imu = _imu(source, data["imu"], buses)
+    extra = {}
+    if imu.layout is not None:  # the CAN IMU's frames share its bus with the motors
+        extra[imu.bus] = (imu.layout.bits_per_cycle(control_rate), imu.layout.bits_per_cycle(control_rate, worst_case=True))
     specs = [
-        BusPlanSpec(c.name, c.bitrate, tuple(protocol_class(c.protocol).traffic(m) for m in c.motors), c.max_load)
+        BusPlanSpec(
+            c.name, c.bitrate, tuple(protocol_class(c.protocol).traffic(m) for m in c.motors), c.max_load,
+            extra.get(c.name, (0, 0)),
+        )
         for c in configs
     ]
     try:
         loads = plan_bus_loads(specs, control_rate)
     except BusCapacityError as e:
         raise _fail(source, "", str(e)) from e
-    if imu.source == "can":
-        ids = {m.can_id for m in buses[imu.bus]["motors"]}  # type: ignore[index]
-        if imu.can_id in ids:
-            raise _fail(source, "imu", f"CAN id {imu.can_id} is a motor's id on bus {imu.bus!r}")
+    if imu.layout is not None:
+        bus_cfg = next(c for c in configs if c.name == imu.bus)
+        taken = {m.can_id: f"motor {m.joint!r}" for m in bus_cfg.motors}
+        if bus_cfg.host_id is not None:
+            taken[bus_cfg.host_id] = "the motors' reply id (host_id)"
+        for fr in imu.layout.frames:
+            if not fr.extended and fr.can_id in taken:
+                raise _fail(source, "imu", f"CAN id {fr.can_id} is {taken[fr.can_id]}'s id on bus {imu.bus!r}")
     return HardwarePlan(source, control_rate, tuple(configs), imu, MappingProxyType(loads))
 
 
@@ -368,12 +386,14 @@ def _channel(source: str, where: str, v: Any) -> str | int:
 
 def _imu(source: str, t: Any, buses: Mapping[str, Any]) -> ImuConfig:
     where = "imu"
-    _check_keys(source, where, t, {"source", "device", "baudrate", "bus", "id"}, ("source",))
+    _check_keys(source, where, t, {"source", "device", "baudrate", "bus", "id", "rate", "frames"}, ("source",))
     kind = t["source"]
     if kind not in IMU_SOURCES:
         raise _fail(source, where, f"source must be one of {', '.join(IMU_SOURCES)}, got {kind!r}")
-    allowed = {"emulated": {"source"}, "serial": {"source", "device", "baudrate"}, "can": {"source", "bus", "id"}}[kind]
-    required = {"emulated": (), "serial": ("device",), "can": ("bus", "id")}[kind]
+    if kind == "can" and "id" in t:
+        raise _fail(source, where, "a CAN IMU is described by rate and [[imu.frames]] (id and fields of each frame), not one id")
+    allowed = {"emulated": {"source"}, "serial": {"source", "device", "baudrate"}, "can": {"source", "bus", "rate", "frames"}}[kind]
+    required = {"emulated": (), "serial": ("device",), "can": ("bus", "rate", "frames")}[kind]
     _check_keys(source, f"imu (source {kind!r})", t, allowed, required)
     if kind == "emulated":
         return ImuConfig("emulated")
@@ -388,7 +408,4 @@ def _imu(source: str, t: Any, buses: Mapping[str, Any]) -> ImuConfig:
     bus = _str(source, where, t, "bus")
     if bus not in buses:
         raise _fail(source, where, f"unknown bus {bus!r}; buses: {', '.join(buses)}")
-    can_id = _int(source, where, t, "id")
-    if not 0 <= can_id <= 0x7FF:
-        raise _fail(source, where, f"id must be a standard 11-bit CAN id, got {can_id}")
-    return ImuConfig("can", bus=bus, can_id=can_id)
+    return ImuConfig("can", bus=bus, layout=parse_can_imu_layout(t, source))
