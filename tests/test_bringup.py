@@ -27,7 +27,7 @@ from giwbc.hal.bringup import (
     update_plan,
     update_plan_text,
 )
-from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
+from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.hal.hardware import HardwarePlan, load_hardware, parse_hardware
 from giwbc.hal.motor import MotorConfig, motor_preset
 from giwbc.hal.protocols import MitProtocol
