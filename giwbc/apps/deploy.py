@@ -20,6 +20,15 @@ Procedure (:func:`deploy`):
    number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
    inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
 
+Real buses: before anything is sent, the SocketCAN pre-flight (:mod:`giwbc.hal.preflight`) checks
+every ``socketcan`` interface of the plan and stops with the ``ip link`` commands that fix it
+(``--no-preflight`` skips it). Before enabling, the runtime reads every joint without torque and
+refuses to start when one is outside its limits (a wrong sign or zero offset).
+``--first-run``: a robot on a gantry: reduced torque and gains, tighter supervisor thresholds
+(:class:`giwbc.hal.bringup.FirstRunLimits`); with ``--emulate`` the emulated robot hangs on a gantry.
+``--emulate --imu serial|can``: the emulator sends its IMU as an Xsens MTi on a pseudo-terminal or
+as CAN frames, read through the real drivers.
+
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
@@ -199,6 +208,9 @@ class DeployOptions:
     faults: tuple[FaultInjection, ...] = ()  # injected into the emulator (rehearsals, tests)
     reply_timeout: float = 0.8e-3
     rt_priority: int | None = None  # SCHED_FIFO priority of the control loop (None: the default scheduler)
+    imu: str | None = None  # with emulate: "emulated", "serial" or "can" (the device the emulator imitates); None: the plan's
+    preflight: bool = True  # SocketCAN pre-flight on real buses
+    first_run: bool = False  # a robot on a gantry: reduced limits (FirstRunLimits)
 
 
 @dataclass
@@ -214,6 +226,7 @@ class DeployOutcome:
     standing: dict[str, float] | None = None
     emulator: ActuatorEmulator | EmulatorProcess | None = None
     fault_onsets: dict[str, float] = field(default_factory=dict)  # host-side injected faults: robot time each first acted
+    imu_counters: dict[str, int] | None = None  # a serial or CAN IMU driver's counters (samples, checksum errors, ...)
 
 
 def deploy(
@@ -283,6 +296,17 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         )  # fmt: skip
     except HardwareConfigError as error:
         raise DeployError(str(error)) from error
+    if options.imu is not None:
+        from giwbc.hal.imu import rehearsal_imu
+
+        if not options.emulate:
+            raise DeployError("--imu chooses the IMU device the emulator imitates (--emulate); on hardware the plan's [imu] decides")
+        try:
+            plan = plan.with_imu(rehearsal_imu(plan, options.imu))
+        except (HardwareConfigError, ValueError) as error:
+            raise DeployError(str(error)) from error
+    if options.emulate and options.emulator_mode == "process" and plan.imu.source != "emulated":
+        raise DeployError(f"a {plan.imu.source} IMU is emulated with the lockstep emulator only (--emulator lockstep, or --imu emulated)")
     loads = [str(load_) for load_ in plan.loads.values()]
     say(f"hardware {hardware}: {len(plan.motors)} motors on {len(plan.buses)} buses at {options.control_rate:g} Hz")
     for line in loads:
@@ -297,9 +321,26 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     robot = None
     log = None
     runtime = None
+    imu = None
     try:
+        first_run = None
+        safety = options.safety
+        if options.first_run:
+            from giwbc.hal.bringup import FirstRunLimits
+            from giwbc.hal.safety import SafetyConfig
+
+            first_run = FirstRunLimits()
+            safety = first_run.safety(safety or SafetyConfig())
+            say(f"first run (gantry): torque x{first_run.torque_fraction:g}, gains x{first_run.gain_fraction:g}, "
+                f"tilt limit {safety.max_tilt:g} rad, joint limits {safety.soft_limit_margin:g} rad inside")  # fmt: skip
         if options.emulate:
             config = options.emulator or EmulatorConfig()
+            if first_run is not None and config.gantry is None:
+                from dataclasses import replace
+
+                from giwbc.emulation import Gantry
+
+                config = replace(config, gantry=Gantry(until=math.inf))
             if options.faults:
                 from dataclasses import replace
 
@@ -315,13 +356,23 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 emulator = ActuatorEmulator(plan, description, config, model=copy.copy(model) if model is not None else None)
                 host_plan, peer = emulator.host_plan(), emulator
                 say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
-            imu = imu_source_for(plan.imu, emulator.imu_channel)
+            imu = imu_source_for(host_plan.imu, emulator.imu_channel)
         else:
             host_plan, peer = plan, None
             try:
                 imu = imu_source_for(plan.imu)
-            except (NotImplementedError, ValueError) as error:
+            except (HardwareConfigError, ValueError) as error:
                 raise DeployError(str(error)) from error
+            if options.preflight and any(b.interface == "socketcan" for b in plan.buses):
+                from giwbc.hal.preflight import preflight
+
+                report = preflight(plan)
+                say(str(report))
+                if not report.ok:
+                    raise DeployError("SocketCAN pre-flight failed: run the commands above (or --no-preflight to skip the check)")
+        if plan.imu.source != "emulated":
+            say(f"IMU: {plan.imu.source} ({host_plan.imu.device if plan.imu.source == 'serial' else 'bus ' + str(plan.imu.bus)}), "
+                "read through its driver")  # fmt: skip
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
@@ -337,6 +388,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                              wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links)
         except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
             raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
+        if first_run is not None:
+            robot.reduce_limits(first_run.torque_fraction, first_run.gain_fraction)
 
         if not clock:
             clock.append(lambda: robot.time() + 1.0 / options.control_rate)
@@ -359,7 +412,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             "agent_rate": agent_rate, "seconds": options.seconds, "bus_loads": loads,
         })  # fmt: skip
         runtime = RealtimeRuntime(
-            task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=options.safety,
+            task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=safety,
             startup=options.startup, log=log, log_every=options.log_every, realtime=options.realtime,
             rt_priority=options.rt_priority,
         )  # fmt: skip
@@ -367,6 +420,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             _check_layout(metadata, task)
         say(f"running {task_name} ({options.controller}) for {options.seconds:g} s" + (" with the policy" if policy else ""))
         result = runtime.run(policy, options.seconds)
+        imu_counters = _imu_counters(imu)
+        if imu_counters is not None:
+            say("IMU driver: " + ", ".join(f"{k} {v}" for k, v in imu_counters.items()))
     finally:
         if host_faults:
             host_faults.release()  # a driver blocked on purpose: let the abandoned loop's thread leave
@@ -374,6 +430,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 runtime._loop_thread.join(1.0)
         if robot is not None:
             robot.close()
+        if hasattr(imu, "close"):
+            imu.close()  # a serial IMU's port
         if emulator is not None:
             emulator.close()
         if log is not None:
@@ -410,7 +468,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     if len(result.faults) > 1:
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
-    return DeployOutcome(result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets))
+    return DeployOutcome(
+        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), imu_counters
+    )
 
 
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
@@ -445,6 +505,14 @@ def _standing(emulator: ActuatorEmulator | EmulatorProcess, result: RunResult) -
             "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood}  # fmt: skip
 
 
+def _imu_counters(imu: Any) -> dict[str, int] | None:
+    """What a serial or CAN IMU driver counted (None for the emulator's channel)."""
+    counters = getattr(imu, "counters", None)
+    if counters is None:
+        return None
+    return dict(counters.as_dict() if hasattr(counters, "as_dict") else counters)
+
+
 def _us(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.0f} us"
 
@@ -467,6 +535,11 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
     parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    parser.add_argument("--imu", choices=("emulated", "serial", "can"), default=None,
+                        help="with --emulate: the IMU device the emulator imitates, read through the real driver (default: the plan's)")
+    parser.add_argument("--no-preflight", action="store_true", help="skip the SocketCAN pre-flight check of the interfaces")
+    parser.add_argument("--first-run", action="store_true",
+                        help="robot on a gantry: reduced torque and gains, tighter fall and limit thresholds")
     parser.add_argument("--fault", default=None, metavar="KIND",
                         help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
@@ -491,7 +564,8 @@ def run_deploy_command(args: argparse.Namespace) -> int:
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
-        startup=startup, rt_priority=args.rt_priority, faults=faults,
+        startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
+        first_run=args.first_run,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:

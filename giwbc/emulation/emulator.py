@@ -34,7 +34,10 @@ Speed: every bus speaks MIT mode in the shipped plans, so commands are decoded a
 for all motors at once (:class:`~giwbc.emulation.firmware.MitFirmwareCodec`, bit-identical to the protocol's scalar calls);
 python-can's per-frame cost is what remains (~5 us per send or receive on ``virtual``).
 
-Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance.
+Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance,
+and, when the plan's IMU is ``serial`` or ``can``, sent as that device's bytes
+(:mod:`~giwbc.emulation.imu_devices`: a pseudo-terminal whose path :meth:`host_plan` gives, or
+frames on the IMU's bus), so the host reads it through its real driver.
 """
 
 from __future__ import annotations
@@ -53,6 +56,7 @@ from giwbc.emulation.config import AppliedSnapshot, EmulatorConfig, EmulatorCoun
 from giwbc.emulation.faults import _REPLY_FAULTS, FaultEffects, FaultInjection
 from giwbc.emulation.firmware import MOTOR, OFF, MitFirmwareCodec
 from giwbc.hal.frames import FramePort, PortGroup, fields, frame_port, frames, frames_of
+from giwbc.emulation.imu_devices import SerialImuDevice, imu_device_for
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.hal.imu import ImuChannel
 from giwbc.hal.motor import MotorGroup
@@ -149,6 +153,11 @@ class ActuatorEmulator(FaultEffects):
         for f in c.faults:
             self.add_fault(f)
         self.imu_channel = ImuChannel()
+        # A serial or CAN IMU in the plan: its bytes too, for the host's real driver (the channel
+        # keeps every sample, for tests).
+        self.imu_device = imu_device_for(plan.imu, {b.name: p for b, p in zip(plan.buses, self.ports)})
+        if isinstance(self.imu_device, SerialImuDevice):
+            self._host_plan = self._host_plan.with_imu(replace(plan.imu, device=self.imu_device.path))
         self.snapshots: list[AppliedSnapshot] = []
         self.truth: list[tuple[float, float, float]] = []  # ground truth for judging a dry run, never sent to the host
         self._delayed: list[tuple[float, int, np.ndarray]] = []  # (due, bus, one-frame batch)
@@ -195,6 +204,8 @@ class ActuatorEmulator(FaultEffects):
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            if self.imu_device is not None:
+                self.imu_device.close()
             for b in self.buses:
                 b.shutdown()
 
@@ -454,7 +465,10 @@ class ActuatorEmulator(FaultEffects):
         return self.group.sign * tau / self.group.gear
 
     def _publish_imu(self) -> None:
-        self.imu_channel.publish(self.robot.imu())
+        reading = self.robot.imu()
+        self.imu_channel.publish(reading)
+        if self.imu_device is not None:
+            self.imu_device.publish(reading)
 
     def _snapshot(self) -> AppliedSnapshot:
         imp = self._impedance

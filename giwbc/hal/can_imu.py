@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import math
 import time
+import tomllib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -134,6 +135,35 @@ class CanImuLayout:
         """Bus bit times the IMU takes per control cycle (whole frames, rounded up)."""
         n = self.frames_per_cycle(control_rate)
         return n * sum(frame_bits(8, extended_id=f.extended, worst_case=worst_case) for f in self.frames)
+
+
+EXAMPLE_LAYOUT = """
+rate = 500.0
+[[frames]]   # orientation, Q15 (1/32768)
+id = 0x50
+fields = [{ name = "qw", byte = 0, type = "i16", scale = 3.0517578125e-05 },
+          { name = "qx", byte = 2, type = "i16", scale = 3.0517578125e-05 },
+          { name = "qy", byte = 4, type = "i16", scale = 3.0517578125e-05 },
+          { name = "qz", byte = 6, type = "i16", scale = 3.0517578125e-05 }]
+[[frames]]   # rate of turn, +-2000 deg/s full scale, and a 1 ms tick counter
+id = 0x51
+fields = [{ name = "gx", byte = 0, type = "i16", scale = 0.0010652644360316954 },
+          { name = "gy", byte = 2, type = "i16", scale = 0.0010652644360316954 },
+          { name = "gz", byte = 4, type = "i16", scale = 0.0010652644360316954 },
+          { name = "time", byte = 6, type = "u16", scale = 0.001 }]
+[[frames]]   # specific force, +-16 g full scale
+id = 0x52
+fields = [{ name = "ax", byte = 0, type = "i16", scale = 0.0047884033203125 },
+          { name = "ay", byte = 2, type = "i16", scale = 0.0047884033203125 },
+          { name = "az", byte = 4, type = "i16", scale = 0.0047884033203125 }]
+"""
+"""A generic layout (little-endian 16-bit fields in three frames), the one ``giwbc deploy --emulate
+--imu can`` rehearses with; a real IMU's manual gives its own ids, offsets and scales."""
+
+
+def example_layout() -> CanImuLayout:
+    """:data:`EXAMPLE_LAYOUT`, parsed."""
+    return parse_can_imu_layout(tomllib.loads(EXAMPLE_LAYOUT), "giwbc.hal.can_imu.EXAMPLE_LAYOUT")
 
 
 # ----------------------------------------------------------------------------- configuration
@@ -254,6 +284,7 @@ class CanImu:
 
     layout: CanImuLayout
     clock: Callable[[], float] = time.monotonic
+    bus: str | None = None  # the plan's bus the frames come on (for the robot that routes them)
     counters: CanImuCounters = field(default_factory=CanImuCounters)
     _values: dict[str, float] = field(default_factory=dict)
     _got: set[int] = field(default_factory=set)
@@ -359,6 +390,8 @@ class CanImuEncoder:
 
 
 __all__ = [
+    "EXAMPLE_LAYOUT",
+    "example_layout",
     "CanImu",
     "CanImuCounters",
     "CanImuEncoder",

@@ -15,6 +15,8 @@ measured when the command arrived, so the command computed from them goes out at
 - **Late frames**: before sending, frames already waiting (replies that missed an earlier deadline)
   are drained and counted as late, never taken as this cycle's replies.
 - **IMU** comes from an :class:`ImuSource` (:mod:`giwbc.hal.imu`; ``emulated``: the emulator's :class:`~giwbc.hal.imu.ImuChannel`).
+  A CAN IMU (:class:`~giwbc.hal.can_imu.CanImu`) shares a bus with motors: its frames are taken
+  out of what the robot reads on that bus and handed to it, never counted as unknown traffic.
 - **Base state** is not measured on hardware: it comes from an attached
   :class:`~giwbc.estimation.estimator.StateEstimator`, updated once per exchange. Without one,
   :meth:`base_state` raises :class:`BaseStateUnavailable` (never ground truth from a simulator).
@@ -27,13 +29,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from giwbc.hal.bus import BUS_ERRORS, DROPPED, RETRIES, SENT, UNKNOWN, VERDICT_COLUMNS, CanBusLink
-from giwbc.hal.frames import PortGroup
+from giwbc.hal.can_imu import CanImu
+from giwbc.hal.frames import GroupReceived, PortGroup
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.hal.imu import ImuSource
 from giwbc.hal.motor import MotorGroup
@@ -124,6 +127,14 @@ class CanRobot(DescribedRobot):
         if len(self.links) != len(plan.buses):
             raise ValueError(f"{len(self.links)} links for {len(plan.buses)} buses")
         self.imu_source = imu
+        # A CAN IMU's frames arrive with the motors' replies: handed to it before decoding.
+        self._can_imu = imu if isinstance(imu, CanImu) else None
+        self._imu_bus = -1
+        if self._can_imu is not None:
+            names_ = [b.name for b in plan.buses]
+            if self._can_imu.bus not in names_:
+                raise ValueError(f"the CAN IMU's bus {self._can_imu.bus!r} is not one of the plan's buses {names_}")
+            self._imu_bus = names_.index(self._can_imu.bus)
         self.estimator = estimator
         self.peer = peer
         self.reply_timeout = float(reply_timeout)
@@ -161,10 +172,12 @@ class CanRobot(DescribedRobot):
         self._stale = np.zeros(dofs, dtype=np.int64)
         self._replied = np.zeros(dofs, dtype=bool)
         self._effort = description.effort_limits
+        self._gain_scale = 1.0
         self.command = ImpedanceCommand.damping(dofs, 0.0)
         self.clamp_counts = np.zeros((dofs, 5), dtype=np.int64)  # per joint and field, cumulative
         self.cycle = 0
         self._time = 0.0
+        self._now = 0.0  # the time of the cycle in progress (host-clock stamp of CAN IMU samples)
         self._imu: ImuReading | None = None
         self._imu_time: float | None = None
         self._estimate: Estimate | None = None
@@ -193,6 +206,7 @@ class CanRobot(DescribedRobot):
         if kind not in (COMMAND, ENTER, EXIT):
             raise ValueError(f"exchange kind must be command, enter or exit, got {kind!r}")
         peer = self.peer
+        self._now = float(t)
         started = time.perf_counter()
         if peer is not None:
             peer.advance(t)
@@ -274,12 +288,12 @@ class CanRobot(DescribedRobot):
         replies are read at the next cycle."""
         ports, codec = self.ports, self.codec
         if deadline is None:
-            got = ports.receive(None, self._bus_sizes if expect else self._no_frames, drain=True)
+            got = self._imu_frames(ports.receive(None, self._bus_sizes if expect else self._no_frames, drain=True))
             received = [got]
             batch, bus = got.frames, got.bus
             decoded = codec.decode_replies(bus, batch)
         else:
-            got = ports.receive(deadline, self._bus_sizes)
+            got = self._imu_frames(ports.receive(deadline, self._bus_sizes))
             received = [got]
             batch, bus = got.frames, got.bus
             decoded = codec.decode_replies(bus, batch)
@@ -292,7 +306,7 @@ class CanRobot(DescribedRobot):
                 if not again:
                     break
                 past = time.perf_counter() >= deadline
-                more = ports.receive(None, None, again) if past else ports.receive(deadline, need, again)
+                more = self._imu_frames(ports.receive(None, None, again) if past else ports.receive(deadline, need, again))
                 received.append(more)
                 failed.update(b for b, error in enumerate(more.errors) if error is not None)
                 if len(more.frames):
@@ -301,7 +315,7 @@ class CanRobot(DescribedRobot):
                 if past:
                     break
             live = [b for b in range(len(self.links)) if b not in failed]
-            more = ports.receive(None, self._no_frames, live, drain=True)  # copies already waiting: one select()
+            more = self._imu_frames(ports.receive(None, self._no_frames, live, drain=True))  # copies already waiting: one select()
             if len(more.frames):
                 received.append(more)
                 batch, bus = self._merge(batch, bus, more)
@@ -313,6 +327,19 @@ class CanRobot(DescribedRobot):
         if len(bus):
             self._link_counts += np.bincount(bus * 8 + VERDICT_COLUMNS[decoded.verdict], minlength=self._link_counts.size).reshape(self._link_counts.shape)
         return decoded, bus, skipped
+
+    def _imu_frames(self, got: GroupReceived) -> GroupReceived:
+        """Hand the CAN IMU's frames in ``got`` to it; ``got`` without them."""
+        if self._can_imu is None or not len(got.frames):
+            return got
+        on_bus = got.bus == self._imu_bus
+        if not on_bus.any():
+            return got
+        taken = np.zeros(len(got.frames), dtype=bool)
+        taken[on_bus] = self._can_imu.take(got.frames[on_bus], now=self._now)
+        if not taken.any():
+            return got
+        return replace(got, frames=got.frames[~taken], bus=got.bus[~taken])
 
     @staticmethod
     def _merge(batch: np.ndarray, bus: np.ndarray, more: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -469,7 +496,17 @@ class CanRobot(DescribedRobot):
         if (rows[2:4] < 0).any():
             raise ValueError("impedance gains kp and kd must be >= 0")
         np.clip(rows[4], -self._effort, self._effort, out=rows[4])
+        if self._gain_scale != 1.0:
+            rows[2:4] *= self._gain_scale
         self.command = ImpedanceCommand(rows[0], rows[1], rows[2], rows[3], rows[4])
+
+    def reduce_limits(self, torque_fraction: float, gain_fraction: float) -> None:
+        """A first run (the robot on a gantry): feed-forward torques clamped to ``torque_fraction``
+        of the effort limits, and every command's kp and kd scaled by ``gain_fraction`` (both in (0, 1])."""
+        if not (0 < torque_fraction <= 1 and 0 < gain_fraction <= 1):
+            raise ValueError(f"fractions must be in (0, 1], got torque {torque_fraction}, gains {gain_fraction}")
+        self._effort = self.description.effort_limits * torque_fraction
+        self._gain_scale = float(gain_fraction)
 
     # --- latest measurements, without copies (the runtime and the supervisor read them) ---------
     @property

@@ -141,6 +141,10 @@ class HardwarePlan:
         where = {m.joint: (b.name, i) for b in self.buses for i, m in enumerate(b.motors)}
         return tuple(where[j] for j in joint_names)
 
+    def with_imu(self, imu: ImuConfig) -> HardwarePlan:
+        """The same plan with another IMU source (bus loads and CAN ids checked again)."""
+        return replace(self, imu=imu, loads=MappingProxyType(_loads(self.source, self.buses, imu, self.control_rate)))
+
     def with_interface(self, interface: str) -> HardwarePlan:
         """The same plan with every bus on another python-can interface (e.g. ``"virtual"``)."""
         return replace(self, buses=tuple(replace(b, interface=interface) for b in self.buses))
@@ -353,6 +357,12 @@ def _build(data: Mapping[str, Any], control_rate: float, source: str, interface:
         configs.append(cfg)
 
     imu = _imu(source, data["imu"], buses)
+    return HardwarePlan(source, control_rate, tuple(configs), imu, MappingProxyType(_loads(source, configs, imu, control_rate)))
+
+
+def _loads(source: str, configs: Sequence[BusConfig], imu: ImuConfig, control_rate: float) -> dict[str, BusLoad]:
+    """Bus loads at ``control_rate`` (a CAN IMU's frames on its bus included); the IMU's frame ids
+    must not be a motor's id or the motors' reply id on that bus."""
     extra = {}
     if imu.layout is not None:  # the CAN IMU's frames share its bus with the motors
         extra[imu.bus] = (imu.layout.bits_per_cycle(control_rate), imu.layout.bits_per_cycle(control_rate, worst_case=True))
@@ -368,14 +378,16 @@ def _build(data: Mapping[str, Any], control_rate: float, source: str, interface:
     except BusCapacityError as e:
         raise _fail(source, "", str(e)) from e
     if imu.layout is not None:
-        bus_cfg = next(c for c in configs if c.name == imu.bus)
+        bus_cfg = next((c for c in configs if c.name == imu.bus), None)
+        if bus_cfg is None:
+            raise _fail(source, "imu", f"unknown bus {imu.bus!r}; buses: {', '.join(c.name for c in configs)}")
         taken = {m.can_id: f"motor {m.joint!r}" for m in bus_cfg.motors}
         if bus_cfg.host_id is not None:
             taken[bus_cfg.host_id] = "the motors' reply id (host_id)"
         for fr in imu.layout.frames:
             if not fr.extended and fr.can_id in taken:
                 raise _fail(source, "imu", f"CAN id {fr.can_id} is {taken[fr.can_id]}'s id on bus {imu.bus!r}")
-    return HardwarePlan(source, control_rate, tuple(configs), imu, MappingProxyType(loads))
+    return loads
 
 
 def _channel(source: str, where: str, v: Any) -> str | int:

@@ -110,6 +110,7 @@ class SafetyConfig:
     bus_off_cycles: int = 2  # consecutive cycles in which a bus's driver refused every frame
     watchdog_periods: int = 50  # control periods (wall clock; unpaced runs: at least 1 s) without a cycle before the watchdog stops the motors
     stop_margin: float = 1.0  # s (wall clock) a safe stop may overrun its nominal length before the watchdog takes over
+    start_limit_tolerance: float = 0.1  # rad a joint may read beyond its limits before start (resting on a stop)
 
     def __post_init__(self) -> None:
         for name in ("max_missing_cycles", "max_corrupt_frames", "corrupt_window", "torque_cycles", "imu_timeout_cycles",
