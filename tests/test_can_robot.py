@@ -9,6 +9,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from giwbc.errors import HardwareConfigError
+
 from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, NonFiniteCommand
 from giwbc.hal.imu import imu_source_for
 from giwbc.hal.frames import FastMessage, fast_message
@@ -215,8 +217,8 @@ def test_non_finite_and_malformed_commands_are_refused(rig, g1):
 def test_imu_sources_and_fast_messages():
     with pytest.raises(ValueError, match="emulate"):
         imu_source_for(ImuConfig("emulated"))
-    with pytest.raises(NotImplementedError, match="serial"):
-        imu_source_for(ImuConfig("serial", device="/dev/ttyUSB0"))
+    with pytest.raises(HardwareConfigError, match="cannot open the serial IMU at '/dev/nonexistent-giwbc-imu'"):
+        imu_source_for(ImuConfig("serial", device="/dev/nonexistent-giwbc-imu"))
     msg = fast_message(0x12, b"\x01\x02\x03")
     clone = copy.deepcopy(msg)
     assert isinstance(clone, FastMessage) and clone is not msg and clone.data is not msg.data
