@@ -211,6 +211,7 @@ class DeployOptions:
     imu: str | None = None  # with emulate: "emulated", "serial" or "can" (the device the emulator imitates); None: the plan's
     preflight: bool = True  # SocketCAN pre-flight on real buses
     first_run: bool = False  # a robot on a gantry: reduced limits (FirstRunLimits)
+    emulated_hardware: str | None = None  # with emulate: the emulated robot's true wiring (default: the plan), e.g. to rehearse a wrong sign
 
 
 @dataclass
@@ -353,8 +354,15 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 host_plan, peer = emulator.host_plan(), None
                 say("emulated actuators in their own process on giwbc-unix channels (real time; replies read at the next cycle)")
             else:
-                emulator = ActuatorEmulator(plan, description, config, model=copy.copy(model) if model is not None else None)
-                host_plan, peer = emulator.host_plan(), emulator
+                truth = plan
+                if options.emulated_hardware is not None:
+                    try:
+                        truth = load_hardware(options.emulated_hardware, options.control_rate, joint_names=names, interface="virtual")
+                    except HardwareConfigError as error:
+                        raise DeployError(str(error)) from error
+                    truth = truth.with_imu(plan.imu)
+                emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None else None)
+                host_plan, peer = _on_channels(plan, emulator.host_plan()), emulator
                 say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
             imu = imu_source_for(host_plan.imu, emulator.imu_channel)
         else:
@@ -503,6 +511,15 @@ def _standing(emulator: ActuatorEmulator | EmulatorProcess, result: RunResult) -
     stood = bool(tilts.max() < math.radians(10.0) and heights.min() > 0.8 * heights[0])
     return {"min_height": float(heights.min()), "max_height": float(heights.max()), "max_tilt": float(tilts.max()),
             "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood}  # fmt: skip
+
+
+def _on_channels(plan: Any, like: Any) -> Any:
+    """``plan`` (its motors, sign and offsets) on the emulator's buses and IMU device (``like``)."""
+    from dataclasses import replace
+
+    chan = {b.name: (b.interface, b.channel) for b in like.buses}
+    buses = tuple(replace(b, interface=chan[b.name][0], channel=chan[b.name][1]) for b in plan.buses)
+    return replace(plan, buses=buses, imu=like.imu)
 
 
 def _imu_counters(imu: Any) -> dict[str, int] | None:
