@@ -259,6 +259,7 @@ def deploy(
 def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, description: Any, say: Callable[[str], None]) -> DeployOutcome:
     import copy
 
+    from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
     from giwbc.hal.can_robot import CanRobot
     from giwbc.hal.imu import imu_source_for
     from giwbc.emulation import ActuatorEmulator, EmulatorConfig
@@ -297,17 +298,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         )  # fmt: skip
     except HardwareConfigError as error:
         raise DeployError(str(error)) from error
-    if options.imu is not None:
-        from giwbc.hal.imu import rehearsal_imu
-
-        if not options.emulate:
-            raise DeployError("--imu chooses the IMU device the emulator imitates (--emulate); on hardware the plan's [imu] decides")
-        try:
-            plan = plan.with_imu(rehearsal_imu(plan, options.imu))
-        except (HardwareConfigError, ValueError) as error:
-            raise DeployError(str(error)) from error
-    if options.emulate and options.emulator_mode == "process" and plan.imu.source != "emulated":
-        raise DeployError(f"a {plan.imu.source} IMU is emulated with the lockstep emulator only (--emulator lockstep, or --imu emulated)")
+    plan = choose_imu(plan, options.imu, options.emulate, options.emulator_mode)
     loads = [str(load_) for load_ in plan.loads.values()]
     say(f"hardware {hardware}: {len(plan.motors)} motors on {len(plan.buses)} buses at {options.control_rate:g} Hz")
     for line in loads:
@@ -324,24 +315,13 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     runtime = None
     imu = None
     try:
-        first_run = None
-        safety = options.safety
+        first_run, safety = None, options.safety
         if options.first_run:
-            from giwbc.hal.bringup import FirstRunLimits
-            from giwbc.hal.safety import SafetyConfig
-
-            first_run = FirstRunLimits()
-            safety = first_run.safety(safety or SafetyConfig())
-            say(f"first run (gantry): torque x{first_run.torque_fraction:g}, gains x{first_run.gain_fraction:g}, "
-                f"tilt limit {safety.max_tilt:g} rad, joint limits {safety.soft_limit_margin:g} rad inside")  # fmt: skip
+            first_run, safety = first_run_settings(safety, say)
         if options.emulate:
             config = options.emulator or EmulatorConfig()
-            if first_run is not None and config.gantry is None:
-                from dataclasses import replace
-
-                from giwbc.emulation import Gantry
-
-                config = replace(config, gantry=Gantry(until=math.inf))
+            if first_run is not None:
+                config = with_gantry(config)
             if options.faults:
                 from dataclasses import replace
 
@@ -362,7 +342,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                         raise DeployError(str(error)) from error
                     truth = truth.with_imu(plan.imu)
                 emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None else None)
-                host_plan, peer = _on_channels(plan, emulator.host_plan()), emulator
+                host_plan, peer = on_channels(plan, emulator.host_plan()), emulator
                 say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
             imu = imu_source_for(host_plan.imu, emulator.imu_channel)
         else:
@@ -371,13 +351,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 imu = imu_source_for(plan.imu)
             except (HardwareConfigError, ValueError) as error:
                 raise DeployError(str(error)) from error
-            if options.preflight and any(b.interface == "socketcan" for b in plan.buses):
-                from giwbc.hal.preflight import preflight
-
-                report = preflight(plan)
-                say(str(report))
-                if not report.ok:
-                    raise DeployError("SocketCAN pre-flight failed: run the commands above (or --no-preflight to skip the check)")
+            if options.preflight:
+                check_interfaces(plan, say)
         if plan.imu.source != "emulated":
             say(f"IMU: {plan.imu.source} ({host_plan.imu.device if plan.imu.source == 'serial' else 'bus ' + str(plan.imu.bus)}), "
                 "read through its driver")  # fmt: skip
@@ -428,9 +403,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             _check_layout(metadata, task)
         say(f"running {task_name} ({options.controller}) for {options.seconds:g} s" + (" with the policy" if policy else ""))
         result = runtime.run(policy, options.seconds)
-        imu_counters = _imu_counters(imu)
-        if imu_counters is not None:
-            say("IMU driver: " + ", ".join(f"{k} {v}" for k, v in imu_counters.items()))
+        counters = imu_counters(imu)
+        if counters is not None:
+            say("IMU driver: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
     finally:
         if host_faults:
             host_faults.release()  # a driver blocked on purpose: let the abandoned loop's thread leave
@@ -477,7 +452,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
     return DeployOutcome(
-        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), imu_counters
+        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters
     )
 
 
@@ -513,23 +488,6 @@ def _standing(emulator: ActuatorEmulator | EmulatorProcess, result: RunResult) -
             "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood}  # fmt: skip
 
 
-def _on_channels(plan: Any, like: Any) -> Any:
-    """``plan`` (its motors, sign and offsets) on the emulator's buses and IMU device (``like``)."""
-    from dataclasses import replace
-
-    chan = {b.name: (b.interface, b.channel) for b in like.buses}
-    buses = tuple(replace(b, interface=chan[b.name][0], channel=chan[b.name][1]) for b in plan.buses)
-    return replace(plan, buses=buses, imu=like.imu)
-
-
-def _imu_counters(imu: Any) -> dict[str, int] | None:
-    """What a serial or CAN IMU driver counted (None for the emulator's channel)."""
-    counters = getattr(imu, "counters", None)
-    if counters is None:
-        return None
-    return dict(counters.as_dict() if hasattr(counters, "as_dict") else counters)
-
-
 def _us(value: float | None) -> str:
     return "n/a" if value is None else f"{value:.0f} us"
 
@@ -555,6 +513,8 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--imu", choices=("emulated", "serial", "can"), default=None,
                         help="with --emulate: the IMU device the emulator imitates, read through the real driver (default: the plan's)")
     parser.add_argument("--no-preflight", action="store_true", help="skip the SocketCAN pre-flight check of the interfaces")
+    parser.add_argument("--emulated-hardware", default=None,
+                        help="with --emulate: the emulated robot's true wiring, when it differs from --hardware (calibration rehearsals)")
     parser.add_argument("--first-run", action="store_true",
                         help="robot on a gantry: reduced torque and gains, tighter fall and limit thresholds")
     parser.add_argument("--fault", default=None, metavar="KIND",
@@ -582,7 +542,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
         startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
-        first_run=args.first_run,
+        first_run=args.first_run, emulated_hardware=args.emulated_hardware,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
