@@ -27,7 +27,9 @@ def model(g1):
 
 def run(g1, model, tmp_path, **options):
     lines: list[str] = []
-    settings = dict(emulate=True, controller="wbc", seconds=1.5, realtime=False, log=str(tmp_path / "run.mcap"), startup=FAST)
+    # lockstep replies are queued before the host reads: a long timeout only matters on a loaded machine
+    settings = dict(emulate=True, controller="wbc", seconds=1.5, realtime=False, log=str(tmp_path / "run.mcap"), startup=FAST,
+                    reply_timeout=0.01)  # fmt: skip
     opts = DeployOptions(**{**settings, **options})
     outcome = deploy(opts, model=model, description=g1, out=lines.append)
     return outcome, lines
@@ -64,6 +66,16 @@ def test_g1_stands_with_the_imu_read_through_its_driver(g1, model, tmp_path, sou
     truth = outcome.emulator.truth_between(0.5, 1.9)
     height = np.interp(truth[:, 0], est_t, estimate[:, 2])
     assert np.abs(height - truth[:, 1]).max() < 0.03
+
+
+@pytest.mark.parametrize("source", ["serial", "can"])
+def test_a_silent_imu_is_detected_as_stale(g1, model, tmp_path, source):
+    onset = FAST.settle_time + FAST.ramp_time + 0.3
+    outcome, _ = run(g1, model, tmp_path, imu=source, emulator=EmulatorConfig(faults=(FaultInjection("imu_silent", start=onset),)))
+    fault = outcome.result.fault
+    assert outcome.exit_code == 1 and fault.kind.value == "imu"
+    cycles = SafetyConfig().imu_timeout_cycles
+    assert onset < fault.time <= onset + (cycles + 2) * 0.002
 
 
 def test_a_joint_outside_its_limits_at_start_is_refused(g1, model, tmp_path):

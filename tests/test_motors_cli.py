@@ -66,7 +66,7 @@ def test_calibrate_recovers_wrong_signs_and_offsets_and_the_plan_then_deploys(g1
     def rehearse(hardware: Path):
         return deploy(DeployOptions(
             emulate=True, hardware=str(hardware), emulated_hardware=str(truth), controller="pd", seconds=1.0, realtime=False,
-            log=str(tmp_path / f"{hardware.stem}.mcap"), startup=fast,
+            log=str(tmp_path / f"{hardware.stem}.mcap"), startup=fast, reply_timeout=0.01,
         ), model=model, description=g1, out=None)  # fmt: skip
 
     before = rehearse(shipped)  # the shipped plan on the robot as it really is: never a clean stand

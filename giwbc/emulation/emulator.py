@@ -465,6 +465,8 @@ class ActuatorEmulator(FaultEffects):
         return self.group.sign * tau / self.group.gear
 
     def _publish_imu(self) -> None:
+        if self.faults and any(f.kind == "imu_silent" and f.active(self.time) for f in self.faults):
+            return
         reading = self.robot.imu()
         self.imu_channel.publish(reading)
         if self.imu_device is not None:

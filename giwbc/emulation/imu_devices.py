@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import os
 import pty
+import select
 import time
 import tty
 from collections.abc import Mapping
@@ -28,9 +29,15 @@ from giwbc.robot.interface import ImuReading
 
 class SerialImuDevice:
     """An MTi writing one MTData2 message per sample to a pseudo-terminal (raw mode). Writes never
-    block: a sample that does not fit (the host is not reading) is dropped and counted."""
+    block: a sample that does not fit (the host is not reading) is dropped and counted.
 
-    def __init__(self) -> None:
+    A pty hands written bytes to its reading side from a kernel worker, a little later; in
+    lockstep the host reads within microseconds, so each write waits (``settle`` s at most) until
+    the bytes are readable: the sample published at a cycle is the one the host reads at it, as
+    on a serial line whose latency is below one period."""
+
+    def __init__(self, settle: float = 0.05) -> None:
+        self.settle = settle
         self._master, self._slave = pty.openpty()
         tty.setraw(self._slave)  # no line discipline: the bytes pass as they are
         os.set_blocking(self._master, False)
@@ -48,6 +55,7 @@ class SerialImuDevice:
             n = 0
         if n == len(data):
             self.written += 1
+            select.select([self._slave], [], [], self.settle)
         else:
             self.dropped += 1  # a torn message: the host's parser resynchronises on the next
 
