@@ -413,8 +413,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 runtime._loop_thread.join(1.0)
         if robot is not None:
             robot.close()
-        if hasattr(imu, "close"):
-            imu.close()  # a serial IMU's port
+        if hasattr(imu, "close") and (emulator is None or imu is not emulator.imu_channel):
+            imu.close()  # a serial IMU's port (the emulator's channel is the emulator's to close)
         if emulator is not None:
             emulator.close()
         if log is not None:

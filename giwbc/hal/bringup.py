@@ -176,9 +176,11 @@ def reply_variant(motor_id: int, data: bytes) -> str:
     return "unknown"
 
 
-def scan(link: BringupLink, ids: Iterable[int] = range(1, 33), buses: Sequence[str] | None = None) -> ScanReport:
+def scan(
+    link: BringupLink, ids: Iterable[int] = range(1, 33), buses: Sequence[str] | None = None, retries: int = 2
+) -> ScanReport:
     """Probe every id of ``ids`` (and every planned id) on every bus, one at a time, and compare
-    who answered with the plan."""
+    who answered with the plan; a planned id that is silent is probed ``retries`` more times."""
     plan = link.plan
     answers: list[Answer] = []
     names = list(buses) if buses is not None else [b.name for b in plan.buses]
@@ -188,6 +190,10 @@ def scan(link: BringupLink, ids: Iterable[int] = range(1, 33), buses: Sequence[s
         planned = {m.can_id for m in cfg.motors}
         for i in sorted(set(ids) | planned):
             got = link.request(name, [probe_frame(protocol, i)])
+            for _ in range(retries if i in planned and not got else 0):  # a planned motor gets more tries
+                got = link.request(name, [probe_frame(protocol, i)])
+                if got:
+                    break
             for msg in got:
                 if cfg.host_id is not None and msg.arbitration_id != cfg.host_id and msg.arbitration_id != i:
                     continue  # not a reply to us
@@ -207,9 +213,7 @@ def scan(link: BringupLink, ids: Iterable[int] = range(1, 33), buses: Sequence[s
     missing = tuple((b.name, m.can_id, m.joint) for b in plan.buses if b.name in names for m in b.motors if (b.name, m.can_id) not in found)
     planned_at = {(b.name, m.can_id) for b in plan.buses for m in b.motors}
     extra = tuple(sorted(k for k in found if k not in planned_at))
-    wrong = tuple(
-        (joint, i, bus, other) for bus, i, joint in missing for other, j in extra if j == i
-    )
+    wrong = tuple((joint, i, bus, other) for bus, i, joint in missing for other, j in extra if j == i and other != bus)
     return ScanReport(tuple(answers), missing, extra, wrong)
 
 
@@ -249,38 +253,56 @@ class JointReadings:
 
 
 def read_joints(link: BringupLink, joints: Sequence[str] | None = None) -> JointReadings:
-    """Probe each planned motor (or those of ``joints``) once and convert its reply to the joint side."""
+    """Probe the planned motors (or those of ``joints``), all of a bus at once, and convert each
+    reply to the joint side; a motor that did not answer within the link's timeout is NaN."""
     plan = link.plan
     names = tuple(joints) if joints is not None else plan.joints
     n = len(names)
     raw, pos, vel, tau, temp = (np.full(n, np.nan) for _ in range(5))
     err = np.full(n, -1, dtype=np.int64)
     ok = np.zeros(n, dtype=bool)
+    by_bus: dict[str, list[int]] = {}
     for k, joint in enumerate(names):
-        bus, motor = plan.motor(joint)
-        reply = _read_motor(link, bus, motor)
-        if reply is None:
-            continue
-        ok[k] = True
-        raw[k] = reply.position
-        pos[k] = motor.position_to_joint(reply.position)
-        vel[k] = motor.velocity_to_joint(reply.velocity)
-        tau[k] = motor.torque_to_joint(reply.torque)
-        temp[k] = reply.temperature if reply.temperature is not None else np.nan
-        err[k] = reply.error_code if reply.error_code is not None else -1
+        by_bus.setdefault(plan.motor(joint)[0].name, []).append(k)
+    for bus_name, rows in by_bus.items():
+        replies = _read_motors(link, plan.bus(bus_name), [plan.motor(names[k])[1] for k in rows])
+        for k in rows:
+            _, motor = plan.motor(names[k])
+            reply = replies.get(motor.can_id)
+            if reply is None:
+                continue
+            ok[k] = True
+            raw[k] = reply.position
+            pos[k] = motor.position_to_joint(reply.position)
+            vel[k] = motor.velocity_to_joint(reply.velocity)
+            tau[k] = motor.torque_to_joint(reply.torque)
+            temp[k] = reply.temperature if reply.temperature is not None else np.nan
+            err[k] = reply.error_code if reply.error_code is not None else -1
     return JointReadings(names, raw, pos, vel, tau, temp, err, ok)
 
 
-def _read_motor(link: BringupLink, bus: BusConfig, motor: MotorConfig) -> MotorReply | None:
+def _read_motors(link: BringupLink, bus: BusConfig, motors: Sequence[MotorConfig], attempts: int = 3) -> dict[int, MotorReply]:
+    """Probe each of ``motors`` (on ``bus``) and decode the replies, by CAN id; motors that did not
+    answer are probed again, ``attempts`` times in all (a frame lost on a busy bus is not a dead motor)."""
     protocol = link.protocols[bus.name]
-    for msg in link.request(bus.name, [probe_frame(protocol, motor.can_id)], expect=None):
-        try:
-            reply = protocol.decode(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
-        except CanProtocolError:
-            continue
-        if reply.motor_id == motor.can_id:
-            return reply
-    return None
+    out: dict[int, MotorReply] = {}
+    for _ in range(attempts):
+        todo = [m for m in motors if m.can_id not in out]
+        if not todo:
+            break
+        wanted = {m.can_id for m in todo}
+        for msg in link.request(bus.name, [probe_frame(protocol, m.can_id) for m in todo], expect=len(todo)):
+            try:
+                reply = protocol.decode(msg.arbitration_id, bytes(msg.data), msg.is_extended_id)
+            except CanProtocolError:
+                continue  # foreign traffic
+            if reply.motor_id in wanted:
+                out[reply.motor_id] = reply
+    return out
+
+
+def _read_motor(link: BringupLink, bus: BusConfig, motor: MotorConfig) -> MotorReply | None:
+    return _read_motors(link, bus, [motor]).get(motor.can_id)
 
 
 def limit_violations(
