@@ -24,9 +24,8 @@ from giwbc.hal.bringup import (
     reply_variant,
     scan,
     set_zero,
-    update_plan,
-    update_plan_text,
 )
+from giwbc.hal.plan_edit import update_plan, update_plan_text
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.hal.hardware import HardwarePlan, load_hardware, parse_hardware
 from giwbc.hal.motor import MotorConfig, motor_preset

@@ -12,7 +12,7 @@ import pytest
 
 from giwbc.apps.deploy import DeployOptions, deploy
 from giwbc.apps.motors import add_motors_command, run_motors_command
-from giwbc.hal.bringup import update_plan_text
+from giwbc.hal.plan_edit import update_plan_text
 from giwbc.hal.hardware import load_hardware
 from giwbc.runtimes.phases import StartupConfig
 

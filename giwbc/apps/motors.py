@@ -127,7 +127,8 @@ def cmd_monitor(s: Session, args: argparse.Namespace, out: Callable[[str], None]
 
 
 def cmd_zero(s: Session, args: argparse.Namespace, out: Callable[[str], None], ask: Callable[[str], str]) -> int:
-    from giwbc.hal.bringup import set_zero, update_plan
+    from giwbc.hal.bringup import set_zero
+    from giwbc.hal.plan_edit import update_plan
 
     bus, motor = s.plan.motor(args.joint)
     if not _confirm(args, f"set the zero of motor id {motor.can_id} on {bus.name} ({args.joint}) here, joint angle "
@@ -145,7 +146,8 @@ def cmd_zero(s: Session, args: argparse.Namespace, out: Callable[[str], None], a
 
 
 def cmd_calibrate(s: Session, args: argparse.Namespace, out: Callable[[str], None], ask: Callable[[str], str]) -> int:
-    from giwbc.hal.bringup import CalibrationSession, limit_violations, read_joints, update_plan
+    from giwbc.hal.bringup import CalibrationSession, limit_violations, read_joints
+    from giwbc.hal.plan_edit import update_plan
 
     d = s.description
     joints = list(args.joints) if args.joints else list(s.plan.joints)
