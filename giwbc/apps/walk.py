@@ -11,10 +11,23 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.locomotion.simulation import Push, WalkRun, simulate_walk
 from giwbc.robot import load
 
 VIDEO_FPS = 30.0
+PROGRESS_S = 0.1  # simulated seconds between progress updates without a video
+
+
+class _Observer:
+    """The simulation's per-``every``-ticks hook: a video frame (or None without a camera) and a progress update."""
+
+    def __init__(self, camera: _FollowCamera | None, bar: Progress, seconds_per_call: float) -> None:
+        self.camera, self.bar, self.seconds_per_call = camera, bar, seconds_per_call
+
+    def __call__(self, robot: Any) -> np.ndarray | None:
+        self.bar(self.seconds_per_call)
+        return self.camera(robot) if self.camera is not None else None
 
 
 class _FollowCamera:
@@ -54,13 +67,19 @@ def run_walk(
     push_direction_deg: float = 180.0,
     video: str | None = None,
     seed: int | None = None,
+    progress: bool = False,
 ) -> tuple[WalkRun, str | None]:
-    """Walk ``robot`` at ``command`` for ``seconds``; an optional push of ``push`` N for 0.2 s."""
+    """Walk ``robot`` at ``command`` for ``seconds``; an optional push of ``push`` N for 0.2 s.
+    ``progress``: a bar of simulated seconds on stderr."""
     description = load(robot)
     pushes = (Push(push_time, push, math.radians(push_direction_deg)),) if push > 0 else ()
     camera = _FollowCamera() if video else None
-    every = max(1, int(round(1.0 / (VIDEO_FPS * description.timestep))))
-    run = simulate_walk(description, command, seconds, pushes=pushes, render=camera, render_every=every if video else 0, seed=seed)
+    every = max(1, int(round((1.0 / VIDEO_FPS if video else PROGRESS_S) / description.timestep)))
+    with Progress(seconds, "walk", unit="sim s", enabled=progress) as bar:
+        hook = _Observer(camera, bar, every * description.timestep) if camera is not None or bar.enabled else None
+        run = simulate_walk(description, command, seconds, pushes=pushes, render=hook, render_every=every if hook else 0, seed=seed)
+    if not video:
+        run.frames.clear()  # the progress hook's placeholders
     written = None
     if video:
         from giwbc.policy import write_video
@@ -112,6 +131,7 @@ def add_walk_command(commands: Any) -> None:
     parser.add_argument("--seed", type=int, default=None, help="perturb the initial state from this seed")
     parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs MUJOCO_GL=egl|osmesa headless")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_progress_argument(parser)
     parser.set_defaults(run=run_walk_command)
 
 
@@ -121,7 +141,8 @@ def run_walk_command(args: argparse.Namespace) -> int:
         raise SystemExit(f"giwbc walk: error: the velocity command must be finite, got {command}")
     started = time.perf_counter()
     run, video = run_walk(args.robot, command, args.seconds, push=args.push, push_time=args.push_time,
-                          push_direction_deg=args.push_direction, video=args.video, seed=args.seed)
+                          push_direction_deg=args.push_direction, video=args.video, seed=args.seed,
+                          progress=wants_progress(args))
     result = summary(run, command, time.perf_counter() - started)
     if video:
         result["video"] = video
