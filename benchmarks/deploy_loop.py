@@ -45,13 +45,15 @@ import numpy as np  # noqa: E402
 
 from giwbc.apps.deploy import make_controller  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
-from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig  # noqa: E402
-from giwbc.hal.emulator_process import EmulatorProcess  # noqa: E402
+from giwbc.emulation import ActuatorEmulator, EmulatorConfig  # noqa: E402
+from giwbc.emulation.process import EmulatorProcess  # noqa: E402
 from giwbc.hal.hardware import load_hardware  # noqa: E402
-from giwbc.hal.runlog import RunLogWriter  # noqa: E402
+from giwbc.runlog import RunLogWriter  # noqa: E402
 from giwbc.hal.safety import SafetyConfig  # noqa: E402
 from giwbc.robot import load  # noqa: E402
-from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask, StartupConfig  # noqa: E402
+from giwbc.runtimes.phases import StartupConfig  # noqa: E402
+from giwbc.runtimes.realtime import RealtimeRuntime  # noqa: E402
+from giwbc.tasks.standing import StandingTask  # noqa: E402
 
 BENCHMARK_SAFETY = SafetyConfig(max_missing_cycles=25, imu_timeout_cycles=50)
 

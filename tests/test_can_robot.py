@@ -9,9 +9,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, NonFiniteCommand, imu_source_for
+from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, NonFiniteCommand
+from giwbc.hal.imu import imu_source_for
 from giwbc.hal.frames import FastMessage, fast_message
-from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
+from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.hal.hardware import ImuConfig, load_hardware
 from giwbc.estimation.estimator import StateEstimator
 from giwbc.robot.interface import ImpedanceCommand

@@ -17,10 +17,11 @@ import numpy as np
 import pytest
 
 from giwbc.apps.deploy import DeployError, DeployOptions, add_deploy_command, check_policy_metadata, deploy
-from giwbc.hal.emulator import EmulatorConfig, Gantry
-from giwbc.hal.runlog import SCHEMAS, read_log
+from giwbc.emulation import EmulatorConfig, Gantry
+from giwbc.runlog import SCHEMAS, read_log
 from giwbc.hal.safety import SafetyConfig
-from giwbc.runtimes.realtime import StartupConfig, min_jerk
+from giwbc.runtimes.phases import StartupConfig
+from giwbc.runtimes.ramps import min_jerk
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -177,10 +178,11 @@ def _run_lockstep(g1, model, tmp_path, controller, rate: float, seconds: float, 
     import copy
 
     from giwbc.hal.can_robot import CanRobot
-    from giwbc.hal.emulator import ActuatorEmulator
+    from giwbc.emulation import ActuatorEmulator
     from giwbc.hal.hardware import load_hardware
-    from giwbc.hal.runlog import RunLogWriter
-    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
+    from giwbc.runlog import RunLogWriter
+    from giwbc.runtimes.realtime import RealtimeRuntime
+    from giwbc.tasks.standing import StandingTask
 
     plan = load_hardware(g1.folder / "hardware.toml", rate, joint_names=g1.joint_names, interface="virtual")
     emulator = ActuatorEmulator(plan, g1, EmulatorConfig(), model=copy.copy(model))

@@ -10,7 +10,7 @@ import can
 import numpy as np
 import pytest
 
-from giwbc.hal.emulator import (
+from giwbc.emulation import (
     MOTOR,
     OFF,
     OVER_CURRENT,
@@ -20,8 +20,8 @@ from giwbc.hal.emulator import (
     FaultInjection,
     Gantry,
     ThermalModel,
-    _MitFirmwareCodec,
 )
+from giwbc.emulation.firmware import MitFirmwareCodec
 from giwbc.hal.hardware import load_hardware
 from giwbc.hal.motor import MOTOR_PRESETS, MotorConfig
 from giwbc.hal.protocols import MitProtocol
@@ -378,7 +378,7 @@ def test_vectorized_codec_matches_the_protocol(rng):
         MotorConfig(4, presets["DM8009"], "d", reply="damiao"),
     ]
     protocol = MitProtocol(motors, host_id=0x7F)
-    codec = _MitFirmwareCodec([protocol], motors)
+    codec = MitFirmwareCodec([protocol], motors)
     index = rng.integers(0, 4, 200)
     frames, expected = [], []
     for i in index:

@@ -7,13 +7,13 @@ import numpy as np
 import pytest
 
 from giwbc.apps.deploy import DeployOptions, deploy
-from giwbc.hal.emulator import EmulatorConfig, FaultInjection
-from giwbc.hal.emulator_process import EmulatorProcess, SharedImuChannel
+from giwbc.emulation import EmulatorConfig, FaultInjection
+from giwbc.emulation.process import EmulatorProcess, SharedImuChannel
 from giwbc.hal.hardware import load_hardware
-from giwbc.hal.runlog import read_log
+from giwbc.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig
 from giwbc.robot.interface import ImuReading
-from giwbc.runtimes.realtime import StartupConfig
+from giwbc.runtimes.phases import StartupConfig
 
 STARTUP = StartupConfig(settle_time=0.05, ramp_time=0.3, shutdown_time=0.1, off_delay=0.05)
 # Two processes on their own clocks share a CI machine's CPUs without real-time priority: tolerate
@@ -87,7 +87,7 @@ def test_a_child_that_cannot_start_is_a_clear_error(g1) -> None:
 
 def test_deferred_replies_need_motors_with_their_own_clock(g1) -> None:
     from giwbc.hal.can_robot import CanRobot
-    from giwbc.hal.emulator import ActuatorEmulator
+    from giwbc.emulation import ActuatorEmulator
 
     plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
     with ActuatorEmulator(plan, g1) as lockstep:

@@ -14,10 +14,11 @@ import numpy as np
 import pytest
 
 from giwbc.apps.deploy import DeployOptions, deploy
-from giwbc.hal.emulator import EmulatorConfig
-from giwbc.hal.runlog import read_log
+from giwbc.emulation import EmulatorConfig
+from giwbc.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig
-from giwbc.runtimes.realtime import StartupConfig, exit_code_for
+from giwbc.runtimes.phases import StartupConfig
+from giwbc.runtimes.realtime import exit_code_for
 from giwbc.runtimes.faults import FAULT_CASES, TARGET_JOINT
 
 ONSET = 0.3  # s: after the 0.22 s start-up, while the controller runs

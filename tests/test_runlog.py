@@ -16,7 +16,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from giwbc.hal.runlog import SCHEMAS, RunLogWriter, read_log
+from giwbc.runlog import SCHEMAS, RunLogWriter, read_log
 from giwbc.hal.safety import Fault, FaultKind
 from giwbc.robot.interface import ImuReading
 
@@ -70,7 +70,7 @@ def test_a_crashed_control_process_leaves_a_finished_log_with_its_faults(tmp_pat
     proc = _child(
         """
         import os, sys
-        from giwbc.hal.runlog import RunLogWriter
+        from giwbc.runlog import RunLogWriter
         from giwbc.hal.safety import Fault, FaultKind
         log = RunLogWriter(sys.argv[1], ["a"])
         for cycle in range(100):

@@ -13,8 +13,8 @@ import pytest
 
 from giwbc.apps.deploy import DeployOptions, deploy
 from giwbc.hal.can_robot import CycleReport
-from giwbc.hal.emulator import EmulatorConfig, FaultInjection
-from giwbc.hal.runlog import read_log
+from giwbc.emulation import EmulatorConfig, FaultInjection
+from giwbc.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig, SafetySupervisor, SignalWatch
 from giwbc.robot.interface import ImuReading
 
@@ -30,7 +30,7 @@ def model(g1):
 
 @pytest.fixture
 def run(g1, model, tmp_path):
-    from giwbc.runtimes.realtime import StartupConfig
+    from giwbc.runtimes.phases import StartupConfig
 
     def go(faults=(), *, task="stand", policy=None, seconds=0.6, safety=SAFETY, **emulator):
         options = DeployOptions(
@@ -181,10 +181,12 @@ def test_sigint_sent_to_the_process(run, g1):
 
 def test_controller_nan_and_exceptions(g1, model, tmp_path):
     from giwbc.hal.can_robot import CanRobot
-    from giwbc.hal.emulator import ActuatorEmulator
+    from giwbc.emulation import ActuatorEmulator
     from giwbc.hal.hardware import load_hardware
     from giwbc.robot.standing import pd_hold_command
-    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask, StartupConfig
+    from giwbc.runtimes.phases import StartupConfig
+    from giwbc.runtimes.realtime import RealtimeRuntime
+    from giwbc.tasks.standing import StandingTask
 
     plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
     for bad, kind in (("nan", FaultKind.NONFINITE_COMMAND), ("raise", FaultKind.CONTROLLER_ERROR)):

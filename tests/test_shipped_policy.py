@@ -10,7 +10,7 @@ pytest.importorskip("onnxruntime")
 
 from giwbc.apps.deploy import DeployOptions, deploy  # noqa: E402
 from giwbc.policy import OnnxPolicy  # noqa: E402
-from giwbc.runtimes.realtime import StartupConfig  # noqa: E402
+from giwbc.runtimes.phases import StartupConfig  # noqa: E402
 
 SHIPPED = Path(__file__).resolve().parents[1] / "policies" / "g1_balance_residual.onnx"
 

@@ -19,11 +19,11 @@ import can
 import numpy as np
 import pytest
 
-from giwbc.hal.emulator import EmulatorConfig
+from giwbc.emulation import EmulatorConfig
 from giwbc.hal.frames import MessagePort, frames
-from giwbc.hal.runlog import read_log
+from giwbc.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig, SafetySupervisor, SignalWatch
-from giwbc.runtimes.realtime import StartupConfig
+from giwbc.runtimes.phases import StartupConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 DT = 0.002
@@ -42,10 +42,11 @@ def run_lockstep(g1, model, tmp_path, *, policy=None, safety=None, patch=None, s
     Returns (result, runtime, emulator, log path)."""
     from giwbc.apps.deploy import PdHold
     from giwbc.hal.can_robot import CanRobot
-    from giwbc.hal.emulator import ActuatorEmulator
+    from giwbc.emulation import ActuatorEmulator
     from giwbc.hal.hardware import load_hardware
-    from giwbc.hal.runlog import RunLogWriter
-    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
+    from giwbc.runlog import RunLogWriter
+    from giwbc.runtimes.realtime import RealtimeRuntime
+    from giwbc.tasks.standing import StandingTask
 
     plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
     emulator = ActuatorEmulator(plan, g1, EmulatorConfig(record=True), model=copy.copy(model))

@@ -7,10 +7,10 @@ Procedure (:func:`deploy`):
    robot (joint names and order, rates: :func:`check_policy_metadata`, a plain-dict check);
 2. load the hardware plan and check it (motors for exactly the robot's joints, torque ranges,
    bus capacity at the control rate); print the bus loads;
-3. ``--emulate``: start the :class:`~giwbc.hal.emulator.ActuatorEmulator` on ``virtual`` buses,
+3. ``--emulate``: start the :class:`~giwbc.emulation.emulator.ActuatorEmulator` on ``virtual`` buses,
    in lockstep with the control loop (deterministic, can run faster than real time), or with
    ``--emulator process`` in its own process on ``giwbc-unix`` channels, on its own real-time
-   clock (:mod:`giwbc.hal.emulator_process`: the loop then pays only for its own work, as with
+   clock (:mod:`giwbc.emulation.process`: the loop then pays only for its own work, as with
    real motors, and takes each cycle's replies at the next cycle); otherwise open the configured
    buses;
 4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
@@ -44,11 +44,12 @@ from giwbc.errors import DeployError
 if TYPE_CHECKING:
     import mujoco
 
-    from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
-    from giwbc.hal.emulator_process import EmulatorProcess
+    from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
+    from giwbc.emulation.process import EmulatorProcess
     from giwbc.hal.safety import SafetyConfig
     from giwbc.robot.description import RobotDescription
-    from giwbc.runtimes.realtime import RunResult, StartupConfig
+    from giwbc.runtimes.phases import StartupConfig
+    from giwbc.runtimes.realtime import RunResult
 
 TASKS = ("stand", "balance")
 CONTROLLERS = ("wbc", "pd")
@@ -244,12 +245,14 @@ def deploy(
 def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, description: Any, say: Callable[[str], None]) -> DeployOutcome:
     import copy
 
-    from giwbc.hal.can_robot import CanRobot, imu_source_for
-    from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig
+    from giwbc.hal.can_robot import CanRobot
+    from giwbc.hal.imu import imu_source_for
+    from giwbc.emulation import ActuatorEmulator, EmulatorConfig
     from giwbc.hal.hardware import HardwareConfigError, load_hardware
-    from giwbc.hal.runlog import RunLogWriter
+    from giwbc.runlog import RunLogWriter
     from giwbc.robot.description import RobotDescriptionError, load
-    from giwbc.runtimes.realtime import RealtimeRuntime, StandingTask
+    from giwbc.runtimes.realtime import RealtimeRuntime
+    from giwbc.tasks.standing import StandingTask
 
     try:
         description = description or load(options.robot)
@@ -302,7 +305,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
 
                 config = replace(config, faults=tuple(config.faults) + tuple(options.faults))
             if options.emulator_mode == "process":
-                from giwbc.hal.emulator_process import EmulatorProcess
+                from giwbc.emulation.process import EmulatorProcess
 
                 rt = None if options.rt_priority is None else max(1, options.rt_priority - 1)  # just below the loop
                 emulator = EmulatorProcess(plan, description, config, rt_priority=rt)
@@ -472,7 +475,7 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
 
 
 def run_deploy_command(args: argparse.Namespace) -> int:
-    from giwbc.runtimes.realtime import StartupConfig
+    from giwbc.runtimes.phases import StartupConfig
 
     startup = StartupConfig(ramp_time=args.ramp)
     faults: tuple[Any, ...] = ()

@@ -41,26 +41,21 @@ from giwbc.hal.protocols import (
     UnknownMotorError,
 )
 
-from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, CycleReport, ImuChannel, NonFiniteCommand
-from giwbc.hal.emulator import ActuatorEmulator, EmulatorConfig, FaultInjection
-from giwbc.hal.runlog import RunLogWriter, read_log
+from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, CycleReport, NonFiniteCommand
+from giwbc.hal.imu import ImuChannel, ImuSource, imu_source_for
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor
 
 __all__ = [
-    "ActuatorEmulator",
     "BaseStateUnavailable",
     "CanRobot",
     "CycleReport",
-    "EmulatorConfig",
     "Fault",
-    "FaultInjection",
     "FaultKind",
     "ImuChannel",
+    "ImuSource",
     "NonFiniteCommand",
-    "RunLogWriter",
     "SafetyConfig",
     "SafetySupervisor",
-    "read_log",
     "DEFAULT_MAX_LOAD",
     "MOTOR_PRESETS",
     "PROTOCOLS",
@@ -94,6 +89,7 @@ __all__ = [
     "bus_load",
     "check_capacity",
     "frame_bits",
+    "imu_source_for",
     "load_hardware",
     "motor_preset",
     "parse_hardware",

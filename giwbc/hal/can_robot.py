@@ -14,13 +14,13 @@ measured when the command arrived, so the command computed from them goes out at
   where it has one, giwbc-unix and SocketCAN, without python-can's per-message objects).
 - **Late frames**: before sending, frames already waiting (replies that missed an earlier deadline)
   are drained and counted as late, never taken as this cycle's replies.
-- **IMU** comes from an :class:`ImuSource` (``emulated``: the emulator's :class:`ImuChannel`).
+- **IMU** comes from an :class:`ImuSource` (:mod:`giwbc.hal.imu`; ``emulated``: the emulator's :class:`~giwbc.hal.imu.ImuChannel`).
 - **Base state** is not measured on hardware: it comes from an attached
   :class:`~giwbc.estimation.estimator.StateEstimator`, updated once per exchange. Without one,
   :meth:`base_state` raises :class:`BaseStateUnavailable` (never ground truth from a simulator).
 - ``peer``: an in-process stand-in for the motors (:class:`Peer`, the emulator): told that time
   reached the cycle time before draining (``advance``), and to answer after sending (``answer``),
-  so it runs in lockstep (see :mod:`giwbc.hal.emulator`); None on hardware.
+  so it runs in lockstep (see :mod:`giwbc.emulation.emulator`); None on hardware.
 """
 
 from __future__ import annotations
@@ -34,7 +34,8 @@ import numpy as np
 
 from giwbc.hal.bus import BUS_ERRORS, DROPPED, RETRIES, SENT, UNKNOWN, VERDICT_COLUMNS, CanBusLink
 from giwbc.hal.frames import PortGroup
-from giwbc.hal.hardware import HardwarePlan, ImuConfig
+from giwbc.hal.hardware import HardwarePlan
+from giwbc.hal.imu import ImuSource
 from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import CORRUPT, REPLY, DecodedReplies
 from giwbc.hal.protocols.multibus import MultiBusCodec
@@ -58,38 +59,6 @@ class Peer(Protocol):
 
     def answer(self, now: float) -> None:
         """Answer the frames waiting on the buses."""
-
-
-class ImuSource(Protocol):
-    """Where IMU samples come from: ``read()`` returns the newest sample (None before the first)."""
-
-    def read(self) -> ImuReading | None: ...
-
-
-class ImuChannel:
-    """In-process mailbox for IMU samples: a producer (the emulator) publishes, the robot reads."""
-
-    def __init__(self) -> None:
-        self._latest: ImuReading | None = None
-        self.published = 0
-
-    def publish(self, reading: ImuReading) -> None:
-        self._latest = reading
-        self.published += 1
-
-    def read(self) -> ImuReading | None:
-        return self._latest
-
-
-def imu_source_for(config: ImuConfig, channel: ImuChannel | None = None) -> ImuSource:
-    """The IMU source a plan asks for. ``emulated`` needs the emulator's channel; ``serial`` and
-    ``can`` IMUs have no driver yet and raise ``NotImplementedError`` naming what is missing."""
-    if config.source == "emulated":
-        if channel is None:
-            raise ValueError("the hardware plan's IMU is 'emulated': it exists only with the actuator emulator (--emulate)")
-        return channel
-    where = config.device if config.source == "serial" else f"bus {config.bus} id 0x{config.can_id or 0:X}"
-    raise NotImplementedError(f"no driver for a {config.source!r} IMU ({where}) yet; use an emulated IMU")
 
 
 @dataclass(frozen=True)
@@ -543,8 +512,5 @@ __all__ = [
     "CanRobot",
     "NonFiniteCommand",
     "CycleReport",
-    "ImuChannel",
-    "ImuSource",
     "Peer",
-    "imu_source_for",
 ]

@@ -1,6 +1,6 @@
 """Fault injection on the host side of a deployment, and the fault table's catalogue.
 
-:class:`~giwbc.hal.emulator.FaultInjection` names every fault; the emulator applies those of
+:class:`~giwbc.emulation.faults.FaultInjection` names every fault; the emulator applies those of
 the motors and their buses, :class:`HostFaults` those of the host (``HOST_FAULT_KINDS``), each
 active in ``[start, stop)`` of robot time:
 
@@ -35,7 +35,7 @@ import can
 import numpy as np
 
 from giwbc.hal.bus import CanBusLink
-from giwbc.hal.emulator import HOST_FAULT_KINDS, FaultInjection
+from giwbc.emulation import HOST_FAULT_KINDS, FaultInjection
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.hal.safety import FaultKind
 from giwbc.robot.interface import ImpedanceCommand

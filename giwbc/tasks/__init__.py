@@ -1,6 +1,7 @@
 """Tasks: the robot-agnostic logic of learning problems (action → references, observation, reward)."""
 
 from giwbc.tasks.cartpole import CartPoleBalance, CartPoleSwingUp, CartPoleTask
+from giwbc.tasks.standing import StandingTask
 from giwbc.tasks.task import ActionBlock, InvalidActionError, ResidualLayout, Task
 
 _BALANCE = ("BalanceRewards", "G1Balance", "ResidualScales")
@@ -25,5 +26,6 @@ __all__ = [
     "CartPoleTask",
     "InvalidActionError",
     "ResidualLayout",
+    "StandingTask",
     "Task",
 ]

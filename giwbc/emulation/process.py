@@ -1,6 +1,6 @@
 """The actuator emulator in its own process, as motors run on their own hardware.
 
-In lockstep (:class:`~giwbc.hal.emulator.ActuatorEmulator` as the CAN robot's ``peer``) the
+In lockstep (:class:`~giwbc.emulation.emulator.ActuatorEmulator` as the CAN robot's ``peer``) the
 control loop pays for the emulator's physics and firmware in every cycle, which real motors never
 cost it. :class:`EmulatorProcess` runs the same emulator in a child process instead, on
 :mod:`giwbc.hal.unix_bus` channels, on its own clock:
@@ -27,6 +27,7 @@ import gc
 import math
 import multiprocessing
 import os
+import select
 import time
 import traceback
 import uuid
@@ -36,12 +37,18 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from giwbc.hal import children
+import can
+
+from giwbc.emulation.config import EmulatorConfig, EmulatorCounters
+from giwbc.emulation.emulator import ActuatorEmulator
+from giwbc.emulation.faults import FaultInjection
+from giwbc.hal.can_robot import ENTER, CanRobot
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.robot.interface import ImuReading
+from giwbc.robot.standing import pd_hold_command
+from giwbc.util import children
 
 if TYPE_CHECKING:
-    from giwbc.hal.emulator import EmulatorConfig, EmulatorCounters, FaultInjection
     from giwbc.robot.description import RobotDescription
 
 INTERFACE = "giwbc-unix"
@@ -99,7 +106,7 @@ class SharedImuChannel:
 
 
 class EmulatorProcess:
-    """An :class:`~giwbc.hal.emulator.ActuatorEmulator` of ``plan`` in a child process (module docstring).
+    """An :class:`~giwbc.emulation.emulator.ActuatorEmulator` of ``plan`` in a child process (module docstring).
 
     ``rt_priority``: the child runs under ``SCHED_FIFO`` at this priority (Linux, needs
     CAP_SYS_NICE; refused silently otherwise, see :attr:`scheduler`): motors have hardware of their
@@ -117,8 +124,6 @@ class EmulatorProcess:
         cpu: int | None = None,
         start_timeout: float = 60.0,
     ) -> None:
-        from giwbc.hal.emulator import EmulatorConfig
-
         plan.routing(description.joint_names)  # validates here, with a clear error, before spawning
         self.config = config or EmulatorConfig()
         prefix = f"giwbc-emu-{os.getpid()}-{uuid.uuid4().hex[:8]}"
@@ -233,10 +238,6 @@ def _rehearse(plan: HardwarePlan, description: RobotDescription, config: Emulato
     emulator, over giwbc-unix channels of its own (``prefix``): the first passes through numpy,
     MuJoCo, the codecs and the transport cost milliseconds each, which the real run's first
     replies must not pay (they would come cycles late)."""
-    from giwbc.hal.can_robot import ENTER, CanRobot
-    from giwbc.hal.emulator import ActuatorEmulator
-    from giwbc.robot.standing import pd_hold_command
-
     quiet = replace(config, faults=(), record=False, record_truth=False)
     with ActuatorEmulator(plan, description, quiet, model=model, channel_prefix=prefix, interface=INTERFACE, bus_options={"serve": True}) as emulator:
         robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
@@ -260,12 +261,6 @@ def _control(conn: Any, emulator: Any) -> bool:
 
 def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any,
          rt_priority: int | None, cpu: int | None) -> None:  # fmt: skip
-    import select
-
-    import can
-
-    from giwbc.hal.emulator import ActuatorEmulator
-
     model = description.build_mujoco()
     _rehearse(plan, description, config, copy.copy(model), f"{prefix}-rehearsal")
     emulator = ActuatorEmulator(plan, description, config, model=model, channel_prefix=prefix, interface=INTERFACE, bus_options={"serve": True})

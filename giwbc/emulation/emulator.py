@@ -26,29 +26,15 @@ and that command acts over the following period (one period of sense-to-act late
 real bus gives). Delays quantize to polls: a delayed reply is sent at the first poll at or after
 its due time, i.e. late by at least one cycle when polled once per cycle.
 
-Faults (:class:`FaultInjection`), per motor, within ``[start, stop)`` emulator seconds, drawn from a
-seeded ``numpy.random.Generator`` in a fixed order: ``drop`` or ``delay`` replies with a
-probability, ``corrupt`` replies (torn 1..5-byte frames: the motor's byte 0, random bytes),
-report an ``error`` code, ``overheat`` (extra heating until the trip), ``silent`` (no replies,
-still obeys), ``dead`` (no replies, limp), ``push`` (an external force on a link, to make the
-robot fall), ``motor_exit`` (another node sends the motors an exit-motor-mode frame, once, at
-``start``: they go limp and report state "disabled"; the host hears the frame too), foreign
-traffic on the motors' buses before each poll's replies (``foreign_sync``: a CANopen SYNC, id
-0x080 with no data; ``foreign_ids``: 8 random bytes from an id no motor of the bus uses;
-``zero_byte``: a frame with no data from such an id), ``duplicate`` (each reply sent twice),
-``reorder`` (a poll's replies on a bus sent in reverse order) and ``encoder`` (the position
-reported shifted by ``offset`` rad, joint side: a slipped encoder, a joint reported beyond its
-limits). The kinds in :data:`HOST_FAULT_KINDS` act on the host (its policy, controller, bus
-drivers, process): :mod:`giwbc.runtimes.faults` applies them; the emulator ignores them.
-A :class:`Gantry` can hold the base while the motors start (start-up rehearsals).
+Faults (:class:`~giwbc.emulation.faults.FaultInjection`, applied by :class:`~giwbc.emulation.faults.FaultEffects`)
+act on replies, firmware state and the physics; see :mod:`giwbc.emulation.faults`.
+A :class:`~giwbc.emulation.config.Gantry` can hold the base while the motors start (start-up rehearsals).
 
 Speed: every bus speaks MIT mode in the shipped plans, so commands are decoded and replies encoded
-for all motors at once (:class:`_MitFirmwareCodec`, bit-identical to the protocol's scalar calls);
+for all motors at once (:class:`~giwbc.emulation.firmware.MitFirmwareCodec`, bit-identical to the protocol's scalar calls);
 python-can's per-frame cost is what remains (~5 us per send or receive on ``virtual``).
 
-Temperature (coil): ``dT/dt = k tau^2 + h - (T - ambient) / time_constant`` with ``k`` such that
-the model's rated torque gives ``rated_rise`` kelvin at steady state (:class:`ThermalModel`).
-The IMU is MuJoCo's, published to an :class:`ImuChannel` after each physics advance.
+Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance.
 """
 
 from __future__ import annotations
@@ -57,187 +43,38 @@ import math
 import time
 import uuid
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
 import can
 import numpy as np
 
-from giwbc.hal.can_robot import ImuChannel
+from giwbc.emulation.config import AppliedSnapshot, EmulatorConfig, EmulatorCounters
+from giwbc.emulation.faults import _REPLY_FAULTS, FaultEffects, FaultInjection
+from giwbc.emulation.firmware import MOTOR, OFF, MitFirmwareCodec
 from giwbc.hal.frames import FramePort, PortGroup, fields, frame_port, frames, frames_of
 from giwbc.hal.hardware import HardwarePlan
+from giwbc.hal.imu import ImuChannel
 from giwbc.hal.motor import MotorGroup
-from giwbc.hal.protocols import ActuatorProtocol, CanProtocolError, MitProtocol
-from giwbc.hal.protocols.mit import COMMAND_LEVELS, CUBEMARS_TEMPERATURE_OFFSET, REPLY_VARIANTS
+from giwbc.hal.protocols import ActuatorProtocol, CanProtocolError
 from giwbc.robot.interface import ImpedanceCommand
+from giwbc.robot.mujoco_robot import MujocoRobot
 
 if TYPE_CHECKING:
     import mujoco
 
     from giwbc.robot.description import RobotDescription
-    from giwbc.robot.mujoco_robot import MujocoRobot
 
-EMULATOR_FAULT_KINDS = (
-    "drop", "delay", "corrupt", "error", "overheat", "silent", "dead", "push",
-    "motor_exit", "foreign_sync", "foreign_ids", "zero_byte", "duplicate", "reorder", "encoder",
-)  # fmt: skip
-# Faults of the host side (policy, controller, bus drivers, the process): see giwbc.runtimes.faults.
-HOST_FAULT_KINDS = (
-    "policy_nan", "controller_nan", "controller_raise", "qp_infeasible", "driver_raise", "driver_block", "bus_off",
-    "keyboard_interrupt", "sigint", "sigterm", "sighup",
-)  # fmt: skip
-FAULT_KINDS = EMULATOR_FAULT_KINDS + HOST_FAULT_KINDS
-_REPLY_FAULTS = frozenset({"drop", "delay", "corrupt", "silent", "duplicate", "reorder"})
-_FOREIGN_FAULTS = frozenset({"foreign_sync", "foreign_ids", "zero_byte"})
-CANOPEN_SYNC_ID = 0x080
 _SEND_DEADLINE = 20e-3  # s a poll's replies may take to send (see ActuatorEmulator._send)
-OFF, MOTOR = 0, 1
-
-# Error codes a motor reports, by reply variant (see giwbc.hal.protocols.mit: CUBEMARS_ERRORS,
-# DAMIAO_STATES). Variants without an error field ("original", "voltage") cannot report one.
-OVER_CURRENT = {"cubemars": 2, "damiao": 0xA}
-OVER_TEMPERATURE = {"cubemars": 1, "damiao": 0xC}
 
 
-@dataclass(frozen=True)
-class ThermalModel:
-    """First-order coil temperature of every motor (see the module docstring)."""
-
-    ambient: float = 25.0  # °C
-    time_constant: float = 120.0  # s
-    rated_rise: float = 40.0  # K at steady state under rated torque
-    rated_fraction: float = 0.3  # rated torque as a fraction of the model's torque range
-    trip: float = 90.0  # °C: the firmware latches an over-temperature error above this
-    mos_fraction: float = 0.4  # driver (MOS) temperature rise as a fraction of the coil's
-
-    def __post_init__(self) -> None:
-        if not (self.time_constant > 0 and self.rated_rise > 0 and 0 < self.rated_fraction <= 1):
-            raise ValueError("thermal model needs time_constant > 0, rated_rise > 0, 0 < rated_fraction <= 1")
-
-    def heating(self, torque_max: np.ndarray) -> np.ndarray:
-        """K/s per (N m)^2 of motor-side torque, per motor."""
-        rated = self.rated_fraction * np.asarray(torque_max, dtype=float)
-        return self.rated_rise / (rated**2 * self.time_constant)
-
-    def step(self, temperature: np.ndarray, torque: np.ndarray, dt: float, k: np.ndarray, extra: np.ndarray) -> np.ndarray:
-        """Exact step of the linear model over ``dt`` with torque and extra heating held (K/s)."""
-        steady = self.ambient + (k * torque**2 + extra) * self.time_constant
-        return steady + (temperature - steady) * math.exp(-dt / self.time_constant)
-
-
-@dataclass(frozen=True)
-class FaultInjection:
-    """One injected fault, active for emulator time in ``[start, stop)``.
-
-    ``joints``: the motors it affects, by joint name (None: every motor). ``probability``: per
-    reply, for drop/delay/corrupt. ``delay``: seconds a delayed reply is held. ``error_code``: the
-    code reported for ``error`` (default: over-current in the motor's variant). ``heat_rate``: K/s of
-    extra heating for ``overheat``. ``force``/``link``: the world force (N) of a ``push``.
-    ``offset``: rad (joint side) added to the reported position for ``encoder``. For foreign
-    traffic, ``probability`` is per bus and poll, and ``joints`` choose the buses (theirs).
-    """
-
-    kind: str
-    joints: tuple[str, ...] | None = None
-    probability: float = 1.0
-    start: float = 0.0
-    stop: float = math.inf
-    delay: float = 0.004
-    error_code: int | None = None
-    heat_rate: float = 50.0
-    force: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    link: str | None = None
-    offset: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.kind not in FAULT_KINDS:
-            raise ValueError(f"unknown fault kind {self.kind!r}; known: {', '.join(FAULT_KINDS)}")
-        if not 0.0 <= self.probability <= 1.0:
-            raise ValueError(f"fault probability must be in [0, 1], got {self.probability}")
-        if not self.stop > self.start:
-            raise ValueError(f"fault window [{self.start}, {self.stop}) is empty")
-        if self.delay < 0 or self.heat_rate < 0 or not math.isfinite(self.offset):
-            raise ValueError("delay and heat_rate must be >= 0, offset finite")
-        if isinstance(self.joints, str):
-            object.__setattr__(self, "joints", (self.joints,))
-
-    def active(self, t: float) -> bool:
-        return self.start <= t < self.stop
-
-    @property
-    def on_host(self) -> bool:
-        """Whether the host applies it (policy, controller, drivers, process), not the emulator."""
-        return self.kind in HOST_FAULT_KINDS
-
-
-@dataclass(frozen=True)
-class Gantry:
-    """A harness holding the base at its initial pose until ``until`` seconds (a spring-damper
-    wrench on the base plus the robot's weight), as a robot hangs while its motors start."""
-
-    until: float
-    stiffness: float = 5000.0  # N/m
-    damping: float = 200.0  # N s/m (explicit: keep damping * dt / mass of the base link well below 1)
-    angular_stiffness: float = 300.0  # N m/rad
-    angular_damping: float = 10.0  # N m s/rad
-
-
-@dataclass(frozen=True)
-class EmulatorConfig:
-    """Firmware and simulation settings of :class:`ActuatorEmulator`."""
-
-    watchdog_timeout: float = 0.05  # s without a frame before a motor in motor mode goes limp
-    limp_kd: float = 0.0  # joint-side damping of a limp motor (0: zero torque, as Ben Katz firmware)
-    thermal: ThermalModel = field(default_factory=ThermalModel)
-    seed: int | None = 0
-    initial_joint_positions: tuple[float, ...] | None = None  # default: the description's pose
-    gantry: Gantry | None = None
-    faults: tuple[FaultInjection, ...] = ()
-    record: bool = False  # keep per-poll snapshots of what the motors apply (tests)
-    record_truth: bool = True  # keep (time, base height, base tilt) after every physics advance
-
-
-@dataclass(frozen=True)
-class AppliedSnapshot:
-    """What the motors applied after one poll (joint side, description order)."""
-
-    time: float
-    mode: np.ndarray  # OFF / MOTOR per joint
-    limp: np.ndarray  # no torque from a command (off, timed out, latched error, dead)
-    kp: np.ndarray
-    kd: np.ndarray
-    tau_ff: np.ndarray
-    q_ref: np.ndarray
-
-
-@dataclass
-class EmulatorCounters:
-    """Per motor (plan order): frames heard, replies sent, and what faults did to replies."""
-
-    frames: np.ndarray
-    commands: np.ndarray  # impedance commands applied (in motor mode)
-    specials: np.ndarray
-    replies: np.ndarray
-    dropped: np.ndarray
-    delayed: np.ndarray
-    corrupted: np.ndarray
-    ignored: int = 0  # frames no configured motor accepts
-    polls: int = 0
-    physics_steps: int = 0
-
-    @classmethod
-    def zeros(cls, n: int) -> EmulatorCounters:
-        z = lambda: np.zeros(n, dtype=np.int64)  # noqa: E731
-        return cls(z(), z(), z(), z(), z(), z(), z())
-
-
-class ActuatorEmulator:
+class ActuatorEmulator(FaultEffects):
     """The motors of ``plan`` on virtual buses, driving a MuJoCo model of ``description``.
 
     ``model``: an ``MjModel`` to use (it is modified: gains live in actuator parameters), e.g. a
     copy of a cached one; default: built from the description (slow, ~1 s). ``interface`` and
     ``bus_options``: the python-can interface of its channels (``"giwbc-unix"`` with
-    ``{"serve": True}`` when it runs in its own process, :mod:`giwbc.hal.emulator_process`).
+    ``{"serve": True}`` when it runs in its own process, :mod:`giwbc.emulation.process`).
     """
 
     def __init__(
@@ -251,8 +88,6 @@ class ActuatorEmulator:
         interface: str = "virtual",
         bus_options: dict[str, Any] | None = None,
     ) -> None:
-        from giwbc.robot.mujoco_robot import MujocoRobot
-
         self.config = c = config or EmulatorConfig()
         self.description = description
         names = description.joint_names
@@ -295,7 +130,7 @@ class ActuatorEmulator:
         self._variant = [m.reply for m in self.motors]
         self._torque_max = np.array([m.model.torque.magnitude for m in self.motors])
         self._heating = c.thermal.heating(self._torque_max)
-        self._codec = _MitFirmwareCodec.for_buses(self.protocols, self.motors)
+        self._codec = MitFirmwareCodec.for_buses(self.protocols, self.motors)
 
         # Firmware state (plan order).
         self.mode = np.full(n, OFF, dtype=np.int8)
@@ -425,81 +260,6 @@ class ActuatorEmulator:
         if self.faults or self.error.any() or self.temperature.max() > c.thermal.trip:
             self._update_faults(self.time)
 
-    def _update_faults(self, t: float) -> None:
-        """Time-driven firmware state: over-temperature trips, injected errors, dead motors."""
-        error = self.error.copy()
-        tripped = (self.temperature > self.config.thermal.trip) & (error == 0)
-        for i in np.flatnonzero(tripped):
-            error[i] = OVER_TEMPERATURE.get(self._variant[i], 1)
-        dead = np.zeros(len(self.motors), dtype=bool)
-        for k, (f, motors) in enumerate(zip(self.faults, self._fault_motors)):
-            if f.kind == "motor_exit" and f.active(t) and k not in self._fired:
-                self._fired.add(k)
-                self._foreign_exit(motors)
-            if f.active(t):
-                if f.kind == "error":
-                    for i in np.flatnonzero(motors & (error == 0)):
-                        error[i] = f.error_code if f.error_code is not None else OVER_CURRENT.get(self._variant[i], 1)
-                elif f.kind == "dead":
-                    dead |= motors
-        if not (np.array_equal(error, self.error) and np.array_equal(dead, self.dead)):
-            self.error, self.dead = error, dead
-            self._apply_commands()
-
-    def _foreign_exit(self, motors: np.ndarray) -> None:
-        """Another node sends ``motors`` an exit-motor-mode frame: they leave motor mode (limp,
-        state "disabled"), and the host hears the frame on their buses."""
-        for i in np.flatnonzero(motors).tolist():
-            b = int(self._bus_of[i])
-            self._state_machine(i, "exit", (math.nan,) * 5, self.time)
-            self._send(b, frames_of([self.protocols[b].exit_motor_mode(self.motors[i].can_id)]))
-        self._apply_commands()
-
-    def _foreign_traffic(self, t: float) -> None:
-        """Frames from other nodes on the faults' buses, ahead of this poll's replies."""
-        rng = self.rng
-        for f, motors in zip(self.faults, self._fault_motors):
-            if f.kind not in _FOREIGN_FAULTS or not f.active(t):
-                continue
-            for b in np.unique(self._bus_of[motors]).tolist():
-                if rng.random() >= f.probability:
-                    continue
-                if f.kind == "foreign_sync":
-                    batch = frames([CANOPEN_SYNC_ID], np.zeros((1, 8), dtype=np.uint8), lengths=0)
-                else:
-                    free = np.flatnonzero(self._motor_at[b] < 0)
-                    host = self.protocols[b].host_id
-                    free = free[(free != (host if host is not None else -1)) & (free != 0)]
-                    length = 8 if f.kind == "foreign_ids" else 0
-                    data = rng.integers(0, 256, (1, 8), dtype=np.uint8) if length else np.zeros((1, 8), dtype=np.uint8)
-                    batch = frames([int(rng.choice(free))], data, lengths=length)
-                self._send(b, batch)
-
-    def _external_forces(self, t: float) -> None:
-        """Pushes and the gantry, as world wrenches on bodies (set, not accumulated, every step)."""
-        robot = self.robot
-        wrenches = {link: np.zeros(6) for link in self._wrench_links}
-        g = self.config.gantry
-        if g is not None:
-            wrenches.setdefault(self.description.base_link, np.zeros(6))
-        for f in self.faults:
-            if f.kind == "push" and f.active(t):
-                wrenches[f.link][:3] += f.force  # type: ignore[index]
-        if g is not None and self.description.floating_base and t < g.until:
-            data, pose0 = robot.data, self._base_pose0
-            force = g.stiffness * (pose0[:3] - data.qpos[:3]) - g.damping * data.qvel[:3]
-            force[2] += self._weight
-            # Orientation error: vector part of q0 * conj(q) (MuJoCo's w, x, y, z), world frame.
-            w0, v0 = pose0[3], pose0[4:7]
-            w1, v1 = data.qpos[3], -data.qpos[4:7]
-            err = 2.0 * (w0 * v1 + w1 * v0 + np.cross(v0, v1))
-            if w0 * w1 - v0 @ v1 < 0:
-                err = -err
-            torque = g.angular_stiffness * err - g.angular_damping * robot.base_state().angular_velocity
-            wrenches[self.description.base_link] += np.concatenate([force, torque])
-        for link, wrench in wrenches.items():
-            robot.set_external_wrench(link, wrench[:3], wrench[3:])
-
     def _release(self, now: float) -> None:
         due = [d for d in self._delayed if d[0] <= now + 1e-9]
         if not due:
@@ -573,45 +333,7 @@ class ActuatorEmulator:
             self._send_by_bus(bus, replies)
             np.add.at(cnt.replies, index, 1)
             return
-        rng = self.rng
-        out: list[tuple[int, np.ndarray]] = []
-        for b, i, reply in zip(bus.tolist(), index.tolist(), replies):
-            frame = reply.reshape(1).copy()
-            send = True
-            copies = 1
-            for f, m in active:
-                if not m[i] or f.kind in ("silent", "reorder"):
-                    continue
-                if f.kind == "duplicate" and rng.random() < f.probability:
-                    copies = 2
-                    continue
-                if f.kind == "drop" and rng.random() < f.probability:
-                    cnt.dropped[i] += 1
-                    send = False
-                    break
-                if f.kind == "corrupt" and rng.random() < f.probability:
-                    cnt.corrupted[i] += 1  # the motor's byte 0, then 0..4 random bytes: a torn reply
-                    length = int(rng.integers(1, 6))
-                    frame["len"] = length
-                    frame["data"][0, 1:] = 0
-                    frame["data"][0, 1:length] = rng.integers(0, 256, length - 1, dtype=np.uint8)
-                elif f.kind == "delay" and rng.random() < f.probability:
-                    cnt.delayed[i] += 1
-                    cnt.replies[i] += 1
-                    self._delayed.append((t + f.delay, b, frame))
-                    send = False
-                    break
-            if send:
-                out.extend([(b, frame)] * copies)
-                cnt.replies[i] += 1
-        for f, m in active:  # reversed per bus: the buses of the motors the fault names
-            if f.kind == "reorder":
-                for b in np.unique(self._bus_of[m]).tolist():
-                    at = [k for k, (bb, _) in enumerate(out) if bb == b]
-                    for k, frame in zip(at, [out[k][1] for k in reversed(at)]):
-                        out[k] = (b, frame)
-        for b, frame in out:
-            self._send(b, frame)
+        self._send_faulty(bus, index, replies, active, t)
 
     def _send(self, b: int, batch: np.ndarray) -> None:
         """Send on bus ``b`` now or never: a full host queue loses the reply, as a real bus under
@@ -763,123 +485,4 @@ class ActuatorEmulator:
         raise KeyError(f"no motor drives joint {joint!r}")
 
 
-class _MitFirmwareCodec:
-    """The firmware side of MIT mode for every motor at once (plan order), vectorized.
-
-    Bit-identical to :meth:`MitProtocol.decode_command` and :meth:`MitProtocol.encode_reply` (the
-    emulator tests compare them on random values for every reply variant); the emulator answers
-    29 motors per cycle, and the scalar calls cost ~10 us per frame.
-    """
-
-    _SHIFTS = np.array([48, 36, 24, 12, 0], dtype=np.uint64)
-    _LEVELS = np.array(COMMAND_LEVELS, dtype=np.uint64)
-    _CODES = {name: k for k, name in enumerate(("original", "voltage", "cubemars", "damiao"))}
-
-    def __init__(self, protocols: Sequence[MitProtocol], motors: Sequence[Any]) -> None:
-        lo = np.array([[r.min for r in m.model.ranges] for m in motors], dtype=float)
-        span = np.array([[r.span for r in m.model.ranges] for m in motors], dtype=float)
-        self.lo, self.span = lo, span
-        self.hi = np.array([[r.max for r in m.model.ranges] for m in motors], dtype=float)
-        self.levels = np.array(COMMAND_LEVELS, dtype=float)
-        self.variant = np.array([self._CODES[m.reply] for m in motors], dtype=np.int64)
-        self.length = np.array([REPLY_VARIANTS[m.reply].length for m in motors], dtype=np.int64)
-        self.can_id = np.array([m.can_id for m in motors], dtype=np.int64)
-        bus_of = [b for b, p in enumerate(protocols) for _ in p.motors]
-        self.arb = np.array([protocols[b].host_id or 0 for b in bus_of], dtype=np.int64)
-        self.voltage_lsb = np.array([protocols[b].voltage_lsb for b in bus_of], dtype=float)
-        # Replies: the position, velocity and torque ranges; byte 0 without Damiao's state nibble.
-        fields = [0, 1, 4]
-        self._lo3, self._hi3, self._span3 = lo[:, fields].copy(), self.hi[:, fields].copy(), span[:, fields].copy()
-        self._levels3 = self.levels[fields].copy()
-        self._damiao = self.variant == 3
-        self._byte0 = np.where(self._damiao, self.can_id & 0x0F, self.can_id & 0xFF).astype(np.uint64)
-        self._variants = set(self.variant.tolist())
-
-    @classmethod
-    def for_buses(cls, protocols: Sequence[ActuatorProtocol], motors: Sequence[Any]) -> _MitFirmwareCodec | None:
-        """The codec when every bus speaks MIT mode, else None (the scalar protocol calls are used)."""
-        if all(type(p) is MitProtocol for p in protocols):
-            return cls(protocols, motors)  # type: ignore[arg-type]
-        return None
-
-    def decode_commands(self, index: np.ndarray, payload: Any) -> tuple[list[str | None], np.ndarray]:
-        """8-byte command frames of motors ``index`` (payloads ``(M, 8)`` uint8, or their bytes
-        joined): special names (None for a command) and the five values (position, velocity, kp,
-        kd, torque; NaN for special frames)."""
-        data = np.ascontiguousarray(np.frombuffer(payload, dtype=np.uint8) if isinstance(payload, bytes) else payload, dtype=np.uint8).reshape(-1, 8)
-        special_mask = (data[:, :7] == 0xFF).all(axis=1) & (data[:, 7] >= 0xFB) & (data[:, 7] <= 0xFE)
-        words = data.view(">u8").reshape(-1).astype(np.uint64)
-        codes = (words[:, None] >> self._SHIFTS) & self._LEVELS
-        values = codes.astype(float) * self.span[index] / self.levels + self.lo[index]
-        values[special_mask] = np.nan
-        names = _SPECIAL_NAMES
-        special = [names[int(last)] if sp else None for sp, last in zip(special_mask.tolist(), data[:, 7].tolist())]
-        return special, values
-
-    def encode_replies(
-        self,
-        index: np.ndarray,
-        position: np.ndarray,
-        velocity: np.ndarray,
-        torque: np.ndarray,
-        temperature: np.ndarray,
-        mos_temperature: np.ndarray,
-        error: np.ndarray,
-        status: np.ndarray,
-        voltage: float = 24.0,
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Reply payloads (M, 8) uint8 (zero-padded), their lengths and arbitration ids.
-
-        Built as one big-endian 64-bit word per reply: byte 0, the position / velocity / torque
-        codes (quantized exactly as the protocol's scalar encoder does), bytes 6 and 7."""
-        values = np.column_stack((position, velocity, torque))
-        if np.isnan(values).any():
-            values = np.nan_to_num(values, nan=0.0, posinf=np.inf, neginf=-np.inf)
-        lo = self._lo3[index]
-        x = np.clip(values, lo, self._hi3[index])
-        x -= lo
-        x *= self._levels3
-        x /= self._span3[index]
-        x -= 0.5
-        np.ceil(x, out=x)
-        word = (x.astype(np.uint64) << _REPLY_SHIFTS).sum(axis=1, dtype=np.uint64)
-        byte0 = self._byte0[index]
-        damiao = self._damiao[index]
-        if 3 in self._variants:
-            byte0 = byte0 | (damiao * (np.asarray(status, dtype=np.int64) << 4)).astype(np.uint64)
-        word |= byte0 << np.uint64(56)
-        if self._variants - {0}:  # variants with bytes 6 and 7
-            variant = self.variant[index]
-            b6 = np.where(damiao, mos_temperature, np.where(variant == 2, temperature - CUBEMARS_TEMPERATURE_OFFSET,
-                          np.where(variant == 1, voltage / self.voltage_lsb[index], 0.0)))  # fmt: skip
-            b7 = np.where(damiao, _byte(temperature), np.where(variant == 2, np.minimum(error, 255), 0))
-            word |= (_byte(b6).astype(np.uint64) << np.uint64(8)) | b7.astype(np.uint64)
-        data = word.astype(">u8").view(np.uint8).reshape(len(index), 8)
-        return data, self.length[index], self.arb[index]
-
-
-_REPLY_SHIFTS = np.array([40, 28, 16], dtype=np.uint64)  # position, velocity, torque codes in the reply word
-_SPECIAL_NAMES = {0xFC: "enter", 0xFD: "exit", 0xFE: "zero", 0xFB: "clear"}
-
-
-def _byte(x: np.ndarray) -> np.ndarray:
-    """Nearest unsigned byte, saturating, NaN -> 0 (the protocol's reply byte rule)."""
-    x = np.asarray(x, dtype=float)
-    return np.clip(np.rint(np.where(np.isnan(x), 0.0, x)), 0, 255).astype(np.int64)
-
-
-__all__ = [
-    "CANOPEN_SYNC_ID",
-    "EMULATOR_FAULT_KINDS",
-    "FAULT_KINDS",
-    "HOST_FAULT_KINDS",
-    "MOTOR",
-    "OFF",
-    "ActuatorEmulator",
-    "AppliedSnapshot",
-    "EmulatorConfig",
-    "EmulatorCounters",
-    "FaultInjection",
-    "Gantry",
-    "ThermalModel",
-]
+__all__ = ["ActuatorEmulator"]
