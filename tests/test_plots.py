@@ -14,7 +14,7 @@ from giwbc.apps.log_report import log_report_figure, pick_joints
 from giwbc.apps.plots import estimator_figure, evaluation_figure, save_figure, sim_to_sim_figure
 from giwbc.apps.sim_to_sim import Cell
 from giwbc.errors import ConfigError
-from giwbc.hal.runlog import RunLogWriter, read_log
+from giwbc.runlog import RunLogWriter, read_log
 from giwbc.hal.safety import Fault, FaultKind
 
 matplotlib = pytest.importorskip("matplotlib")

@@ -4,7 +4,7 @@ Time panels share one axis (robot time since the run started): joint tracking (r
 measured) for a few joints, their measured torques against the description's limits, the motor
 temperatures, and the run's phases with its faults (red lines across every time panel). Below, the
 histograms of the period error (measured period minus the nominal one) and of the loop's work time
-per cycle, with the overruns counted. Reads only the run log (:func:`giwbc.hal.runlog.read_log`).
+per cycle, with the overruns counted. Reads only the run log (:func:`giwbc.runlog.read_log`).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import numpy as np
 
 from giwbc.apps.plots import check_plot_path, new_figure, save_figure
 from giwbc.errors import ConfigError, RobotDescriptionError
-from giwbc.hal.runlog import RunLog, read_log
+from giwbc.runlog import RunLog, read_log
 from giwbc.robot import load
 
 DEFAULT_JOINTS = 3  # joints shown when none are named: those whose reference moved most
