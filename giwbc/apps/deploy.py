@@ -39,6 +39,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
+from giwbc.apps.live import HOST as LIVE_HOST
+from giwbc.apps.scene import SceneChannels
 from giwbc.errors import DeployError
 
 if TYPE_CHECKING:
@@ -66,6 +69,14 @@ def _runtime_keys() -> frozenset[str]:
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     make_options = {name for name, p in inspect.signature(gymnasium.make).parameters.items() if p.kind in named} - {"id"}
     return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS, *make_options})
+
+
+def scene_channels(description: RobotDescription, joint_names: Sequence[str], rate: float, port: int | None) -> SceneChannels | None:
+    """The run log's 3D scene at ``rate`` Hz (0: none), streamed live on ``port`` if given."""
+    if rate <= 0 and port is None:
+        return None
+    live = LiveServer(port) if port is not None else None
+    return SceneChannels(description, joint_names, rate=rate if rate > 0 else 1.0, live=live, log=rate > 0)
 
 
 # ----------------------------------------------------------------------------- policy metadata
@@ -199,6 +210,8 @@ class DeployOptions:
     faults: tuple[FaultInjection, ...] = ()  # injected into the emulator (rehearsals, tests)
     reply_timeout: float = 0.8e-3
     rt_priority: int | None = None  # SCHED_FIFO priority of the control loop (None: the default scheduler)
+    scene_rate: float = 50.0  # Hz of the 3D scene (link transforms, contact forces) in the log; 0: none
+    foxglove_port: int | None = None  # also stream the scene to Foxglove on this loopback port (the logger's process)
 
 
 @dataclass
@@ -357,7 +370,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             "robot": description.name, "hardware": str(hardware), "emulate": options.emulate, "task": task_name,
             "controller": options.controller, "policy": options.policy, "control_rate": options.control_rate,
             "agent_rate": agent_rate, "seconds": options.seconds, "bus_loads": loads,
-        })  # fmt: skip
+        }, extension=scene_channels(description, names, options.scene_rate, options.foxglove_port))  # fmt: skip
+        if options.foxglove_port is not None:
+            say(f"Foxglove: open a connection to ws://{LIVE_HOST}:{options.foxglove_port} (the scene at 30 Hz, from the logger's process)")
         runtime = RealtimeRuntime(
             task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=options.safety,
             startup=options.startup, log=log, log_every=options.log_every, realtime=options.realtime,
@@ -467,6 +482,11 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
     parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="stream the robot in 3D to Foxglove over a loopback WebSocket (needs foxglove-sdk)")
+    parser.add_argument("--foxglove-port", type=int, default=DEFAULT_PORT, help="the WebSocket's port")
+    parser.add_argument("--scene-rate", type=float, default=DeployOptions.scene_rate,
+                        help="Hz of the 3D scene (transforms, joint states, contact forces) in the log; 0: none")
     parser.add_argument("--fault", default=None, metavar="KIND",
                         help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
@@ -488,10 +508,13 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             print(f"giwbc deploy: error: {error}", file=sys.stderr)
             return 2
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
+    if args.foxglove:
+        require_foxglove()  # before the motors, not after
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
-        startup=startup, rt_priority=args.rt_priority, faults=faults,
+        startup=startup, rt_priority=args.rt_priority, faults=faults, scene_rate=args.scene_rate,
+        foxglove_port=args.foxglove_port if args.foxglove else None,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
