@@ -15,6 +15,8 @@ from __future__ import annotations
 import json
 import socket
 import struct
+import sys
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -155,8 +157,6 @@ def watch(port: int, seconds: float, *, host: str = HOST, connect_within: float 
     """Be a Foxglove viewer for ``seconds`` (or until the server goes): connect (retrying for
     ``connect_within`` s while the server starts), subscribe to every advertised channel (or
     ``topics``) and return ``topic -> [(log time ns, JSON text)]`` as received. Needs ``websockets``."""
-    import time
-
     try:
         from websockets.exceptions import ConnectionClosed  # optional (the `foxglove` extra)
         from websockets.sync.client import connect
@@ -200,8 +200,6 @@ def watch(port: int, seconds: float, *, host: str = HOST, connect_within: float 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m giwbc.apps.live PORT SECONDS``: watch a server, print messages per topic (JSON)."""
-    import sys
-
     args = sys.argv[1:] if argv is None else argv
     received = watch(int(args[0]), float(args[1]))
     print(json.dumps({topic: len(messages) for topic, messages in received.items()}))

@@ -98,8 +98,8 @@ def evaluation_figure(arms: Sequence[ArmResult], comparisons: Sequence[Compariso
         paired.set_xticks(x, [f"{i:g}\np={c.paired_p_value:.2g}" for i, c in zip(impulse, comparisons)])
         paired.set(xlabel="push impulse (N·s), exact McNemar p", ylabel="episodes (same seed, same push)",
                    title="paired: what the residual changes")
-        paired.set_ylim(0, max(1, *saved, *lost) * 1.2)
-        paired.legend(loc="upper left")
+        paired.set_ylim(0, max(1, *saved, *lost) * 1.45)  # room for the legend above the bars
+        paired.legend(loc="upper center", ncol=2, frameon=False)
     return figure
 
 
