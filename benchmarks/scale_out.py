@@ -48,8 +48,8 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def vec_step_seconds(kind: str, env_id: str, n: int, steps: int, envs_per_worker: int = 1) -> float:
-    """Mean wall seconds per vector step of ``n`` envs on ``kind`` ("subproc", "ray": RayVecEnv's default channel,
+def vec_step_seconds(kind: str, env_id: str, n: int, steps: int, envs_per_worker: int = 1) -> tuple[float, float]:
+    """Mean wall and driver-CPU seconds per vector step of ``n`` envs on ``kind`` ("subproc", "ray": RayVecEnv's default channel,
     "ray_calls": one actor call per step), zero actions."""
     import torch
     from stable_baselines3.common.env_util import make_vec_env
@@ -68,10 +68,10 @@ def vec_step_seconds(kind: str, env_id: str, n: int, steps: int, envs_per_worker
         actions = np.zeros((n, *venv.action_space.shape), np.float32)
         for _ in range(max(5, steps // 10)):  # warm up: solver workspaces, first-reset costs
             venv.step(actions)
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         for _ in range(steps):
             venv.step(actions)
-        return (time.perf_counter() - started) / steps
+        return (time.perf_counter() - started) / steps, (time.process_time() - cpu) / steps
     finally:
         venv.close()
 
@@ -88,12 +88,15 @@ def env_throughput(steps: int, repeats: int, transport_steps: int, agent_hz: flo
     """G1 steps/s on subprocesses and Ray actors (1 and 2 workers), and the Ray transport overhead."""
     g1: dict[str, list[float]] = {name: [] for name in CONFIGS}
     cart: dict[str, list[float]] = {name: [] for name in TRANSPORT}
+    driver_cpu: dict[str, list[float]] = {name: [] for name in TRANSPORT}
     loads = []
     for _ in range(repeats):  # interleaved, so that a change of load hits every configuration
         for name, (kind, n, per_worker) in CONFIGS.items():
-            g1[name].append(vec_step_seconds(kind, G1, n, steps, per_worker))
+            g1[name].append(vec_step_seconds(kind, G1, n, steps, per_worker)[0])
             if name in cart:
-                cart[name].append(vec_step_seconds(kind, CARTPOLE, n, transport_steps, per_worker))
+                wall, cpu = vec_step_seconds(kind, CARTPOLE, n, transport_steps, per_worker)
+                cart[name].append(wall)
+                driver_cpu[name].append(cpu)
             loads.append(_load())
     t = {name: float(np.median(v)) for name, v in g1.items()}
     tc = {name: float(np.median(v)) for name, v in cart.items()}
@@ -127,6 +130,7 @@ def env_throughput(steps: int, repeats: int, transport_steps: int, agent_hz: flo
             "channel": overhead("ray_1"),  # RayVecEnv's default
             "actor_calls": overhead("ray_calls_1"),  # RayVecEnv(transport="calls"), the transport before
             "cartpole_us_per_vector_step": {name: 1e6 * v for name, v in tc.items()},
+            "cartpole_driver_cpu_us_per_vector_step": {name: 1e6 * float(np.median(v)) for name, v in driver_cpu.items()},
             "definition": ("per-step overhead = Ray's transport per vector step (CartPole through RayVecEnv minus "
                            "through SubprocVecEnv, 1 worker; CartPole's own step is ~0.1 ms, so the difference is the "
                            "transport alone) over the time of one G1 agent step (simulation + WBC, measured through a "
@@ -134,7 +138,7 @@ def env_throughput(steps: int, repeats: int, transport_steps: int, agent_hz: flo
                            "period (1/agent_hz, the real-time budget) and per env step when each actor holds k envs; "
                            "measured_on_g1: the G1 step times' own ratio (noisy: the WBC's active set and the load vary)"),
         },
-        "_seconds": {"g1": t, "cartpole": tc},
+        "_seconds": {"g1": t, "cartpole": tc, "driver_cpu": {name: float(np.median(v)) for name, v in driver_cpu.items()}},
     }
 
 
@@ -200,8 +204,7 @@ def projection(env: dict[str, Any], evaluation: dict[str, Any], tasks: dict[str,
                 "efficiency_vs_perfect_linear": sweep_episodes * t_episode / (c * wall)}
 
     t_step = env["_seconds"]["g1"]["subproc_1"]
-    cart = env["_seconds"]["cartpole"]
-    per_actor = max(20e-6, cart["ray_2"] - cart["ray_1"])  # the driver's cost of one more actor per vector step (upper bound)
+    per_actor = env["_seconds"]["driver_cpu"]["ray_2"] / 2  # the learner's CPU per actor and vector step (upper bound)
     transport = env["ray_overhead"]["channel"]["transport_us_per_vector_step"] * 1e-6
     rtt = 100e-6  # assumed LAN round trip between the learner's node and an actor's (not measured here)
 
@@ -214,12 +217,13 @@ def projection(env: dict[str, Any], evaluation: dict[str, Any], tasks: dict[str,
     training = {
         "model": ("t_vector_step = k * t_step + transport + rtt + (A - 1) * c_actor: A = C actors of k envs each, one per "
                   "core, stepped in lockstep by one SB3 learner; each steps its k envs in turn (t_step, G1 through a pipe "
-                  "here), the learner sends to and receives from the A channels one after another (c_actor = the driver's "
-                  "cost of one more actor, measured with 2 actors here: an upper bound where they share 2 vCPUs), "
+                  "here), the learner sends to and receives from the A channels one after another (c_actor = the learner "
+                  "process's CPU time per vector step over 2 actors / 2, measured: an upper bound, it includes the "
+                  "VecEnv's own per-step work), "
                   "transport = the channel's measured per-step overhead, rtt = an assumed 0.1 ms LAN round trip; "
                   "per-step overhead = t_vector_step / (k * t_step) - 1"),
         "inputs": {"t_step_ms": 1e3 * t_step, "transport_us": 1e6 * transport, "c_actor_us": 1e6 * per_actor, "rtt_us": 1e6 * rtt},
-        "by_envs_per_actor": {str(k): rollout(k) for k in (1, 8, 64)},
+        "by_envs_per_actor": {str(k): rollout(k) for k in (1, 8, 64, 256)},
     }
     return {
         "cluster": {"nodes": nodes, "cores_per_node": cores, "cores": c},
@@ -257,7 +261,7 @@ def projection(env: dict[str, Any], evaluation: dict[str, Any], tasks: dict[str,
             "the head node: one driver submits and collects every task (rate measured above) and the GCS tracks "
             "them -- far from limiting at ~1,600 tasks, limiting at ~10^5-10^6 tiny tasks (then batch episodes)",
             f"training, not evaluation: a RayVecEnv steps all actors in lockstep from one learner, so the driver's "
-            f"per-actor cost (at most {1e6 * per_actor:.0f} us, measured here where two actors cannot run at once) grows "
+            f"CPU per actor (at most {1e6 * per_actor:.0f} us, measured here) grows "
             f"linearly: ~{t_step / per_actor:.0f}+ actors before it equals a G1 agent step ({1e3 * t_step:.2f} ms), and the slowest actor sets every step's pace; PPO over 1,600 cores needs several "
             "envs per actor (envs_per_worker) and, beyond that, a distributed learner rather than one SB3 process",
         ],

@@ -183,7 +183,19 @@ class RayVecEnv(VecEnv):
         """One authenticated connection to each actor (a fresh key per vector env, sent through Ray)."""
         authkey = secrets.token_bytes(32)
         addresses = self._get([worker.open_channel.remote(authkey) for worker in self.workers], range(len(self.workers)))
-        return [Client(tuple(address), authkey=authkey) for address in addresses]
+        channels: list[Connection] = []
+        try:
+            for address in addresses:
+                channels.append(Client(tuple(address), authkey=authkey))
+        except OSError as error:  # a firewall between this machine and a node, most likely
+            for channel in channels:
+                channel.close()
+            for worker in self.workers:
+                self._ray.kill(worker)
+            raise UnavailableError(
+                f"cannot open a channel to the Ray env worker at {address[0]}:{address[1]} ({error}): let this machine reach "
+                "the nodes' TCP ports, or step through Ray's own calls (RayVecEnv(transport='calls'))") from None
+        return channels
 
     # --- the Ray calls, with a lost worker reported as such ----------------------------------------
     def _get(self, refs: list[Any], workers: Sequence[int]) -> list[Any]:
