@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from giwbc.apps.scene import SCHEMAS as SCENE_SCHEMAS
 from giwbc.apps.deploy import DeployError, DeployOptions, add_deploy_command, check_policy_metadata, deploy
 from giwbc.emulation import EmulatorConfig, Gantry
 from giwbc.runlog import SCHEMAS, read_log
@@ -55,7 +56,7 @@ def test_dry_run_holds_g1_standing_with_the_wbc_in_real_time(g1, model, tmp_path
     assert any("bus 'can0'" in line for line in lines) and any("stood" in line for line in lines)
 
     log = read_log(outcome.log_path)
-    assert set(log.schemas) == set(SCHEMAS) - {"/faults"} and not log.faults
+    assert set(log.schemas) == (set(SCHEMAS) - {"/faults"}) | set(SCENE_SCHEMAS) and not log.faults  # with the 3D scene
     assert log.metadata["robot"] == "g1" and log.joint_names == g1.joint_names
     assert [e["detail"]["phase"] for e in log.events if e["event"] == "phase"] == [
         "enable", "settle", "ramp", "running", "shutdown", "damping", "off"]  # fmt: skip

@@ -13,6 +13,7 @@ import numpy as np
 from giwbc.apps.deploy import add_deploy_command
 from giwbc.apps.evaluation import add_evaluate_command
 from giwbc.apps.motors import add_motors_command
+from giwbc.apps.log_report import add_log_command
 from giwbc.apps.play import add_play_command
 from giwbc.apps.sim_to_sim import add_sim_to_sim_command
 from giwbc.apps.training import add_train_command
@@ -107,6 +108,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_deploy_command(commands)
     add_motors_command(commands)
     add_walk_command(commands)
+    add_log_command(commands)
     return parser
 
 

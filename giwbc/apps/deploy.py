@@ -48,6 +48,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
+from giwbc.apps.live import HOST as LIVE_HOST
+from giwbc.apps.scene import SceneChannels
 from giwbc.errors import DeployError
 
 if TYPE_CHECKING:
@@ -75,6 +78,14 @@ def _runtime_keys() -> frozenset[str]:
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     make_options = {name for name, p in inspect.signature(gymnasium.make).parameters.items() if p.kind in named} - {"id"}
     return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS, *make_options})
+
+
+def scene_channels(description: RobotDescription, joint_names: Sequence[str], rate: float, port: int | None) -> SceneChannels | None:
+    """The run log's 3D scene at ``rate`` Hz (0: none), streamed live on ``port`` if given."""
+    if rate <= 0 and port is None:
+        return None
+    live = LiveServer(port) if port is not None else None
+    return SceneChannels(description, joint_names, rate=rate if rate > 0 else 1.0, live=live, log=rate > 0)
 
 
 # ----------------------------------------------------------------------------- policy metadata
@@ -212,6 +223,8 @@ class DeployOptions:
     preflight: bool = True  # SocketCAN pre-flight on real buses
     first_run: bool = False  # a robot on a gantry: reduced limits (FirstRunLimits)
     emulated_hardware: str | None = None  # with emulate: the emulated robot's true wiring (default: the plan), e.g. to rehearse a wrong sign
+    scene_rate: float = 50.0  # Hz of the 3D scene (link transforms, contact forces) in the log; 0: none
+    foxglove_port: int | None = None  # also stream the scene to Foxglove on this loopback port (the logger's process)
 
 
 @dataclass
@@ -393,7 +406,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             "robot": description.name, "hardware": str(hardware), "emulate": options.emulate, "task": task_name,
             "controller": options.controller, "policy": options.policy, "control_rate": options.control_rate,
             "agent_rate": agent_rate, "seconds": options.seconds, "bus_loads": loads,
-        })  # fmt: skip
+        }, extension=scene_channels(description, names, options.scene_rate, options.foxglove_port))  # fmt: skip
+        if options.foxglove_port is not None:
+            say(f"Foxglove: open a connection to ws://{LIVE_HOST}:{options.foxglove_port} (the scene at 30 Hz, from the logger's process)")
         runtime = RealtimeRuntime(
             task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=safety,
             startup=options.startup, log=log, log_every=options.log_every, realtime=options.realtime,
@@ -517,6 +532,11 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
                         help="with --emulate: the emulated robot's true wiring, when it differs from --hardware (calibration rehearsals)")
     parser.add_argument("--first-run", action="store_true",
                         help="robot on a gantry: reduced torque and gains, tighter fall and limit thresholds")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="stream the robot in 3D to Foxglove over a loopback WebSocket (needs foxglove-sdk)")
+    parser.add_argument("--foxglove-port", type=int, default=DEFAULT_PORT, help="the WebSocket's port")
+    parser.add_argument("--scene-rate", type=float, default=DeployOptions.scene_rate,
+                        help="Hz of the 3D scene (transforms, joint states, contact forces) in the log; 0: none")
     parser.add_argument("--fault", default=None, metavar="KIND",
                         help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
@@ -538,11 +558,14 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             print(f"giwbc deploy: error: {error}", file=sys.stderr)
             return 2
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
+    if args.foxglove:
+        require_foxglove()  # before the motors, not after
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
         startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
-        first_run=args.first_run, emulated_hardware=args.emulated_hardware,
+        first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
+        foxglove_port=args.foxglove_port if args.foxglove else None,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
