@@ -34,6 +34,9 @@ import numpy as np
 
 from giwbc.apps.workers import process_pool
 from giwbc.distributed import RayRunner, add_ray_argument, connect
+from giwbc.envs import RUNTIME_OPTIONS
+from giwbc.policy import OnnxPolicy, check_compatible
+import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 
 ENV_ID = "giwbc/G1Balance-v0"
 DEFAULT_POLICY = Path("policies/g1_balance_residual.onnx")
@@ -98,8 +101,6 @@ class Cell:
 
 def _task_kwargs(policy: Any) -> dict[str, Any]:
     """The task options the policy was trained with (layout, scales, controller), runtime options dropped."""
-    from giwbc.envs import RUNTIME_OPTIONS
-
     if policy is None:
         return {}
     kwargs = dict(policy.metadata.get("env_kwargs") or {})
@@ -109,9 +110,6 @@ def _task_kwargs(policy: Any) -> dict[str, Any]:
 def run_job(job: Job) -> tuple[Job, list[tuple[int, bool, float]], float]:
     """Run one chunk: ``[(seed, success, simulated seconds)]`` and the wall time of its episodes."""
     import gymnasium
-
-    import giwbc.envs  # noqa: F401  (registers the ids)
-    from giwbc.policy import OnnxPolicy, check_compatible
 
     policy = OnnxPolicy(job.policy) if job.controller == "residual_policy" else None
     task_policy = OnnxPolicy(job.policy) if job.policy is not None else None

@@ -13,6 +13,7 @@ import numpy as np
 
 from giwbc.locomotion.simulation import Push, WalkRun, simulate_walk
 from giwbc.robot import load
+from giwbc.apps.play import write_video
 
 VIDEO_FPS = 30.0
 
@@ -63,8 +64,6 @@ def run_walk(
     run = simulate_walk(description, command, seconds, pushes=pushes, render=camera, render_every=every if video else 0, seed=seed)
     written = None
     if video:
-        from giwbc.policy import write_video
-
         written = str(write_video(video, run.frames, fps=1.0 / (every * description.timestep)))
     return run, written
 
