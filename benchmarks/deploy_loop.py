@@ -52,6 +52,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from giwbc.apps.deploy import make_controller, scene_channels  # noqa: E402
+from giwbc.estimation.estimated_robot import EstimatedRobot  # noqa: E402
+from giwbc.estimation.estimator import StateEstimator  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig  # noqa: E402
 from giwbc.emulation.process import EmulatorProcess  # noqa: E402
@@ -67,9 +69,10 @@ BENCHMARK_SAFETY = SafetyConfig(max_missing_cycles=25, imu_timeout_cycles=50)
 
 
 class _CpuMeter:
-    """Thread CPU time spent inside the emulator's calls and inside the robot's exchanges."""
+    """Thread CPU time spent inside the emulator's calls and inside the robot's exchanges (with the
+    estimator's update after each, when there is one: the host's CAN path)."""
 
-    def __init__(self, emulator: ActuatorEmulator | None, robot: CanRobot) -> None:
+    def __init__(self, emulator: ActuatorEmulator | None, robot: CanRobot, estimated: EstimatedRobot | None = None) -> None:
         self.total = 0.0  # emulator (in this thread: lockstep only)
         self.exchange = 0.0  # exchanges, emulator included
         for name in ("advance", "answer") if emulator is not None else ():
@@ -91,6 +94,17 @@ class _CpuMeter:
                 self.exchange += time.thread_time() - start
 
         robot.exchange = timed_exchange  # type: ignore[method-assign]
+        if estimated is not None:
+            update = estimated.update
+
+            def timed_update(*args, **kwargs):
+                start = time.thread_time()
+                try:
+                    return update(*args, **kwargs)
+                finally:
+                    self.exchange += time.thread_time() - start
+
+            estimated.update = timed_update  # type: ignore[method-assign]
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -133,21 +147,18 @@ def _free_port() -> int:
 def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
              mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False) -> dict:  # fmt: skip
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
-    estimator = None
-    if controller == "wbc":
-        from giwbc.estimation.estimator import StateEstimator
-
-        estimator = StateEstimator(description)
     cpus = sorted(os.sched_getaffinity(0))
     split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
     if mode == "process":
         emulator = EmulatorProcess(plan, description, EmulatorConfig(), rt_priority=None if rt_priority is None else max(1, rt_priority - 1),
                                    cpu=cpus[-1] if split else None)  # fmt: skip
-        robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, estimator=estimator, wait_for_replies=False)
+        can_robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, wait_for_replies=False)
     else:
         emulator = ActuatorEmulator(plan, description, EmulatorConfig(), model=copy.copy(model))
-        robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, estimator=estimator)
-    meter = _CpuMeter(emulator if mode == "lockstep" else None, robot)
+        can_robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
+    # The WBC needs a base state: giwbc deploy's EstimatedRobot(CanRobot(...)).
+    robot = EstimatedRobot(can_robot, StateEstimator(description)) if controller == "wbc" else can_robot
+    meter = _CpuMeter(emulator if mode == "lockstep" else None, can_robot, robot if robot is not can_robot else None)
     task = StandingTask(make_controller(controller, description), description.default_positions)
     port = _free_port() if live else None
     scene = scene_channels(description, description.joint_names, scene_rate, port)
@@ -176,7 +187,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     result = runtime.run(None, seconds)
     if split:
         os.sched_setaffinity(0, set(cpus))
-    robot.close()
+    can_robot.close()
     emulator.close()
     if writer is not None:
         writer.close()

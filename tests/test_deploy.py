@@ -203,7 +203,7 @@ def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp
     """A controller whose first tick after a reset is slow (a QP laid out and solved cold) takes
     over between two cycles: the motors hold the ramp's last command meanwhile, the pause is
     logged, and the first running cycle neither overruns nor skips a slot."""
-    from giwbc.apps.deploy import PdHold
+    from giwbc.robot.standing import PdHold
 
     class SlowFirstTick(PdHold):
         fresh = True
@@ -233,7 +233,7 @@ def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, 
     collects the young generations itself between cycles, and restores the collector at close."""
     import gc
 
-    from giwbc.apps.deploy import PdHold
+    from giwbc.robot.standing import PdHold
 
     seen = []
 

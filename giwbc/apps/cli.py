@@ -21,6 +21,7 @@ from giwbc.apps.walk import add_walk_command
 from giwbc.errors import GiwbcError
 from giwbc.robot import MujocoRobot, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
+from giwbc.apps.demo import run_demo
 
 GRAVITY = 9.81
 
@@ -84,8 +85,6 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: what giwbc can do today, end to end."""
-    from giwbc.apps.demo import run_demo
-
     return run_demo(seconds=args.seconds)
 
 

@@ -13,7 +13,8 @@ Procedure (:func:`deploy`):
    clock (:mod:`giwbc.emulation.process`: the loop then pays only for its own work, as with
    real motors, and takes each cycle's replies at the next cycle); otherwise open the configured
    buses;
-4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
+4. build the CAN robot (IMU from the plan's source) and, when the controller needs a base state,
+   wrap it: ``EstimatedRobot(CanRobot(...))`` (the base from the state estimator); the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
    run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``;
 5. report: exit code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's
@@ -37,44 +38,58 @@ person to watch what the supervisor does (``DeployOptions.faults`` takes any num
 from __future__ import annotations
 
 import argparse
+import copy
+import inspect
 import json
 import math
 import os
 import sys
 import time
+import traceback
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import gymnasium
 import numpy as np
 from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
 from giwbc.apps.live import HOST as LIVE_HOST
 from giwbc.apps.scene import SceneChannels
+from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
+
+from giwbc.control.balance import make_balance_controller
+from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
+from giwbc.emulation.process import EmulatorProcess
+from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import DeployError
+from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.estimation.estimator import StateEstimator
+from giwbc.hal.can_robot import CanRobot
+from giwbc.hal.hardware import HardwareConfigError, load_hardware
+from giwbc.hal.imu import imu_source_for
+from giwbc.policy import OnnxPolicy, PolicyFormatError
+from giwbc.hal.safety import SafetyConfig
+from giwbc.robot.description import RobotDescription, RobotDescriptionError, load
+from giwbc.robot.standing import PdHold
+from giwbc.runlog import RunLogWriter
+from giwbc.runtimes.faults import HostFaults, fault_case
+from giwbc.runtimes.phases import StartupConfig
+from giwbc.runtimes.realtime import RealtimeRuntime, RunResult
+from giwbc.tasks.balance import G1Balance
+from giwbc.tasks.standing import StandingTask
 
 if TYPE_CHECKING:
     import mujoco
 
-    from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
-    from giwbc.emulation.process import EmulatorProcess
-    from giwbc.hal.safety import SafetyConfig
-    from giwbc.robot.description import RobotDescription
-    from giwbc.runtimes.phases import StartupConfig
-    from giwbc.runtimes.realtime import RunResult
-
 TASKS = ("stand", "balance")
 CONTROLLERS = ("wbc", "pd")
 EMULATOR_MODES = ("lockstep", "process")
+
+
 def _runtime_keys() -> frozenset[str]:
     """Env kwargs that configure the simulated runtime or ``gymnasium.make``'s wrappers
     (``max_episode_steps``, ...), not the task: the deployment drops them."""
-    import inspect
-
-    import gymnasium
-
-    from giwbc.envs import RUNTIME_OPTIONS
-
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     make_options = {name for name, p in inspect.signature(gymnasium.make).parameters.items() if p.kind in named} - {"id"}
     return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS, *make_options})
@@ -132,8 +147,6 @@ def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], d
         metadata = json.loads(path.read_text())
         size = len(metadata.get("action_names") or [])
         return (lambda observation: np.zeros(size, dtype=np.float32)), metadata
-    from giwbc.policy import OnnxPolicy, PolicyFormatError
-
     try:
         policy = OnnxPolicy(path)
     except (PolicyFormatError, ImportError) as error:
@@ -142,25 +155,11 @@ def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], d
 
 
 # ----------------------------------------------------------------------------- controllers
-class PdHold:
-    """The joint-PD hold of the description's default pose (evaluated by the actuators)."""
-
-    def __init__(self, description: RobotDescription) -> None:
-        from giwbc.robot.standing import pd_hold_command
-
-        self.command = pd_hold_command(description)
-
-    def __call__(self, robot: Any) -> Any:
-        return self.command
-
-
 class WbcHold:
     """The QP standing balance controller (:mod:`giwbc.control.balance`): its impedance output
     (feed-forward torque plus joint damping) from the estimated Pinocchio state."""
 
     def __init__(self, description: RobotDescription, **options: Any) -> None:
-        from giwbc.control.balance import make_balance_controller
-
         self.balance = make_balance_controller(description, **options)
         self._anchor = True
         self.last: Any = None
@@ -262,26 +261,12 @@ def deploy(
         say(f"giwbc deploy: error: {error}")
         return DeployOutcome(2, str(error))
     except Exception as error:  # noqa: BLE001 - setup bugs: reported, never a traceback at the operator
-        import traceback
-
         message = f"internal error before or after the run: {type(error).__name__}: {error}"
         say(f"giwbc deploy: {message}\n{traceback.format_exc(limit=6)}")
         return DeployOutcome(1, message)
 
 
 def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, description: Any, say: Callable[[str], None]) -> DeployOutcome:
-    import copy
-
-    from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
-    from giwbc.hal.can_robot import CanRobot
-    from giwbc.hal.imu import imu_source_for
-    from giwbc.emulation import ActuatorEmulator, EmulatorConfig
-    from giwbc.hal.hardware import HardwareConfigError, load_hardware
-    from giwbc.runlog import RunLogWriter
-    from giwbc.robot.description import RobotDescriptionError, load
-    from giwbc.runtimes.realtime import RealtimeRuntime
-    from giwbc.tasks.standing import StandingTask
-
     try:
         description = description or load(options.robot)
     except RobotDescriptionError as error:
@@ -317,13 +302,12 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     for line in loads:
         say(f"  {line}")
 
-    from giwbc.runtimes.faults import HostFaults
 
     host_faults = HostFaults(options.faults)
     if host_faults and not options.emulate:
         raise DeployError("injected faults are for rehearsals: they need --emulate")
     emulator = None
-    robot = None
+    can_robot: CanRobot | None = None
     log = None
     runtime = None
     imu = None
@@ -336,12 +320,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             if first_run is not None:
                 config = with_gantry(config)
             if options.faults:
-                from dataclasses import replace
-
                 config = replace(config, faults=tuple(config.faults) + tuple(options.faults))
             if options.emulator_mode == "process":
-                from giwbc.emulation.process import EmulatorProcess
-
                 rt = None if options.rt_priority is None else max(1, options.rt_priority - 1)  # just below the loop
                 emulator = EmulatorProcess(plan, description, config, rt_priority=rt)
                 host_plan, peer = emulator.host_plan(), None
@@ -372,20 +352,19 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
-            from giwbc.estimation.estimator import StateEstimator
-
             estimator = StateEstimator(description)
         clock: list[Callable[[], float]] = []  # robot time for host-side faults (set once the robot exists)
         if isinstance(emulator, ActuatorEmulator):
             clock.append(lambda: emulator.time)  # lockstep: the emulator is at the cycle's time when the host sends
         links = host_faults.links(host_plan, lambda: clock[0]() if clock else 0.0)
         try:
-            robot = CanRobot(description, host_plan, imu=imu, estimator=estimator, peer=peer, reply_timeout=options.reply_timeout,
-                             wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links)
+            can_robot = CanRobot(description, host_plan, imu=imu, peer=peer, reply_timeout=options.reply_timeout,
+                                 wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links)
         except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
             raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
         if first_run is not None:
-            robot.reduce_limits(first_run.torque_fraction, first_run.gain_fraction)
+            can_robot.reduce_limits(first_run.torque_fraction, first_run.gain_fraction)
+        robot = can_robot if estimator is None else EstimatedRobot(can_robot, estimator)
 
         if not clock:
             clock.append(lambda: robot.time() + 1.0 / options.control_rate)
@@ -426,8 +405,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             host_faults.release()  # a driver blocked on purpose: let the abandoned loop's thread leave
             if runtime is not None and runtime._loop_thread is not None:
                 runtime._loop_thread.join(1.0)
-        if robot is not None:
-            robot.close()
+        if can_robot is not None:
+            can_robot.close()
         if hasattr(imu, "close") and (emulator is None or imu is not emulator.imu_channel):
             imu.close()  # a serial IMU's port (the emulator's channel is the emulator's to close)
         if emulator is not None:
@@ -472,8 +451,6 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
 
 
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
-    from giwbc.tasks.balance import G1Balance
-
     kwargs = {k: v for k, v in dict((metadata or {}).get("env_kwargs") or {}).items() if k not in _runtime_keys()}
     kwargs.setdefault("controller", controller)
     try:
@@ -545,13 +522,9 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
 
 
 def run_deploy_command(args: argparse.Namespace) -> int:
-    from giwbc.runtimes.phases import StartupConfig
-
     startup = StartupConfig(ramp_time=args.ramp)
     faults: tuple[Any, ...] = ()
     if getattr(args, "fault", None):
-        from giwbc.runtimes.faults import fault_case
-
         try:
             case = fault_case(args.fault)
         except ValueError as error:

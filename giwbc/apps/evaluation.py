@@ -31,6 +31,8 @@ from giwbc.apps.plots import check_plot_path, evaluation_figure, save_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
+import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
+from giwbc.policy import OnnxPolicy, PolicyFormatError, check_compatible
 
 DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
 # The environment as registered (both WBC solvers give bit-reproducible answers).
@@ -203,7 +205,6 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
     policy_path, env_id, env_kwargs, protocol, seeds = job
     import gymnasium
 
-    import giwbc.envs  # noqa: F401  (registers the ids)
 
     try:
         import torch
@@ -213,8 +214,6 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
         pass
     policy = None
     if policy_path is not None:
-        from giwbc.policy import OnnxPolicy
-
         policy = OnnxPolicy(policy_path)
     with quiet_banners():  # PyBullet prints its build time at connect
         probe = gymnasium.make(env_id, **env_kwargs)
@@ -222,8 +221,6 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
         probe.close()
         env = gymnasium.make(env_id, **protocol.env_overrides(env_kwargs, agent_hz))
     if policy is not None:
-        from giwbc.policy import check_compatible
-
         check_compatible(policy.metadata, env.unwrapped.describe())
     zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
     results = []
@@ -321,8 +318,6 @@ def run_arms(arms: Sequence[dict[str, Any]], runner: RayRunner) -> list[ArmResul
 
 def policy_env(policy_path: str | os.PathLike[str]) -> tuple[str, dict[str, Any]]:
     """The environment id and options a policy file was trained on (from its metadata)."""
-    from giwbc.policy import OnnxPolicy
-
     metadata = OnnxPolicy(policy_path).metadata
     env_id = metadata["env_id"]
     return (env_id if ":" in env_id else f"giwbc.envs:{env_id}"), dict(metadata["env_kwargs"])
@@ -445,7 +440,6 @@ def add_evaluate_command(commands: Any) -> None:
 def run_evaluate_command(args: Any) -> int:
     import sys
 
-    from giwbc.policy import PolicyFormatError
 
     connection = None
     bar = Progress(0, "evaluate", enabled=False)
@@ -528,12 +522,9 @@ def evaluate_swing_up(
     """``arm``: a policy file, ``"zero"`` (no force) or ``"random"`` (uniform actions, seeded per episode)."""
     import gymnasium
 
-    import giwbc.envs  # noqa: F401
 
     policy = None
     if arm not in ("zero", "random"):
-        from giwbc.policy import OnnxPolicy
-
         policy = OnnxPolicy(arm)
         env = policy.make_env(**(env_kwargs or {}))
     else:

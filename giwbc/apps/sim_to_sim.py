@@ -37,6 +37,9 @@ from giwbc.apps.plots import check_plot_path, save_figure, sim_to_sim_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
+from giwbc.envs import RUNTIME_OPTIONS
+from giwbc.policy import OnnxPolicy, check_compatible
+import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 
 ENV_ID = "giwbc/G1Balance-v0"
 DEFAULT_POLICY = Path("policies/g1_balance_residual.onnx")
@@ -106,8 +109,6 @@ class Cell:
 
 def _task_kwargs(policy: Any) -> dict[str, Any]:
     """The task options the policy was trained with (layout, scales, controller), runtime options dropped."""
-    from giwbc.envs import RUNTIME_OPTIONS
-
     if policy is None:
         return {}
     kwargs = dict(policy.metadata.get("env_kwargs") or {})
@@ -117,9 +118,6 @@ def _task_kwargs(policy: Any) -> dict[str, Any]:
 def run_job(job: Job, tick: Callable[[int], None] | None = None) -> tuple[Job, list[tuple[int, bool, float]], float]:
     """Run one chunk: ``[(seed, success, simulated seconds)]`` and the wall time of its episodes; ``tick(1)`` after each."""
     import gymnasium
-
-    import giwbc.envs  # noqa: F401  (registers the ids)
-    from giwbc.policy import OnnxPolicy, check_compatible
 
     policy = OnnxPolicy(job.policy) if job.controller == "residual_policy" else None
     task_policy = OnnxPolicy(job.policy) if job.policy is not None else None

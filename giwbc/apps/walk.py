@@ -16,6 +16,7 @@ from giwbc.apps.live import DEFAULT_PORT, HOST, ScenePublisher, require_foxglove
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.locomotion.simulation import Push, WalkRun, simulate_walk
 from giwbc.robot import load
+from giwbc.apps.play import write_video
 
 VIDEO_FPS = 30.0
 PROGRESS_S = 0.1  # simulated seconds between progress updates without a video
@@ -101,8 +102,6 @@ def run_walk(
         run.frames.clear()  # the progress hook's placeholders
     written = None
     if video:
-        from giwbc.policy import write_video
-
         written = str(write_video(video, run.frames, fps=1.0 / (every * description.timestep)))
     return run, written
 

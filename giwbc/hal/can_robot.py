@@ -17,9 +17,10 @@ measured when the command arrived, so the command computed from them goes out at
 - **IMU** comes from an :class:`ImuSource` (:mod:`giwbc.hal.imu`; ``emulated``: the emulator's :class:`~giwbc.hal.imu.ImuChannel`).
   A CAN IMU (:class:`~giwbc.hal.can_imu.CanImu`) shares a bus with motors: its frames are taken
   out of what the robot reads on that bus and handed to it, never counted as unknown traffic.
-- **Base state** is not measured on hardware: it comes from an attached
-  :class:`~giwbc.estimation.estimator.StateEstimator`, updated once per exchange. Without one,
-  :meth:`base_state` raises :class:`BaseStateUnavailable` (never ground truth from a simulator).
+- **Base state** is not measured on hardware: :meth:`base_state`, :meth:`link_pose` and
+  :meth:`contact_wrench` raise :class:`BaseStateUnavailable` (never ground truth from a
+  simulator). Wrap the robot in :class:`~giwbc.estimation.estimated_robot.EstimatedRobot` for an
+  estimated base (``giwbc deploy`` does; the real-time runtime updates it after each exchange).
 - ``peer``: an in-process stand-in for the motors (:class:`Peer`, the emulator): told that time
   reached the cycle time before draining (``advance``), and to answer after sending (``answer``),
   so it runs in lockstep (see :mod:`giwbc.emulation.emulator`); None on hardware.
@@ -47,7 +48,6 @@ from giwbc.errors import BaseStateUnavailable, NonFiniteCommand
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
-    from giwbc.estimation.estimator import Estimate, StateEstimator
 
 COMMAND, ENTER, EXIT = "command", "enter", "exit"
 _SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
@@ -112,7 +112,6 @@ class CanRobot(DescribedRobot):
         plan: HardwarePlan,
         *,
         imu: ImuSource | None = None,
-        estimator: StateEstimator | None = None,
         peer: Peer | None = None,
         links: Sequence[CanBusLink] | None = None,
         reply_timeout: float = 0.8e-3,
@@ -135,7 +134,6 @@ class CanRobot(DescribedRobot):
             if self._can_imu.bus not in names_:
                 raise ValueError(f"the CAN IMU's bus {self._can_imu.bus!r} is not one of the plan's buses {names_}")
             self._imu_bus = names_.index(self._can_imu.bus)
-        self.estimator = estimator
         self.peer = peer
         self.reply_timeout = float(reply_timeout)
         self.send_budget = float(send_budget)
@@ -180,10 +178,8 @@ class CanRobot(DescribedRobot):
         self._now = 0.0  # the time of the cycle in progress (host-clock stamp of CAN IMU samples)
         self._imu: ImuReading | None = None
         self._imu_time: float | None = None
-        self._estimate: Estimate | None = None
         self.late_frames = 0
         self.send_dropped = 0
-        self._pin: Any = None
 
     @property
     def reply_lag(self) -> int:
@@ -200,8 +196,8 @@ class CanRobot(DescribedRobot):
     def exchange(self, t: float, deadline: float | None = None, kind: str = COMMAND) -> CycleReport:
         """One cycle at time ``t``: send the held command (or ``enter``/``exit`` frames) to every
         motor, collect replies until all came, ``reply_timeout`` after sending, or ``deadline``
-        (absolute ``perf_counter`` seconds, default: 5 ms from now) passed; read the IMU and update
-        the estimator. Never raises for bus trouble: it is in the report. (With
+        (absolute ``perf_counter`` seconds, default: 5 ms from now) passed; read the IMU (the
+        report's ``imu_fresh`` says whether a new sample came). Never raises for bus trouble: it is in the report. (With
         ``wait_for_replies=False`` the replies are collected first, see the class docstring.)"""
         if kind not in (COMMAND, ENTER, EXIT):
             raise ValueError(f"exchange kind must be command, enter or exit, got {kind!r}")
@@ -249,10 +245,6 @@ class CanRobot(DescribedRobot):
         unknown += unknown_late
         imu_fresh = self._read_imu()
         self._time = float(t)
-        if self.estimator is not None and imu_fresh:
-            from giwbc.estimation.estimator import Measurement
-
-            self._estimate = self.estimator.update(Measurement(self._imu, self._q.copy(), self._dq.copy(), self._tau.copy()))
         report = CycleReport(
             self.cycle, float(t), kind, missing, self._stale.copy(), self._error.copy(), self._temperature.copy(),
             late, corrupt, unknown, dropped, clamped, imu_fresh, sent - t0, receive_s,
@@ -428,54 +420,14 @@ class CanRobot(DescribedRobot):
             raise RuntimeError("no IMU sample yet (no IMU source, or it has not published)")
         return self._imu
 
-    @property
-    def estimate(self) -> Estimate:
-        """The estimator's latest output."""
-        if self.estimator is None:
-            raise BaseStateUnavailable(
-                "the CAN robot measures no base state: attach a StateEstimator (CanRobot(..., estimator=...))"
-            )
-        if self._estimate is None:
-            return self.estimator.estimate
-        return self._estimate
-
     def base_state(self) -> BaseState:
-        return self.estimate.base
-
-    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The estimate's Pinocchio ``(q, v)`` (base from the estimator, joints as measured)."""
-        if not self.floating_base:
-            return self.joint_positions(), self.joint_velocities()
-        estimate = self.estimate
-        return estimate.q.copy(), estimate.v.copy()
+        raise BaseStateUnavailable("the CAN robot measures no base state: wrap it in EstimatedRobot (giwbc.estimation)")
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
-        """A link's world pose at the estimated configuration."""
-        import pinocchio as pin
-
-        if self._pin is None:
-            model = self.description.pinocchio_model
-            self._pin = (model, model.createData())
-        model, data = self._pin
-        frame = model.getFrameId(link)
-        if frame >= model.nframes:
-            raise KeyError(f"robot {self.name!r} has no link {link!r}")
-        pin.framesForwardKinematics(model, data, self.generalized_state()[0])
-        placement = data.oMf[frame]
-        return placement.translation.copy(), placement.rotation.copy()
+        raise BaseStateUnavailable(f"the CAN robot measures no link pose ({link!r}): wrap it in EstimatedRobot (giwbc.estimation)")
 
     def contact_wrench(self, link: str) -> ContactWrench:
-        """The estimator's ground force on a contact link (acting at its sole centre)."""
-        contacts = self.description.contacts
-        names = [c.link for c in contacts]
-        if link not in names:
-            raise KeyError(f"no contact on link {link!r}; contacts are on {names}")
-        k = names.index(link)
-        estimate = self.estimate
-        force = np.asarray(estimate.contact_forces[k], dtype=float)
-        _, rotation = self.link_pose(link)
-        lever = rotation @ np.asarray(contacts[k].center, dtype=float)
-        return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[k]))
+        raise BaseStateUnavailable(f"the CAN robot measures no contact force ({link!r}): wrap it in EstimatedRobot (giwbc.estimation)")
 
     # --- commands -------------------------------------------------------------------------
     def _send_joint_torques(self, torques: np.ndarray) -> None:
@@ -520,11 +472,6 @@ class CanRobot(DescribedRobot):
     @property
     def latest_imu(self) -> ImuReading | None:
         return self._imu
-
-    @property
-    def latest_estimate(self) -> Estimate | None:
-        """The estimate of the last exchange (None without an estimator or before its first update)."""
-        return self._estimate
 
     def close(self) -> None:
         """Shut the buses down (motors are not touched: stop them first)."""
