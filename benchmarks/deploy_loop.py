@@ -25,6 +25,12 @@ python-can ``virtual`` buses. The emulator shares this machine with the loop, so
 CPU looks like silent motors: the benchmark tolerates 25 silent cycles (``max_missing_cycles``)
 where a deployment stops after 3, and reports the cycles with missing replies. ``--repeat N``
 runs each rate N times.
+
+The run log carries the 3D scene (link transforms, joint states, contact forces) at ``--scene-rate``
+Hz, computed in the logger's process, as ``giwbc deploy`` writes it. ``--foxglove``: each run twice,
+alternately: ``before`` (the log without the scene) and ``after`` (the scene in the log and streamed
+live from the logger's process to a Foxglove viewer connected over loopback, in a process of its own);
+``foxglove_effect`` gives overruns and p99 period error of both, per rate (medians over ``--repeat``).
 """
 
 from __future__ import annotations
@@ -34,6 +40,8 @@ import copy
 import json
 import math
 import os
+import socket
+import subprocess
 import sys
 import tempfile
 import time
@@ -43,7 +51,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
-from giwbc.apps.deploy import make_controller  # noqa: E402
+from giwbc.apps.deploy import make_controller, scene_channels  # noqa: E402
+from giwbc.estimation.estimated_robot import EstimatedRobot  # noqa: E402
+from giwbc.estimation.estimator import StateEstimator  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig  # noqa: E402
 from giwbc.emulation.process import EmulatorProcess  # noqa: E402
@@ -59,9 +69,10 @@ BENCHMARK_SAFETY = SafetyConfig(max_missing_cycles=25, imu_timeout_cycles=50)
 
 
 class _CpuMeter:
-    """Thread CPU time spent inside the emulator's calls and inside the robot's exchanges."""
+    """Thread CPU time spent inside the emulator's calls and inside the robot's exchanges (with the
+    estimator's update after each, when there is one: the host's CAN path)."""
 
-    def __init__(self, emulator: ActuatorEmulator | None, robot: CanRobot) -> None:
+    def __init__(self, emulator: ActuatorEmulator | None, robot: CanRobot, estimated: EstimatedRobot | None = None) -> None:
         self.total = 0.0  # emulator (in this thread: lockstep only)
         self.exchange = 0.0  # exchanges, emulator included
         for name in ("advance", "answer") if emulator is not None else ():
@@ -83,6 +94,17 @@ class _CpuMeter:
                 self.exchange += time.thread_time() - start
 
         robot.exchange = timed_exchange  # type: ignore[method-assign]
+        if estimated is not None:
+            update = estimated.update
+
+            def timed_update(*args, **kwargs):
+                start = time.thread_time()
+                try:
+                    return update(*args, **kwargs)
+                finally:
+                    self.exchange += time.thread_time() - start
+
+            estimated.update = timed_update  # type: ignore[method-assign]
 
 
 def _cpu_seconds(pid: int) -> float:
@@ -116,27 +138,36 @@ def _overrun_causes(stats, period: float) -> dict[str, int]:
     }
 
 
-def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
-             mode: str, pin: bool) -> dict:  # fmt: skip
-    plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
-    estimator = None
-    if controller == "wbc":
-        from giwbc.estimation.estimator import StateEstimator
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
 
-        estimator = StateEstimator(description)
+
+def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
+             mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False) -> dict:  # fmt: skip
+    plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     cpus = sorted(os.sched_getaffinity(0))
     split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
     if mode == "process":
         emulator = EmulatorProcess(plan, description, EmulatorConfig(), rt_priority=None if rt_priority is None else max(1, rt_priority - 1),
                                    cpu=cpus[-1] if split else None)  # fmt: skip
-        robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, estimator=estimator, wait_for_replies=False)
+        can_robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, wait_for_replies=False)
     else:
         emulator = ActuatorEmulator(plan, description, EmulatorConfig(), model=copy.copy(model))
-        robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, estimator=estimator)
-    meter = _CpuMeter(emulator if mode == "lockstep" else None, robot)
+        can_robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
+    # The WBC needs a base state: giwbc deploy's EstimatedRobot(CanRobot(...)).
+    robot = EstimatedRobot(can_robot, StateEstimator(description)) if controller == "wbc" else can_robot
+    meter = _CpuMeter(emulator if mode == "lockstep" else None, can_robot, robot if robot is not can_robot else None)
     task = StandingTask(make_controller(controller, description), description.default_positions)
+    port = _free_port() if live else None
+    scene = scene_channels(description, description.joint_names, scene_rate, port)
     writer = RunLogWriter(log_dir / f"deploy_loop_{int(rate)}.mcap", description.joint_names, {"benchmark": "deploy_loop"},
-                          cpus=cpus[1:] if split else None) if log else None  # off the loop's CPU  # fmt: skip
+                          cpus=cpus[1:] if split else None, extension=scene) if log else None  # off the loop's CPU  # fmt: skip
+    viewer = None
+    if live and writer is not None:  # a Foxglove viewer on loopback, in a process of its own (not this one's CPU time)
+        viewer = subprocess.Popen([sys.executable, "-m", "giwbc.apps.live", str(port), str(seconds + 30.0)],
+                                  stdout=subprocess.PIPE, text=True)  # fmt: skip
     runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, safety=BENCHMARK_SAFETY,
                               startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.1, off_delay=0.05))  # fmt: skip
     marks: dict[str, dict[str, object]] = {}
@@ -156,10 +187,14 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     result = runtime.run(None, seconds)
     if split:
         os.sched_setaffinity(0, set(cpus))
-    robot.close()
+    can_robot.close()
     emulator.close()
     if writer is not None:
         writer.close()
+    received = None
+    if viewer is not None:
+        out, _ = viewer.communicate(timeout=60)  # the server stopped with the log: the viewer leaves
+        received = json.loads(out.strip().splitlines()[-1]) if out.strip() else {}
     first, last = runtime.phase_cycles.get("running"), runtime.phase_cycles.get("shutdown")
     stats = runtime.clock.stats.between(first if first is not None else 0, last)
     period = 1.0 / rate
@@ -204,6 +239,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         "host_cpu_per_frame_us": {"can_path": 1e6 * exchange_cpu / frames, "whole_cycle": 1e6 * host_cpu / frames},
         "frames_per_cycle": frames,
         "log_records_dropped": None if writer is None else writer.dropped,
+        "scene": {"log_hz": scene_rate if writer is not None and scene_rate > 0 else 0, "live": live, "viewer_received": received},
         "bus_load": {
             "buses": len(loads),
             "max_nominal_pct": round(100 * max(b.nominal for b in loads), 1),
@@ -222,6 +258,9 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=1, help="runs per rate")
     parser.add_argument("--controller", choices=("pd", "wbc"), default="pd")
     parser.add_argument("--no-log", action="store_true", help="run without the MCAP log")
+    parser.add_argument("--scene-rate", type=float, default=50.0, help="Hz of the 3D scene in the log (0: none)")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="each run before (log without the scene) and after (scene logged and streamed live to a viewer)")
     parser.add_argument("--rt-priority", type=int, default=50,
                         help="SCHED_FIFO priority of the loop (the emulator process gets one less); 0: the default scheduler")
     parser.add_argument("--no-pin", action="store_true", help="do not pin the loop's thread and the emulator process to different CPUs")
@@ -235,11 +274,25 @@ def main() -> None:
     model = description.build_mujoco()
     load_before = os.getloadavg()
     results = []
+    variants = [("before", 0.0, False), ("after", args.scene_rate or 50.0, True)] if args.foxglove else [("", args.scene_rate, False)]
     with tempfile.TemporaryDirectory() as tmp:
         for rate, duration in zip(args.rates, seconds):
             for _ in range(max(1, args.repeat)):
-                results.append(run_rate(description, model, rate, duration, args.controller, Path(tmp), not args.no_log,
-                                        args.rt_priority or None, args.emulator, not args.no_pin))  # fmt: skip
+                for name, scene_rate, live in variants:  # alternated: slow drifts of the machine hit both
+                    result = run_rate(description, model, rate, duration, args.controller, Path(tmp), not args.no_log,
+                                      args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live)  # fmt: skip
+                    results.append({"variant": name, **result} if name else result)
+    effect = None
+    if args.foxglove:
+        effect = {
+            f"{rate:g}": {
+                key: {name: float(np.median([pick(r) for r in results if r["rate_hz"] == rate and r["variant"] == name]))
+                      for name in ("before", "after")}
+                for key, pick in (("overruns", lambda r: r["overruns"]), ("p99_period_error_us", lambda r: r["period_error_us"]["p99"]),
+                                  ("logger_cpu_per_cycle_us", lambda r: r["cpu_per_cycle_us"]["logger_process_mean"]))
+            }
+            for rate in args.rates
+        }  # fmt: skip
     print(json.dumps({
         "benchmark": "deploy_loop",
         "robot": args.robot,
@@ -250,6 +303,7 @@ def main() -> None:
                       else "python-can virtual, emulator in the loop thread (lockstep)"),
         "machine": {"cpus": os.cpu_count(), "loadavg_before": [round(x, 2) for x in load_before],
                     "loadavg_after": [round(x, 2) for x in os.getloadavg()], "python": sys.version.split()[0]},
+        "foxglove_effect": effect,
         "results": results,
     }))  # fmt: skip
 

@@ -12,6 +12,9 @@ time (median / p99, us), and per seed the same.
 accelerometer turn-on bias and its IMU latency set per cell (``--grid-gyro``, ``--grid-accel``,
 ``--grid-latency``; the default is a modest 2 x 2 x 2 grid, ``--full-grid`` a 4 x 4 x 3 one),
 ``--grid-seeds`` seeds per cell, reporting which cells stood on every seed.
+
+``--plot FILE`` (.png, .svg): the tilt, velocity and height errors against time of every profile and
+seed. A progress bar (runs done) is drawn on stderr when it is a terminal (``--no-progress``: never).
 """
 
 from __future__ import annotations
@@ -27,6 +30,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 
+from giwbc.apps.plots import check_plot_path, estimator_figure, save_figure  # noqa: E402
+from giwbc.apps.progress import Progress, add_progress_argument, wants_progress  # noqa: E402
 from giwbc.robot import load  # noqa: E402
 from giwbc.control.balance import BalanceOnEstimate  # noqa: E402
 from giwbc.estimation.evaluation import evaluate, push_sequence  # noqa: E402
@@ -42,12 +47,15 @@ DEG = math.pi / 180.0
 FULL_GRID = {"gyro": [0.5, 1.0, 2.0, 4.0], "accel": [20.0, 60.0, 120.0, 250.0], "latency": [1, 2, 4]}
 
 
-def _run(description, model, noise: SensorNoiseConfig, seed: int, args, lateral: float, sagittal: float) -> dict:
+def _run(description, model, noise: SensorNoiseConfig, seed: int, args, lateral: float, sagittal: float,
+         traces: dict | None = None, label: str = "") -> dict:
     wbc = args.controller == "wbc"
     controller = BalanceOnEstimate(description) if wbc else PdHold(description)
     pushes = push_sequence(args.duration, period=args.period, lateral=lateral, sagittal=sagittal)
     result = evaluate(description, noise=noise, seed=seed, duration=args.duration, pushes=pushes, controller=controller,
-                      config=EstimatorConfig.for_sensors(noise), mujoco_model=model)
+                      config=EstimatorConfig.for_sensors(noise), mujoco_model=model, traces=traces is not None)
+    if traces is not None:
+        traces[label] = result.traces
     row = {key: round(getattr(result, key), 5) for key in METRICS}
     row.update(seed=seed, stood=result.stood, faults=result.fault_counts)
     return row
@@ -78,7 +86,11 @@ def main() -> None:
     parser.add_argument("--grid-latency", default="2,4", help="IMU latency, samples")
     parser.add_argument("--grid-seeds", default="100,101", help="seeds per grid cell")
     parser.add_argument("--grid-duration", type=float, default=10.0, help="simulated seconds per grid cell")
+    parser.add_argument("--plot", default=None, metavar="FILE", help="error traces against time (.png, .svg, .pdf)")
+    add_progress_argument(parser)
     args = parser.parse_args()
+    if args.plot:
+        check_plot_path(args.plot)
 
     description = load(args.robot)
     model = description.build_mujoco()
@@ -94,10 +106,19 @@ def main() -> None:
         "pushes": {"lateral_n": lateral, "sagittal_n": sagittal, "duration_s": 0.2, "period_s": args.period, "link": "pelvis"},
         "profiles": {},
     }  # fmt: skip
-    for name in args.profiles.split(","):
+    profiles = args.profiles.split(",")
+    traces: dict | None = {} if args.plot else None
+    bar = Progress(len(profiles) * len(seeds), "estimator", unit="run", enabled=wants_progress(args))
+    for name in profiles:
         noise = SensorNoiseConfig.profile(name)
-        rows = [_run(description, model, noise, seed, args, lateral, sagittal) for seed in seeds]
+        rows = []
+        for seed in seeds:
+            rows.append(_run(description, model, noise, seed, args, lateral, sagittal, traces, f"{name} seed {seed}"))
+            bar(1)
         report["profiles"][name] = {"summary": _summary(rows), "sensors": noise.as_dict(), "runs": rows}  # type: ignore[index]
+    bar.close()
+    if traces is not None:
+        report["plot"] = str(save_figure(estimator_figure(traces), args.plot))
     if args.grid or args.full_grid:
         gyro = FULL_GRID["gyro"] if args.full_grid else _floats(args.grid_gyro)
         accel = FULL_GRID["accel"] if args.full_grid else _floats(args.grid_accel)

@@ -40,6 +40,7 @@ from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 
 import numpy as np  # noqa: E402
 
+from giwbc.apps.progress import Progress, add_progress_argument, wants_progress  # noqa: E402
 from giwbc.locomotion.simulation import Push, simulate_walk  # noqa: E402
 from giwbc.locomotion.walker import WalkerConfig  # noqa: E402
 from giwbc.robot import load  # noqa: E402
@@ -82,11 +83,21 @@ def _push_episode(job: tuple[float, int, bool, float | None, bool]) -> dict:
     return {"force": force, "seed": seed, "stepping": stepping, "success": success, "fell": run.fell, "steps": run.steps, "push_start": round(start, 3), "direction": round(angle, 3)}
 
 
-def _map(function, jobs: list, workers: int) -> list:
-    if workers <= 1:
-        return [function(job) for job in jobs]
-    with ProcessPoolExecutor(workers) as pool:
-        return list(pool.map(function, jobs))
+def _map(function, jobs: list, workers: int, progress: bool = False) -> list:
+    """``[function(job) for job in jobs]`` on ``workers`` processes, with a bar of jobs done on a terminal."""
+    with Progress(len(jobs), function.__name__.strip("_"), unit="run", enabled=progress) as bar:
+        if workers <= 1:
+            results = []
+            for job in jobs:
+                results.append(function(job))
+                bar(1)
+            return results
+        with ProcessPoolExecutor(workers) as pool:
+            results = []
+            for result in pool.map(function, jobs):  # in order: the bar moves as the earliest jobs end
+                results.append(result)
+                bar(1)
+            return results
 
 
 def _stats(values_s: list[float]) -> dict | None:
@@ -116,7 +127,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--parts", default="walking,push,walking_push,tick")
     parser.add_argument("--commands", default=",".join(COMMANDS), help=f"walking commands among {list(COMMANDS)}")
     parser.add_argument("--workers", type=int, default=1, help="processes (the machine has %d CPUs)" % (os.cpu_count() or 1))
+    add_progress_argument(parser)
     args = parser.parse_args(argv)
+    progress = wants_progress(args)
     seeds = args.seeds if args.seeds is not None else (10 if args.full else 1)
     seconds = args.seconds if args.seconds is not None else (20.0 if args.full else 10.0)
     episodes = args.episodes if args.episodes is not None else (100 if args.full else 10)
@@ -127,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     if "walking" in parts or "tick" in parts:
         names = args.commands.split(",") if "walking" in parts else ["forward_0.3"]
         jobs = [(name, COMMANDS[name], seconds, seed) for name in names for seed in range(seeds)]
-        walk_results = _map(_walk, jobs, args.workers)
+        walk_results = _map(_walk, jobs, args.workers, progress)
     if "walking" in parts:
         walking = {}
         for name in args.commands.split(","):
@@ -148,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     if "push" in parts:
         jobs = [(force, PUSH_SEED + i, stepping, None, False) for force in args.forces for stepping in (True, False) for i in range(episodes)]
         jobs += [(60.0, PUSH_SEED + i, stepping, math.pi, False) for stepping in (True, False) for i in range(max(1, min(episodes, 10)))]
-        results = _map(_push_episode, jobs, args.workers)
+        results = _map(_push_episode, jobs, args.workers, progress)
         push: dict = {"protocol": {"duration": 0.2, "start": [1.2, 1.6], "episode_seconds": 2.6, "upright_tilt": UPRIGHT_TILT, "direction": "uniform"}}
         for force in args.forces + [60.0]:
             label = f"{force:g}N" if force != 60.0 or 60.0 in args.forces else "60N_backward"
@@ -162,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
         out["push_standing"] = push
     if "walking_push" in parts:
         jobs = [(80.0, PUSH_SEED + i, True, None, True) for i in range(episodes)]
-        results = _map(_push_episode, jobs, args.workers)
+        results = _map(_push_episode, jobs, args.workers, progress)
         wins = sum(r["success"] for r in results)
         out["push_walking"] = {"speed": 0.3, "force": 80.0, "duration": 0.2, "success": wins, "episodes": len(results), "rate": round(wins / len(results), 3), "ci95": _wilson(wins, len(results)), "seeds": [PUSH_SEED, PUSH_SEED + episodes - 1]}
     if "tick" in parts:

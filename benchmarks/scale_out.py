@@ -4,11 +4,13 @@ Measured on a local Ray instance (this machine's CPUs, ``--cpus``):
 
 * ``env_steps_per_s``: G1Balance-v0 (as registered) stepped through stable-baselines3's
   ``SubprocVecEnv`` and :class:`giwbc.distributed.vec_env.RayVecEnv` with 1 and 2 workers (one env
-  each, zero actions, auto-reset), after a warm-up; repeats interleaved, medians reported.
-* ``ray_overhead``: per vector step, Ray over subprocess, (a) directly on G1 (noisy: the G1 step
-  itself varies with the WBC's active set and the machine's load) and (b) from the transport cost
-  alone, measured on CartPole (whose step is ~100x cheaper) and divided by the G1 agent step time:
-  the figure the ``<= 10 %`` target is about.
+  each, zero actions, auto-reset), after a warm-up; RayVecEnv both as it steps by default (a
+  persistent channel per actor) and with one Ray actor call per step (``transport="calls"``);
+  repeats interleaved, medians.
+* ``ray_overhead``: the per-step overhead of Ray over subprocess at the G1 agent rate (the ``<= 10 %``
+  target): Ray's transport per vector step, measured on CartPole (whose step is ~0.1 ms, so the
+  difference to ``SubprocVecEnv`` is the transport alone), over the measured G1 agent step time;
+  also the G1 step times' own ratio (noisy: the WBC's active set and the machine's load vary).
 * ``evaluation_episodes_per_s``: push-recovery episodes (:func:`giwbc.apps.evaluation.run_episodes`, WBC
   arm) with 1 and 2 workers: fork processes vs Ray tasks, env construction included as in real use.
 * ``projection``: a 100-node x 16-core evaluation sweep from the measured per-worker figures (the
@@ -46,8 +48,9 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def vec_step_seconds(kind: str, env_id: str, n: int, steps: int, envs_per_worker: int = 1) -> float:
-    """Mean wall seconds per vector step of ``n`` envs on ``kind`` ("subproc" or "ray"), zero actions."""
+def vec_step_seconds(kind: str, env_id: str, n: int, steps: int, envs_per_worker: int = 1) -> tuple[float, float]:
+    """Mean wall and driver-CPU seconds per vector step of ``n`` envs on ``kind`` ("subproc", "ray": RayVecEnv's default channel,
+    "ray_calls": one actor call per step), zero actions."""
     import torch
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import SubprocVecEnv
@@ -55,42 +58,64 @@ def vec_step_seconds(kind: str, env_id: str, n: int, steps: int, envs_per_worker
     from giwbc.distributed.vec_env import RayVecEnv
 
     torch.set_num_threads(1)
-    cls, kwargs = (SubprocVecEnv, {"start_method": "fork"}) if kind == "subproc" else (RayVecEnv, {"envs_per_worker": envs_per_worker})
+    if kind == "subproc":
+        cls, kwargs = SubprocVecEnv, {"start_method": "fork"}
+    else:
+        cls, kwargs = RayVecEnv, {"envs_per_worker": envs_per_worker, "transport": "channel" if kind == "ray" else "calls"}
     venv = make_vec_env(env_id, n_envs=n, seed=0, vec_env_cls=cls, vec_env_kwargs=kwargs)
     try:
         venv.reset()
         actions = np.zeros((n, *venv.action_space.shape), np.float32)
         for _ in range(max(5, steps // 10)):  # warm up: solver workspaces, first-reset costs
             venv.step(actions)
-        started = time.perf_counter()
+        started, cpu = time.perf_counter(), time.process_time()
         for _ in range(steps):
             venv.step(actions)
-        return (time.perf_counter() - started) / steps
+        return (time.perf_counter() - started) / steps, (time.process_time() - cpu) / steps
     finally:
         venv.close()
 
 
-# (kind, envs, envs per Ray actor): 1 and 2 workers of one env each, and one Ray actor holding both envs
-CONFIGS = {"subproc_1": ("subproc", 1, 1), "subproc_2": ("subproc", 2, 1), "ray_1": ("ray", 1, 1), "ray_2": ("ray", 2, 1),
+# (kind, envs, envs per Ray actor): 1 and 2 workers of one env each, one Ray actor holding both envs, and the
+# plain actor-call transport (RayVecEnv's only one before the channel) for comparison
+CONFIGS = {"subproc_1": ("subproc", 1, 1), "ray_1": ("ray", 1, 1), "ray_calls_1": ("ray_calls", 1, 1),
+           "subproc_2": ("subproc", 2, 1), "ray_2": ("ray", 2, 1), "ray_calls_2": ("ray_calls", 2, 1),
            "ray_1_worker_2_envs": ("ray", 2, 2)}
+TRANSPORT = ("subproc_1", "ray_1", "ray_calls_1", "ray_2")
 
 
 def env_throughput(steps: int, repeats: int, transport_steps: int, agent_hz: float) -> dict[str, Any]:
     """G1 steps/s on subprocesses and Ray actors (1 and 2 workers), and the Ray transport overhead."""
     g1: dict[str, list[float]] = {name: [] for name in CONFIGS}
-    cart: dict[str, list[float]] = {name: [] for name in ("subproc_1", "ray_1", "ray_2")}
+    cart: dict[str, list[float]] = {name: [] for name in TRANSPORT}
+    driver_cpu: dict[str, list[float]] = {name: [] for name in TRANSPORT}
     loads = []
     for _ in range(repeats):  # interleaved, so that a change of load hits every configuration
         for name, (kind, n, per_worker) in CONFIGS.items():
-            g1[name].append(vec_step_seconds(kind, G1, n, steps, per_worker))
+            g1[name].append(vec_step_seconds(kind, G1, n, steps, per_worker)[0])
             if name in cart:
-                cart[name].append(vec_step_seconds(kind, CARTPOLE, n, transport_steps, per_worker))
+                wall, cpu = vec_step_seconds(kind, CARTPOLE, n, transport_steps, per_worker)
+                cart[name].append(wall)
+                driver_cpu[name].append(cpu)
             loads.append(_load())
     t = {name: float(np.median(v)) for name, v in g1.items()}
     tc = {name: float(np.median(v)) for name, v in cart.items()}
-    transport = tc["ray_1"] - tc["subproc_1"]  # one Ray actor call over one pipe round trip, per vector step
-    t_step = t["subproc_1"]
-    per_env_step = {str(k): transport / (k * t_step) for k in (1, 2, 4, 8)}
+    t_step = t["subproc_1"]  # one G1 agent step (simulation + WBC), through a pipe
+
+    def overhead(ray_name: str) -> dict[str, Any]:
+        transport = tc[ray_name] - tc["subproc_1"]  # Ray's transport over one pipe round trip, per vector step
+        per_env_step = {str(k): transport / (k * t_step) for k in (1, 2, 4, 8)}
+        return {
+            "transport_us_per_vector_step": 1e6 * transport,
+            "percent_of_g1_agent_step": 100.0 * transport / t_step,
+            "percent_of_g1_agent_period": 100.0 * transport * agent_hz,
+            "percent_of_g1_agent_step_by_envs_per_worker": {k: 100.0 * v for k, v in per_env_step.items()},
+            "measured_on_g1_percent": {"1_worker": 100.0 * (t[ray_name] / t["subproc_1"] - 1.0),
+                                       "2_workers": 100.0 * (t[ray_name[:-1] + "2"] / t["subproc_2"] - 1.0)},
+            "meets_target_one_env_per_worker": bool(per_env_step["1"] <= 0.10),
+            "envs_per_worker_meeting_target": next((int(k) for k, v in per_env_step.items() if v <= 0.10), None),
+        }
+
     return {
         "env": G1,
         "steps_per_measurement": steps,
@@ -99,21 +124,21 @@ def env_throughput(steps: int, repeats: int, transport_steps: int, agent_hz: flo
         "env_steps_per_s": {name: CONFIGS[name][1] / t[name] for name in CONFIGS},
         "ms_per_vector_step": {name: 1e3 * t[name] for name in CONFIGS},
         "ray_overhead": {
-            "target": 0.10,
-            "measured_on_g1": {"1_worker": t["ray_1"] / t["subproc_1"] - 1.0, "2_workers": t["ray_2"] / t["subproc_2"] - 1.0},
-            "transport_us_per_actor_call": 1e6 * transport,
-            "cartpole_us_per_vector_step": {name: 1e6 * v for name, v in tc.items()},
+            "target_percent": 10.0,
+            "g1_agent_hz": agent_hz,
             "g1_ms_per_agent_step": 1e3 * t_step,
-            "per_env_step_over_g1_step_by_envs_per_worker": per_env_step,
-            "over_g1_agent_period": transport * agent_hz,
-            "meets_target_one_env_per_worker": bool(per_env_step["1"] <= 0.10),
-            "envs_per_worker_meeting_target": next((int(k) for k, v in per_env_step.items() if v <= 0.10), None),
-            "definition": ("transport = Ray actor call minus pipe round trip per vector step (CartPole, whose step is "
-                           "~0.1 ms); over the measured G1 agent step time (simulation cost, the training-throughput "
-                           "overhead), per env step when each actor holds k envs; and over the G1 agent period "
-                           f"(1/{agent_hz:g} Hz, the real-time budget)"),
+            "channel": overhead("ray_1"),  # RayVecEnv's default
+            "actor_calls": overhead("ray_calls_1"),  # RayVecEnv(transport="calls"), the transport before
+            "cartpole_us_per_vector_step": {name: 1e6 * v for name, v in tc.items()},
+            "cartpole_driver_cpu_us_per_vector_step": {name: 1e6 * float(np.median(v)) for name, v in driver_cpu.items()},
+            "definition": ("per-step overhead = Ray's transport per vector step (CartPole through RayVecEnv minus "
+                           "through SubprocVecEnv, 1 worker; CartPole's own step is ~0.1 ms, so the difference is the "
+                           "transport alone) over the time of one G1 agent step (simulation + WBC, measured through a "
+                           "pipe here): the loss of training throughput at the G1 agent rate; also over the G1 agent "
+                           "period (1/agent_hz, the real-time budget) and per env step when each actor holds k envs; "
+                           "measured_on_g1: the G1 step times' own ratio (noisy: the WBC's active set and the load vary)"),
         },
-        "_seconds": {"g1": t, "transport": transport, "cartpole": tc},
+        "_seconds": {"g1": t, "cartpole": tc, "driver_cpu": {name: float(np.median(v)) for name, v in driver_cpu.items()}},
     }
 
 
@@ -179,8 +204,27 @@ def projection(env: dict[str, Any], evaluation: dict[str, Any], tasks: dict[str,
                 "efficiency_vs_perfect_linear": sweep_episodes * t_episode / (c * wall)}
 
     t_step = env["_seconds"]["g1"]["subproc_1"]
-    cart = env["_seconds"]["cartpole"]
-    per_actor = max(20e-6, cart["ray_2"] - cart["ray_1"])  # the driver's cost of one more actor per vector step (upper bound)
+    per_actor = env["_seconds"]["driver_cpu"]["ray_2"] / 2  # the learner's CPU per actor and vector step (upper bound)
+    transport = env["ray_overhead"]["channel"]["transport_us_per_vector_step"] * 1e-6
+    rtt = 100e-6  # assumed LAN round trip between the learner's node and an actor's (not measured here)
+
+    def rollout(k: int) -> dict[str, float]:
+        """One learner stepping c actors of k envs each (all cores busy) in lockstep."""
+        t_vec = k * t_step + transport + rtt + (c - 1) * per_actor
+        return {"envs": c * k, "ms_per_vector_step": 1e3 * t_vec, "env_steps_per_s": c * k / t_vec,
+                "per_step_overhead_percent": 100.0 * (t_vec / (k * t_step) - 1.0)}
+
+    training = {
+        "model": ("t_vector_step = k * t_step + transport + rtt + (A - 1) * c_actor: A = C actors of k envs each, one per "
+                  "core, stepped in lockstep by one SB3 learner; each steps its k envs in turn (t_step, G1 through a pipe "
+                  "here), the learner sends to and receives from the A channels one after another (c_actor = the learner "
+                  "process's CPU time per vector step over 2 actors / 2, measured: an upper bound, it includes the "
+                  "VecEnv's own per-step work), "
+                  "transport = the channel's measured per-step overhead, rtt = an assumed 0.1 ms LAN round trip; "
+                  "per-step overhead = t_vector_step / (k * t_step) - 1"),
+        "inputs": {"t_step_ms": 1e3 * t_step, "transport_us": 1e6 * transport, "c_actor_us": 1e6 * per_actor, "rtt_us": 1e6 * rtt},
+        "by_envs_per_actor": {str(k): rollout(k) for k in (1, 8, 64, 256)},
+    }
     return {
         "cluster": {"nodes": nodes, "cores_per_node": cores, "cores": c},
         "sweep_episodes": sweep_episodes,
@@ -195,6 +239,7 @@ def projection(env: dict[str, Any], evaluation: dict[str, Any], tasks: dict[str,
             "s_as_measured_here": scenario(measured_s),  # this 2-vCPU machine, shared and loaded: pessimistic
             "s_linear_nodes": scenario(1.0),  # quiet nodes (2 processes gave 1.99x of 1 on this machine when quiet)
         },
+        "training_rollout": training,
         # fixed costs amortized: efficiency k*t/(k*t + fixed) >= 0.9 (s = 1)
         "episodes_per_core_for_90_percent_efficiency": math.ceil(9 * (t_submit + t_first + t_build) / t_episode),
         "assumptions": [
@@ -216,7 +261,7 @@ def projection(env: dict[str, Any], evaluation: dict[str, Any], tasks: dict[str,
             "the head node: one driver submits and collects every task (rate measured above) and the GCS tracks "
             "them -- far from limiting at ~1,600 tasks, limiting at ~10^5-10^6 tiny tasks (then batch episodes)",
             f"training, not evaluation: a RayVecEnv steps all actors in lockstep from one learner, so the driver's "
-            f"per-actor cost (at most {1e6 * per_actor:.0f} us, measured here where two actors cannot run at once) grows "
+            f"CPU per actor (at most {1e6 * per_actor:.0f} us, measured here) grows "
             f"linearly: ~{t_step / per_actor:.0f}+ actors before it equals a G1 agent step ({1e3 * t_step:.2f} ms), and the slowest actor sets every step's pace; PPO over 1,600 cores needs several "
             "envs per actor (envs_per_worker) and, beyond that, a distributed learner rather than one SB3 process",
         ],
@@ -247,7 +292,11 @@ def main() -> None:
     result = {
         "benchmark": "scale_out",
         "machine": {"cpus": os.cpu_count(), "ray_cpus": args.cpus, "python": platform.python_version(),
-                    "load_average_1min_start": load_start, "load_average_1min_end": _load()},
+                    "ray": connection.ray.__version__, "load_average_1min_start": load_start,
+                    "load_average_1min_end": _load()},
+        "per_step_overhead_percent_at_g1_agent_rate": {
+            "channel": env["ray_overhead"]["channel"]["percent_of_g1_agent_step"],
+            "actor_calls": env["ray_overhead"]["actor_calls"]["percent_of_g1_agent_step"], "target": 10.0},
         **{key: value for key, value in env.items() if not key.startswith("_")},
         "evaluation": evaluation,
         "ray_tasks": tasks,

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+import giwbc.envs  # noqa: F401  (registers the giwbc/ ids: a policy names the env it was trained on)
 from giwbc.errors import PolicyFormatError
 
 FORMAT = "giwbc-policy/1"
@@ -176,7 +177,6 @@ class OnnxPolicy:
         """The environment the policy was trained on, checked against the policy's layout."""
         import gymnasium
 
-        import giwbc.envs  # noqa: F401  (registers the ids)
 
         env = gymnasium.make(self.env_id, **{**self.metadata["env_kwargs"], **overrides})
         check_compatible(self.metadata, env.unwrapped.describe())

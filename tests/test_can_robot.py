@@ -9,11 +9,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from giwbc.errors import HardwareConfigError
+
 from giwbc.hal.can_robot import BaseStateUnavailable, CanRobot, NonFiniteCommand
 from giwbc.hal.imu import imu_source_for
 from giwbc.hal.frames import FastMessage, fast_message
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.hal.hardware import ImuConfig, load_hardware
+from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.estimation.estimator import StateEstimator
 from giwbc.robot.interface import ImpedanceCommand
 from giwbc.robot.standing import pd_hold_command
@@ -54,13 +57,12 @@ def twisted_plan(plan):
 def rig(g1, plan, model):
     made = []
 
-    def make(hardware=None, estimator=False, **config):
+    def make(hardware=None, **config):
         emulator = ActuatorEmulator(hardware or plan, g1, EmulatorConfig(**config), model=copy.copy(model))
         # The emulator answers before collection starts (lockstep): a generous reply timeout only
         # matters when a reply is really missing, and (with the send budget) keeps a descheduled
         # test process from reading in-time replies as missing or dropping sends on a loaded machine.
-        robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, reply_timeout=0.02, send_budget=0.5,
-                         estimator=StateEstimator(g1) if estimator else None)  # fmt: skip
+        robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, reply_timeout=0.02, send_budget=0.5)
         made.append((robot, emulator))
         return robot, emulator
 
@@ -182,10 +184,27 @@ def test_imu_from_the_channel_and_base_state_only_from_an_estimator(rig, g1):
     with pytest.raises(BaseStateUnavailable):
         robot.generalized_state()
 
-    robot, emu = rig(estimator=True)
-    robot.exchange(0.0, kind="enter")
+    with pytest.raises(BaseStateUnavailable):
+        robot.link_pose(g1.base_link)
+    with pytest.raises(BaseStateUnavailable):
+        robot.contact_wrench(g1.contacts[0].link)
+
+    # The base state comes from the estimator wrapped around the CAN robot, updated after every
+    # exchange that brought a new IMU sample (as the real-time runtime does).
+    can_robot, emu = rig()
+    robot = EstimatedRobot(can_robot, StateEstimator(g1))
+    assert robot.unwrapped is can_robot and robot.latest_estimate is None
+    robot.update(fuse=can_robot.exchange(0.0, kind="enter").imu_fresh)
     robot.set_joint_impedance(pd_hold_command(g1))
-    hold(robot, 100)
+    for k in range(1, 101):
+        report = can_robot.exchange(k * DT)
+        assert report.imu_fresh  # lockstep: the emulator publishes a sample every cycle
+        robot.update(fuse=report.imu_fresh)
+    assert robot.latest_estimate.time == pytest.approx(emu.imu_channel.read().time)
+    stale = robot.latest_estimate
+    robot.update(fuse=False)  # no new sample: nothing fused, no stale-timestamp fault
+    assert robot.latest_estimate is stale and robot.estimate.time == stale.time
+    assert robot.estimator.fault_counts.get("STALE_TIMESTAMP", 0) == 0
     base, truth = robot.base_state(), emu.robot.base_state()
     assert np.allclose(base.position, truth.position, atol=0.02)
     assert abs(float(base.quaternion @ truth.quaternion)) == pytest.approx(1.0, abs=1e-3)
@@ -215,8 +234,8 @@ def test_non_finite_and_malformed_commands_are_refused(rig, g1):
 def test_imu_sources_and_fast_messages():
     with pytest.raises(ValueError, match="emulate"):
         imu_source_for(ImuConfig("emulated"))
-    with pytest.raises(NotImplementedError, match="serial"):
-        imu_source_for(ImuConfig("serial", device="/dev/ttyUSB0"))
+    with pytest.raises(HardwareConfigError, match="cannot open the serial IMU at '/dev/nonexistent-giwbc-imu'"):
+        imu_source_for(ImuConfig("serial", device="/dev/nonexistent-giwbc-imu"))
     msg = fast_message(0x12, b"\x01\x02\x03")
     clone = copy.deepcopy(msg)
     assert isinstance(clone, FastMessage) and clone is not msg and clone.data is not msg.data

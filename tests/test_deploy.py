@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from giwbc.apps.scene import SCHEMAS as SCENE_SCHEMAS
 from giwbc.apps.deploy import DeployError, DeployOptions, add_deploy_command, check_policy_metadata, deploy
 from giwbc.emulation import EmulatorConfig, Gantry
 from giwbc.runlog import SCHEMAS, read_log
@@ -57,7 +58,7 @@ def test_dry_run_holds_g1_standing_with_the_wbc_in_real_time(g1, model, tmp_path
     assert any("bus 'can0'" in line for line in lines) and any("stood" in line for line in lines)
 
     log = read_log(outcome.log_path)
-    assert set(log.schemas) == set(SCHEMAS) - {"/faults"} and not log.faults
+    assert set(log.schemas) == (set(SCHEMAS) - {"/faults"}) | set(SCENE_SCHEMAS) and not log.faults  # with the 3D scene
     assert log.metadata["robot"] == "g1" and log.joint_names == g1.joint_names
     assert [e["detail"]["phase"] for e in log.events if e["event"] == "phase"] == [
         "enable", "settle", "ramp", "calibrate", "running", "shutdown", "damping", "off"]  # fmt: skip
@@ -204,7 +205,7 @@ def test_the_controllers_first_tick_is_a_hand_over_not_an_overrun(g1, model, tmp
     """A controller whose first tick after a reset is slow (a QP laid out and solved cold) takes
     over between two cycles: the motors hold the ramp's last command meanwhile, the pause is
     logged, and the first running cycle neither overruns nor skips a slot."""
-    from giwbc.apps.deploy import PdHold
+    from giwbc.robot.standing import PdHold
 
     class SlowFirstTick(PdHold):
         fresh = True
@@ -234,7 +235,7 @@ def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, 
     collects the young generations itself between cycles, and restores the collector at close."""
     import gc
 
-    from giwbc.apps.deploy import PdHold
+    from giwbc.robot.standing import PdHold
 
     seen = []
 

@@ -99,14 +99,15 @@ def _assert_identical(a, b) -> None:
         assert type(a) is type(b) and a == b
 
 
-def test_ray_rollouts_are_bit_identical_to_subprocesses(ray_cluster) -> None:
+@pytest.mark.parametrize("transport", ["channel", "calls"])
+def test_ray_rollouts_are_bit_identical_to_subprocesses(ray_cluster, transport) -> None:
     from stable_baselines3.common.monitor import Monitor
     from stable_baselines3.common.vec_env import SubprocVecEnv
 
     from giwbc.distributed.vec_env import RayVecEnv
 
     steps = 40  # 15-step episodes: every environment auto-resets twice
-    ray_env = _make(RayVecEnv, 3, envs_per_worker=2)  # 2 actors: envs {0, 1} and {2}
+    ray_env = _make(RayVecEnv, 3, envs_per_worker=2, transport=transport)  # 2 actors: envs {0, 1} and {2}
     try:
         assert ray_env.groups == [[0, 1], [2]]
         on_ray = _rollout(ray_env, steps)
@@ -170,6 +171,30 @@ def test_a_worker_dying_mid_step_is_reported_not_skipped(ray_cluster) -> None:
             venv.step(actions)
         with pytest.raises(WorkerLostError, match="worker 1"):  # and stays lost: no step with one env missing
             venv.step(actions)
+    finally:
+        venv.close()
+
+
+def test_an_env_error_in_a_step_reaches_the_caller_and_the_worker_lives_on(ray_cluster) -> None:
+    from giwbc.distributed.vec_env import RayVecEnv
+
+    def fail(action):  # shadows env 0's (Monitor's) step: an error of the env's own, not a lost process
+        raise FloatingPointError("simulation diverged")
+
+    with pytest.raises(ValueError, match="transport must be one of channel, calls"):
+        _make(RayVecEnv, 1, transport="pigeon")
+    venv = _make(RayVecEnv, 2)
+    try:
+        venv.reset()
+        actions = np.zeros((2, *venv.action_space.shape), np.float32)
+        venv.set_attr("step", fail, indices=[0])
+        with pytest.raises(FloatingPointError, match="simulation diverged"):
+            venv.step(actions)
+        venv.env_method("__delattr__", "step", indices=[0])  # Monitor's own step again
+        observations, rewards, dones, _ = venv.step(actions)
+        # env 1 stepped twice, env 0 once: each channel's replies stayed in step with its requests
+        assert venv.env_method("get_total_steps") == [1, 2]
+        assert observations.shape == (2, *venv.observation_space.shape) and np.isfinite(observations).all()
     finally:
         venv.close()
 

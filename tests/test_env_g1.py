@@ -8,7 +8,7 @@ import mujoco
 import numpy as np
 import pytest
 
-from giwbc.envs import g1_balance
+from giwbc.envs.factories import g1_balance
 from giwbc.runtimes import PushConfig, SimToReal
 from giwbc.tasks import InvalidActionError
 from giwbc.tasks.balance import BalanceRewards

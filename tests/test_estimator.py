@@ -16,14 +16,8 @@ from giwbc.estimation.contacts import ContactDetector
 from giwbc.estimation.evaluation import EvaluationResult, Push, evaluate, push_sequence
 from giwbc.estimation.orientation import OrientationFilter
 from giwbc.robot import MujocoRobot, RobotDescription, so3
-from giwbc.estimation.estimator import (
-    EstimatedRobot,
-    Estimate,
-    EstimatorConfig,
-    Fault,
-    Measurement,
-    StateEstimator,
-)
+from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.estimation.estimator import Estimate, EstimatorConfig, Fault, Measurement, StateEstimator
 from giwbc.robot.interface import BaseState
 from giwbc.robot.noise import NoisyRobot, SensorNoiseConfig
 from giwbc.robot.standing import pd_hold_command

@@ -11,7 +11,8 @@ import pinocchio as pin
 import pytest
 
 from giwbc.robot import MujocoRobot, RobotDescription
-from giwbc.estimation.estimator import EstimatedRobot, EstimatorConfig, Fault, Measurement, StateEstimator
+from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.estimation.estimator import EstimatorConfig, Fault, Measurement, StateEstimator
 from giwbc.robot.noise import SensorErrors, SensorModel
 from giwbc.robot.standing import pd_hold_command
 

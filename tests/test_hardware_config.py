@@ -233,14 +233,31 @@ def test_bus_errors(tmp_path, buses, match):
         load_hardware(write(tmp_path, motor_toml(bus="b"), buses=buses))
 
 
+CAN_IMU = """
+[imu]
+source = "can"
+bus = "b"
+rate = 500.0
+[[imu.frames]]
+id = 0x50
+fields = [{ name = "qw", byte = 0, type = "i16" }, { name = "qx", byte = 2, type = "i16" },
+          { name = "qy", byte = 4, type = "i16" }, { name = "qz", byte = 6, type = "i16" }]
+[[imu.frames]]
+id = 0x51
+fields = [{ name = "gx", byte = 0, type = "i8" }, { name = "gy", byte = 1, type = "i8" }, { name = "gz", byte = 2, type = "i8" },
+          { name = "ax", byte = 3, type = "i8" }, { name = "ay", byte = 4, type = "i8" }, { name = "az", byte = 5, type = "i8" }]
+"""
+
+
 @pytest.mark.parametrize(
     "imu, match",
     [
         ("", r"missing key\(s\) \['imu'\]"),
         ('\n[imu]\nsource = "gps"\n', "source must be one of"),
         ('\n[imu]\nsource = "serial"\n', r"missing key\(s\) \['device'\]"),
-        ('\n[imu]\nsource = "can"\nbus = "zz"\nid = 80\n', "unknown bus 'zz'"),
-        ('\n[imu]\nsource = "can"\nbus = "a"\nid = 1\n', "CAN id 1 is a motor's id on bus 'a'"),
+        ('\n[imu]\nsource = "can"\nbus = "zz"\nid = 80\n', "not one id"),
+        (CAN_IMU.replace('bus = "b"', 'bus = "zz"'), "unknown bus 'zz'"),
+        (CAN_IMU.replace('bus = "b"', 'bus = "a"').replace("id = 0x50", "id = 1"), "CAN id 1 is motor 'j1''s id on bus 'a'"),
         ('\n[imu]\nsource = "emulated"\ndevice = "/dev/ttyUSB0"\n', "unknown key"),
     ],
 )
@@ -253,8 +270,9 @@ def test_imu_sources(tmp_path):
     serial = '\n[imu]\nsource = "serial"\ndevice = "/dev/ttyUSB0"\nbaudrate = 921600\n'
     plan = load_hardware(write(tmp_path, motor_toml(), imu=serial))
     assert (plan.imu.source, plan.imu.device, plan.imu.baudrate) == ("serial", "/dev/ttyUSB0", 921600)
-    plan = load_hardware(write(tmp_path, motor_toml(), imu='\n[imu]\nsource = "can"\nbus = "b"\nid = 0x50\n'))
+    plan = load_hardware(write(tmp_path, motor_toml(), imu=CAN_IMU))
     assert (plan.imu.source, plan.imu.bus, plan.imu.can_id) == ("can", "b", 0x50)
+    assert plan.imu.layout.ids == (0x50, 0x51)
 
 
 def test_joint_validation(tmp_path):

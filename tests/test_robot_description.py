@@ -69,7 +69,7 @@ def test_missing_model_file(tmp_path: Path) -> None:
 
 def test_malformed_toml(tmp_path: Path) -> None:
     folder = copy_cartpole(tmp_path, config_edit=lambda text: text + "\n[joints\n")
-    with pytest.raises(RobotDescriptionError, match="malformed TOML"):
+    with pytest.raises(RobotDescriptionError, match="invalid TOML"):
         load(folder)
 
 

@@ -40,7 +40,7 @@ def model(g1):
 def run_lockstep(g1, model, tmp_path, *, policy=None, safety=None, patch=None, seconds=0.4):
     """A standing PD run on the lockstep emulator, unpaced; ``patch(robot)`` may break the robot.
     Returns (result, runtime, emulator, log path)."""
-    from giwbc.apps.deploy import PdHold
+    from giwbc.robot.standing import PdHold
     from giwbc.hal.can_robot import CanRobot
     from giwbc.emulation import ActuatorEmulator
     from giwbc.hal.hardware import load_hardware

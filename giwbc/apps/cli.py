@@ -12,6 +12,8 @@ import numpy as np
 
 from giwbc.apps.deploy import add_deploy_command
 from giwbc.apps.evaluation import add_evaluate_command
+from giwbc.apps.motors import add_motors_command
+from giwbc.apps.log_report import add_log_command
 from giwbc.apps.play import add_play_command
 from giwbc.apps.sim_to_sim import add_sim_to_sim_command
 from giwbc.apps.training import add_train_command
@@ -19,6 +21,7 @@ from giwbc.apps.walk import add_walk_command
 from giwbc.errors import GiwbcError
 from giwbc.robot import MujocoRobot, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
+from giwbc.apps.demo import run_demo
 
 GRAVITY = 9.81
 
@@ -82,8 +85,6 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: what giwbc can do today, end to end."""
-    from giwbc.apps.demo import run_demo
-
     return run_demo(seconds=args.seconds)
 
 
@@ -104,7 +105,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_evaluate_command(commands)
     add_sim_to_sim_command(commands)
     add_deploy_command(commands)
+    add_motors_command(commands)
     add_walk_command(commands)
+    add_log_command(commands)
     return parser
 
 

@@ -11,6 +11,8 @@ import numpy as np
 from giwbc.robot import MujocoRobot, load
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.standing import base_tilt_deg, pd_hold_command
+from giwbc.apps.evaluation import demo_residual
+from giwbc.control import make_balance_controller
 
 GRAVITY = 9.81
 
@@ -56,8 +58,6 @@ def run_push_test(controller: str, seconds: float, pushes: tuple[Push, ...] = DE
     robot = MujocoRobot(description)
     balance = None
     if controller == "wbc":
-        from giwbc.control import make_balance_controller
-
         balance = make_balance_controller(description)
     else:
         robot.set_joint_impedance(pd_hold_command(description))
@@ -121,7 +121,5 @@ def run_demo(seconds: float = 10.0) -> int:
     print("results (QP whole-body controller vs joint-PD hold):")
     _print_report(wbc)
     _print_report(pd)
-    from giwbc.apps.evaluation import demo_residual
-
     demo_residual(episodes=12, force=80.0)  # the shipped residual policy (policies/) over the same WBC
     return 0 if wbc.stood else 1

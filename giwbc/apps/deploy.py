@@ -13,14 +13,24 @@ Procedure (:func:`deploy`):
    clock (:mod:`giwbc.emulation.process`: the loop then pays only for its own work, as with
    real motors, and takes each cycle's replies at the next cycle); otherwise open the configured
    buses;
-4. build the CAN robot (IMU from the plan's source, base state from the estimator), the task
+4. build the CAN robot (IMU from the plan's source) and, when the controller needs a base state,
+   wrap it: ``EstimatedRobot(CanRobot(...))`` (the base from the state estimator); the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
    run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``
    (with a state estimator, after the start-up ramp the robot holds still until the estimator's
    IMU calibration is done: phase ``calibrate``, :mod:`giwbc.runtimes.phases`);
-5. report (with the IMU calibration found, also in the run log's ``calibration`` event): exit code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's
-   number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
+5. report (with the IMU calibration found, also in the run log's ``calibration`` event): exit
+   code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
    inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
+
+Real buses: before anything is sent, the SocketCAN pre-flight (:mod:`giwbc.hal.preflight`) checks
+every ``socketcan`` interface of the plan and stops with the ``ip link`` commands that fix it
+(``--no-preflight`` skips it). Before enabling, the runtime reads every joint without torque and
+refuses to start when one is outside its limits (a wrong sign or zero offset).
+``--first-run``: a robot on a gantry: reduced torque and gains, tighter supervisor thresholds
+(:class:`giwbc.hal.bringup.FirstRunLimits`); with ``--emulate`` the emulated robot hangs on a gantry.
+``--emulate --imu serial|can``: the emulator sends its IMU as an Xsens MTi on a pseudo-terminal or
+as CAN frames, read through the real drivers.
 
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
@@ -35,46 +45,71 @@ emulator's seed, noise, latency, dropouts).
 from __future__ import annotations
 
 import argparse
+import copy
+import inspect
 import json
 import math
 import os
 import sys
 import time
+import traceback
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import gymnasium
 import numpy as np
+from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
+from giwbc.apps.live import HOST as LIVE_HOST
+from giwbc.apps.scene import SceneChannels
+from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
+
+from giwbc.control.balance import make_balance_controller
+from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
+from giwbc.emulation.process import EmulatorProcess
+from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import DeployError
+from giwbc.estimation.calibration import CalibrationReport, StandstillConfig
+from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
+from giwbc.hal.can_robot import CanRobot
+from giwbc.hal.hardware import HardwareConfigError, load_hardware
+from giwbc.hal.imu import imu_source_for
+from giwbc.policy import OnnxPolicy, PolicyFormatError
+from giwbc.hal.safety import SafetyConfig
+from giwbc.robot.description import RobotDescription, RobotDescriptionError, load
+from giwbc.robot.noise import IMU_PROFILES, SensorNoiseConfig
+from giwbc.robot.standing import PdHold
+from giwbc.runlog import RunLogWriter
+from giwbc.runtimes.faults import HostFaults, fault_case
+from giwbc.runtimes.phases import StartupConfig
+from giwbc.runtimes.realtime import RealtimeRuntime, RunResult
+from giwbc.tasks.balance import G1Balance
+from giwbc.tasks.standing import StandingTask
 
 if TYPE_CHECKING:
     import mujoco
 
-    from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
-    from giwbc.emulation.process import EmulatorProcess
-    from giwbc.estimation.calibration import CalibrationReport
-    from giwbc.hal.safety import SafetyConfig
-    from giwbc.robot.noise import SensorNoiseConfig
-    from giwbc.robot.description import RobotDescription
-    from giwbc.runtimes.phases import StartupConfig
-    from giwbc.runtimes.realtime import RunResult
-
 TASKS = ("stand", "balance")
 CONTROLLERS = ("wbc", "pd")
 EMULATOR_MODES = ("lockstep", "process")
+
+
 def _runtime_keys() -> frozenset[str]:
     """Env kwargs that configure the simulated runtime or ``gymnasium.make``'s wrappers
     (``max_episode_steps``, ...), not the task: the deployment drops them."""
-    import inspect
-
-    import gymnasium
-
-    from giwbc.envs import RUNTIME_OPTIONS
-
     named = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
     make_options = {name for name, p in inspect.signature(gymnasium.make).parameters.items() if p.kind in named} - {"id"}
     return frozenset({"robot", "agent_rate", *RUNTIME_OPTIONS, *make_options})
+
+
+def scene_channels(description: RobotDescription, joint_names: Sequence[str], rate: float, port: int | None) -> SceneChannels | None:
+    """The run log's 3D scene at ``rate`` Hz (0: none), streamed live on ``port`` if given."""
+    if rate <= 0 and port is None:
+        return None
+    live = LiveServer(port) if port is not None else None
+    return SceneChannels(description, joint_names, rate=rate if rate > 0 else 1.0, live=live, log=rate > 0)
 
 
 # ----------------------------------------------------------------------------- policy metadata
@@ -121,8 +156,6 @@ def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], d
         metadata = json.loads(path.read_text())
         size = len(metadata.get("action_names") or [])
         return (lambda observation: np.zeros(size, dtype=np.float32)), metadata
-    from giwbc.policy import OnnxPolicy, PolicyFormatError
-
     try:
         policy = OnnxPolicy(path)
     except (PolicyFormatError, ImportError) as error:
@@ -131,25 +164,11 @@ def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], d
 
 
 # ----------------------------------------------------------------------------- controllers
-class PdHold:
-    """The joint-PD hold of the description's default pose (evaluated by the actuators)."""
-
-    def __init__(self, description: RobotDescription) -> None:
-        from giwbc.robot.standing import pd_hold_command
-
-        self.command = pd_hold_command(description)
-
-    def __call__(self, robot: Any) -> Any:
-        return self.command
-
-
 class WbcHold:
     """The QP standing balance controller (:mod:`giwbc.control.balance`): its impedance output
     (feed-forward torque plus joint damping) from the estimated Pinocchio state."""
 
     def __init__(self, description: RobotDescription, **options: Any) -> None:
-        from giwbc.control.balance import make_balance_controller
-
         self.balance = make_balance_controller(description, **options)
         self._anchor = True
         self.last: Any = None
@@ -208,6 +227,12 @@ class DeployOptions:
     faults: tuple[FaultInjection, ...] = ()  # injected into the emulator (rehearsals, tests)
     reply_timeout: float = 0.8e-3
     rt_priority: int | None = None  # SCHED_FIFO priority of the control loop (None: the default scheduler)
+    imu: str | None = None  # with emulate: "emulated", "serial" or "can" (the device the emulator imitates); None: the plan's
+    preflight: bool = True  # SocketCAN pre-flight on real buses
+    first_run: bool = False  # a robot on a gantry: reduced limits (FirstRunLimits)
+    emulated_hardware: str | None = None  # with emulate: the emulated robot's true wiring (default: the plan), e.g. to rehearse a wrong sign
+    scene_rate: float = 50.0  # Hz of the 3D scene (link transforms, contact forces) in the log; 0: none
+    foxglove_port: int | None = None  # also stream the scene to Foxglove on this loopback port (the logger's process)
     imu_profile: str | None = None  # the IMU's class (giwbc.robot.noise.IMU_PROFILES): the emulated IMU's errors, the estimator's setup
 
 
@@ -224,6 +249,7 @@ class DeployOutcome:
     standing: dict[str, float] | None = None
     emulator: ActuatorEmulator | EmulatorProcess | None = None
     fault_onsets: dict[str, float] = field(default_factory=dict)  # host-side injected faults: robot time each first acted
+    imu_counters: dict[str, int] | None = None  # a serial or CAN IMU driver's counters (samples, checksum errors, ...)
     calibration: CalibrationReport | None = None  # what the state estimator's start-up calibration found
 
 
@@ -246,25 +272,12 @@ def deploy(
         say(f"giwbc deploy: error: {error}")
         return DeployOutcome(2, str(error))
     except Exception as error:  # noqa: BLE001 - setup bugs: reported, never a traceback at the operator
-        import traceback
-
         message = f"internal error before or after the run: {type(error).__name__}: {error}"
         say(f"giwbc deploy: {message}\n{traceback.format_exc(limit=6)}")
         return DeployOutcome(1, message)
 
 
 def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, description: Any, say: Callable[[str], None]) -> DeployOutcome:
-    import copy
-
-    from giwbc.hal.can_robot import CanRobot
-    from giwbc.hal.imu import imu_source_for
-    from giwbc.emulation import ActuatorEmulator, EmulatorConfig
-    from giwbc.hal.hardware import HardwareConfigError, load_hardware
-    from giwbc.runlog import RunLogWriter
-    from giwbc.robot.description import RobotDescriptionError, load
-    from giwbc.runtimes.realtime import RealtimeRuntime
-    from giwbc.tasks.standing import StandingTask
-
     try:
         description = description or load(options.robot)
     except RobotDescriptionError as error:
@@ -294,56 +307,65 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         )  # fmt: skip
     except HardwareConfigError as error:
         raise DeployError(str(error)) from error
+    plan = choose_imu(plan, options.imu, options.emulate, options.emulator_mode)
     loads = [str(load_) for load_ in plan.loads.values()]
     say(f"hardware {hardware}: {len(plan.motors)} motors on {len(plan.buses)} buses at {options.control_rate:g} Hz")
     for line in loads:
         say(f"  {line}")
 
-    from giwbc.runtimes.faults import HostFaults
 
     sensors = _imu_profile(options)
     host_faults = HostFaults(options.faults)
     if host_faults and not options.emulate:
         raise DeployError("injected faults are for rehearsals: they need --emulate")
     emulator = None
-    robot = None
+    can_robot: CanRobot | None = None
     log = None
     runtime = None
+    imu = None
     try:
+        first_run, safety = None, options.safety
+        if options.first_run:
+            first_run, safety = first_run_settings(safety, say)
         if options.emulate:
             config = options.emulator or EmulatorConfig()
             if sensors is not None and config.imu is None:
-                from dataclasses import replace
-
                 config = replace(config, imu=sensors)
+            if first_run is not None:
+                config = with_gantry(config)
             if options.faults:
-                from dataclasses import replace
-
                 config = replace(config, faults=tuple(config.faults) + tuple(options.faults))
             if options.emulator_mode == "process":
-                from giwbc.emulation.process import EmulatorProcess
-
                 rt = None if options.rt_priority is None else max(1, options.rt_priority - 1)  # just below the loop
                 emulator = EmulatorProcess(plan, description, config, rt_priority=rt)
                 host_plan, peer = emulator.host_plan(), None
                 say("emulated actuators in their own process on giwbc-unix channels (real time; replies read at the next cycle)")
             else:
-                emulator = ActuatorEmulator(plan, description, config, model=copy.copy(model) if model is not None else None)
-                host_plan, peer = emulator.host_plan(), emulator
+                truth = plan
+                if options.emulated_hardware is not None:
+                    try:
+                        truth = load_hardware(options.emulated_hardware, options.control_rate, joint_names=names, interface="virtual")
+                    except HardwareConfigError as error:
+                        raise DeployError(str(error)) from error
+                    truth = truth.with_imu(plan.imu)
+                emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None else None)
+                host_plan, peer = on_channels(plan, emulator.host_plan()), emulator
                 say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
-            imu = imu_source_for(plan.imu, emulator.imu_channel)
+            imu = imu_source_for(host_plan.imu, emulator.imu_channel)
         else:
             host_plan, peer = plan, None
             try:
                 imu = imu_source_for(plan.imu)
-            except (NotImplementedError, ValueError) as error:
+            except (HardwareConfigError, ValueError) as error:
                 raise DeployError(str(error)) from error
+            if options.preflight:
+                check_interfaces(plan, say)
+        if plan.imu.source != "emulated":
+            say(f"IMU: {plan.imu.source} ({host_plan.imu.device if plan.imu.source == 'serial' else 'bus ' + str(plan.imu.bus)}), "
+                "read through its driver")  # fmt: skip
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
-            from giwbc.estimation.calibration import StandstillConfig
-            from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
-
             # The start-up holds the robot still anyway: a 4 s calibration window (16 blocks, not 0.75 s) averages the gyro's
             # noise and the held robot's slow sway (~0.3 Hz, a few mrad/s; 7 % of the emulated mems bias left, 14 % with 3 s).
             standstill = StandstillConfig(startup_blocks=16)
@@ -354,10 +376,13 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             clock.append(lambda: emulator.time)  # lockstep: the emulator is at the cycle's time when the host sends
         links = host_faults.links(host_plan, lambda: clock[0]() if clock else 0.0)
         try:
-            robot = CanRobot(description, host_plan, imu=imu, estimator=estimator, peer=peer, reply_timeout=options.reply_timeout,
-                             wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links)
+            can_robot = CanRobot(description, host_plan, imu=imu, peer=peer, reply_timeout=options.reply_timeout,
+                                 wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links)
         except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
             raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
+        if first_run is not None:
+            can_robot.reduce_limits(first_run.torque_fraction, first_run.gain_fraction)
+        robot = can_robot if estimator is None else EstimatedRobot(can_robot, estimator)
 
         if not clock:
             clock.append(lambda: robot.time() + 1.0 / options.control_rate)
@@ -378,9 +403,11 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             "robot": description.name, "hardware": str(hardware), "emulate": options.emulate, "task": task_name,
             "controller": options.controller, "policy": options.policy, "control_rate": options.control_rate,
             "agent_rate": agent_rate, "seconds": options.seconds, "bus_loads": loads,
-        })  # fmt: skip
+        }, extension=scene_channels(description, names, options.scene_rate, options.foxglove_port))  # fmt: skip
+        if options.foxglove_port is not None:
+            say(f"Foxglove: open a connection to ws://{LIVE_HOST}:{options.foxglove_port} (the scene at 30 Hz, from the logger's process)")
         runtime = RealtimeRuntime(
-            task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=options.safety,
+            task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=safety,
             startup=options.startup, log=log, log_every=options.log_every, realtime=options.realtime,
             rt_priority=options.rt_priority,
         )  # fmt: skip
@@ -388,13 +415,18 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             _check_layout(metadata, task)
         say(f"running {task_name} ({options.controller}) for {options.seconds:g} s" + (" with the policy" if policy else ""))
         result = runtime.run(policy, options.seconds)
+        counters = imu_counters(imu)
+        if counters is not None:
+            say("IMU driver: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
     finally:
         if host_faults:
             host_faults.release()  # a driver blocked on purpose: let the abandoned loop's thread leave
             if runtime is not None and runtime._loop_thread is not None:
                 runtime._loop_thread.join(1.0)
-        if robot is not None:
-            robot.close()
+        if can_robot is not None:
+            can_robot.close()
+        if hasattr(imu, "close") and (emulator is None or imu is not emulator.imu_channel):
+            imu.close()  # a serial IMU's port (the emulator's channel is the emulator's to close)
         if emulator is not None:
             emulator.close()
         if log is not None:
@@ -436,14 +468,13 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     if len(result.faults) > 1:
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
-    return DeployOutcome(result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets),
-                         calibration)  # fmt: skip
+    return DeployOutcome(
+        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters, calibration
+    )
 
 
 def _imu_profile(options: DeployOptions) -> SensorNoiseConfig | None:
     """The IMU's sensor model: the named profile, else the emulator's configured IMU, else None."""
-    from giwbc.robot.noise import SensorNoiseConfig
-
     if options.imu_profile is not None:
         try:
             return SensorNoiseConfig.profile(options.imu_profile)
@@ -453,8 +484,6 @@ def _imu_profile(options: DeployOptions) -> SensorNoiseConfig | None:
 
 
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
-    from giwbc.tasks.balance import G1Balance
-
     kwargs = {k: v for k, v in dict((metadata or {}).get("env_kwargs") or {}).items() if k not in _runtime_keys()}
     kwargs.setdefault("controller", controller)
     try:
@@ -506,11 +535,21 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
     parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
     parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
+    parser.add_argument("--imu", choices=("emulated", "serial", "can"), default=None,
+                        help="with --emulate: the IMU device the emulator imitates, read through the real driver (default: the plan's)")
+    parser.add_argument("--no-preflight", action="store_true", help="skip the SocketCAN pre-flight check of the interfaces")
+    parser.add_argument("--emulated-hardware", default=None,
+                        help="with --emulate: the emulated robot's true wiring, when it differs from --hardware (calibration rehearsals)")
+    parser.add_argument("--first-run", action="store_true",
+                        help="robot on a gantry: reduced torque and gains, tighter fall and limit thresholds")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="stream the robot in 3D to Foxglove over a loopback WebSocket (needs foxglove-sdk)")
+    parser.add_argument("--foxglove-port", type=int, default=DEFAULT_PORT, help="the WebSocket's port")
+    parser.add_argument("--scene-rate", type=float, default=DeployOptions.scene_rate,
+                        help="Hz of the 3D scene (transforms, joint states, contact forces) in the log; 0: none")
     parser.add_argument("--fault", default=None, metavar="KIND",
                         help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
-    from giwbc.robot.noise import IMU_PROFILES
-
     parser.add_argument("--imu-profile", choices=sorted(IMU_PROFILES), default=None,
                         help="the IMU's class: with --emulate the emulated IMU's errors (mems, cheap: no orientation output); "
                              "sets up the state estimator for it")  # fmt: skip
@@ -519,23 +558,23 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
 
 
 def run_deploy_command(args: argparse.Namespace) -> int:
-    from giwbc.runtimes.phases import StartupConfig
-
     startup = StartupConfig(ramp_time=args.ramp)
     faults: tuple[Any, ...] = ()
     if getattr(args, "fault", None):
-        from giwbc.runtimes.faults import fault_case
-
         try:
             case = fault_case(args.fault)
         except ValueError as error:
             print(f"giwbc deploy: error: {error}", file=sys.stderr)
             return 2
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
+    if args.foxglove:
+        require_foxglove()  # before the motors, not after
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
-        startup=startup, rt_priority=args.rt_priority, faults=faults, imu_profile=args.imu_profile,
+        startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
+        first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
+        foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:

@@ -21,14 +21,18 @@ import json
 import math
 import os
 from pathlib import Path
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
-from giwbc.apps.workers import process_pool
+from giwbc.apps.plots import check_plot_path, evaluation_figure, save_figure
+from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
+from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
+import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
+from giwbc.policy import OnnxPolicy, PolicyFormatError, check_compatible
 
 DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
 # The environment as registered (both WBC solvers give bit-reproducible answers).
@@ -109,6 +113,11 @@ class ArmResult:
         return self.successes / max(1, self.n)
 
     @property
+    def success_95ci(self) -> tuple[float, float]:
+        """95 % Wilson interval of the success rate."""
+        return wilson_interval(self.successes, self.n)
+
+    @property
     def survival_rate(self) -> float:
         return sum(e.survived for e in self.episodes) / max(1, self.n)
 
@@ -117,7 +126,7 @@ class ArmResult:
         return float(np.mean([e.survival_time for e in self.episodes]))
 
     def summary(self) -> dict[str, Any]:
-        low, high = wilson_interval(self.successes, self.n)
+        low, high = self.success_95ci
         return {
             "arm": self.name,
             "episodes": self.n,
@@ -190,12 +199,12 @@ def _tilt(env: Any) -> float:
     return float(env.unwrapped.task.tilt())
 
 
-def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[int]]) -> list[EpisodeResult]:
-    """Episodes ``seeds`` in one process (one environment, reset per seed)."""
+def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[int]],
+               tick: Callable[[int], None] | None = None) -> list[EpisodeResult]:
+    """Episodes ``seeds`` in one process (one environment, reset per seed); ``tick(1)`` after each."""
     policy_path, env_id, env_kwargs, protocol, seeds = job
     import gymnasium
 
-    import giwbc.envs  # noqa: F401  (registers the ids)
 
     try:
         import torch
@@ -205,16 +214,13 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
         pass
     policy = None
     if policy_path is not None:
-        from giwbc.policy import OnnxPolicy
-
         policy = OnnxPolicy(policy_path)
-    probe = gymnasium.make(env_id, **env_kwargs)
-    agent_hz = float(probe.unwrapped.describe()["rates"]["agent_hz"])
-    probe.close()
-    env = gymnasium.make(env_id, **protocol.env_overrides(env_kwargs, agent_hz))
+    with quiet_banners():  # PyBullet prints its build time at connect
+        probe = gymnasium.make(env_id, **env_kwargs)
+        agent_hz = float(probe.unwrapped.describe()["rates"]["agent_hz"])
+        probe.close()
+        env = gymnasium.make(env_id, **protocol.env_overrides(env_kwargs, agent_hz))
     if policy is not None:
-        from giwbc.policy import check_compatible
-
         check_compatible(policy.metadata, env.unwrapped.describe())
     zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
     results = []
@@ -239,6 +245,8 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
                 survival_time=float(info.get("time", 0.0)), final_tilt=final_tilt, max_tilt=max_tilt,
                 push_time=push_time, push_force=push_force, episode_return=total,
             ))
+            if tick is not None:
+                tick(1)
     finally:
         env.close()
     return results
@@ -254,20 +262,19 @@ def run_episodes(
     seed: int = 0,
     workers: int = 2,
     runner: RayRunner | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> ArmResult:
     """``episodes`` seeded episodes (seeds ``seed .. seed+episodes-1``) of a policy, or of the zero residual if ``None``.
 
     ``workers``: processes of this machine, or with ``runner`` the number of Ray tasks the episodes are split into.
+    ``progress(n)``: told of every ``n`` episodes finished, as they finish (not with ``runner``).
     """
     if runner is not None:
         return run_arms([{"policy_path": policy_path, "env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol,
                           "episodes": episodes, "seed": seed, "workers": workers}], runner)[0]
     jobs = _episode_jobs(policy_path, env_id, env_kwargs, protocol, episodes, seed, workers)
-    if len(jobs) == 1:
-        results = _run_chunk(jobs[0])
-    else:
-        with process_pool(len(jobs)) as pool:
-            results = [r for chunk in pool.map(_run_chunk, jobs) for r in chunk]
+    workers = 0 if len(jobs) == 1 else len(jobs)
+    results = [r for chunk in map_jobs(_run_chunk, jobs, workers, progress) for r in chunk]
     return _arm_result(policy_path, protocol, results)
 
 
@@ -311,8 +318,6 @@ def run_arms(arms: Sequence[dict[str, Any]], runner: RayRunner) -> list[ArmResul
 
 def policy_env(policy_path: str | os.PathLike[str]) -> tuple[str, dict[str, Any]]:
     """The environment id and options a policy file was trained on (from its metadata)."""
-    from giwbc.policy import OnnxPolicy
-
     metadata = OnnxPolicy(policy_path).metadata
     env_id = metadata["env_id"]
     return (env_id if ":" in env_id else f"giwbc.envs:{env_id}"), dict(metadata["env_kwargs"])
@@ -330,6 +335,7 @@ def compare(
     seed: int = 0,
     workers: int = 2,
     runner: RayRunner | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> Comparison:
     """The policy against the zero residual on the policy's own environment, same seeds, same pushes
     (with ``runner``, both arms at once as Ray tasks)."""
@@ -337,7 +343,8 @@ def compare(
         return compare_forces(policy_path, [protocol], episodes=episodes, seed=seed, workers=workers, runner=runner)[0]
     env_id, env_kwargs = policy_env(policy_path)
     env_kwargs = _strip_time_limit(env_kwargs)
-    common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": episodes, "seed": seed, "workers": workers}
+    common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": episodes, "seed": seed,
+              "workers": workers, "progress": progress}
     wbc = run_episodes(None, **common)
     residual = run_episodes(policy_path, **common)
     return Comparison(wbc, residual, env_id, env_kwargs)
@@ -372,6 +379,7 @@ def sweep(
     workers: int = 2,
     policy_path: str | os.PathLike[str] | None = None,
     runner: RayRunner | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> list[ArmResult]:
     """Success rate against push magnitude (the zero residual unless ``policy_path``): to pick a force that discriminates.
 
@@ -388,7 +396,7 @@ def sweep(
 
     return [
         run_episodes(policy_path, env_id=env_id, env_kwargs=env_kwargs, protocol=replace(protocol, force=float(force)),
-                     episodes=episodes, seed=seed, workers=workers)
+                     episodes=episodes, seed=seed, workers=workers, progress=progress)
         for force in forces
     ]
 
@@ -423,23 +431,33 @@ def add_evaluate_command(commands: Any) -> None:
     parser.add_argument("--env", default=DEFAULT_ENV_ID, help="environment of the WBC-alone arm when no --policy is given")
     parser.add_argument("--env-kwargs", default=json.dumps(DEFAULT_ENV_KWARGS), help="JSON options of --env")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--plot", default=None, metavar="FILE",
+                        help="also draw success rate against push impulse per arm, and the paired counts (.png, .svg, .pdf)")
+    add_progress_argument(parser)
     parser.set_defaults(run=run_evaluate_command)
 
 
 def run_evaluate_command(args: Any) -> int:
     import sys
 
-    from giwbc.policy import PolicyFormatError
 
     connection = None
+    bar = Progress(0, "evaluate", enabled=False)
     try:
+        if args.plot:
+            check_plot_path(args.plot)  # before the run, not after it
         protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval),
                                 episode_seconds=args.episode_seconds, upright_tilt=args.upright_tilt)
         connection = connect(args.ray) if getattr(args, "ray", None) else None
         runner = RayRunner(connection) if connection is not None else None
         workers = args.workers or (runner.cpus if runner is not None else 2)
-        common = {"episodes": args.episodes, "seed": args.seed, "workers": workers, "runner": runner}
+        common: dict[str, Any] = {"episodes": args.episodes, "seed": args.seed, "workers": workers, "runner": runner}
+        arms = len(args.force) * (1 if args.policy is None else 2)
+        bar = Progress(args.episodes * arms, "evaluate", enabled=wants_progress(args) and runner is None)  # Ray: no live count
+        if bar.enabled:
+            common["progress"] = bar
         rows: list[ArmResult] = []
+        comparisons: list[Comparison] = []
         summary: dict[str, Any]
         if args.policy is None:
             rows = sweep(args.force, env_id=args.env, env_kwargs=json.loads(args.env_kwargs), protocol=protocol, **common)
@@ -458,8 +476,11 @@ def run_evaluate_command(args: Any) -> int:
         print(f"giwbc evaluate: error: {error}", file=sys.stderr)
         return 2
     finally:
+        bar.close()
         if connection is not None:
             connection.close()
+    if args.plot:
+        save_figure(evaluation_figure(rows, comparisons), args.plot)
     if args.json:
         print(json.dumps(summary))
     else:
@@ -501,12 +522,9 @@ def evaluate_swing_up(
     """``arm``: a policy file, ``"zero"`` (no force) or ``"random"`` (uniform actions, seeded per episode)."""
     import gymnasium
 
-    import giwbc.envs  # noqa: F401
 
     policy = None
     if arm not in ("zero", "random"):
-        from giwbc.policy import OnnxPolicy
-
         policy = OnnxPolicy(arm)
         env = policy.make_env(**(env_kwargs or {}))
     else:

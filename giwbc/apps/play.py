@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.errors import PolicyFormatError, RenderingUnavailableError
 from giwbc.policy import OnnxPolicy
 from giwbc.runtimes.rendering import offscreen_backend
@@ -36,8 +37,10 @@ def play(
     real_time_factor: float | None = None,
     render_size: tuple[int, int] = (480, 640),
     env_overrides: dict[str, Any] | None = None,
+    progress: bool = False,
 ) -> PlayResult:
-    """Run a policy file in simulation for ``episodes`` episodes, optionally writing a video (.mp4 or .gif)."""
+    """Run a policy file in simulation for ``episodes`` episodes, optionally writing a video (.mp4 or .gif);
+    ``progress``: a bar of agent steps on stderr."""
     policy = OnnxPolicy(policy_path)
     overrides = dict(env_overrides or {})
     if video is not None:
@@ -48,6 +51,8 @@ def play(
     env = policy.make_env(**overrides)
     frames: list[np.ndarray] = []
     returns, lengths = [], []
+    limit = max_steps if max_steps is not None else (env.spec.max_episode_steps if env.spec is not None else None)
+    bar = Progress(episodes * (limit or 0) or 0, "play", unit="step", enabled=progress and bool(limit))
     try:
         for episode in range(episodes):
             observation, _ = env.reset(seed=seed + episode)
@@ -58,12 +63,15 @@ def play(
                 observation, reward, terminated, truncated, _ = env.step(policy(observation))
                 total += float(reward)
                 steps += 1
+                bar(1)
                 done = terminated or truncated
                 if video is not None:
                     frames.append(env.render())
             returns.append(total)
             lengths.append(steps)
+            bar(limit - steps if limit and done else 0)  # an episode that ended early: its unused steps
     finally:
+        bar.close()
         env.close()
     written = write_video(video, frames, fps=float(policy.metadata["rates"]["agent_hz"])) if video is not None else None
     return PlayResult(tuple(returns), tuple(lengths), written)
@@ -95,13 +103,14 @@ def add_play_command(commands: Any) -> None:
     parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs EGL or OSMesa (libegl1 or libosmesa6)")
     parser.add_argument("--real-time-factor", type=float, default=None, help="pace the simulation (default: as fast as possible)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_progress_argument(parser)
     parser.set_defaults(run=run_play_command)
 
 
 def run_play_command(args: Any) -> int:
     try:
         result = play(args.policy, episodes=args.episodes, seed=args.seed, max_steps=args.max_steps, video=args.video,
-                      real_time_factor=args.real_time_factor)
+                      real_time_factor=args.real_time_factor, progress=wants_progress(args))
     except (PolicyFormatError, FileNotFoundError, RenderingUnavailableError) as error:
         print(f"giwbc play: error: {error}", file=sys.stderr)
         return 2

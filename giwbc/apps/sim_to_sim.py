@@ -25,15 +25,21 @@ import os
 import sys
 import time
 from contextlib import nullcontext
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from giwbc.apps.workers import process_pool
+from giwbc.apps.evaluation import wilson_interval
+from giwbc.apps.plots import check_plot_path, save_figure, sim_to_sim_figure
+from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
+from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
+from giwbc.envs import RUNTIME_OPTIONS
+from giwbc.policy import OnnxPolicy, check_compatible
+import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 
 ENV_ID = "giwbc/G1Balance-v0"
 DEFAULT_POLICY = Path("policies/g1_balance_residual.onnx")
@@ -85,6 +91,11 @@ class Cell:
     def success_rate(self) -> float:
         return self.successes / self.episodes if self.episodes else float("nan")
 
+    @property
+    def success_95ci(self) -> tuple[float, float]:
+        """95 % Wilson interval of the success rate."""
+        return wilson_interval(self.successes, self.episodes)
+
     def summary(self) -> dict[str, Any]:
         return {
             "episodes": self.episodes,
@@ -98,25 +109,21 @@ class Cell:
 
 def _task_kwargs(policy: Any) -> dict[str, Any]:
     """The task options the policy was trained with (layout, scales, controller), runtime options dropped."""
-    from giwbc.envs import RUNTIME_OPTIONS
-
     if policy is None:
         return {}
     kwargs = dict(policy.metadata.get("env_kwargs") or {})
     return {key: value for key, value in kwargs.items() if key not in RUNTIME_OPTIONS and key not in ("robot", "agent_rate")}
 
 
-def run_job(job: Job) -> tuple[Job, list[tuple[int, bool, float]], float]:
-    """Run one chunk: ``[(seed, success, simulated seconds)]`` and the wall time of its episodes."""
+def run_job(job: Job, tick: Callable[[int], None] | None = None) -> tuple[Job, list[tuple[int, bool, float]], float]:
+    """Run one chunk: ``[(seed, success, simulated seconds)]`` and the wall time of its episodes; ``tick(1)`` after each."""
     import gymnasium
-
-    import giwbc.envs  # noqa: F401  (registers the ids)
-    from giwbc.policy import OnnxPolicy, check_compatible
 
     policy = OnnxPolicy(job.policy) if job.controller == "residual_policy" else None
     task_policy = OnnxPolicy(job.policy) if job.policy is not None else None
     kwargs = {**_task_kwargs(task_policy), **CONDITIONS[job.condition], "sim2real": job.pushes.sim2real(), **job.env_kwargs}
-    env = gymnasium.make(ENV_ID, **kwargs).unwrapped
+    with quiet_banners():  # PyBullet prints its build time at connect
+        env = gymnasium.make(ENV_ID, **kwargs).unwrapped
     try:
         if policy is not None:
             check_compatible(policy.metadata, env.describe())
@@ -133,6 +140,8 @@ def run_job(job: Job) -> tuple[Job, list[tuple[int, bool, float]], float]:
                 if terminated:
                     break
             results.append((seed, not terminated, env.time))
+            if tick is not None:
+                tick(1)
         return job, results, time.perf_counter() - started
     finally:
         env.close()
@@ -149,12 +158,14 @@ def evaluate(
     conditions: Sequence[str] = tuple(CONDITIONS),
     env_kwargs: dict[str, Any] | None = None,
     runner: RayRunner | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> dict[str, dict[str, Cell]]:
     """Success of each controller on each condition over ``episodes`` seeded episodes (``seed``, ``seed + 1``, ...).
 
     ``policy``: a residual ONNX policy for ``G1Balance-v0``, or ``None`` (WBC only). ``workers``:
     processes (0: run in this process). ``env_kwargs``: extra ``gymnasium.make`` options for every
     environment (e.g. ``wbc_options``). ``runner``: run the chunks as Ray tasks instead (``workers`` unused).
+    ``progress(n)``: told of every ``n`` episodes finished, as they finish (not with ``runner``).
     """
     if episodes < 1 or not seconds > 0:
         raise ValueError(f"episodes must be >= 1 and seconds > 0, got {episodes}, {seconds}")
@@ -170,11 +181,8 @@ def evaluate(
     cells = {controller: {condition: Cell() for condition in conditions} for controller in controllers}
     if runner is not None:
         outcomes = runner.map(run_job, jobs, describe=lambda job: f"{job.controller} on {job.condition}, seeds {list(job.seeds)}")
-    elif workers > 0:
-        with process_pool(workers) as pool:
-            outcomes = list(pool.imap_unordered(run_job, jobs))
     else:
-        outcomes = [run_job(job) for job in jobs]
+        outcomes = map_jobs(run_job, jobs, workers, progress)
     for job, results, wall in outcomes:
         cell = cells[job.controller][job.condition]
         cell.wall_s += wall
@@ -220,7 +228,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2, help="worker processes (0: in this process)")
     parser.add_argument("--seed", type=int, default=0, help="first episode seed")
     parser.add_argument("--conditions", nargs="*", default=list(CONDITIONS), choices=list(CONDITIONS))
+    parser.add_argument("--plot", default=None, metavar="FILE", help="also draw the table as grouped bars (.png, .svg, .pdf)")
     add_ray_argument(parser)
+    add_progress_argument(parser)
 
 
 def run_sim_to_sim_command(args: argparse.Namespace) -> int:
@@ -232,13 +242,20 @@ def run_sim_to_sim_command(args: argparse.Namespace) -> int:
         print(f"no residual policy ({policy or DEFAULT_POLICY} not found): evaluating the WBC alone; the policy row is missing",
               file=sys.stderr)
         policy = None
+    if args.plot:
+        check_plot_path(args.plot)  # before the run, not after it
     pushes = PushSetting(args.push_force, args.push_duration, tuple(args.push_interval))
+    total = args.episodes * len(args.conditions) * (1 if policy is None else len(CONTROLLERS))
     started = time.perf_counter()
-    with connect(args.ray) if args.ray else nullcontext() as connection:
+    with connect(args.ray) if args.ray else nullcontext() as connection, \
+            Progress(total, "sim-to-sim", enabled=wants_progress(args) and not connection) as bar:  # Ray: no live count
         cells = evaluate(policy=policy, episodes=args.episodes, seconds=args.seconds, pushes=pushes, workers=args.workers,
-                         seed=args.seed, conditions=args.conditions, runner=RayRunner(connection) if connection else None)
+                         seed=args.seed, conditions=args.conditions, runner=RayRunner(connection) if connection else None,
+                         progress=bar if bar.enabled else None)
         workers = connection.cpus if connection else args.workers
     wall = time.perf_counter() - started
+    if args.plot:
+        save_figure(sim_to_sim_figure(cells), args.plot)
     print(markdown_table(cells, missing))
     print(json.dumps({
         "benchmark": "sim_to_sim",

@@ -6,15 +6,40 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from typing import Any
 
 import numpy as np
 
+from giwbc.apps.live import DEFAULT_PORT, HOST, ScenePublisher, require_foxglove
+from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.locomotion.simulation import Push, WalkRun, simulate_walk
 from giwbc.robot import load
+from giwbc.apps.play import write_video
 
 VIDEO_FPS = 30.0
+PROGRESS_S = 0.1  # simulated seconds between progress updates without a video
+LIVE_HZ = 30.0  # the Foxglove stream's rate
+
+
+class _Observer:
+    """The simulation's per-``every``-ticks hook: a video frame (or None without a camera), a progress
+    update and the state for a live viewer."""
+
+    def __init__(self, camera: _FollowCamera | None, bar: Progress, seconds_per_call: float,
+                 publisher: ScenePublisher | None = None) -> None:  # fmt: skip
+        self.camera, self.bar, self.seconds_per_call, self.publisher = camera, bar, seconds_per_call, publisher
+
+    def __call__(self, robot: Any) -> np.ndarray | None:
+        self.bar(self.seconds_per_call)
+        if self.publisher is not None:
+            base = robot.base_state()
+            contacts = robot.description.contacts
+            wrenches = [robot.contact_wrench(c.link) for c in contacts]
+            self.publisher.send(robot.time(), robot.joint_positions(), robot.joint_efforts(), base.position, base.quaternion,
+                                np.array([w.in_contact for w in wrenches]), np.array([w.force for w in wrenches]).reshape(-1, 3))
+        return self.camera(robot) if self.camera is not None else None
 
 
 class _FollowCamera:
@@ -54,17 +79,29 @@ def run_walk(
     push_direction_deg: float = 180.0,
     video: str | None = None,
     seed: int | None = None,
+    progress: bool = False,
+    foxglove_port: int | None = None,
 ) -> tuple[WalkRun, str | None]:
-    """Walk ``robot`` at ``command`` for ``seconds``; an optional push of ``push`` N for 0.2 s."""
+    """Walk ``robot`` at ``command`` for ``seconds``; an optional push of ``push`` N for 0.2 s.
+    ``progress``: a bar of simulated seconds on stderr. ``foxglove_port``: stream the robot to
+    Foxglove on this loopback port at 30 Hz (simulated time), from a publisher process."""
     description = load(robot)
     pushes = (Push(push_time, push, math.radians(push_direction_deg)),) if push > 0 else ()
     camera = _FollowCamera() if video else None
-    every = max(1, int(round(1.0 / (VIDEO_FPS * description.timestep))))
-    run = simulate_walk(description, command, seconds, pushes=pushes, render=camera, render_every=every if video else 0, seed=seed)
+    every = max(1, int(round((1.0 / VIDEO_FPS if video else 1.0 / LIVE_HZ if foxglove_port else PROGRESS_S) / description.timestep)))
+    publisher = ScenePublisher(description, port=foxglove_port, rate=LIVE_HZ) if foxglove_port is not None else None
+    try:
+        with Progress(seconds, "walk", unit="sim s", enabled=progress) as bar:
+            wanted = camera is not None or bar.enabled or publisher is not None
+            hook = _Observer(camera, bar, every * description.timestep, publisher) if wanted else None
+            run = simulate_walk(description, command, seconds, pushes=pushes, render=hook, render_every=every if hook else 0, seed=seed)
+    finally:
+        if publisher is not None:
+            publisher.close()
+    if not video:
+        run.frames.clear()  # the progress hook's placeholders
     written = None
     if video:
-        from giwbc.policy import write_video
-
         written = str(write_video(video, run.frames, fps=1.0 / (every * description.timestep)))
     return run, written
 
@@ -112,6 +149,10 @@ def add_walk_command(commands: Any) -> None:
     parser.add_argument("--seed", type=int, default=None, help="perturb the initial state from this seed")
     parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs MUJOCO_GL=egl|osmesa headless")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--foxglove", action="store_true",
+                        help="stream the robot in 3D to Foxglove over a loopback WebSocket (needs foxglove-sdk)")
+    parser.add_argument("--foxglove-port", type=int, default=DEFAULT_PORT, help="the WebSocket's port")
+    add_progress_argument(parser)
     parser.set_defaults(run=run_walk_command)
 
 
@@ -119,9 +160,13 @@ def run_walk_command(args: argparse.Namespace) -> int:
     command = (args.vx, args.vy, args.yaw_rate)
     if not all(math.isfinite(x) for x in command):
         raise SystemExit(f"giwbc walk: error: the velocity command must be finite, got {command}")
+    if args.foxglove:
+        require_foxglove()
+        print(f"Foxglove: open a connection to ws://{HOST}:{args.foxglove_port}", file=sys.stderr)
     started = time.perf_counter()
     run, video = run_walk(args.robot, command, args.seconds, push=args.push, push_time=args.push_time,
-                          push_direction_deg=args.push_direction, video=args.video, seed=args.seed)
+                          push_direction_deg=args.push_direction, video=args.video, seed=args.seed,
+                          progress=wants_progress(args), foxglove_port=args.foxglove_port if args.foxglove else None)
     result = summary(run, command, time.perf_counter() - started)
     if video:
         result["video"] = video

@@ -34,8 +34,11 @@ Speed: every bus speaks MIT mode in the shipped plans, so commands are decoded a
 for all motors at once (:class:`~giwbc.emulation.firmware.MitFirmwareCodec`, bit-identical to the protocol's scalar calls);
 python-can's per-frame cost is what remains (~5 us per send or receive on ``virtual``).
 
-Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance;
-with :attr:`EmulatorConfig.imu` it carries a real IMU's errors (:class:`~giwbc.robot.noise.SensorModel`:
+Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance,
+and, when the plan's IMU is ``serial`` or ``can``, sent as that device's bytes
+(:mod:`~giwbc.emulation.imu_devices`: a pseudo-terminal whose path :meth:`host_plan` gives, or
+frames on the IMU's bus), so the host reads it through its real driver. With
+:attr:`EmulatorConfig.imu` it carries a real IMU's errors (:class:`~giwbc.robot.noise.SensorModel`:
 biases drawn once from the seed, noise, latency counted in published samples, dropouts, no orientation output
 for a ``mems`` profile); :attr:`ActuatorEmulator.imu_errors` keeps what was drawn, for judging a calibration.
 """
@@ -56,6 +59,7 @@ from giwbc.emulation.config import AppliedSnapshot, EmulatorConfig, EmulatorCoun
 from giwbc.emulation.faults import _REPLY_FAULTS, FaultEffects, FaultInjection
 from giwbc.emulation.firmware import MOTOR, OFF, MitFirmwareCodec
 from giwbc.hal.frames import FramePort, PortGroup, fields, frame_port, frames, frames_of
+from giwbc.emulation.imu_devices import SerialImuDevice, imu_device_for
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.hal.imu import ImuChannel
 from giwbc.hal.motor import MotorGroup
@@ -159,6 +163,11 @@ class ActuatorEmulator(FaultEffects):
             imu_rng = np.random.default_rng(None if c.seed is None else (c.seed, 0x1A0))  # a stream of its own
             self.imu_errors = c.imu.errors(imu_rng)
             self._imu_model = SensorModel(self.robot, self.imu_errors, imu_rng)
+        # A serial or CAN IMU in the plan: its bytes too, for the host's real driver (the channel
+        # keeps every sample, for tests).
+        self.imu_device = imu_device_for(plan.imu, {b.name: p for b, p in zip(plan.buses, self.ports)})
+        if isinstance(self.imu_device, SerialImuDevice):
+            self._host_plan = self._host_plan.with_imu(replace(plan.imu, device=self.imu_device.path))
         self.snapshots: list[AppliedSnapshot] = []
         self.truth: list[tuple[float, float, float]] = []  # ground truth for judging a dry run, never sent to the host
         self._delayed: list[tuple[float, int, np.ndarray]] = []  # (due, bus, one-frame batch)
@@ -205,6 +214,8 @@ class ActuatorEmulator(FaultEffects):
     def close(self) -> None:
         if not self._closed:
             self._closed = True
+            if self.imu_device is not None:
+                self.imu_device.close()
             for b in self.buses:
                 b.shutdown()
 
@@ -464,8 +475,13 @@ class ActuatorEmulator(FaultEffects):
         return self.group.sign * tau / self.group.gear
 
     def _publish_imu(self) -> None:
+        if self.faults and any(f.kind == "imu_silent" and f.active(self.time) for f in self.faults):
+            return
         model = self._imu_model
-        self.imu_channel.publish(self.robot.imu() if model is None else model.imu())
+        reading = self.robot.imu() if model is None else model.imu()
+        self.imu_channel.publish(reading)
+        if self.imu_device is not None:
+            self.imu_device.publish(reading)
 
     @property
     def imu_gyro_bias(self) -> np.ndarray | None:

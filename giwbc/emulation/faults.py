@@ -11,7 +11,8 @@ report state "disabled"; the host hears the frame too), foreign traffic on the m
 each poll's replies (``foreign_sync``: a CANopen SYNC, id 0x080 with no data; ``foreign_ids``: 8
 random bytes from an id no motor of the bus uses; ``zero_byte``: a frame with no data from such an
 id), ``duplicate`` (each reply sent twice), ``reorder`` (a poll's replies on a bus sent in reverse
-order) and ``encoder`` (the position reported shifted by ``offset`` rad, joint side). The kinds in
+order), ``encoder`` (the position reported shifted by ``offset`` rad, joint side) and
+``imu_silent`` (the IMU sends nothing: no channel sample, no serial bytes, no CAN frames). The kinds in
 :data:`HOST_FAULT_KINDS` act on the host (its policy, controller, bus drivers, process).
 """
 
@@ -31,7 +32,7 @@ if TYPE_CHECKING:
 
 EMULATOR_FAULT_KINDS = (
     "drop", "delay", "corrupt", "error", "overheat", "silent", "dead", "push",
-    "motor_exit", "foreign_sync", "foreign_ids", "zero_byte", "duplicate", "reorder", "encoder",
+    "motor_exit", "foreign_sync", "foreign_ids", "zero_byte", "duplicate", "reorder", "encoder", "imu_silent",
 )  # fmt: skip
 # Faults of the host side (policy, controller, bus drivers, the process): see giwbc.runtimes.faults.
 HOST_FAULT_KINDS = (

@@ -32,7 +32,7 @@ contact flags and forces, covariance and fault diagnostics. Bad sensor data (NaN
 stale or backward timestamps) is flagged with a reason and counted, and never used: the update is
 skipped (the last good estimate is held) or the bad channel is left out.
 
-:class:`EstimatedRobot` wraps a robot whose base is not measured (hardware, or a
+:class:`~giwbc.estimation.estimated_robot.EstimatedRobot` wraps a robot whose base is not measured (hardware, or a
 :class:`~giwbc.robot.noise.NoisyRobot`) into a :class:`Robot` whose ``base_state()`` and
 ``generalized_state()`` come from the estimator, so a controller runs unchanged on it.
 """
@@ -59,11 +59,10 @@ UNKNOWN_VARIANCE = 1e6  # covariance diagonal of an estimate not yet initialized
 from giwbc.estimation.kalman import GRAVITY, LegKalmanFilter, LegKalmanNoise
 from giwbc.estimation.kinematics import LegKinematics
 from giwbc.estimation.orientation import OrientationFilter, gravity_error, quaternion_error, tilt_from_gravity
-from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
+from giwbc.robot.interface import BaseState, ImuReading, Robot
 
 __all__ = [
     "CalibrationReport",
-    "EstimatedRobot",
     "Estimate",
     "EstimatorConfig",
     "Fault",
@@ -748,69 +747,3 @@ def _rotated(q: Sequence[float], rotation_vector: Sequence[float]) -> so3.Quater
     angle = math.sqrt(rx * rx + ry * ry + rz * rz)
     s = 0.5 if angle < 1e-8 else math.sin(0.5 * angle) / angle
     return so3.quat_multiply_floats(q, (s * rx, s * ry, s * rz, math.cos(0.5 * angle)))
-
-
-class EstimatedRobot(RobotWrapper):
-    """A robot whose base state comes from a :class:`StateEstimator` fed by its measurements.
-
-    Wraps a robot that does not measure its base (hardware, a :class:`~giwbc.robot.noise.NoisyRobot`);
-    the estimator updates once per new ``robot.time()``, on the first read of the base state.
-    A contact plan set with :meth:`set_contact_plan` is passed to every update.
-    """
-
-    def __init__(self, robot: Robot, estimator: StateEstimator) -> None:
-        super().__init__(robot)
-        self.estimator = estimator
-        self._updated_at: float | None = None
-        self._plan: np.ndarray | None = None
-
-    @property
-    def ready(self) -> bool:
-        """Whether the estimator finished its start-up calibration (the estimate may be used)."""
-        return self.estimate.ready
-
-    def set_contact_plan(self, contacts: np.ndarray | None) -> None:
-        """The controller's contact plan (None: detect contacts from forces)."""
-        self._plan = None if contacts is None else np.asarray(contacts, dtype=bool)
-
-    @property
-    def estimate(self) -> Estimate:
-        """The estimate for the robot's current time (updating the estimator if time moved)."""
-        now = self.robot.time()
-        if now != self._updated_at:
-            self.estimator.update_from_robot(self.robot, self._plan)
-            self._updated_at = now
-        return self.estimator.estimate
-
-    # --- estimated ------------------------------------------------------------------------
-    def base_state(self) -> BaseState:
-        return self.estimate.base
-
-    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The estimate's Pinocchio ``(q, v)`` (joints as the estimator last read them)."""
-        estimate = self.estimate
-        return estimate.q.copy(), estimate.v.copy()
-
-    def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
-        """A link's world pose at the estimated configuration."""
-        model, data = self.estimator.kinematics.model, self.estimator.kinematics.data
-        frame = model.getFrameId(link)
-        if frame >= model.nframes:
-            raise KeyError(f"robot {self.name!r} has no link {link!r}")
-        pin.framesForwardKinematics(model, data, self.estimate.q)
-        placement = data.oMf[frame]
-        return placement.translation.copy(), placement.rotation.copy()
-
-    def contact_wrench(self, link: str) -> ContactWrench:
-        """The estimated ground force on a contact link (torque about the link origin from the
-        force acting at the sole centre)."""
-        names = [c.link for c in self.estimator.description.contacts]
-        if link not in names:
-            raise KeyError(f"no contact on link {link!r}; contacts are on {names}")
-        index = names.index(link)
-        estimate = self.estimate
-        force = estimate.contact_forces[index]
-        position, rotation = self.link_pose(link)
-        lever = rotation @ np.asarray(self.estimator.description.contacts[index].center, float)
-        return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[index]))
-

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 
 import mujoco
 import numpy as np
@@ -89,9 +89,11 @@ class EvaluationResult:
     heading_drift_deg_per_min: float = 0.0  # max |heading error - its value at ready| over the scored time, per minute
     heading_error_final_deg: float = 0.0
     calibration: dict | None = None  # the estimator's calibration report
+    # With evaluate(traces=True): the errors against time since ready (for plots), else None.
+    traces: dict[str, np.ndarray] | None = field(default=None, repr=False, compare=False)
 
     def as_dict(self) -> dict[str, object]:
-        return asdict(self)
+        return {k: v for k, v in asdict(self).items() if k != "traces"}
 
 
 def evaluate(
@@ -105,6 +107,7 @@ def evaluate(
     config: EstimatorConfig | None = None,
     mujoco_model: mujoco.MjModel | None = None,
     calibration_timeout: float = 5.0,
+    traces: bool = False,
 ) -> EvaluationResult:
     """Run ``duration`` s of standing with ``pushes`` (default :func:`push_sequence`), estimating
     at every physics step from noisy measurements, and compare with truth. The estimator's
@@ -112,7 +115,8 @@ def evaluate(
     truth at start); ``config`` defaults to :meth:`EstimatorConfig.for_sensors` of ``noise``.
     ``mujoco_model``: a compiled model of ``description`` to reuse (compiling takes ~1 s).
     The scenario starts when the estimator is ready; an estimator not ready after
-    ``calibration_timeout`` s runs it anyway (``ready_time_s`` nan) and is scored throughout."""
+    ``calibration_timeout`` s runs it anyway (``ready_time_s`` nan) and is scored throughout.
+    ``traces``: also keep the tilt, velocity and height errors against time (``EvaluationResult.traces``)."""
     sim = MujocoRobot(description, mujoco_model)
     noise = noise if noise is not None else SensorNoiseConfig()
     robot = NoisyRobot(sim, noise, np.random.default_rng(seed))
@@ -197,6 +201,10 @@ def evaluate(
         heading_drift_deg_per_min=float(heading_drift.max() / scored_minutes),
         heading_error_final_deg=float(heading_error[-1]),
         calibration=None if estimator.calibration is None else estimator.calibration.as_dict(),
+        traces=None if not traces else {
+            "t": np.arange(len(tilt_error)) * description.timestep, "tilt_error_deg": tilt_error,
+            "velocity_error_mps": np.linalg.norm(est_v - true_v, axis=1), "height_error_m": position_error[:, 2],
+        },
     )
 
 

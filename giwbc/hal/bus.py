@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Collection, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import can
@@ -144,6 +144,7 @@ class BusPlanSpec:
     bitrate: int
     traffic: tuple[FrameTraffic, ...]
     max_load: float = DEFAULT_MAX_LOAD
+    extra_bits: tuple[int, int] = (0, 0)  # per cycle, nominal and worst case: other periodic frames (a CAN IMU)
 
 
 def plan_bus_loads(buses: Iterable[BusPlanSpec], rate_hz: float) -> dict[str, BusLoad]:
@@ -152,6 +153,8 @@ def plan_bus_loads(buses: Iterable[BusPlanSpec], rate_hz: float) -> dict[str, Bu
     problems: list[str] = []
     for b in buses:
         load = traffic_load(b.traffic, b.bitrate, rate_hz, name=b.name)
+        if b.extra_bits != (0, 0):
+            load = replace(load, bits_nominal=load.bits_nominal + b.extra_bits[0], bits_worst=load.bits_worst + b.extra_bits[1])
         loads[b.name] = load
         problem = capacity_problem(load, b.max_load)
         if problem:

@@ -15,9 +15,12 @@ measured when the command arrived, so the command computed from them goes out at
 - **Late frames**: before sending, frames already waiting (replies that missed an earlier deadline)
   are drained and counted as late, never taken as this cycle's replies.
 - **IMU** comes from an :class:`ImuSource` (:mod:`giwbc.hal.imu`; ``emulated``: the emulator's :class:`~giwbc.hal.imu.ImuChannel`).
-- **Base state** is not measured on hardware: it comes from an attached
-  :class:`~giwbc.estimation.estimator.StateEstimator`, updated once per exchange. Without one,
-  :meth:`base_state` raises :class:`BaseStateUnavailable` (never ground truth from a simulator).
+  A CAN IMU (:class:`~giwbc.hal.can_imu.CanImu`) shares a bus with motors: its frames are taken
+  out of what the robot reads on that bus and handed to it, never counted as unknown traffic.
+- **Base state** is not measured on hardware: :meth:`base_state`, :meth:`link_pose` and
+  :meth:`contact_wrench` raise :class:`BaseStateUnavailable` (never ground truth from a
+  simulator). Wrap the robot in :class:`~giwbc.estimation.estimated_robot.EstimatedRobot` for an
+  estimated base (``giwbc deploy`` does; the real-time runtime updates it after each exchange).
 - ``peer``: an in-process stand-in for the motors (:class:`Peer`, the emulator): told that time
   reached the cycle time before draining (``advance``), and to answer after sending (``answer``),
   so it runs in lockstep (see :mod:`giwbc.emulation.emulator`); None on hardware.
@@ -27,13 +30,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from giwbc.hal.bus import BUS_ERRORS, DROPPED, RETRIES, SENT, UNKNOWN, VERDICT_COLUMNS, CanBusLink
-from giwbc.hal.frames import PortGroup
+from giwbc.hal.can_imu import CanImu
+from giwbc.hal.frames import GroupReceived, PortGroup
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.hal.imu import ImuSource
 from giwbc.hal.motor import MotorGroup
@@ -44,7 +48,6 @@ from giwbc.errors import BaseStateUnavailable, NonFiniteCommand
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
-    from giwbc.estimation.estimator import Estimate, StateEstimator
 
 COMMAND, ENTER, EXIT = "command", "enter", "exit"
 _SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
@@ -109,7 +112,6 @@ class CanRobot(DescribedRobot):
         plan: HardwarePlan,
         *,
         imu: ImuSource | None = None,
-        estimator: StateEstimator | None = None,
         peer: Peer | None = None,
         links: Sequence[CanBusLink] | None = None,
         reply_timeout: float = 0.8e-3,
@@ -124,7 +126,14 @@ class CanRobot(DescribedRobot):
         if len(self.links) != len(plan.buses):
             raise ValueError(f"{len(self.links)} links for {len(plan.buses)} buses")
         self.imu_source = imu
-        self.estimator = estimator
+        # A CAN IMU's frames arrive with the motors' replies: handed to it before decoding.
+        self._can_imu = imu if isinstance(imu, CanImu) else None
+        self._imu_bus = -1
+        if self._can_imu is not None:
+            names_ = [b.name for b in plan.buses]
+            if self._can_imu.bus not in names_:
+                raise ValueError(f"the CAN IMU's bus {self._can_imu.bus!r} is not one of the plan's buses {names_}")
+            self._imu_bus = names_.index(self._can_imu.bus)
         self.peer = peer
         self.reply_timeout = float(reply_timeout)
         self.send_budget = float(send_budget)
@@ -161,16 +170,16 @@ class CanRobot(DescribedRobot):
         self._stale = np.zeros(dofs, dtype=np.int64)
         self._replied = np.zeros(dofs, dtype=bool)
         self._effort = description.effort_limits
+        self._gain_scale = 1.0
         self.command = ImpedanceCommand.damping(dofs, 0.0)
         self.clamp_counts = np.zeros((dofs, 5), dtype=np.int64)  # per joint and field, cumulative
         self.cycle = 0
         self._time = 0.0
+        self._now = 0.0  # the time of the cycle in progress (host-clock stamp of CAN IMU samples)
         self._imu: ImuReading | None = None
         self._imu_time: float | None = None
-        self._estimate: Estimate | None = None
         self.late_frames = 0
         self.send_dropped = 0
-        self._pin: Any = None
 
     @property
     def reply_lag(self) -> int:
@@ -187,12 +196,13 @@ class CanRobot(DescribedRobot):
     def exchange(self, t: float, deadline: float | None = None, kind: str = COMMAND) -> CycleReport:
         """One cycle at time ``t``: send the held command (or ``enter``/``exit`` frames) to every
         motor, collect replies until all came, ``reply_timeout`` after sending, or ``deadline``
-        (absolute ``perf_counter`` seconds, default: 5 ms from now) passed; read the IMU and update
-        the estimator. Never raises for bus trouble: it is in the report. (With
+        (absolute ``perf_counter`` seconds, default: 5 ms from now) passed; read the IMU (the
+        report's ``imu_fresh`` says whether a new sample came). Never raises for bus trouble: it is in the report. (With
         ``wait_for_replies=False`` the replies are collected first, see the class docstring.)"""
         if kind not in (COMMAND, ENTER, EXIT):
             raise ValueError(f"exchange kind must be command, enter or exit, got {kind!r}")
         peer = self.peer
+        self._now = float(t)
         started = time.perf_counter()
         if peer is not None:
             peer.advance(t)
@@ -235,10 +245,6 @@ class CanRobot(DescribedRobot):
         unknown += unknown_late
         imu_fresh = self._read_imu()
         self._time = float(t)
-        if self.estimator is not None and imu_fresh:
-            from giwbc.estimation.estimator import Measurement
-
-            self._estimate = self.estimator.update(Measurement(self._imu, self._q.copy(), self._dq.copy(), self._tau.copy()))
         report = CycleReport(
             self.cycle, float(t), kind, missing, self._stale.copy(), self._error.copy(), self._temperature.copy(),
             late, corrupt, unknown, dropped, clamped, imu_fresh, sent - t0, receive_s,
@@ -274,12 +280,12 @@ class CanRobot(DescribedRobot):
         replies are read at the next cycle."""
         ports, codec = self.ports, self.codec
         if deadline is None:
-            got = ports.receive(None, self._bus_sizes if expect else self._no_frames, drain=True)
+            got = self._imu_frames(ports.receive(None, self._bus_sizes if expect else self._no_frames, drain=True))
             received = [got]
             batch, bus = got.frames, got.bus
             decoded = codec.decode_replies(bus, batch)
         else:
-            got = ports.receive(deadline, self._bus_sizes)
+            got = self._imu_frames(ports.receive(deadline, self._bus_sizes))
             received = [got]
             batch, bus = got.frames, got.bus
             decoded = codec.decode_replies(bus, batch)
@@ -292,7 +298,7 @@ class CanRobot(DescribedRobot):
                 if not again:
                     break
                 past = time.perf_counter() >= deadline
-                more = ports.receive(None, None, again) if past else ports.receive(deadline, need, again)
+                more = self._imu_frames(ports.receive(None, None, again) if past else ports.receive(deadline, need, again))
                 received.append(more)
                 failed.update(b for b, error in enumerate(more.errors) if error is not None)
                 if len(more.frames):
@@ -301,7 +307,7 @@ class CanRobot(DescribedRobot):
                 if past:
                     break
             live = [b for b in range(len(self.links)) if b not in failed]
-            more = ports.receive(None, self._no_frames, live, drain=True)  # copies already waiting: one select()
+            more = self._imu_frames(ports.receive(None, self._no_frames, live, drain=True))  # copies already waiting: one select()
             if len(more.frames):
                 received.append(more)
                 batch, bus = self._merge(batch, bus, more)
@@ -313,6 +319,19 @@ class CanRobot(DescribedRobot):
         if len(bus):
             self._link_counts += np.bincount(bus * 8 + VERDICT_COLUMNS[decoded.verdict], minlength=self._link_counts.size).reshape(self._link_counts.shape)
         return decoded, bus, skipped
+
+    def _imu_frames(self, got: GroupReceived) -> GroupReceived:
+        """Hand the CAN IMU's frames in ``got`` to it; ``got`` without them."""
+        if self._can_imu is None or not len(got.frames):
+            return got
+        on_bus = got.bus == self._imu_bus
+        if not on_bus.any():
+            return got
+        taken = np.zeros(len(got.frames), dtype=bool)
+        taken[on_bus] = self._can_imu.take(got.frames[on_bus], now=self._now)
+        if not taken.any():
+            return got
+        return replace(got, frames=got.frames[~taken], bus=got.bus[~taken])
 
     @staticmethod
     def _merge(batch: np.ndarray, bus: np.ndarray, more: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -401,54 +420,14 @@ class CanRobot(DescribedRobot):
             raise RuntimeError("no IMU sample yet (no IMU source, or it has not published)")
         return self._imu
 
-    @property
-    def estimate(self) -> Estimate:
-        """The estimator's latest output."""
-        if self.estimator is None:
-            raise BaseStateUnavailable(
-                "the CAN robot measures no base state: attach a StateEstimator (CanRobot(..., estimator=...))"
-            )
-        if self._estimate is None:
-            return self.estimator.estimate
-        return self._estimate
-
     def base_state(self) -> BaseState:
-        return self.estimate.base
-
-    def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
-        """The estimate's Pinocchio ``(q, v)`` (base from the estimator, joints as measured)."""
-        if not self.floating_base:
-            return self.joint_positions(), self.joint_velocities()
-        estimate = self.estimate
-        return estimate.q.copy(), estimate.v.copy()
+        raise BaseStateUnavailable("the CAN robot measures no base state: wrap it in EstimatedRobot (giwbc.estimation)")
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
-        """A link's world pose at the estimated configuration."""
-        import pinocchio as pin
-
-        if self._pin is None:
-            model = self.description.pinocchio_model
-            self._pin = (model, model.createData())
-        model, data = self._pin
-        frame = model.getFrameId(link)
-        if frame >= model.nframes:
-            raise KeyError(f"robot {self.name!r} has no link {link!r}")
-        pin.framesForwardKinematics(model, data, self.generalized_state()[0])
-        placement = data.oMf[frame]
-        return placement.translation.copy(), placement.rotation.copy()
+        raise BaseStateUnavailable(f"the CAN robot measures no link pose ({link!r}): wrap it in EstimatedRobot (giwbc.estimation)")
 
     def contact_wrench(self, link: str) -> ContactWrench:
-        """The estimator's ground force on a contact link (acting at its sole centre)."""
-        contacts = self.description.contacts
-        names = [c.link for c in contacts]
-        if link not in names:
-            raise KeyError(f"no contact on link {link!r}; contacts are on {names}")
-        k = names.index(link)
-        estimate = self.estimate
-        force = np.asarray(estimate.contact_forces[k], dtype=float)
-        _, rotation = self.link_pose(link)
-        lever = rotation @ np.asarray(contacts[k].center, dtype=float)
-        return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[k]))
+        raise BaseStateUnavailable(f"the CAN robot measures no contact force ({link!r}): wrap it in EstimatedRobot (giwbc.estimation)")
 
     # --- commands -------------------------------------------------------------------------
     def _send_joint_torques(self, torques: np.ndarray) -> None:
@@ -469,7 +448,17 @@ class CanRobot(DescribedRobot):
         if (rows[2:4] < 0).any():
             raise ValueError("impedance gains kp and kd must be >= 0")
         np.clip(rows[4], -self._effort, self._effort, out=rows[4])
+        if self._gain_scale != 1.0:
+            rows[2:4] *= self._gain_scale
         self.command = ImpedanceCommand(rows[0], rows[1], rows[2], rows[3], rows[4])
+
+    def reduce_limits(self, torque_fraction: float, gain_fraction: float) -> None:
+        """A first run (the robot on a gantry): feed-forward torques clamped to ``torque_fraction``
+        of the effort limits, and every command's kp and kd scaled by ``gain_fraction`` (both in (0, 1])."""
+        if not (0 < torque_fraction <= 1 and 0 < gain_fraction <= 1):
+            raise ValueError(f"fractions must be in (0, 1], got torque {torque_fraction}, gains {gain_fraction}")
+        self._effort = self.description.effort_limits * torque_fraction
+        self._gain_scale = float(gain_fraction)
 
     # --- latest measurements, without copies (the runtime and the supervisor read them) ---------
     @property
@@ -483,11 +472,6 @@ class CanRobot(DescribedRobot):
     @property
     def latest_imu(self) -> ImuReading | None:
         return self._imu
-
-    @property
-    def latest_estimate(self) -> Estimate | None:
-        """The estimate of the last exchange (None without an estimator or before its first update)."""
-        return self._estimate
 
     def close(self) -> None:
         """Shut the buses down (motors are not touched: stop them first)."""

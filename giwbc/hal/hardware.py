@@ -27,8 +27,10 @@ Schema::
                                    # {min = .., max = ..} for position, velocity, kp, kd, torque
 
     [imu]
-    source = "emulated"            # or "serial" (device = "/dev/ttyUSB0", baudrate = 921600)
-                                   # or "can" (bus = "can4", id = 0x50)
+    source = "emulated"            # or "serial": an Xsens MTi (device = "/dev/ttyUSB0",
+                                   # baudrate = 921600), see giwbc.hal.xsens
+                                   # or "can": bus = "can4", rate = 500.0 and [[imu.frames]]
+                                   # (ids, byte layout, scales), see giwbc.hal.can_imu
 
 Validation names the file and the problem: unknown keys, unknown bus, duplicate CAN id on a bus,
 duplicate joint, unknown model preset, bad ranges, ambiguous replies, and buses over capacity at
@@ -39,8 +41,7 @@ optionally effort limits) handed in by the caller.
 from __future__ import annotations
 
 import math
-import tomllib
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import MappingProxyType
@@ -49,9 +50,11 @@ from typing import Any
 import can
 
 from giwbc.hal.bus import DEFAULT_MAX_LOAD, BusCapacityError, BusLoad, BusPlanSpec, CanBusLink, plan_bus_loads
+from giwbc.hal.can_imu import CanImuLayout, parse_can_imu_layout
 from giwbc.hal.motor import RANGE_FIELDS, MotorConfig, motor_preset
 from giwbc.hal.protocols import ActuatorProtocol, ProtocolConfigError, protocol_class
 from giwbc.errors import HardwareConfigError
+from giwbc.util.toml import TomlPlace, parse_toml
 
 IMU_SOURCES = ("emulated", "serial", "can")
 
@@ -86,13 +89,18 @@ class BusConfig:
 
 @dataclass(frozen=True)
 class ImuConfig:
-    """Where the IMU comes from: ``emulated``, a ``serial`` device, or a ``can`` id on a bus."""
+    """Where the IMU comes from: ``emulated``, a ``serial`` device, or frames on a ``can`` bus."""
 
     source: str
     device: str | None = None
     baudrate: int | None = None
     bus: str | None = None
-    can_id: int | None = None
+    layout: CanImuLayout | None = None
+
+    @property
+    def can_id(self) -> int | None:
+        """The first frame id of a CAN IMU (None otherwise)."""
+        return self.layout.frames[0].can_id if self.layout is not None else None
 
 
 @dataclass(frozen=True)
@@ -133,6 +141,10 @@ class HardwarePlan:
         where = {m.joint: (b.name, i) for b in self.buses for i, m in enumerate(b.motors)}
         return tuple(where[j] for j in joint_names)
 
+    def with_imu(self, imu: ImuConfig) -> HardwarePlan:
+        """The same plan with another IMU source (bus loads and CAN ids checked again)."""
+        return replace(self, imu=imu, loads=MappingProxyType(_loads(self.source, self.buses, imu, self.control_rate)))
+
     def with_interface(self, interface: str) -> HardwarePlan:
         """The same plan with every bus on another python-can interface (e.g. ``"virtual"``)."""
         return replace(self, buses=tuple(replace(b, interface=interface) for b in self.buses))
@@ -171,10 +183,7 @@ def parse_hardware(
     interface: str | None = None,
 ) -> HardwarePlan:
     """:func:`load_hardware` for TOML text; ``source`` names it in error messages."""
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise HardwareConfigError(f"{source}: invalid TOML: {e}") from e
+    data = parse_toml(text, source, HardwareConfigError)
     plan = _build(data, float(control_rate), source, interface)
     if joint_names is not None:
         validate_joints(plan, joint_names, effort_limits)
@@ -218,78 +227,47 @@ _MOTOR_KEYS = {"bus", "id", "joint", "model", "sign", "zero_offset", "gear_ratio
 _TOP_KEYS = {"buses", "motors", "imu", "description"}
 
 
-def _fail(source: str, where: str, msg: str) -> HardwareConfigError:
-    return HardwareConfigError(f"{source}: {where}: {msg}" if where else f"{source}: {msg}")
-
-
-def _check_keys(source: str, where: str, table: Any, allowed: set[str], required: Iterable[str]) -> None:
-    if not isinstance(table, Mapping):
-        raise _fail(source, where, f"expected a table, got {type(table).__name__}")
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise _fail(source, where, f"unknown key(s) {unknown}; allowed: {sorted(allowed)}")
-    absent = [k for k in required if k not in table]
-    if absent:
-        raise _fail(source, where, f"missing key(s) {absent}")
-
-
-def _str(source: str, where: str, table: Mapping[str, Any], key: str) -> str:
-    v = table[key]
-    if not isinstance(v, str) or not v:
-        raise _fail(source, where, f"{key} must be a non-empty string, got {v!r}")
-    return v
-
-
-def _int(source: str, where: str, table: Mapping[str, Any], key: str) -> int:
-    v = table[key]
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise _fail(source, where, f"{key} must be an integer, got {v!r}")
-    return v
-
-
-def _num(source: str, where: str, table: Mapping[str, Any], key: str, default: float) -> float:
-    v = table.get(key, default)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-        raise _fail(source, where, f"{key} must be a finite number, got {v!r}")
-    return float(v)
+def _at(source: str, where: str = "") -> TomlPlace:
+    """Where a problem is (the file ``source``, the table ``where``): its errors are HardwareConfigError."""
+    return TomlPlace(f"{source}: {where}" if where else source, HardwareConfigError)
 
 
 def _build(data: Mapping[str, Any], control_rate: float, source: str, interface: str | None) -> HardwarePlan:
-    _check_keys(source, "", data, _TOP_KEYS, ("buses", "motors", "imu"))
+    _at(source).check_keys(data, _TOP_KEYS, ("buses", "motors", "imu"))
     if not (math.isfinite(control_rate) and control_rate > 0):
-        raise _fail(source, "", f"control rate must be > 0 Hz, got {control_rate}")
+        raise _at(source).fail(f"control rate must be > 0 Hz, got {control_rate}")
     raw_buses, raw_motors = data["buses"], data["motors"]
     if not isinstance(raw_buses, list) or not raw_buses:
-        raise _fail(source, "buses", "need at least one [[buses]] table")
+        raise _at(source, "buses").fail("need at least one [[buses]] table")
     if not isinstance(raw_motors, list):
-        raise _fail(source, "motors", "must be an array of [[motors]] tables")
+        raise _at(source, "motors").fail("must be an array of [[motors]] tables")
 
     buses: dict[str, dict[str, Any]] = {}
     for k, b in enumerate(raw_buses):
         where = f"buses[{k}]"
-        _check_keys(source, where, b, _BUS_KEYS, ("name", "interface", "channel", "bitrate"))
-        name = _str(source, where, b, "name")
+        _at(source, where).check_keys(b, _BUS_KEYS, ("name", "interface", "channel", "bitrate"))
+        name = _at(source, where).string(b, "name")
         where = f"bus {name!r}"
         if name in buses:
-            raise _fail(source, where, "duplicate bus name")
-        bitrate = _int(source, where, b, "bitrate")
+            raise _at(source, where).fail("duplicate bus name")
+        bitrate = _at(source, where).integer(b, "bitrate")
         if not 0 < bitrate <= 1_000_000:
-            raise _fail(source, where, f"bitrate must be in 1..1000000 bit/s (classic CAN), got {bitrate}")
-        max_load = _num(source, where, b, "max_load", DEFAULT_MAX_LOAD)
+            raise _at(source, where).fail(f"bitrate must be in 1..1000000 bit/s (classic CAN), got {bitrate}")
+        max_load = _at(source, where).number(b, "max_load", DEFAULT_MAX_LOAD)
         if not 0 < max_load <= 1:
-            raise _fail(source, where, f"max_load must be in (0, 1], got {max_load}")
+            raise _at(source, where).fail(f"max_load must be in (0, 1], got {max_load}")
         protocol = b.get("protocol", "mit")
         try:
             protocol_class(protocol)
         except ValueError as e:
-            raise _fail(source, where, str(e)) from None
-        host_id = _int(source, where, b, "host_id") if "host_id" in b else None
+            raise _at(source, where).fail(str(e)) from None
+        host_id = _at(source, where).integer(b, "host_id") if "host_id" in b else None
         if host_id is not None and not 0 <= host_id <= 0x7FF:
-            raise _fail(source, where, f"host_id must be a standard 11-bit id (0..0x7FF), got {host_id}")
+            raise _at(source, where).fail(f"host_id must be a standard 11-bit id (0..0x7FF), got {host_id}")
         buses[name] = dict(
             host_id=host_id,
             name=name,
-            interface=interface or _str(source, where, b, "interface"),
+            interface=interface or _at(source, where).string(b, "interface"),
             channel=_channel(source, where, b["channel"]),
             bitrate=bitrate,
             max_load=max_load,
@@ -300,21 +278,21 @@ def _build(data: Mapping[str, Any], control_rate: float, source: str, interface:
     joints: dict[str, str] = {}
     for k, m in enumerate(raw_motors):
         where = f"motors[{k}]"
-        _check_keys(source, where, m, _MOTOR_KEYS, ("bus", "id", "joint", "model"))
-        joint = _str(source, where, m, "joint")
+        _at(source, where).check_keys(m, _MOTOR_KEYS, ("bus", "id", "joint", "model"))
+        joint = _at(source, where).string(m, "joint")
         where = f"motors[{k}] (joint {joint!r})"
         if joint in joints:
-            raise _fail(source, where, f"duplicate joint, already driven by a motor on bus {joints[joint]!r}")
-        bus_name = _str(source, where, m, "bus")
+            raise _at(source, where).fail(f"duplicate joint, already driven by a motor on bus {joints[joint]!r}")
+        bus_name = _at(source, where).string(m, "bus")
         if bus_name not in buses:
-            raise _fail(source, where, f"unknown bus {bus_name!r}; buses: {', '.join(buses)}")
-        can_id = _int(source, where, m, "id")
+            raise _at(source, where).fail(f"unknown bus {bus_name!r}; buses: {', '.join(buses)}")
+        can_id = _at(source, where).integer(m, "id")
         on_bus = buses[bus_name]["motors"]
         clash = next((o for o in on_bus if o.can_id == can_id), None)
         if clash is not None:
-            raise _fail(source, where, f"duplicate CAN id {can_id} on bus {bus_name!r} (also {clash.joint!r})")
+            raise _at(source, where).fail(f"duplicate CAN id {can_id} on bus {bus_name!r} (also {clash.joint!r})")
         try:
-            model = motor_preset(_str(source, where, m, "model"))
+            model = motor_preset(_at(source, where).string(m, "model"))
             overrides = {f: m[f] for f in RANGE_FIELDS if f in m}
             if overrides:
                 model = model.with_overrides(**overrides)
@@ -324,14 +302,14 @@ def _build(data: Mapping[str, Any], control_rate: float, source: str, interface:
                 model=model,
                 joint=joint,
                 sign=sign,
-                zero_offset=_num(source, where, m, "zero_offset", 0.0),
-                gear_ratio=_num(source, where, m, "gear_ratio", 1.0),
+                zero_offset=_at(source, where).number(m, "zero_offset", 0.0),
+                gear_ratio=_at(source, where).number(m, "gear_ratio", 1.0),
                 reply=m.get("reply"),
             )
         except ValueError as e:
             if isinstance(e, HardwareConfigError):
                 raise
-            raise _fail(source, where, str(e)) from None
+            raise _at(source, where).fail(str(e)) from None
         on_bus.append(motor)
         joints[joint] = bus_name
 
@@ -341,54 +319,71 @@ def _build(data: Mapping[str, Any], control_rate: float, source: str, interface:
         try:
             cfg.make_protocol()  # validates ids, reply variants and reply demultiplexing
         except ProtocolConfigError as e:
-            raise _fail(source, f"bus {cfg.name!r}", str(e)) from None
+            raise _at(source, f"bus {cfg.name!r}").fail(str(e)) from None
         configs.append(cfg)
 
     imu = _imu(source, data["imu"], buses)
+    return HardwarePlan(source, control_rate, tuple(configs), imu, MappingProxyType(_loads(source, configs, imu, control_rate)))
+
+
+def _loads(source: str, configs: Sequence[BusConfig], imu: ImuConfig, control_rate: float) -> dict[str, BusLoad]:
+    """Bus loads at ``control_rate`` (a CAN IMU's frames on its bus included); the IMU's frame ids
+    must not be a motor's id or the motors' reply id on that bus."""
+    extra = {}
+    if imu.layout is not None:  # the CAN IMU's frames share its bus with the motors
+        extra[imu.bus] = (imu.layout.bits_per_cycle(control_rate), imu.layout.bits_per_cycle(control_rate, worst_case=True))
     specs = [
-        BusPlanSpec(c.name, c.bitrate, tuple(protocol_class(c.protocol).traffic(m) for m in c.motors), c.max_load)
+        BusPlanSpec(
+            c.name, c.bitrate, tuple(protocol_class(c.protocol).traffic(m) for m in c.motors), c.max_load,
+            extra.get(c.name, (0, 0)),
+        )
         for c in configs
     ]
     try:
         loads = plan_bus_loads(specs, control_rate)
     except BusCapacityError as e:
-        raise _fail(source, "", str(e)) from e
-    if imu.source == "can":
-        ids = {m.can_id for m in buses[imu.bus]["motors"]}  # type: ignore[index]
-        if imu.can_id in ids:
-            raise _fail(source, "imu", f"CAN id {imu.can_id} is a motor's id on bus {imu.bus!r}")
-    return HardwarePlan(source, control_rate, tuple(configs), imu, MappingProxyType(loads))
+        raise _at(source, "").fail(str(e)) from e
+    if imu.layout is not None:
+        bus_cfg = next((c for c in configs if c.name == imu.bus), None)
+        if bus_cfg is None:
+            raise _at(source, "imu").fail(f"unknown bus {imu.bus!r}; buses: {', '.join(c.name for c in configs)}")
+        taken = {m.can_id: f"motor {m.joint!r}" for m in bus_cfg.motors}
+        if bus_cfg.host_id is not None:
+            taken[bus_cfg.host_id] = "the motors' reply id (host_id)"
+        for fr in imu.layout.frames:
+            if not fr.extended and fr.can_id in taken:
+                raise _at(source, "imu").fail(f"CAN id {fr.can_id} is {taken[fr.can_id]}'s id on bus {imu.bus!r}")
+    return loads
 
 
 def _channel(source: str, where: str, v: Any) -> str | int:
     if isinstance(v, bool) or not isinstance(v, (str, int)) or v == "":
-        raise _fail(source, where, f"channel must be a non-empty string or an integer, got {v!r}")
+        raise _at(source, where).fail(f"channel must be a non-empty string or an integer, got {v!r}")
     return v
 
 
 def _imu(source: str, t: Any, buses: Mapping[str, Any]) -> ImuConfig:
     where = "imu"
-    _check_keys(source, where, t, {"source", "device", "baudrate", "bus", "id"}, ("source",))
+    _at(source, where).check_keys(t, {"source", "device", "baudrate", "bus", "id", "rate", "frames"}, ("source",))
     kind = t["source"]
     if kind not in IMU_SOURCES:
-        raise _fail(source, where, f"source must be one of {', '.join(IMU_SOURCES)}, got {kind!r}")
-    allowed = {"emulated": {"source"}, "serial": {"source", "device", "baudrate"}, "can": {"source", "bus", "id"}}[kind]
-    required = {"emulated": (), "serial": ("device",), "can": ("bus", "id")}[kind]
-    _check_keys(source, f"imu (source {kind!r})", t, allowed, required)
+        raise _at(source, where).fail(f"source must be one of {', '.join(IMU_SOURCES)}, got {kind!r}")
+    if kind == "can" and "id" in t:
+        raise _at(source, where).fail("a CAN IMU is described by rate and [[imu.frames]] (id and fields of each frame), not one id")
+    allowed = {"emulated": {"source"}, "serial": {"source", "device", "baudrate"}, "can": {"source", "bus", "rate", "frames"}}[kind]
+    required = {"emulated": (), "serial": ("device",), "can": ("bus", "rate", "frames")}[kind]
+    _at(source, f"imu (source {kind!r})").check_keys(t, allowed, required)
     if kind == "emulated":
         return ImuConfig("emulated")
     if kind == "serial":
-        device = _str(source, where, t, "device")
+        device = _at(source, where).string(t, "device")
         baud = None
         if "baudrate" in t:
-            baud = _int(source, where, t, "baudrate")
+            baud = _at(source, where).integer(t, "baudrate")
             if baud <= 0:
-                raise _fail(source, where, f"baudrate must be > 0, got {baud}")
+                raise _at(source, where).fail(f"baudrate must be > 0, got {baud}")
         return ImuConfig("serial", device=device, baudrate=baud)
-    bus = _str(source, where, t, "bus")
+    bus = _at(source, where).string(t, "bus")
     if bus not in buses:
-        raise _fail(source, where, f"unknown bus {bus!r}; buses: {', '.join(buses)}")
-    can_id = _int(source, where, t, "id")
-    if not 0 <= can_id <= 0x7FF:
-        raise _fail(source, where, f"id must be a standard 11-bit CAN id, got {can_id}")
-    return ImuConfig("can", bus=bus, can_id=can_id)
+        raise _at(source, where).fail(f"unknown bus {bus!r}; buses: {', '.join(buses)}")
+    return ImuConfig("can", bus=bus, layout=parse_can_imu_layout(t, source))

@@ -113,6 +113,7 @@ class SafetyConfig:
     bus_off_cycles: int = 2  # consecutive cycles in which a bus's driver refused every frame
     watchdog_periods: int = 50  # control periods (wall clock; unpaced runs: at least 1 s) without a cycle before the watchdog stops the motors
     stop_margin: float = 1.0  # s (wall clock) a safe stop may overrun its nominal length before the watchdog takes over
+    start_limit_tolerance: float = 0.1  # rad a joint may read beyond its limits before start (resting on a stop)
 
     def __post_init__(self) -> None:
         for name in ("max_missing_cycles", "max_corrupt_frames", "corrupt_window", "torque_cycles", "imu_timeout_cycles",
@@ -152,6 +153,7 @@ class SafetySupervisor:
         self._armed_limits = np.zeros(description.dofs, dtype=bool)
         self._imu_stale = 0
         self._bus_down = np.zeros(self._corrupt.shape[1], dtype=np.int64)
+        self._down_any = False  # some bus refused every frame lately (its count must go on or reset)
         self.checks = 0
         # The tilt of an IMU without orientation output: gyro-propagated, pulled toward gravity, the gyro
         # bias learnt slowly (its integral runs within 10 degrees: a cheap gyro's turn-on bias lags the tilt by ~6).
@@ -161,6 +163,7 @@ class SafetySupervisor:
 
     def reset(self) -> None:
         self._bus_down[:] = 0
+        self._down_any = False
         self._corrupt[:] = 0
         self._corrupt_total[:] = 0
         self._torque_over[:] = 0
@@ -229,7 +232,7 @@ class SafetySupervisor:
             error = report.error_code > 0
             codes = ", ".join(f"{names[j]}={int(report.error_code[j])}" for j in np.flatnonzero(error))
             add(FaultKind.MOTOR_ERROR, f"motor error code(s): {codes}", error)
-        if report.status is not None:
+        if report.status is not None and not report.status.all():  # some state 0 (quiet path: one reduction)
             disabled = (report.status == 0) & ~report.missing  # Damiao state 0: out of motor mode
             if disabled.any():
                 which = ", ".join(names[j] for j in np.flatnonzero(disabled))
@@ -294,9 +297,12 @@ class SafetySupervisor:
         bugs (a driver raising what no CAN driver should: at once)."""
         errors, sent = report.bus_errors, report.bus_sent
         assert errors is not None and sent is not None
+        causes = report.driver_errors or ()
+        if not (errors.any() or self._down_any or any(causes)):  # the quiet path: no driver error anywhere
+            return
         refused = (errors > 0) & (sent == 0)
         self._bus_down[: len(refused)] = np.where(refused, self._bus_down[: len(refused)] + 1, 0)
-        causes = report.driver_errors or ()
+        self._down_any = bool(self._bus_down.any())
         bugs = [b for b, e in enumerate(causes) if e is not None and not isinstance(e, (can.CanError, OSError))]
         if bugs:
             which = "; ".join(f"{self.bus_names[b]}: {type(causes[b]).__name__}: {causes[b]}" for b in bugs)

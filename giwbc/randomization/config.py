@@ -30,7 +30,6 @@ import difflib
 import math
 import os
 import re
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,6 +40,7 @@ from giwbc.randomization.distributions import KINDS, Distribution, Randomization
 from giwbc.randomization.imu_profiles import imu_profile_entries
 from giwbc.randomization.parameters import PARAMETERS, PUSH_PARAMETERS, Nominal
 from giwbc.robot.description import RobotDescription
+from giwbc.util.toml import load_toml, parse_toml
 
 _TOP_KEYS = {"physics_every", "push_horizon", "parameters", "imu_profile"}
 _ENTRY_KEYS = {"parameter", "distribution", "operation", "links", "joints", "regex", "shared", "link", "name"}
@@ -115,13 +115,9 @@ class RandomizationConfig:
     def from_toml(cls, source: str | os.PathLike[str], description: RobotDescription) -> "RandomizationConfig":
         """From a TOML file path, or TOML text (anything containing a newline or '=')."""
         text = str(source)
-        try:
-            if isinstance(source, Path) or ("\n" not in text and "=" not in text):
-                with open(source, "rb") as stream:
-                    return cls.from_dict(tomllib.load(stream), description)
-            return cls.from_dict(tomllib.loads(text), description)
-        except tomllib.TOMLDecodeError as error:
-            raise RandomizationError(f"randomization config: malformed TOML: {error}") from error
+        if isinstance(source, Path) or ("\n" not in text and "=" not in text):
+            return cls.from_dict(load_toml(Path(source), RandomizationError), description)
+        return cls.from_dict(parse_toml(text, "randomization config", RandomizationError), description)
 
     @property
     def parameters(self) -> frozenset[str]:

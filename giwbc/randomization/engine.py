@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from giwbc.randomization.distributions import RandomizationError
+from giwbc.robot.mujoco_robot import MujocoRobot
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
@@ -42,11 +43,10 @@ class EngineChoice:
 def build_robot(engine: str, description: "RobotDescription", **options: object) -> "Robot":
     """A simulated robot of ``description`` on ``engine`` (``options`` go to its constructor)."""
     if engine == "mujoco":
-        from giwbc.robot.mujoco_robot import MujocoRobot
-
         return MujocoRobot(description, **options)
     if engine == "pybullet":
-        from giwbc.robot.pybullet_robot import PybulletRobot
+        from giwbc.robot.pybullet_robot import PybulletRobot  # optional heavy dependency (imports pybullet)
+
 
         return PybulletRobot(description, **options)
     raise RandomizationError(f"unknown engine {engine!r}; known: {list(ENGINES)}")

@@ -12,6 +12,7 @@ import numpy as np
 
 from giwbc.randomization.config import RandomizationConfig
 from giwbc.randomization.distributions import RandomizationError
+from giwbc.randomization.mujoco import MujocoApplier
 from giwbc.randomization.perturbed import PerturbedRobot
 from giwbc.randomization.sampling import Sample, sample_group
 from giwbc.robot.description import RobotDescription
@@ -94,13 +95,12 @@ def make_applier(engine: Robot, config: RandomizationConfig) -> Any:
     """The physics applier of an engine robot (it snapshots the nominal model now)."""
     model = getattr(engine, "model", None)
     if model is not None and hasattr(model, "opt"):
-        from giwbc.randomization.mujoco import MujocoApplier
-
         return MujocoApplier(model, config.nominal, engine.floating_base)
-    from giwbc.robot.pybullet_robot import PybulletRobot
+    from giwbc.robot.pybullet_robot import PybulletRobot  # optional heavy dependency (imports pybullet)
 
     if isinstance(engine, PybulletRobot):
-        from giwbc.randomization.pybullet import PybulletApplier
+        from giwbc.randomization.pybullet import PybulletApplier  # optional heavy dependency (pybullet)
+
 
         return PybulletApplier(engine, config.nominal)
     raise RandomizationError(f"cannot randomize the physics of {type(engine).__name__}: not a MuJoCo or PyBullet robot")

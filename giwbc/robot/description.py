@@ -10,7 +10,6 @@ from __future__ import annotations
 import importlib.metadata
 import math
 import os
-import tomllib
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import cached_property
@@ -24,6 +23,7 @@ from giwbc.errors import RobotDescriptionError
 from giwbc.robot.collision import CollisionError, CollisionShape, UrdfGeometry, excluded_pairs, parse_shape
 from giwbc.robot.mujoco_model import build_mujoco_model
 from giwbc.robot.pinocchio_model import build_pinocchio_model
+from giwbc.util.toml import TomlPlace, load_toml
 
 if TYPE_CHECKING:
     import mujoco
@@ -235,11 +235,7 @@ def available_robots() -> list[str]:
 def load(robot: str | os.PathLike[str]) -> RobotDescription:
     """Load a robot description by name (``"g1"``) or from a robot folder / ``robot.toml`` path."""
     config_path = _find_config(robot)
-    try:
-        with config_path.open("rb") as stream:
-            config = tomllib.load(stream)
-    except tomllib.TOMLDecodeError as error:
-        raise RobotDescriptionError(f"{config_path}: malformed TOML: {error}") from error
+    config = load_toml(config_path, RobotDescriptionError)
     return _parse(config, config_path)
 
 
@@ -289,20 +285,9 @@ def _resolve_model_path(source: str, config_path: Path) -> Path:
     return path
 
 
-def _require(table: dict[str, Any], key: str, kind: type | tuple[type, ...], where: str) -> Any:
-    if key not in table:
-        raise RobotDescriptionError(f"{where}: missing required key {key!r}")
-    value = table[key]
-    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
-        raise RobotDescriptionError(f"{where}: key {key!r} should be {getattr(kind, '__name__', kind)}, got {value!r}")
-    return value
-
-
-def _number(table: dict[str, Any], key: str, default: float, where: str) -> float:
-    value = table.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        raise RobotDescriptionError(f"{where}: {key!r} should be a finite number, got {value!r}")
-    return float(value)
+def _at(where: str) -> TomlPlace:
+    """A place in robot.toml (``where``: the file and the table): its errors are RobotDescriptionError."""
+    return TomlPlace(where, RobotDescriptionError)
 
 
 def _urdf_joint_limits(urdf_path: Path, config_path: Path) -> dict[str, tuple[float, float, float, float]]:
@@ -334,11 +319,11 @@ def _urdf_joint_limits(urdf_path: Path, config_path: Path) -> dict[str, tuple[fl
 
 def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
     where = str(config_path)
-    model = _require(config, "model", dict, where)
-    urdf_path = _resolve_model_path(_require(model, "urdf", str, f"{where} [model]"), config_path)
+    model = _at(where).require(config, "model", dict)
+    urdf_path = _resolve_model_path(_at(f"{where} [model]").require(model, "urdf", str), config_path)
     urdf_limits = _urdf_joint_limits(urdf_path, config_path)
 
-    joint_table = _require(config, "joints", dict, where)
+    joint_table = _at(where).require(config, "joints", dict)
     if not joint_table:
         raise RobotDescriptionError(f"{where}: [joints] is empty")
     joints = []
@@ -359,10 +344,10 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
             upper=upper,
             effort=effort,
             velocity=velocity,
-            default=_number(spec, "default", 0.0, f"{where} joint {name!r}"),
-            kp=_number(spec, "kp", 0.0, f"{where} joint {name!r}"),
-            kd=_number(spec, "kd", 0.0, f"{where} joint {name!r}"),
-            armature=_number(spec, "armature", 0.0, f"{where} joint {name!r}"),
+            default=_at(f"{where} joint {name!r}").number(spec, "default", 0.0),
+            kp=_at(f"{where} joint {name!r}").number(spec, "kp", 0.0),
+            kd=_at(f"{where} joint {name!r}").number(spec, "kd", 0.0),
+            armature=_at(f"{where} joint {name!r}").number(spec, "armature", 0.0),
             actuated=bool(spec.get("actuated", True)),
         )
         if min(joint.kp, joint.kd, joint.armature) < 0:
@@ -377,15 +362,15 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
     contacts = []
     for index, table in enumerate(config.get("contacts", [])):
         cwhere = f"{where} [[contacts]] #{index}"
-        center = _require(table, "center", list, cwhere)
+        center = _at(cwhere).require(table, "center", list)
         if len(center) != 3:
             raise RobotDescriptionError(f"{cwhere}: 'center' needs 3 numbers, got {center!r}")
         contact = ContactRectangle(
-            name=_require(table, "name", str, cwhere),
-            link=_require(table, "link", str, cwhere),
+            name=_at(cwhere).require(table, "name", str),
+            link=_at(cwhere).require(table, "link", str),
             center=tuple(float(c) for c in center),
-            half_length=_number(table, "half_length", 0.0, cwhere),
-            half_width=_number(table, "half_width", 0.0, cwhere),
+            half_length=_at(cwhere).number(table, "half_length", 0.0),
+            half_width=_at(cwhere).number(table, "half_width", 0.0),
         )
         if contact.half_length <= 0 or contact.half_width <= 0:
             raise RobotDescriptionError(f"{cwhere}: half_length and half_width must be > 0")
@@ -398,20 +383,20 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
     if integrator not in ("euler", "implicit", "implicitfast", "rk4"):
         raise RobotDescriptionError(f"{where}: unknown integrator {integrator!r}")
     description = RobotDescription(
-        name=_require(config, "name", str, where),
+        name=_at(where).require(config, "name", str),
         folder=config_path.parent,
         urdf_path=urdf_path,
         floating_base=bool(model.get("floating_base", False)),
-        base_link=_require(model, "base_link", str, f"{where} [model]"),
+        base_link=_at(f"{where} [model]").require(model, "base_link", str),
         joints=tuple(joints),
         contacts=tuple(contacts),
         collision=collision,
         self_collision=self_collision,
         collision_exclude=exclude,
         imu_frame=model.get("imu_frame"),
-        timestep=_number(simulation, "timestep", 0.002, f"{where} [simulation]"),
+        timestep=_at(f"{where} [simulation]").number(simulation, "timestep", 0.002),
         integrator=integrator,
-        floor_friction=_number(simulation, "floor_friction", 1.0, f"{where} [simulation]"),
+        floor_friction=_at(f"{where} [simulation]").number(simulation, "floor_friction", 1.0),
         description=str(config.get("description", "")),
     )
     if description.timestep <= 0:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from giwbc.robot.conventions import wxyz_to_xyzw
+from giwbc.robot.conventions import pinocchio_to_mujoco, wxyz_to_xyzw
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading, quat_to_matrix
 from giwbc.robot.mujoco_model import imu_sensor_names
@@ -58,8 +58,6 @@ class MujocoRobot(DescribedRobot):
         """Reset to the default standing pose, or to a Pinocchio-convention state ``(q, v)``."""
         mujoco.mj_resetDataKeyframe(self.model, self.data, 0)
         if q is not None:
-            from giwbc.robot.conventions import pinocchio_to_mujoco
-
             v = np.zeros(self.model.nv) if v is None else v
             if self.floating_base:
                 qpos, qvel = pinocchio_to_mujoco(np.asarray(q, float), np.asarray(v, float))

@@ -31,8 +31,10 @@ __all__ = [
     "quat_to_matrix",
     "quat_to_matrix_floats",
     "rotate",
+    "quat_to_rpy",
     "rotate_back",
     "rotation_angle",
+    "rpy_to_quat",
     "skew",
 ]
 
@@ -169,3 +171,24 @@ def cross_floats(a: Sequence[float], b: Sequence[float]) -> Vector3:
     a0, a1, a2 = a
     b0, b1, b2 = b
     return (a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0)
+
+
+def rpy_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """Quaternion ``(x, y, z, w)`` of roll-pitch-yaw angles (rad): ``R = Rz(yaw) Ry(pitch) Rx(roll)``,
+    the aerospace Z-Y-X convention most IMUs report Euler angles in."""
+    cr, sr = math.cos(0.5 * roll), math.sin(0.5 * roll)
+    cp, sp = math.cos(0.5 * pitch), math.sin(0.5 * pitch)
+    cy, sy = math.cos(0.5 * yaw), math.sin(0.5 * yaw)
+    return np.array(
+        [sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy]
+    )
+
+
+def quat_to_rpy(q: Sequence[float]) -> Vector3:
+    """Roll, pitch, yaw (rad) of a unit quaternion ``(x, y, z, w)``, inverse of :func:`rpy_to_quat`
+    (pitch in [-pi/2, pi/2])."""
+    x, y, z, w = (float(v) for v in q)
+    roll = math.atan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = math.asin(max(-1.0, min(1.0, 2.0 * (w * y - z * x))))
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return (roll, pitch, yaw)

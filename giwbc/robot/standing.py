@@ -17,19 +17,23 @@ def pd_hold_command(description: RobotDescription) -> ImpedanceCommand:
 
 
 class PdHold:
-    """The joint-PD standing hold as a controller, commanded once (the actuators hold it).
+    """The joint-PD hold of the default pose as a controller; the actuators evaluate it.
 
-    Called like any controller closing a loop (``controller(robot, estimate)``); it needs no state.
+    One class for both controller shapes of the project: the first call sends the hold to
+    ``robot`` (a loop that calls ``controller(robot, estimate)`` and expects it to command the
+    robot: the actuators then hold it, nothing more is sent), and every call returns it (a loop
+    that sends what ``controller(robot)`` returns, as :class:`~giwbc.tasks.standing.StandingTask`).
     """
 
     def __init__(self, description: RobotDescription) -> None:
         self.command = pd_hold_command(description)
         self._sent = False
 
-    def __call__(self, robot: Robot, estimate: object = None) -> None:
+    def __call__(self, robot: Robot, estimate: object = None) -> ImpedanceCommand:
         if not self._sent:
             robot.set_joint_impedance(self.command)
             self._sent = True
+        return self.command
 
 
 @dataclass(frozen=True)

@@ -20,12 +20,14 @@ Who writes it: a logger process (:class:`RunLogWriter` starts it). The control l
 each record in binary and hands a cycle's records over in one datagram; formatting, compression
 and disk writes happen in the logger, on another CPU when there is one, never in the loop.
 Faults and events are on disk before the logger reads on, and the logger finishes the file with
-what it received if the control process dies. Numbers are written with 6 significant digits;
+what it received if the control process dies. A :class:`LogExtension` adds channels derived from
+the records in the logger process (the robot's 3D scene for Foxglove: ``giwbc.apps.foxglove``). Numbers are written with 6 significant digits;
 non-finite values become ``null``.
 """
 
+from giwbc.runlog.extension import LogExtension, RobotState
 from giwbc.runlog.reader import RunLog, read_log
 from giwbc.runlog.schema import SCHEMAS, json_floats
 from giwbc.runlog.writer import RunLogWriter
 
-__all__ = ["SCHEMAS", "RunLog", "RunLogWriter", "json_floats", "read_log"]
+__all__ = ["SCHEMAS", "LogExtension", "RobotState", "RunLog", "RunLogWriter", "json_floats", "read_log"]

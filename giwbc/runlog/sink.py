@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.runlog.extension import LogExtension, RobotState
 from giwbc.runlog.schema import (
     _CLOSE, _COMMANDS, _COUNTS, _ESTIMATE_FLAGS, _ESTIMATOR, _EVENT, _FAULT, _HEADER, _LENGTH, _REPLIES, _TIMES, _TIMING,
     _TOPIC, SCHEMAS, _FloatBlock, _ints,
@@ -22,7 +23,8 @@ from giwbc.runlog.schema import (
 class _McapSink:
     """The MCAP file (in the logger process): JSON messages, a JSON schema per channel, LZ4 chunks."""
 
-    def __init__(self, path: Path, joint_names: Sequence[str], metadata: Mapping[str, Any], chunk_size: int) -> None:
+    def __init__(self, path: Path, joint_names: Sequence[str], metadata: Mapping[str, Any], chunk_size: int,
+                 extension: LogExtension | None = None) -> None:  # fmt: skip
         from mcap.writer import CompressionType, Writer
 
         self._file = open(path, "wb")  # noqa: SIM115 - closed in finish()
@@ -32,8 +34,13 @@ class _McapSink:
         for topic, schema in SCHEMAS.items():
             sid = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self._writer.register_channel(topic, "json", sid)
+        self.extension = extension
+        self.state = RobotState()  # the robot at the end of the last cycle, for the extension
+        for topic, schema in (extension.schemas() if extension is not None else {}).items():
+            sid = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+            self._channels[topic] = self._writer.register_channel(topic, "json", sid)
         self._writer.add_metadata("run", {k: v if isinstance(v, str) else json.dumps(v) for k, v in metadata.items()})
-        self._sequence: dict[str, int] = {topic: 0 for topic in SCHEMAS}
+        self._sequence: dict[str, int] = {topic: 0 for topic in self._channels}
         n = self.n = len(joint_names)
         self._commands = _FloatBlock([(k, n) for k in ("q_ref", "v_ref", "kp", "kd", "tau_ff")])
         self._replies = _FloatBlock([(k, n) for k in ("q", "dq", "tau", "temperature")])
@@ -64,6 +71,8 @@ class _McapSink:
             error = np.frombuffer(body, dtype=np.int64, count=n, offset=32 * n)
             missing = np.frombuffer(body, dtype=bool, count=n, offset=40 * n)
             late, corrupt, unknown = _COUNTS.unpack_from(body, 41 * n)
+            if self.extension is not None:
+                self.state.q, self.state.tau = values[0].copy(), values[2].copy()
             self._add("/replies", t, (
                 f'{head},{self._replies.render(*values)},"error_code":{_ints(error)},"missing":{_ints(np.flatnonzero(missing))},'
                 f'"late":{late},"corrupt":{corrupt},"unknown":{unknown}}}'
@@ -77,6 +86,9 @@ class _McapSink:
                 f'{head},"slot":{slot},"lateness_us":{lateness:.1f},"period_us":{period_text},"work_us":{work:.1f},'
                 f'"send_us":{send:.1f},"receive_us":{receive:.1f},"overrun":{"true" if overrun else "false"}}}'
             ))  # fmt: skip
+            if self.extension is not None:  # the cycle's last record: the extension sees the whole cycle
+                self.state.t = t
+                self.extend(lambda extension: extension.update(self.state))
         elif kind in (_FAULT, _EVENT):
             self._add(_TOPIC[kind], t, bytes(body).decode(), flush=True)
 
@@ -95,16 +107,42 @@ class _McapSink:
         k += 13 * 8
         n_contacts = body[k]
         contacts = np.frombuffer(body, dtype=bool, count=n_contacts, offset=k + 1)
+        if self.extension is not None:
+            self.state.base_position, self.state.base_quaternion, self.state.contacts = v[:3].copy(), v[3:7].copy(), contacts.copy()
         k += 1 + n_contacts
         faults = bytes(body[k : k + fault_bytes]).decode() if fault_bytes else "[]"
         flags = "[" + ",".join("true" if c else "false" for c in contacts.tolist()) + "]"
         return f'{sample},{self._estimate.render(v[:3], v[3:7], v[7:10], v[10:13])},"contacts":{flags},"faults":{faults}'
 
+    def extend(self, call: Any) -> None:
+        """Write the messages ``call(extension)`` returns. An extension that fails is dropped, said in
+        ``/events``: the run's own channels do not depend on it."""
+        if self.extension is None:
+            return
+        try:
+            messages = list(call(self.extension))
+        except Exception as error:  # noqa: BLE001 - a broken viewer must not cost the log
+            extension, self.extension = self.extension, None
+            detail = json.dumps({"error": f"{type(error).__name__}: {error}"})
+            self._add("/events", self.state.t, f'{{"cycle":0,"t":{self.state.t!r},"event":"log_extension_failed","detail":{detail}}}',
+                      flush=True)
+            try:
+                extension.close()
+            except Exception:  # noqa: BLE001
+                pass
+            return
+        for topic, t, payload in messages:
+            self._add(topic, t, payload)
+
     def finish(self) -> None:
         try:
-            self._writer.finish()
+            if self.extension is not None:
+                self.extension.close()
         finally:
-            self._file.close()
+            try:
+                self._writer.finish()
+            finally:
+                self._file.close()
 
 
 def _read_text(body: memoryview, k: int) -> tuple[str, int]:
@@ -113,7 +151,7 @@ def _read_text(body: memoryview, k: int) -> tuple[str, int]:
 
 
 def _serve(sock: socket.socket, parent_end: socket.socket, path: Path, joint_names: Sequence[str], metadata: Mapping[str, Any],
-           chunk_size: int, cpus: list[int] | None) -> None:  # fmt: skip
+           chunk_size: int, cpus: list[int] | None, extension: LogExtension | None = None) -> None:  # fmt: skip
     """The logger process: write records until told to close, or until the control process is gone."""
     parent_end.close()
     try:
@@ -123,12 +161,13 @@ def _serve(sock: socket.socket, parent_end: socket.socket, path: Path, joint_nam
     except (OSError, AttributeError):
         pass
     try:
-        sink = _McapSink(path, joint_names, metadata, chunk_size)
+        sink = _McapSink(path, joint_names, metadata, chunk_size, extension)
     except OSError as error:
         sock.send(f"cannot write the run log {path}: {error}".encode())
         return
     status = b"ok"
     try:
+        sink.extend(lambda extension: extension.open())
         closing = False
         while not closing:
             data = sock.recv(1 << 20)

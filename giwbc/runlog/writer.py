@@ -18,6 +18,7 @@ from giwbc.runlog.schema import (
     _CLOSE, _COMMANDS, _COUNTS, _ESTIMATE_FLAGS, _ESTIMATOR, _EVENT, _FAULT, _HEADER, _LENGTH, _MAX_DATAGRAM, _REPLIES,
     _TIMES, _TIMING, _TOPIC, SCHEMAS, _floats, _plain, _text,
 )  # fmt: skip
+from giwbc.runlog.extension import LogExtension
 from giwbc.runlog.sink import _serve
 from giwbc.util import children
 
@@ -37,10 +38,14 @@ class RunLogWriter:
     ``cpus``: the CPUs the logger may run on (Linux), e.g. all but the control loop's: on a kernel
     without full preemption, a logger inside a long write() on the loop's CPU delays the loop's
     wake-up, whatever the loop's priority.
+
+    ``extension``: more channels derived from each cycle's records in the logger process (e.g. the
+    robot's 3D scene, :mod:`giwbc.runlog.extension`); it is handed to the forked logger as it is.
     """
 
     def __init__(self, path: str | os.PathLike[str], joint_names: Sequence[str], metadata: Mapping[str, Any] | None = None,
-                 *, chunk_size: int = 256 * 1024, backlog: int = 4096, cpus: Iterable[int] | None = None) -> None:  # fmt: skip
+                 *, chunk_size: int = 256 * 1024, backlog: int = 4096, cpus: Iterable[int] | None = None,
+                 extension: LogExtension | None = None) -> None:  # fmt: skip
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.joint_names = tuple(joint_names)
@@ -57,7 +62,7 @@ class RunLogWriter:
         self._sock, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         _grow_send_buffer(self._sock)
         cpus = None if cpus is None else sorted(set(cpus))
-        args = (child, self._sock, self.path, self.joint_names, meta, chunk_size, cpus)
+        args = (child, self._sock, self.path, self.joint_names, meta, chunk_size, cpus, extension)
         self._process = children.start(_serve, args, "giwbc-runlog")
         child.close()
         self._sock.setblocking(False)

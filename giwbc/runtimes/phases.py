@@ -1,6 +1,7 @@
 """The real-time runtime's phases (:class:`Phase`) and their sequencing (:class:`PhaseSequence`)::
 
-    idle -> enable (enter motor mode) -> settle (damping) -> ramp (measured pose -> default pose)
+    idle -> check (motors read without torque: refuse joints outside their limits)
+         -> enable (enter motor mode) -> settle (damping) -> ramp (measured pose -> default pose)
          -> calibrate (joint-PD hold of the default pose, until the state estimator is ready)
          -> running (controller) -> shutdown (ramp to damping) -> damping -> off (exit motor mode)
 
@@ -27,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from giwbc.hal.can_robot import ENTER, EXIT, CycleReport
+from giwbc.hal.can_robot import COMMAND, ENTER, EXIT, CycleReport
 from giwbc.hal.safety import FaultKind
 from giwbc.robot.interface import ImpedanceCommand
 from giwbc.runtimes.ramps import PROFILES, cosine
@@ -106,8 +107,11 @@ class PhaseSequence:
             if not self.clock.realtime:  # an unpaced run (rehearsal, test) may be descheduled for a while: not a stuck loop
                 timeout = max(timeout, UNPACED_WATCHDOG)
             self.watchdog = LoopWatchdog(self, timeout, rt_priority=self.rt_priority).start()
-        self._set_phase(Phase.ENABLE)
         self.armed = False
+        if not self._joints_within_limits():
+            self._safe_stop()
+            return
+        self._set_phase(Phase.ENABLE)
         report = self._special_frames(ENTER, s.enable_attempts, stop_on_fault=True)
         if self.fault is None and (report is None or not report.complete):
             missing = [self.description.joint_names[j] for j in np.flatnonzero(report.missing)] if report is not None else []
@@ -168,6 +172,33 @@ class PhaseSequence:
             return
         report = estimator.calibration
         self._event("calibration", report.as_dict() if report is not None else {})
+
+    def _joints_within_limits(self) -> bool:
+        """Before any motor is enabled: read every joint with zero-gain, zero-torque commands (no
+        torque, enabled or not) and refuse to start (a STARTUP fault naming each joint) when one
+        reads outside its limits by more than ``start_limit_tolerance``: a wrong sign or zero
+        offset in the plan, which enabling would turn into a violent move."""
+        d = self.description
+        self.robot.set_joint_impedance(ImpedanceCommand.damping(d.dofs, 0.0))
+        for _ in range(1 + self.robot.reply_lag):
+            self._cycle(None, COMMAND)
+        q, heard = self.robot.joint_positions(), self.robot.replied_once
+        lo, hi = d.position_limits
+        tol = self.safety.start_limit_tolerance
+        bad = np.flatnonzero(heard & np.isfinite(lo) & np.isfinite(hi) & ((q < lo - tol) | (q > hi + tol)))
+        if not len(bad):
+            return True
+        names = tuple(d.joint_names[j] for j in bad)
+        detail = "; ".join(
+            f"{d.joint_names[j]} reads {q[j]:.3f} rad, limits [{lo[j]:.3f}, {hi[j]:.3f}]" for j in bad
+        )
+        self._fail(
+            FaultKind.STARTUP,
+            f"refusing to enable the motors: joint(s) outside their limits before start ({detail}). Check the plan's "
+            "sign and zero_offset (giwbc motors calibrate) or move the joint back by hand",
+            names,
+        )
+        return False
 
     def _shut_down(self) -> None:
         """Clean end: ramp the last command to damping, hold it, motors off."""

@@ -51,7 +51,9 @@ import numpy as np
 
 from giwbc.hal.can_robot import COMMAND, CanRobot, CycleReport, NonFiniteCommand
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
-from giwbc.robot.interface import ImpedanceCommand
+from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.estimation.estimator import StateEstimator
+from giwbc.robot.interface import ImpedanceCommand, RobotWrapper
 from giwbc.runlog import RunLogWriter
 from giwbc.runtimes.clock import DeadlineClock
 from giwbc.runtimes.fault_response import FaultResponse, LoopAbandoned, describe, robot_faults
@@ -104,6 +106,11 @@ def exit_code_for(fault: Fault | None) -> int:
 class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.Env[np.ndarray, np.ndarray]):
     """Runs ``task`` on the CAN ``robot`` in real time (see the module docstring).
 
+    ``robot``: a :class:`CanRobot`, or an :class:`~giwbc.estimation.estimated_robot.EstimatedRobot`
+    around one (a base state for the controller). The task sees ``robot`` as given; the runtime
+    drives the motors through the CAN robot (:attr:`robot`) and, after each exchange, updates the
+    estimator (:attr:`estimated`) when a new IMU sample came, so it runs through start-up too.
+
     ``log``: a :class:`RunLogWriter` (owned by the caller) or None; ``log_every``: log commands,
     replies, IMU and estimate every this many cycles (faults, events: always). ``realtime=False``
     runs cycles back to back (the emulator follows the robot's nominal time, so the run is the same).
@@ -127,7 +134,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
     def __init__(
         self,
         task: Task,
-        robot: CanRobot,
+        robot: CanRobot | EstimatedRobot,
         *,
         agent_rate: float = 50.0,
         controller_rate: float | None = None,
@@ -141,16 +148,20 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         freeze_gc: bool = True,
         gc_every: int | None = 500,
     ) -> None:
-        controller_rate = float(controller_rate or robot.plan.control_rate)
+        can = robot.unwrapped if isinstance(robot, RobotWrapper) else robot
+        if not isinstance(can, CanRobot):
+            raise TypeError(f"the real-time runtime drives a CanRobot (or a wrapper of one), got {type(robot).__name__}")
+        self.estimated = robot if isinstance(robot, EstimatedRobot) else None  # updated after every exchange
+        controller_rate = float(controller_rate or can.plan.control_rate)
         self.rates = Rates(agent=agent_rate, controller=controller_rate, physics=controller_rate)
-        self.task, self.robot = task, robot
+        self.task, self.robot = task, can  # the task sees the robot as given; the runtime drives the motors
         task.bind(robot, self.rates)
         self.action_space = task.action_space
         self.observation_space = task.observation_space
-        self.description = d = robot.description
+        self.description = d = can.description
         self.safety = safety or SafetyConfig()
         self.startup = startup or StartupConfig()
-        self.supervisor = SafetySupervisor(d, self.safety, bus_names=tuple(b.name for b in robot.plan.buses))
+        self.supervisor = SafetySupervisor(d, self.safety, bus_names=tuple(b.name for b in can.plan.buses))
         self.signals = SignalWatch()
         self.rt_priority = rt_priority
         self.freeze_gc = freeze_gc
@@ -389,6 +400,8 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
                     raise LoopAbandoned
                 # A full period for the exchange from the cycle's actual start: a late cycle still sends.
                 report = robot.exchange(t, deadline=self.clock.cycle_start + self.period if self.clock.realtime else None, kind=kind)
+                if self.estimated is not None:
+                    self.estimated.update(fuse=report.imu_fresh)  # the base state for this cycle's tick
         except LoopAbandoned:
             raise
         except BaseException as error:  # noqa: BLE001 - KeyboardInterrupt included; the next cycle tries again
@@ -485,15 +498,16 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         q, dq, tau = robot.measured
         log.replies(report.cycle, t, q, dq, tau, report.temperature, report.error_code,
                     report.missing, report.late, int(report.corrupt.sum()), report.unknown)  # fmt: skip
-        if imu is not None or robot.latest_estimate is not None:
-            log.estimator(report.cycle, t, imu, robot.latest_estimate)
+        estimate = self.estimated.latest_estimate if self.estimated is not None else None
+        if imu is not None or estimate is not None:
+            log.estimator(report.cycle, t, imu, estimate)
 
     # --- helpers ----------------------------------------------------------------------------
     @property
-    def calibrating_estimator(self) -> Any:
-        """The state estimator the start-up calibrates (a :class:`~giwbc.estimation.estimator.StateEstimator`
-        whose ``calibrate`` is on), or None."""
-        estimator = getattr(self.robot, "estimator", None)
+    def calibrating_estimator(self) -> StateEstimator | None:
+        """The state estimator the start-up calibrates (the :class:`EstimatedRobot`'s, when its
+        ``calibrate`` is on), or None."""
+        estimator = self.estimated.estimator if self.estimated is not None else None
         return estimator if estimator is not None and estimator.config.calibrate else None
 
     def _observe(self) -> np.ndarray:

@@ -23,8 +23,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from giwbc.randomization import RandomizationConfig, RandomizationError
+
 if TYPE_CHECKING:
-    from giwbc.randomization import RandomizationConfig
     from giwbc.robot.description import RobotDescription
 
 ROBOT_SIDE = frozenset({"actuator_latency", "push_interval", "push_force", "push_duration"})
@@ -129,8 +130,6 @@ class SimToReal:
         A robot-side effect is set in one place: a config that also randomizes the actuator latency
         (with ``actuator_delay`` set) or pushes (with ``pushes`` set) is an error.
         """
-        from giwbc.randomization import RandomizationConfig, RandomizationError
-
         entries = self.robot_entries()
         if not entries:
             return config

@@ -35,6 +35,8 @@ from gymnasium import spaces
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, ImpedanceCommand, Robot, quat_to_matrix
 from giwbc.tasks.task import ActionBlock, ResidualLayout, Task
+from giwbc.control.balance import make_balance_controller
+from giwbc.randomization import Nominal, randomized_pinocchio_model
 
 ANGULAR_VELOCITY_SCALE = 0.25  # observation scalings: keep entries of order 1
 JOINT_VELOCITY_SCALE = 0.05
@@ -124,8 +126,6 @@ class _WholeBody:
         self.result: Any = None
 
     def _new_controller(self) -> Any:
-        from giwbc.control.balance import make_balance_controller
-
         return make_balance_controller(self.description, model=self.pin_model, **self.options)
 
     def reset(self, robot: Robot) -> None:
@@ -245,8 +245,6 @@ class G1Balance(Task):
         (an oracle, for studies); by default it keeps the nominal model, as on hardware."""
         if self.controller_model != "randomized" or not drawn.resampled:
             return
-        from giwbc.randomization import Nominal, randomized_pinocchio_model
-
         if self._nominal is None:
             self._nominal = Nominal.from_description(self.description)
         self.controller.pin_model = randomized_pinocchio_model(self._pin_model, drawn.physics, self._nominal)

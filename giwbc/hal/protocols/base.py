@@ -29,6 +29,7 @@ from giwbc.errors import (
     ProtocolConfigError,
     UnknownMotorError,
 )
+from giwbc.hal.frames import CAN_EFF_MASK, fields
 
 
 @dataclass(frozen=True, slots=True)
@@ -291,8 +292,6 @@ class ActuatorProtocol(ABC):
         """Decode a batch of :data:`~giwbc.hal.frames.FRAME` records at once (error frames get
         :data:`ERROR_FRAME`, remote frames :data:`UNKNOWN`). This default calls :meth:`decode`
         per frame; a protocol may vectorize it, with exactly the same results."""
-        from giwbc.hal.frames import CAN_EFF_MASK, fields
-
         f = fields(batch)
         raw_ids = (batch["can_id"] & CAN_EFF_MASK).tolist()  # a standard frame's junk id bits stay: decode() rejects them
         verdicts, indexes, replies = [], [], []
