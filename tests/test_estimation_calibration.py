@@ -97,12 +97,14 @@ def test_the_estimator_is_not_ready_while_the_robot_moves(g1, snapshot, motion) 
 
 
 def test_a_slow_creep_over_a_long_start_up_window_is_not_taken_for_gyro_bias(g1, snapshot) -> None:
-    """A 3 s start-up window (deploy's) while the base creeps in pitch at 0.002 rad/s (a robot
-    settling on soft soles, no joint moving, below every "moving" threshold): the turn of the
-    gravity direction over the window tells the creep from the bias, which is found to 0.0005 rad/s."""
+    """A 3 s start-up window while the base creeps in pitch at 0.002 rad/s with no joint moving
+    (a robot rocking on its soles, below every "moving" threshold; without flat feet to read the
+    turn from): the turn of the gravity direction over the window tells the creep from the bias,
+    which is found to 0.0005 rad/s."""
     bias = np.array([0.004, -0.006, 0.008])
     creep = np.array([0.0, 0.002, 0.0])
-    estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, standstill=StandstillConfig(startup_blocks=12)))
+    config = EstimatorConfig(use_imu_orientation=False, use_flat_feet=False, standstill=StandstillConfig(startup_blocks=12))
+    estimator = StateEstimator(g1, config)
     for measurement in _stream(g1, snapshot, np.random.default_rng(5), gyro_bias=bias, rate=creep, seconds=3.6):
         estimator.update(measurement)
     report = estimator.calibration

@@ -366,8 +366,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
-            # The start-up holds the robot still anyway: a 4 s calibration window (16 blocks, not 0.75 s) averages the gyro's
-            # noise and the held robot's slow sway (~0.3 Hz, a few mrad/s; 7 % of the emulated mems bias left, 14 % with 3 s).
+            # The start-up holds the robot still anyway: a 4 s calibration window (16 blocks, not 0.75 s) averages the
+            # gyro's noise to ~0.2 mrad/s per axis (the held robot's slow sway is read from the leg encoders).
             standstill = StandstillConfig(startup_blocks=16)
             estimator = StateEstimator(description, EstimatorConfig.for_sensors(sensors, standstill=standstill) if sensors is not None
                                        else EstimatorConfig(standstill=standstill))  # fmt: skip

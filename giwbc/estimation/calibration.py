@@ -68,6 +68,9 @@ class StandstillWindow:
     gyro_std: np.ndarray
     accel_std: np.ndarray
     joint_positions: np.ndarray
+    first_joints: np.ndarray  # the leg joints' mean positions in the first block ...
+    last_joints: np.ndarray  # ... and in the last one
+    span: float  # s between the first and the last block's centres
     duration: float
     samples: int
     end_time: float
@@ -229,6 +232,9 @@ class StandstillDetector:
             gyro_std=np.max([st[2] for _, st in self._still], axis=0),
             accel_std=np.max([st[3] for _, st in self._still], axis=0),
             joint_positions=mean[2],
+            first_joints=j0,
+            last_joints=j1,
+            span=float(centres[-1] - centres[0]),
             duration=time - first.start,
             samples=int(counts.sum()),
             end_time=time,

@@ -520,12 +520,25 @@ class StateEstimator:
             return
         k = c.zero_velocity_gain
         bias = np.asarray(self.orientation.gyro_bias_floats)
-        self.orientation.set_gyro_bias(bias + k * (window.gyro - window.tilt_rate - bias))
+        self.orientation.set_gyro_bias(bias + k * (window.gyro - self._window_rotation(window) - bias))
         if self.reference == "feet" and all(self._flat):
             rotation = np.asarray(base_rotation).reshape(3, 3) @ self.kinematics.imu_rotation
             accel_bias = np.asarray(self._accel_bias)
             self._accel_bias = tuple((accel_bias + k * (window.accel - GRAVITY_NORM * rotation[2] - accel_bias)).tolist())
         self.zero_velocity_updates += 1
+
+    def _window_rotation(self, window: StandstillWindow) -> np.ndarray:
+        """The base's mean angular velocity over a standstill window (IMU frame), what the gyro
+        read besides its bias: with both feet flat on the ground, from the leg encoders (the soles
+        stay put, so the base turned by R_bf(q_first) R_bf(q_last)^T: exact, and blind to the IMU's
+        own acceleration in a slow sway, which the gravity direction is not); otherwise the turn
+        of the gravity direction (tilt only)."""
+        if not (self.config.use_flat_feet and all(self._flat)) or window.span <= 0.0:
+            return window.tilt_rate
+        first, last = self._positions.copy(), self._positions.copy()
+        first[self._leg_joint_index], last[self._leg_joint_index] = window.first_joints, window.last_joints
+        turns = [so3.log(r0 @ r1.T) for r0, r1 in zip(self.kinematics.sole_rotations(first), self.kinematics.sole_rotations(last))]
+        return self.kinematics.imu_rotation.T @ (np.mean(turns, axis=0) / window.span)
 
     def _calibrate(self, window: StandstillWindow, output: list[float] | None, base_rotation: so3.Matrix3) -> None:
         """Start-up calibration from a standstill window in double support (module doc)."""
@@ -546,7 +559,7 @@ class StateEstimator:
             yaw = math.atan2(self._output_heading[1], self._output_heading[0])
         base = tilt_from_gravity(up, yaw)
         imu = so3.matrix_to_quat(base @ imu_in_base)
-        gyro_bias = window.gyro - window.tilt_rate
+        gyro_bias = window.gyro - self._window_rotation(window)
         self.orientation.reset_to(imu, gyro_bias)
         if source == "feet":
             accel_bias = accel - GRAVITY_NORM * (imu_in_base.T @ up)
