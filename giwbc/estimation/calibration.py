@@ -12,7 +12,9 @@ gyro agree to within what the sensors' noise explains, whose gravity direction t
 rotation about a horizontal axis (a robot rocking on its soles moves no joint), which the gyro
 alone cannot tell from a bias, shows as the turn of the gravity direction over the window (the
 slope of a least-squares line through the blocks' mean specific force): where it is significant, :attr:`StandstillWindow.tilt_rate` carries it and
-the gyro bias is the mean gyro less it. Everything per sample is a few float additions; the tests run once
+the gyro bias is the mean gyro less it (with both feet flat, the estimator reads the base's turn
+from the leg encoders of the first and last block instead: a slow sway accelerates the IMU, which
+would pass for a turn of gravity). Everything per sample is a few float additions; the tests run once
 per block.
 
 :class:`CalibrationReport` is what the estimator found in its start-up calibration, for a log or
