@@ -1,0 +1,118 @@
+"""The QP backends against the optimality conditions, checked independently of any solver.
+
+A random strictly convex QP with equalities, two-sided inequalities and variable bounds: every
+backend's answer must be feasible and satisfy the KKT conditions, with multipliers found here by
+a bounded least-squares fit (scipy), not read from the solver — and, the optimum of a strictly
+convex QP being unique, all backends must agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear
+
+from giwbc.control import QpStatus, make_solver
+from giwbc.control.qp import ActiveSetGuess, QpProblem
+
+BACKENDS = {
+    "proxsuite": {"eps_abs": 1e-9, "max_iter": 100, "max_iter_in": 100},
+    "osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 50000},
+    "qpsolvers:osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 50000, "polishing": True},
+}
+
+
+def random_qp(rng: np.random.Generator, n: int = 8, n_eq: int = 2, n_in: int = 6, structure: int = 1) -> QpProblem:
+    """A strictly convex QP whose unconstrained optimum lies outside the feasible set (so that
+    inequalities and bounds bind), with a known feasible point."""
+    root = rng.normal(size=(n, n))
+    H = root @ root.T + 0.5 * np.eye(n)
+    feasible = rng.uniform(-0.5, 0.5, n)
+    A = rng.normal(size=(n_eq, n))
+    C = rng.normal(size=(n_in, n))
+    cx = C @ feasible
+    l = cx - rng.uniform(0.05, 0.5, n_in)
+    u = cx + rng.uniform(0.05, 0.5, n_in)
+    l[0] = -np.inf  # one-sided rows too
+    u[1] = np.inf
+    g = -H @ rng.normal(scale=3.0, size=n)
+    return QpProblem(H=H, g=g, A=A, b=A @ feasible, C=C, l=l, u=u, lb=np.full(n, -1.0), ub=np.full(n, 1.0), structure=structure)
+
+
+def kkt_residual(p: QpProblem, x: np.ndarray, active: float = 1e-6) -> float:
+    """Smallest ``‖Hx + g + Aᵀy + Σ z_i c_i‖∞`` over multipliers with the signs the active rows
+    allow (``z ≥ 0`` at an upper limit, ``≤ 0`` at a lower one, 0 for an inactive row)."""
+    rows = [p.C, np.eye(p.n)]
+    lower = np.concatenate([p.l, p.lb])
+    upper = np.concatenate([p.u, p.ub])
+    value = np.concatenate([p.C @ x, x])
+    normals = np.vstack(rows)
+    at_upper = value >= upper - active
+    at_lower = value <= lower + active
+    columns = [p.A.T, normals[at_upper].T, normals[at_lower].T]
+    matrix = np.hstack(columns)
+    low = np.concatenate([np.full(p.n_eq, -np.inf), np.zeros(at_upper.sum()), np.full(at_lower.sum(), -np.inf)])
+    high = np.concatenate([np.full(p.n_eq, np.inf), np.full(at_upper.sum(), np.inf), np.zeros(at_lower.sum())])
+    fit = lsq_linear(matrix, -(p.H @ x + p.g), bounds=(low, high), method="bvls", tol=1e-14)
+    return float(np.max(np.abs(matrix @ fit.x + p.H @ x + p.g)))
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_every_backend_returns_the_kkt_point_of_a_random_qp(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    problem = random_qp(rng)
+    answers = {}
+    for name, settings in BACKENDS.items():
+        solution = make_solver(name, **settings).solve(problem.copy())
+        assert solution.status is QpStatus.SOLVED, (name, solution.message)
+        x = solution.x
+        assert problem.violation(x) < 1e-7, name
+        assert kkt_residual(problem, x) < 1e-5 * max(1.0, np.abs(problem.g).max()), name
+        answers[name] = x
+    reference = answers["proxsuite"]
+    for name, x in answers.items():
+        np.testing.assert_allclose(x, reference, atol=1e-5, err_msg=name)
+    # The problem binds something: otherwise the check above would not test the constraints.
+    unconstrained = np.linalg.solve(problem.H, -problem.g)
+    assert problem.violation(unconstrained) > 1e-2
+
+
+def test_the_active_set_guess_solves_the_qp_from_the_active_set_it_learned() -> None:
+    rng = np.random.default_rng(6)
+    problem = random_qp(rng)
+    reference = make_solver("proxsuite", **BACKENDS["proxsuite"]).solve(problem.copy()).x
+    guess = ActiveSetGuess()
+    x = guess.polish(problem, reference)
+    assert x is not None
+    np.testing.assert_allclose(x, reference, atol=1e-6)
+    assert problem.violation(x) < 1e-9 and kkt_residual(problem, x) < 1e-8  # exact, not approximate
+    before = guess.hits
+    again = guess.try_solve(problem)  # the learned active set answers the same problem (unregularised)
+    assert again is not None and guess.hits == before + 1
+    np.testing.assert_allclose(again, x, atol=1e-10)
+
+
+@pytest.mark.parametrize("solver", ["proxsuite", "osqp"])
+def test_a_copy_of_the_controllers_problem_gets_the_same_answer_from_the_same_backend(g1, solver: str) -> None:
+    """The controller lays ``A`` and ``C`` out in one buffer and the active-set guess reads them
+    through one view; a copy of the problem (same sizes, separate arrays) handed to the same
+    backend afterwards must be read as itself, not through that view past the end of its ``A``."""
+    from giwbc.control import ComTask, ContactForceRegularization, FrameOrientationTask, PostureTask, WholeBodyController, foot_contacts
+
+    wbc = WholeBodyController(g1.build_pinocchio(), solver=solver, solver_settings=BACKENDS[solver], torque_limits=g1.effort_limits)
+    for contact in foot_contacts(g1, mu=0.6):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask(weight=10.0, kp=100.0))
+    wbc.add_task(FrameOrientationTask("pelvis", kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    wbc.add_task(ContactForceRegularization(weight=1e-5))
+    problem = wbc.build(g1.default_configuration(), np.zeros(35))
+    original = wbc.solve()
+    assert original.ok
+    x = original.x.copy()
+    copy = problem.copy()
+    for _ in range(2):  # cold for the copy, then its warm path
+        again = wbc.solve(copy)
+        assert again.ok, again.message
+        np.testing.assert_allclose(again.x, x, atol=1e-6)
+    assert wbc.solve().ok  # and back to the controller's own problem
