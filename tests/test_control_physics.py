@@ -1,0 +1,347 @@
+"""Physical facts about the whole-body controller's answers, checked against sources other than
+the controller's own model: MuJoCo's mass matrix, bias forces and Jacobians, the friction cone
+written out by hand in the world frame, the torque limits, finite differences of the tasks."""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import pinocchio as pin
+import pytest
+from test_wbc_mujoco_dynamics import mujoco_residual
+
+from giwbc.control import (
+    ComTask,
+    ContactForceRegularization,
+    FrameOrientationTask,
+    Kinodynamics,
+    PostureTask,
+    SurfaceContact,
+    WbcStatus,
+    WholeBodyController,
+    foot_contacts,
+)
+from giwbc.testing import DoublePendulum
+from giwbc.testing.pinocchio_models import build_pinocchio_model
+from giwbc.robot import MujocoRobot, RobotDescription
+
+SOLVERS = ["proxsuite", "osqp"]
+ACCURATE = {"proxsuite": {"eps_abs": 1e-9, "max_iter": 100, "max_iter_in": 100}, "osqp": {"eps_abs": 1e-8, "eps_rel": 1e-8, "max_iter": 20000}}
+MU = 0.6
+
+
+@pytest.fixture(scope="module")
+def g1_model(g1: RobotDescription) -> pin.Model:
+    return g1.build_pinocchio()
+
+
+@pytest.fixture(scope="module")
+def mj(g1: RobotDescription):
+    robot = MujocoRobot(g1)
+    return robot.model, mujoco.MjData(robot.model)
+
+
+def standing_controller(g1: RobotDescription, model: pin.Model, solver: str, contact_model: str, limits: np.ndarray) -> WholeBodyController:
+    wbc = WholeBodyController(model, solver=solver, solver_settings=ACCURATE[solver], torque_limits=limits, dt=g1.timestep)
+    for contact in foot_contacts(g1, contact_model, mu=MU):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask(weight=10.0, kp=100.0))
+    wbc.add_task(FrameOrientationTask("pelvis", kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    wbc.add_task(ContactForceRegularization(weight=1e-5))
+    return wbc
+
+
+def disturbed_state(g1: RobotDescription, model: pin.Model, rng: np.random.Generator, scale: float, speed: float):
+    q = pin.integrate(model, g1.default_configuration(), rng.uniform(-scale, scale, model.nv))
+    return q, rng.uniform(-speed, speed, model.nv)
+
+
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_tight_torque_limits_bind_and_the_answer_still_obeys_mujocos_dynamics_and_friction(
+    g1: RobotDescription, g1_model: pin.Model, mj, rng: np.random.Generator, solver: str, contact_model: str
+) -> None:
+    """With torque limits at a third of the motors' (so that some bind on a disturbed state):
+    every |τ| within its limit, at least one joint on it, the contact forces inside the friction
+    pyramid and the CoP inside each foot, all in the world frame, and ``M q̈ + h = Sᵀτ + Jᵀf``
+    with MuJoCo's M, h and J — which an output clamp acting on τ would break."""
+    mj_model, scratch = mj
+    limits = g1.effort_limits / 3.0
+    bound = 0
+    steepest = 0.0  # largest |f_t| / f_n seen
+    for _ in range(3):
+        q, v = disturbed_state(g1, g1_model, rng, scale=0.15, speed=1.0)
+        wbc = standing_controller(g1, g1_model, solver, contact_model, limits)
+        result = wbc.update(q, v)
+        assert result.ok, result.message
+        assert np.all(np.abs(result.tau) <= limits * (1 + 1e-6) + 1e-9)
+        bound += int(np.sum(np.abs(result.tau) >= limits * (1 - 1e-4)))
+        residual = mujoco_residual(mj_model, scratch, g1.base_link, q, v, result, wbc)
+        assert np.max(np.abs(residual)) < 1e-6 * g1.total_mass * 9.81, np.max(np.abs(residual))
+        for contact in wbc.contacts:
+            placement = contact.placement_in_world(wbc.kin)
+            normal = placement.rotation[:, 2]
+            wrench = wbc.contact_wrench_world(contact.name, result)
+            force, torque = wrench[:3], wrench[3:]
+            fn = force @ normal
+            assert fn >= -1e-6
+            # The linearised cone (the pyramid along the sole's axes): |f_x|, |f_y| ≤ μ f_n.
+            tangential = placement.rotation[:, :2].T @ force
+            assert np.all(np.abs(tangential) <= MU * fn * (1 + 1e-6) + 1e-6)
+            if fn > 1.0:
+                steepest = max(steepest, float(np.max(np.abs(tangential))) / fn)
+            if fn > 1.0:  # the centre of pressure inside the sole rectangle
+                cop = np.cross(normal, torque) / fn  # about the contact origin, world axes
+                local = placement.rotation.T @ cop
+                assert abs(local[0]) <= contact.half_length * (1 + 1e-6) + 1e-9
+                assert abs(local[1]) <= contact.half_width * (1 + 1e-6) + 1e-9
+    assert bound >= 1  # the limits did bind: the bound above was tested, not idle
+    assert steepest > 0.05  # friction was used: the cone check was not idle either
+
+
+def world_twist(model: pin.Model, data: pin.Data, contact, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The contact frame's twist (origin velocity, angular velocity), world axes, by Pinocchio's
+    forward kinematics alone."""
+    pin.forwardKinematics(model, data, q, v)
+    return pin.getFrameVelocity(model, data, contact.joint_id, contact.placement, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).vector
+
+
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+def test_contact_jacobian_drift_and_motion_target_against_finite_differences(
+    g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator, contact_model: str
+) -> None:
+    """A foot contact's ``J v`` is the time derivative of its placement, its drift ``J̇ v`` the
+    derivative of its twist along ``q̈ = 0`` (classical acceleration: of the origin's world
+    velocity, in contact axes), and its motion target ``−J̇ v − Kd J v − Kp log(ref⁻¹ X)``; the
+    controller's hot path (``assemble``) gives the same rows, ``−JᵀΦ`` as the force columns."""
+    kin = Kinodynamics(g1_model)
+    contact = foot_contacts(g1, contact_model, mu=MU, kp=30.0, kd=4.0)[0]
+    contact.bind(kin)
+    q, v = disturbed_state(g1, g1_model, rng, scale=0.2, speed=1.0)
+    kin.update(q, v)
+    contact.update(kin)
+    J, drift = contact.jacobian.copy(), contact.drift.copy()
+    placement = contact.placement_in_world(kin)
+    data = g1_model.createData()
+    h = 1e-6
+    ahead = pin.integrate(g1_model, q, v * h)
+    behind = pin.integrate(g1_model, q, -v * h)
+    pin.forwardKinematics(g1_model, data, ahead)
+    later = data.oMi[contact.joint_id] * contact.placement
+    pin.forwardKinematics(g1_model, data, behind)
+    earlier = data.oMi[contact.joint_id] * contact.placement
+    np.testing.assert_allclose(pin.log6(earlier.actInv(later)).vector / (2 * h), J @ v, rtol=1e-5, atol=1e-6)
+    # Drift: d/dt of the world twist along q(t) = q ⊕ v t (q̈ = 0), turned into contact axes.
+    h = 1e-5
+    rate = (world_twist(g1_model, data, contact, pin.integrate(g1_model, q, v * h), v)
+            - world_twist(g1_model, data, contact, pin.integrate(g1_model, q, -v * h), v)) / (2 * h)  # fmt: skip
+    rotation = placement.rotation
+    np.testing.assert_allclose(drift, np.concatenate([rotation.T @ rate[:3], rotation.T @ rate[3:]]), rtol=1e-4, atol=1e-4)
+    assert np.linalg.norm(drift) > 0.1  # a moving robot: the check is not a comparison of zeros
+
+    offset = pin.SE3(pin.exp3(np.array([0.02, -0.03, 0.01])), np.array([0.01, 0.0, -0.02]))
+    contact.reference = placement * offset  # where the contact was made: a little off
+    expected = -drift - 4.0 * (J @ v) - 30.0 * pin.log6(contact.reference.actInv(placement)).vector
+    target = np.zeros(6)
+    contact.motion_target(kin, target)
+    np.testing.assert_allclose(target, expected, atol=1e-9)
+    motion, rhs, columns = np.zeros((6, kin.nv)), np.zeros(6), np.zeros((kin.nv, contact.n_force))
+    contact.assemble(kin, motion, rhs, columns)
+    np.testing.assert_allclose(motion, J, atol=1e-12)
+    np.testing.assert_allclose(rhs, expected, atol=1e-9)
+    phi = np.eye(6) if contact.phi is None else contact.phi
+    np.testing.assert_allclose(columns, -J.T @ phi, atol=1e-12)
+
+
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+def test_contact_wrenches_in_world_axes_and_normal_force(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator, contact_model: str) -> None:
+    """The wrench of a contact's force variables, about its origin: rotated into world axes by
+    the sole's orientation; for corner forces, the sum of the forces and of their moments."""
+    kin = Kinodynamics(g1_model)
+    contact = foot_contacts(g1, contact_model, mu=MU)[0]
+    contact.bind(kin)
+    q, v = disturbed_state(g1, g1_model, rng, scale=0.3, speed=0.0)
+    kin.update(q, v)
+    forces = rng.uniform(-5.0, 50.0, contact.n_force)
+    if contact_model == "corners":
+        corner = forces.reshape(4, 3)
+        local = np.concatenate([corner.sum(axis=0), np.cross(contact.corners, corner).sum(axis=0)])
+    else:
+        local = forces
+    rotation = contact.placement_in_world(kin).rotation
+    assert not np.allclose(rotation, np.eye(3), atol=1e-2)  # a tilted sole: world ≠ contact axes
+    np.testing.assert_allclose(contact.wrench_in_world(kin, forces), np.concatenate([rotation @ local[:3], rotation @ local[3:]]), atol=1e-9)
+    assert contact.normal_force(forces) == pytest.approx(local[2], abs=1e-9)
+    assert repr(contact) == f"{type(contact).__name__}({contact.name!r}, link={contact.link!r}, mu={MU})"
+
+
+def test_removing_a_task_gives_the_answer_of_a_controller_without_it(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator) -> None:
+    q, v = disturbed_state(g1, g1_model, rng, scale=0.05, speed=0.3)
+    full = standing_controller(g1, g1_model, "proxsuite", "surface", g1.effort_limits)
+    names = [task.name for task in full.tasks]
+    orientation = next(task for task in full.tasks if isinstance(task, FrameOrientationTask))
+    assert full.task(orientation.name) is orientation
+    with pytest.raises(KeyError, match=r"no task named 'nothing'; tasks: \[" + ", ".join(f"'{n}'" for n in names) + r"\]"):
+        full.task("nothing")
+    before = full.update(q, v).tau.copy()
+    full.remove_task(orientation.name)
+    assert [task.name for task in full.tasks] == [n for n in names if n != orientation.name]
+    with pytest.raises(KeyError, match=r"^\"no task named 'nothing'\"$"):
+        full.remove_task("nothing")
+    reduced = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits, dt=g1.timestep)
+    for contact in foot_contacts(g1, "surface", mu=MU):
+        reduced.add_contact(contact)
+    reduced.add_task(ComTask(weight=10.0, kp=100.0))
+    reduced.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    regularization = full.force_regularization
+    reduced.add_task(ContactForceRegularization(weight=1e-5))
+    after = full.update(q, v).tau
+    np.testing.assert_allclose(after, reduced.update(q, v).tau, atol=1e-6)
+    assert np.max(np.abs(after - before)) > 1e-3  # the removed task mattered
+    full.remove_task(regularization.name)  # the force regularisation is removed by name too
+    assert full.force_regularization is None
+
+
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+def test_an_impossible_sideways_acceleration_saturates_friction_at_exactly_mu(g1: RobotDescription, g1_model: pin.Model, contact_model: str) -> None:
+    """Asked for a horizontal CoM acceleration of 4 m/s² on μ = 0.2 (about twice what friction can
+    give), the controller pushes as hard as the friction pyramid allows, in each of ±x, ±y: the
+    total horizontal force is μ times the total normal force — not less (a pyramid face too
+    steep) and not more (a face too shallow) — and every force variable obeys its own cone."""
+    mu = 0.2
+    for direction in np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 0], [0, -1.0, 0]]):
+        wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits * 100, dt=g1.timestep)
+        for contact in foot_contacts(g1, contact_model, mu=mu):
+            wbc.add_contact(contact)
+        com = wbc.add_task(ComTask(weight=100.0, kp=0.0, kd=0.0))
+        wbc.add_task(FrameOrientationTask("pelvis", kp=100.0))
+        wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+        wbc.add_task(ContactForceRegularization(weight=1e-5))
+        q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+        wbc.update(q, v)
+        com.set_reference(wbc.kin.com, acceleration=4.0 * direction)
+        result = wbc.update(q, v)
+        assert result.ok, result.message
+        total = sum(wbc.contact_wrench_world(contact.name, result)[:3] for contact in wbc.contacts)
+        assert total[2] > 0.5 * g1.total_mass * 9.81
+        assert total[:2] @ direction[:2] == pytest.approx(mu * total[2], rel=1e-6)
+        for contact in wbc.contacts:
+            variables = wbc.contact_forces(contact.name, result)
+            points = variables.reshape(4, 3) if contact_model == "corners" else variables[None, :3]
+            assert np.all(np.abs(points[:, :2]) <= mu * points[:, 2:] * (1 + 1e-7) + 1e-7)
+
+
+# --- failures, the clock and reset -----------------------------------------------------------------
+def test_a_fixed_base_falls_back_to_its_gravity_torque_before_any_success() -> None:
+    """A fixed-base double pendulum told to push 1000 N at its tip with a 1 N m shoulder: the QP
+    is infeasible. Before any solved tick the fallback holds the arm against gravity — ``g(q)`` of
+    the closed-form model, clipped to the torque limits — then decays it per failed tick; a
+    non-finite state (no ``g(q)`` to compute) gives zero torque."""
+    arm = DoublePendulum()
+    model = build_pinocchio_model(arm)
+    limits = np.array([1.0, 100.0])
+
+    def controller() -> WholeBodyController:
+        wbc = WholeBodyController(model, torque_limits=limits, fallback_decay=0.5)
+        wbc.add_contact(SurfaceContact("tip", "tip", 0.01, 0.01, min_normal_force=1000.0, max_normal_force=2000.0))
+        wbc.add_task(PostureTask(reference=np.zeros(2)))
+        return wbc
+
+    q = np.array([0.3, 0.5])
+    gravity = arm.gravity(q)
+    assert abs(gravity[0]) > limits[0] and abs(gravity[1]) < limits[1]  # one joint clipped, one not
+    wbc = controller()
+    first = wbc.update(q, np.zeros(2))
+    assert first.status is WbcStatus.QP_FAILED and first.failures == 1
+    np.testing.assert_allclose(first.tau, np.clip(gravity, -limits, limits), rtol=1e-9)
+    second = wbc.update(q, np.zeros(2))
+    np.testing.assert_allclose(second.tau, 0.5 * first.tau, rtol=1e-12)
+    fresh = controller()
+    invalid = fresh.update(np.array([np.nan, 0.5]), np.zeros(2))
+    assert invalid.status is WbcStatus.INVALID_STATE and np.all(invalid.tau == 0.0)
+    np.testing.assert_array_equal(invalid.impedance.q_ref, np.zeros(2))  # no finite position to hold
+
+
+def test_the_internal_clock_ticks_by_dt_from_zero(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """Without explicit times, the first tick is at t = 0 and each later one (built or updated)
+    dt after the previous (``build`` alone does not count a tick): a contact ramp of 5 ticks
+    reaches activation k/5 at tick k."""
+    dt = 0.004
+    wbc = WholeBodyController(g1_model, dt=dt, torque_limits=g1.effort_limits)
+    for contact in foot_contacts(g1, "surface", mu=MU):
+        wbc.add_contact(contact, ramp_time=5 * dt)
+    wbc.add_task(ComTask(weight=10.0, kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    name = wbc.contacts[0].name
+    wbc.build(q, v)  # the first tick: t = 0, where the ramp starts
+    assert wbc.contact_activation(name) == 0.0
+    result = wbc.update(q, v)
+    assert result.t == pytest.approx(dt) and wbc.contact_activation(name) == pytest.approx(0.2)
+    wbc.build(q, v)
+    assert wbc.contact_activation(name) == pytest.approx(0.4)
+    result = wbc.update(q, v)
+    assert result.t == pytest.approx(3 * dt) and wbc.contact_activation(name) == pytest.approx(0.6)
+    assert wbc.update(q, v, t=1.0).t == 1.0 and wbc.update(q, v).t == pytest.approx(1.0 + dt)
+
+
+def test_misuse_is_refused_with_a_clear_message(g1: RobotDescription, g1_model: pin.Model) -> None:
+    wbc = standing_controller(g1, g1_model, "proxsuite", "surface", g1.effort_limits)
+    with pytest.raises(RuntimeError, match=r"^call build\(q, v, t\) before solve\(\)$"):
+        wbc.solve()
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    bad = q.copy()
+    bad[3] = np.inf
+    with pytest.raises(ValueError, match=r"^state \(q, v\) is not finite$"):
+        wbc.build(bad, v)
+    with pytest.raises(ValueError, match=r"^ramp_time must be >= 0$"):
+        wbc.remove_contact(wbc.contacts[0].name, ramp_time=-0.1)
+    with pytest.raises(ValueError, match=r"^ramp_time must be >= 0$"):
+        wbc.add_contact(wbc.contacts[0], ramp_time=-0.1)
+    problem = wbc.build(q, v)
+    assert wbc.solve().ok and wbc.solve(problem.copy()).ok
+
+
+def test_a_used_controller_after_reset_ticks_exactly_like_a_new_one(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator) -> None:
+    """The same states at the internal clock's times give bit-identical torques from a fresh
+    controller and from a used one after ``reset()``: contacts made with a ramp (the load ramps up
+    from 0 over 10 ticks again), pose feedback re-anchored, clock, failures and warm start gone."""
+    states = [disturbed_state(g1, g1_model, rng, scale=0.03, speed=0.3) for _ in range(14)]
+    com = pin.centerOfMass(g1_model, g1_model.createData(), g1.default_configuration())
+
+    def make() -> WholeBodyController:
+        wbc = WholeBodyController(g1_model, dt=g1.timestep, torque_limits=g1.effort_limits, solver_settings=ACCURATE["proxsuite"])
+        for contact in foot_contacts(g1, "surface", mu=MU, kp=20.0, kd=5.0):
+            wbc.add_contact(contact, ramp_time=10 * g1.timestep)
+        # Explicit references: a task's reference is configuration, kept by reset().
+        wbc.add_task(ComTask(weight=10.0, kp=100.0)).set_reference(com)
+        wbc.add_task(FrameOrientationTask("pelvis", kp=100.0)).set_reference(pin.SE3.Identity())
+        wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+        wbc.add_task(ContactForceRegularization(weight=1e-5))
+        return wbc
+
+    def run(wbc: WholeBodyController) -> tuple[np.ndarray, list[float]]:
+        results = [wbc.update(q, v) for q, v in states]
+        assert all(result.ok for result in results), [(i, result.message) for i, result in enumerate(results) if not result.ok]
+        return np.array([result.tau for result in results]), [result.t for result in results]
+
+    fresh, used = make(), make()
+    expected, times = run(fresh)
+    for q, v in states[::-1]:
+        used.update(q + 0.01, v)
+    bad = states[0][0].copy()
+    bad[8] = np.nan
+    used.update(bad, states[0][1])
+    used.remove_contact(used.contacts[1].name, ramp_time=0.01)
+    for q, v in states[:6]:
+        used.update(q, v)
+    used.add_contact(used.contacts[1], ramp_time=10 * g1.timestep)
+    used.update(*states[3])
+    used.reset()
+    actual, used_times = run(used)
+    assert used_times == times and times[0] == g1.timestep  # (the first update is one dt after t = 0)
+    assert np.array_equal(actual, expected), np.abs(actual - expected).max()
+    assert used.failures == 0 and used.ticks == len(states)
+    # The ramp mattered: the first ticks carry less than the weight on the feet.
+    assert np.max(np.abs(expected[0] - expected[-1])) > 1.0
