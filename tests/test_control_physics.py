@@ -345,3 +345,108 @@ def test_a_used_controller_after_reset_ticks_exactly_like_a_new_one(g1: RobotDes
     assert used.failures == 0 and used.ticks == len(states)
     # The ramp mattered: the first ticks carry less than the weight on the feet.
     assert np.max(np.abs(expected[0] - expected[-1])) > 1.0
+
+
+# --- the task stack -----------------------------------------------------------------------------
+def tilted_model(g1: RobotDescription) -> pin.Model:
+    """The G1 model with one more frame on the pelvis, rotated and offset in it (no shipped
+    frame is rotated relative to its joint)."""
+    model = g1.build_pinocchio()
+    placement = pin.SE3(pin.exp3(np.array([0.3, -0.2, 0.5])), np.array([0.05, 0.02, -0.03]))
+    model.addFrame(pin.Frame("tilted", 1, model.getFrameId("pelvis"), placement, pin.FrameType.OP_FRAME))
+    return model
+
+
+def weighted_least_squares_answer(wbc: WholeBodyController, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """The q̈ minimising ``Σ_tasks ‖√W (J q̈ + J̇ v − ẍ*)‖² + ε ‖q̈‖²`` subject to the unactuated
+    base rows of ``M q̈ + h = Sᵀτ`` (no contacts), with ``ẍ* = ẍ_ref + Kp e + Kd (v_ref − J v)``
+    from each task's own measurement and M, h from a fresh Pinocchio pass — one KKT solve in
+    numpy, nothing from the controller's assembly."""
+    model = wbc.model
+    data = model.createData()
+    mass = pin.crba(model, data, q)
+    mass = np.triu(mass) + np.triu(mass, 1).T
+    bias = pin.nonLinearEffects(model, data, q, v)
+    rows, targets = [], []
+    for task in wbc.tasks:
+        task.compute(wbc.kin)
+        root = np.sqrt(task.weight)
+        desired = task.acceleration_ref + task.kp * task.error + task.kd * (task.velocity_ref - task.jacobian @ v)
+        rows.append(root[:, None] * task.jacobian)
+        targets.append(root * (desired - task.drift))
+    J, b = np.vstack(rows), np.concatenate(targets)
+    nv = model.nv
+    kkt = np.zeros((nv + 6, nv + 6))
+    kkt[:nv, :nv] = J.T @ J + wbc.acceleration_regularization * np.eye(nv)
+    kkt[:nv, nv:] = mass[:6].T
+    kkt[nv:, :nv] = mass[:6]
+    return np.linalg.solve(kkt, np.concatenate([J.T @ b, -bias[:6]]))[:nv]
+
+
+def test_the_task_stack_minimises_the_weighted_task_residuals(g1: RobotDescription, rng: np.random.Generator) -> None:
+    """A falling robot (no contacts) with every kind of task, per-row weights and gains, velocity
+    and acceleration references: the controller's q̈ is the weighted least-squares answer built
+    from the definitions — and stays so after weights, gains and references change."""
+    from giwbc.control import AngularMomentumTask, FramePoseTask
+
+    model = tilted_model(g1)
+    wbc = WholeBodyController(model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=np.full(29, np.inf), dt=g1.timestep)
+    com = wbc.add_task(ComTask(weight=np.array([5.0, 8.0, 2.0]), kp=np.array([40.0, 60.0, 30.0])))
+    pelvis = wbc.add_task(FrameOrientationTask("pelvis", weight=3.0, kp=80.0, kd=5.0))
+    tilted = wbc.add_task(FramePoseTask("tilted", mask=[1, 0, 1, 0, 1, 1], weight=np.array([1.0, 2.0, 3.0, 4.0]), kp=50.0))
+    hand = wbc.add_task(FramePoseTask("left_wrist_yaw_link", weight=0.5, kp=np.array([10.0, 20.0, 30.0, 5.0, 6.0, 7.0])))
+    momentum = wbc.add_task(AngularMomentumTask(weight=0.2, kd=4.0))
+    posture = wbc.add_task(PostureTask(reference=g1.default_positions, weight=np.linspace(0.01, 0.1, 29), kp=np.linspace(20.0, 60.0, 29), kd=3.0))
+    for _ in range(3):
+        q, v = disturbed_state(g1, model, rng, scale=0.2, speed=1.0)
+        result = wbc.update(q, v)
+        assert result.ok, result.message
+        np.testing.assert_allclose(result.qdd, weighted_least_squares_answer(wbc, q, v), rtol=1e-5, atol=1e-5)
+        com.set_reference(wbc.kin.com + rng.normal(0, 0.05, 3), velocity=rng.normal(0, 0.2, 3), acceleration=rng.normal(0, 1.0, 3))
+        pelvis.set_reference(pin.SE3(pin.exp3(rng.normal(0, 0.2, 3)), np.zeros(3)), velocity=rng.normal(0, 0.5, 6), acceleration=rng.normal(0, 1.0, 6))
+        tilted.set_weight(rng.uniform(0.5, 3.0, 4))
+        tilted.set_gains(rng.uniform(10.0, 50.0, 4), rng.uniform(1.0, 9.0, 4))
+        hand.set_reference(pin.SE3(pin.exp3(rng.normal(0, 0.3, 3)), rng.normal(0, 0.3, 3)), velocity=rng.normal(0, 0.3, 6))
+        momentum.set_reference(rng.normal(0, 1.0, 3), rate=rng.normal(0, 1.0, 3))
+        posture.set_reference(g1.default_positions + rng.normal(0, 0.1, 29), velocity=rng.normal(0, 0.2, 29), acceleration=rng.normal(0, 0.5, 29))
+        pelvis.set_weight(np.array([1.0, 2.0, 3.0]))  # per-row weights: no longer a constant Gram matrix
+    wbc.remove_task(hand.name)
+    q, v = disturbed_state(g1, model, rng, scale=0.2, speed=1.0)
+    result = wbc.update(q, v)
+    np.testing.assert_allclose(result.qdd, weighted_least_squares_answer(wbc, q, v), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("mask", [None, [0, 0, 0, 1, 0, 1]], ids=["all", "roll-yaw"])
+def test_orientation_of_a_frame_rotated_on_the_base_against_finite_differences(g1: RobotDescription, rng: np.random.Generator, mask) -> None:
+    """The base-orientation shortcut (rows from the base rotation, no Pinocchio call) for a frame
+    rotated in the pelvis: its error is the rotation vector from the frame to the reference and
+    its rows the derivative of the frame's world rotation, by finite differences."""
+    from giwbc.control import FramePoseTask
+
+    model = tilted_model(g1)
+    task = FrameOrientationTask("tilted") if mask is None else FramePoseTask("tilted", mask=mask)
+    kin = Kinodynamics(model)
+    task.bind(kin)
+    q, v = disturbed_state(g1, model, rng, scale=0.3, speed=1.0)
+    reference = pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.zeros(3))
+    task.set_reference(reference)
+    kin.update(q, v)
+    task.compute(kin)
+    data = model.createData()
+    frame = model.getFrameId("tilted")
+
+    def rotation(config: np.ndarray) -> np.ndarray:
+        pin.framesForwardKinematics(model, data, config)
+        return np.array(data.oMf[frame].rotation)
+
+    rows = np.flatnonzero(np.asarray(task.rows) >= 3)
+    angular = np.asarray(task.rows)[rows] - 3
+    np.testing.assert_allclose(task.error, pin.log3(reference.rotation @ rotation(q).T)[angular], atol=1e-12)
+    eps = 1e-6
+    numeric = np.zeros((3, model.nv))
+    for i in range(model.nv):
+        dq = np.zeros(model.nv)
+        dq[i] = eps
+        numeric[:, i] = pin.log3(rotation(pin.integrate(model, q, dq)) @ rotation(pin.integrate(model, q, -dq)).T) / (2 * eps)
+    np.testing.assert_allclose(task.jacobian, numeric[angular], atol=1e-6)
+    np.testing.assert_allclose(task.drift, 0.0, atol=1e-12)  # the base's angular rows: constant in its velocity
