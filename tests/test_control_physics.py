@@ -4,6 +4,8 @@ written out by hand in the world frame, the torque limits, finite differences of
 
 from __future__ import annotations
 
+import time
+
 import mujoco
 import numpy as np
 import pinocchio as pin
@@ -450,3 +452,180 @@ def test_orientation_of_a_frame_rotated_on_the_base_against_finite_differences(g
         numeric[:, i] = pin.log3(rotation(pin.integrate(model, q, dq)) @ rotation(pin.integrate(model, q, -dq)).T) / (2 * eps)
     np.testing.assert_allclose(task.jacobian, numeric[angular], atol=1e-6)
     np.testing.assert_allclose(task.drift, 0.0, atol=1e-12)  # the base's angular rows: constant in its velocity
+
+
+# --- contacts in the controller: weight sharing, motion rows, ramps, breaking -----------------------
+def regularized_controller(g1: RobotDescription, model: pin.Model, contact_model: str, **contact_options) -> tuple[WholeBodyController, ContactForceRegularization]:
+    """Standing on both feet with a dominant force regularisation and a weak posture task: the
+    contact forces follow the regularisation's reference."""
+    wbc = WholeBodyController(model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits, dt=g1.timestep)
+    for contact in foot_contacts(g1, contact_model, mu=0.8, **contact_options):
+        wbc.add_contact(contact)
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=1e-3, kp=10.0))
+    regularization = wbc.add_task(ContactForceRegularization(weight=1.0))
+    return wbc, regularization
+
+
+def normal_shares(wbc: WholeBodyController, result) -> np.ndarray:
+    normal = np.array([wbc.contact_wrench_world(contact.name, result)[2] for contact in wbc.contacts])
+    return normal / normal.sum()
+
+
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+def test_the_weight_is_shared_by_activation_or_by_the_lever_rule_about_the_support_point(g1: RobotDescription, g1_model: pin.Model, contact_model: str) -> None:
+    """``ContactForceRegularization``'s reference: the weight split evenly between two made feet;
+    by the lever rule about a support point (its projection on the line between the feet, clamped
+    to the segment); in proportion to the activations while one foot ramps out — and, with a
+    support point, by the lever rule weighted by the activations. Corner forces share a foot's
+    load evenly."""
+    wbc, regularization = regularized_controller(g1, g1_model, contact_model)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    result = wbc.update(q, v)
+    np.testing.assert_allclose(normal_shares(wbc, result), [0.5, 0.5], atol=1e-4)
+    left, right = (wbc.contact(contact.name).placement_in_world(wbc.kin).translation for contact in wbc.contacts)
+    across = np.array([-(left - right)[1], (left - right)[0], 0.0])  # off the line between the feet
+    for point, expected in [(0.3 * left + 0.7 * right + 0.2 * across, 0.3), (left + 0.5 * (left - right), 1.0), (right, 0.0), (0.8 * left + 0.2 * right, 0.8)]:
+        regularization.set_support_point(point)
+        result = wbc.update(q, v)
+        np.testing.assert_allclose(normal_shares(wbc, result), [expected, 1.0 - expected], atol=1e-3)
+        if contact_model == "corners":
+            for contact in wbc.contacts:
+                corners = wbc.contact_forces(contact.name, result)[2::3]
+                np.testing.assert_allclose(corners, corners.mean(), rtol=1e-3, atol=0.05)
+    # The ramp caps a foot at its load when the ramp started times its activation: start it with
+    # the right foot carrying everything, so that the cap stays above the shares tested here.
+    regularization.set_support_point(right)
+    wbc.update(q, v)
+    regularization.set_support_point(None)
+    right_name = wbc.contacts[1].name
+    wbc.remove_contact(right_name, ramp_time=10 * g1.timestep)
+    wbc.update(q, v)  # the ramp starts at this tick
+    for _ in range(2):
+        result = wbc.update(q, v)
+        activation = wbc.contact_activation(right_name)
+        assert 0.0 < activation < 1.0
+        np.testing.assert_allclose(normal_shares(wbc, result), np.array([1.0, activation]) / (1.0 + activation), atol=1e-3)
+    regularization.set_support_point(0.3 * left + 0.7 * right)
+    result = wbc.update(q, v)
+    activation = wbc.contact_activation(right_name)
+    share = 0.3 / (0.3 + 0.7 * activation)
+    np.testing.assert_allclose(normal_shares(wbc, result), [share, 1.0 - share], atol=1e-3)
+
+
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+def test_each_foot_accelerates_as_its_motion_rows_ask(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator, contact_model: str) -> None:
+    """A made foot's spatial acceleration (from the returned q̈ by Pinocchio's forward
+    kinematics, contact frame) is ``−Kd J v − Kp log(ref⁻¹ X)``: damping of its twist, and pose
+    feedback towards where it was made — the batched path (surface feet, damping only) and the
+    per-contact one (corner feet, pose feedback)."""
+    kp = 0.0 if contact_model == "surface" else 25.0
+    wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits * 10, dt=g1.timestep)
+    for contact in foot_contacts(g1, contact_model, mu=0.8, kd=6.0, kp=kp):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask(weight=10.0, kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    wbc.add_task(ContactForceRegularization(weight=1e-5))
+    q0 = g1.default_configuration()
+    data = g1_model.createData()
+    pin.framesForwardKinematics(g1_model, data, q0)
+    made = {}
+    for contact in wbc.contacts:
+        made[contact.name] = data.oMi[contact.joint_id] * contact.placement
+    assert wbc.update(q0, np.zeros(g1_model.nv)).ok  # the feet are made here
+    q, v = disturbed_state(g1, g1_model, rng, scale=0.02, speed=0.5)
+    result = wbc.update(q, v)
+    assert result.ok, result.message
+    pin.forwardKinematics(g1_model, data, q, v, result.qdd)
+    for contact in wbc.contacts:
+        twist = pin.getFrameVelocity(g1_model, data, contact.joint_id, contact.placement, pin.ReferenceFrame.LOCAL).vector
+        acceleration = pin.getFrameClassicalAcceleration(g1_model, data, contact.joint_id, contact.placement, pin.ReferenceFrame.LOCAL).vector
+        placement = data.oMi[contact.joint_id] * contact.placement
+        expected = -6.0 * twist - kp * pin.log6(made[contact.name].actInv(placement)).vector
+        assert np.linalg.norm(twist) > 0.05  # the foot moves: damping is exercised
+        np.testing.assert_allclose(acceleration, expected, atol=1e-6)
+
+
+def test_corner_forces_ramp_out_with_the_cap_shared_by_the_corners(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """A corner-model foot ramping out carries at most ``activation · F`` (F: its load when the
+    ramp started), a quarter at each corner; the cap binds, since the regularisation asks for more."""
+    wbc, _ = regularized_controller(g1, g1_model, "corners")
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    result = wbc.update(q, v)
+    name = wbc.contacts[1].name
+    start = float(np.sum(wbc.contact_forces(name, result)[2::3]))
+    wbc.remove_contact(name, ramp_time=10 * g1.timestep)
+    wbc.update(q, v)  # the ramp starts at this tick (activation 1: the bounds are not rewritten)
+    for _ in range(6):
+        result = wbc.update(q, v)
+        cap = wbc.contact_activation(name) * start
+        corners = wbc.contact_forces(name, result)[2::3]
+        assert np.all(corners <= cap / 4 * (1 + 1e-7) + 1e-7)
+        # The regularisation asks a/(1+a) of the weight, the cap allows a/2 of it: it binds.
+        np.testing.assert_allclose(corners, cap / 4, rtol=1e-4)
+
+
+@pytest.mark.parametrize("contact_model", ["surface", "corners"])
+def test_a_broken_foot_carries_nothing_moves_freely_and_can_be_made_again(g1: RobotDescription, g1_model: pin.Model, mj, rng: np.random.Generator, contact_model: str) -> None:
+    """After ``remove_contact`` (no ramp) a foot's force variables are zero, its acceleration is
+    no longer constrained, and MuJoCo's equation of motion holds with the other foot's wrench
+    alone; made again, it carries load and is held still again."""
+    mj_model, scratch = mj
+    wbc = standing_controller(g1, g1_model, "proxsuite", contact_model, g1.effort_limits)
+    wbc.contacts[0].kd = 0.0
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    assert wbc.update(q, v).ok
+    name = wbc.contacts[1].name
+    wbc.remove_contact(name)
+    data = g1_model.createData()
+    for _ in range(2):
+        q, v = disturbed_state(g1, g1_model, rng, scale=0.02, speed=0.3)
+        result = wbc.update(q, v)
+        assert result.ok, result.message
+        assert name not in result.contact_wrenches and name not in wbc.active_contacts
+        np.testing.assert_array_equal(wbc.contact_forces(name, result), 0.0)
+        residual = mujoco_residual(mj_model, scratch, g1.base_link, q, v, result, wbc)
+        assert np.max(np.abs(residual)) < 1e-6 * g1.total_mass * 9.81
+        pin.forwardKinematics(g1_model, data, q, v, result.qdd)
+        broken = wbc.contact(name)
+        free = pin.getFrameClassicalAcceleration(g1_model, data, broken.joint_id, broken.placement, pin.ReferenceFrame.LOCAL).vector
+        assert np.linalg.norm(free) > 1e-2  # the broken foot is not held
+    wbc.add_contact(wbc.contact(name))
+    result = wbc.update(q, v)
+    assert result.ok and name in wbc.active_contacts
+    assert wbc.contact_wrench_world(name, result)[2] > 0.2 * g1.total_mass * 9.81
+    pin.forwardKinematics(g1_model, data, q, v, result.qdd)
+    made = wbc.contact(name)
+    held = pin.getFrameClassicalAcceleration(g1_model, data, made.joint_id, made.placement, pin.ReferenceFrame.LOCAL).vector
+    np.testing.assert_allclose(held, 0.0, atol=1e-6)
+
+
+def test_a_failed_tick_reports_what_happened(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """The invalid-state result names the problem and its tick time, keeps consistent timings;
+    on a fixed base whose kinematics were computed at an earlier state, a non-finite state still
+    gets zero torque (not the gravity torque of that stale state); a wrong velocity shape raises."""
+    arm = DoublePendulum()
+    model = build_pinocchio_model(arm)
+    wbc = WholeBodyController(model, torque_limits=np.array([100.0, 100.0]), dt=0.01)
+    wbc.add_task(PostureTask(reference=np.zeros(2)))
+    wbc.build(np.array([0.3, 0.5]), np.zeros(2))  # kinematics at a valid state, no torque yet
+    before = time.perf_counter()
+    result = wbc.update(np.array([0.3, np.inf]), np.zeros(2))
+    elapsed = time.perf_counter() - before
+    assert result.status is WbcStatus.INVALID_STATE and result.message == "state (q, v) is not finite"
+    assert result.t == pytest.approx(0.01) and result.qp_status is None and result.iterations == 0
+    np.testing.assert_array_equal(result.tau, 0.0)
+    timings = result.timings
+    assert 0.0 <= timings.total <= elapsed
+    with pytest.raises(ValueError, match=r"^v has shape \(1,\), expected \(2,\)"):
+        wbc.update(np.array([0.3, 0.5]), np.zeros(1))
+    # A QP failure: the timings of each phase, inside the call.
+    infeasible = WholeBodyController(model, torque_limits=np.array([1.0, 100.0]))
+    infeasible.add_contact(SurfaceContact("tip", "tip", 0.01, 0.01, min_normal_force=1000.0, max_normal_force=2000.0))
+    infeasible.add_task(PostureTask(reference=np.zeros(2)))
+    before = time.perf_counter()
+    failed = infeasible.update(np.array([0.3, 0.5]), np.zeros(2))
+    elapsed = time.perf_counter() - before
+    assert failed.status is WbcStatus.QP_FAILED and failed.qp_status is not None and failed.message
+    t = failed.timings
+    assert min(t.pinocchio, t.build, t.solve) >= 0.0 and t.pinocchio + t.build + t.solve <= t.total <= elapsed
+    assert failed.forces.shape == (6,) and np.all(np.isnan(failed.forces)) and np.all(np.isnan(failed.qdd))
