@@ -109,16 +109,17 @@ def world_twist(model: pin.Model, data: pin.Data, contact, q: np.ndarray, v: np.
     return pin.getFrameVelocity(model, data, contact.joint_id, contact.placement, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).vector
 
 
+@pytest.mark.parametrize("kp, kd", [(30.0, 4.0), (0.5, 0.5), (0.0, 0.0)])
 @pytest.mark.parametrize("contact_model", ["surface", "corners"])
 def test_contact_jacobian_drift_and_motion_target_against_finite_differences(
-    g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator, contact_model: str
+    g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator, contact_model: str, kp: float, kd: float
 ) -> None:
     """A foot contact's ``J v`` is the time derivative of its placement, its drift ``J̇ v`` the
     derivative of its twist along ``q̈ = 0`` (classical acceleration: of the origin's world
     velocity, in contact axes), and its motion target ``−J̇ v − Kd J v − Kp log(ref⁻¹ X)``; the
     controller's hot path (``assemble``) gives the same rows, ``−JᵀΦ`` as the force columns."""
     kin = Kinodynamics(g1_model)
-    contact = foot_contacts(g1, contact_model, mu=MU, kp=30.0, kd=4.0)[0]
+    contact = foot_contacts(g1, contact_model, mu=MU, kp=kp, kd=kd)[0]
     contact.bind(kin)
     q, v = disturbed_state(g1, g1_model, rng, scale=0.2, speed=1.0)
     kin.update(q, v)
@@ -144,7 +145,7 @@ def test_contact_jacobian_drift_and_motion_target_against_finite_differences(
 
     offset = pin.SE3(pin.exp3(np.array([0.02, -0.03, 0.01])), np.array([0.01, 0.0, -0.02]))
     contact.reference = placement * offset  # where the contact was made: a little off
-    expected = -drift - 4.0 * (J @ v) - 30.0 * pin.log6(contact.reference.actInv(placement)).vector
+    expected = -drift - kd * (J @ v) - kp * pin.log6(contact.reference.actInv(placement)).vector
     target = np.zeros(6)
     contact.motion_target(kin, target)
     np.testing.assert_allclose(target, expected, atol=1e-9)
@@ -286,6 +287,8 @@ def test_the_internal_clock_ticks_by_dt_from_zero(g1: RobotDescription, g1_model
     result = wbc.update(q, v)
     assert result.t == pytest.approx(3 * dt) and wbc.contact_activation(name) == pytest.approx(0.6)
     assert wbc.update(q, v, t=1.0).t == 1.0 and wbc.update(q, v).t == pytest.approx(1.0 + dt)
+    wbc.build(q, v, t=2.0)  # an explicit time is the tick's time
+    assert wbc.update(q, v).t == pytest.approx(2.0 + dt)
 
 
 def test_misuse_is_refused_with_a_clear_message(g1: RobotDescription, g1_model: pin.Model) -> None:
@@ -301,8 +304,16 @@ def test_misuse_is_refused_with_a_clear_message(g1: RobotDescription, g1_model: 
         wbc.remove_contact(wbc.contacts[0].name, ramp_time=-0.1)
     with pytest.raises(ValueError, match=r"^ramp_time must be >= 0$"):
         wbc.add_contact(wbc.contacts[0], ramp_time=-0.1)
-    problem = wbc.build(q, v)
-    assert wbc.solve().ok and wbc.solve(problem.copy()).ok
+    names = [contact.name for contact in wbc.contacts]
+    with pytest.raises(KeyError, match=r"no contact named 'hand'; contacts: \[" + ", ".join(f"'{n}'" for n in names) + r"\]"):
+        wbc.contact("hand")
+    wbc.build(q, v)
+    assert wbc.solve().ok
+    # solve() takes any problem: a 2-variable one, min ½‖x‖² − x₁ s.t. x₀ + x₁ = 1 → (0, 1).
+    from giwbc.control.qp import QpProblem
+
+    small = QpProblem(H=np.eye(2), g=np.array([0.0, -1.0]), A=np.ones((1, 2)), b=np.ones(1), C=np.zeros((0, 2)), l=np.zeros(0), u=np.zeros(0), structure=99)
+    np.testing.assert_allclose(wbc.solve(small).x, [0.0, 1.0], atol=1e-6)
 
 
 def test_a_used_controller_after_reset_ticks_exactly_like_a_new_one(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator) -> None:
@@ -341,6 +352,7 @@ def test_a_used_controller_after_reset_ticks_exactly_like_a_new_one(g1: RobotDes
     used.add_contact(used.contacts[1], ramp_time=10 * g1.timestep)
     used.update(*states[3])
     used.reset()
+    used.reset()  # idempotent
     actual, used_times = run(used)
     assert used_times == times and times[0] == g1.timestep  # (the first update is one dt after t = 0)
     assert np.array_equal(actual, expected), np.abs(actual - expected).max()
@@ -583,6 +595,7 @@ def test_a_broken_foot_carries_nothing_moves_freely_and_can_be_made_again(g1: Ro
         assert result.ok, result.message
         assert name not in result.contact_wrenches and name not in wbc.active_contacts
         np.testing.assert_array_equal(wbc.contact_forces(name, result), 0.0)
+        np.testing.assert_array_equal(wbc.contact_wrench_world(name, result), np.zeros(6))
         residual = mujoco_residual(mj_model, scratch, g1.base_link, q, v, result, wbc)
         assert np.max(np.abs(residual)) < 1e-6 * g1.total_mass * 9.81
         pin.forwardKinematics(g1_model, data, q, v, result.qdd)
@@ -629,3 +642,71 @@ def test_a_failed_tick_reports_what_happened(g1: RobotDescription, g1_model: pin
     t = failed.timings
     assert min(t.pinocchio, t.build, t.solve) >= 0.0 and t.pinocchio + t.build + t.solve <= t.total <= elapsed
     assert failed.forces.shape == (6,) and np.all(np.isnan(failed.forces)) and np.all(np.isnan(failed.qdd))
+
+
+def test_joint_limit_bounds_hold_a_joint_from_both_sides_and_never_cross(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """Acceleration bounds from the position limit (``q + v T + ½ q̈ T² ≥ q_min``) and from the
+    velocity limit (``v + q̈ T ≥ −v_max``), whichever is tighter, stop a joint that a posture task
+    drives into its lower limit; for a joint already past its upper limit and still moving out,
+    the bounds conflict and the upper one wins (the box stays non-empty)."""
+    T = 0.01
+    wbc = WholeBodyController(g1_model, torque_limits=np.full(29, np.inf), joint_limits=True, joint_limit_horizon=T)
+    lower, upper = g1.position_limits
+    velocity_limit = g1_model.velocityLimit[6:]
+    wbc.add_task(PostureTask(reference=lower - 1.0, weight=1.0, kp=1000.0, kd=0.0))  # every joint pulled below its limit
+    q, v = g1.default_configuration(), np.zeros(35)
+    knee, hip = 3, 0
+    q[7 + knee], v[6 + knee] = lower[knee] + 0.005, -0.2  # the position bound is the tighter one
+    q[7 + hip], v[6 + hip] = lower[hip] + 1.0, -velocity_limit[hip]  # at the velocity limit, far from the stop
+    problem = wbc.build(q, v, 0.0)
+    position_bound = 2.0 * (lower[knee] - q[7 + knee] - v[6 + knee] * T) / T**2
+    assert problem.lb[6 + knee] == pytest.approx(position_bound)
+    assert problem.lb[6 + hip] == pytest.approx((-velocity_limit[hip] - v[6 + hip]) / T)
+    result = wbc.update(q, v, 0.002)
+    assert result.ok, result.message
+    assert result.qdd[6 + knee] == pytest.approx(position_bound, rel=1e-4)
+    assert result.qdd[6 + hip] == pytest.approx(0.0, abs=1e-4)
+    q[7 + knee], v[6 + knee] = upper[knee] + 0.1, 2.0  # outside, moving further out
+    problem = wbc.build(q, v, 0.004)
+    assert problem.lb[6 + knee] == problem.ub[6 + knee] < 0.0
+    assert np.all(problem.lb <= problem.ub)
+
+
+def test_a_corner_cap_below_one_newton_holds(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """A foot that carried almost nothing when its removal started (the lever rule put the load on
+    the other foot) may carry no more than that times its activation — even far below 1 N."""
+    for contact_model in ("surface", "corners"):
+        wbc, regularization = regularized_controller(g1, g1_model, contact_model)
+        q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+        wbc.update(q, v)
+        left = wbc.contact(wbc.contacts[0].name).placement_in_world(wbc.kin).translation
+        regularization.set_support_point(left)
+        result = wbc.update(q, v)
+        name = wbc.contacts[1].name
+        start = wbc.contact_wrench_world(name, result)[2]
+        assert 0.0 <= start < 0.2
+        wbc.remove_contact(name, ramp_time=10 * g1.timestep)
+        regularization.set_support_point(None)  # now the regularisation asks for half the weight
+        wbc.update(q, v)
+        for _ in range(3):
+            result = wbc.update(q, v)
+            assert wbc.contact_wrench_world(name, result)[2] <= wbc.contact_activation(name) * start + 1e-6
+
+
+def test_corner_forces_recovered_from_a_wrench_and_the_residual_outside_the_cone() -> None:
+    """Inside the wrench cone: four corner forces in their pyramids that add up to the wrench.
+    Outside it (more tangential force than μ allows): the residual is the size of the part of the
+    wrench they cannot produce, in newtons."""
+    from giwbc.control.contacts import corner_forces_from_wrench, corner_wrench_map, rectangle_corners
+
+    X, Y, mu = 0.1, 0.05, 0.5
+    wrench_of = corner_wrench_map(rectangle_corners(X, Y))
+    inside = np.array([20.0, -10.0, 300.0, 3.0, -5.0, 1.0])
+    forces, residual = corner_forces_from_wrench(inside, X, Y, mu)
+    assert forces.shape == (4, 3) and residual < 1e-6
+    np.testing.assert_allclose(wrench_of @ forces.reshape(-1), inside, atol=1e-6)
+    assert np.all(np.abs(forces[:, :2]) <= mu * forces[:, 2:] + 1e-9)
+    outside = np.array([400.0, 0.0, 300.0, 0.0, 0.0, 0.0])  # needs μ ≥ 4/3
+    forces, residual = corner_forces_from_wrench(outside, X, Y, mu)
+    missing = np.linalg.norm(wrench_of @ forces.reshape(-1) - outside)
+    assert residual == pytest.approx(missing, rel=1e-6) and residual > 100.0
