@@ -93,7 +93,7 @@ GROUPS: tuple[Group, ...] = (
           ("tests/test_kinodynamics.py", "tests/test_analytic_dynamics.py", "tests/test_wbc_mujoco_dynamics.py",
            "tests/test_control_physics.py", "-m", "not slow"), 1200),
     Group("balance", ("giwbc/control/balance.py",),
-          ("tests/test_wbc.py", "tests/test_wbc_reset.py", "tests/test_control_physics.py", "-m", "not slow"), 900),
+          ("tests/test_control_balance.py", "tests/test_wbc.py", "tests/test_wbc_reset.py", "-m", "not slow"), 900),
 )
 
 
