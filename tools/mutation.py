@@ -88,7 +88,7 @@ GROUPS: tuple[Group, ...] = (
            "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "-m", "not slow"), 2400,
           excluded=CONTROL_PARTS),
     Group("tasks", ("giwbc/control/tasks.py",),
-          ("tests/test_wbc.py", "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "-m", "not slow"), 1500),
+          ("tests/test_control_tasks.py", "tests/test_wbc.py", "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "-m", "not slow"), 1500),
     Group("kinodynamics", ("giwbc/control/kinodynamics.py",),
           ("tests/test_kinodynamics.py", "tests/test_analytic_dynamics.py", "tests/test_wbc_mujoco_dynamics.py",
            "tests/test_control_physics.py", "-m", "not slow"), 1200),
