@@ -17,6 +17,7 @@ diff of every surviving mutant.
     python tools/mutation.py                       # every group, default budgets
     python tools/mutation.py safety protocols      # some groups
     python tools/mutation.py --budget-scale 0.5    # half the time
+    python tools/mutation.py wbc --sample 200      # a seeded random sample of the mutants not run yet
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRATCH = ROOT / ".mutation"
@@ -184,10 +187,22 @@ def run_group(group: Group, args: argparse.Namespace) -> list[str]:
     budget = group.budget_s * args.budget_scale
     started = time.monotonic()
     names: list[str] = list(group.functions)
-    if args.rerun_survivors:
+    if args.sample and not args.report_only:
+        # A seeded random sample of the mutants not run yet: an unbiased estimate of the score
+        # where the budget cannot run them all (mutmut itself runs the cheapest first).
+        status = results(work)
+        if not status:  # not generated yet: a filter that matches nothing stops mutmut after
+            _mutmut(work, ["run", "--max-children", str(args.jobs), "giwbc.none_such"], budget, log)  # generation and stats
+            status = results(work)
+        pending = sorted(n for n, s in status.items() if s == "not checked" and group.selects(n))
+        chosen = np.random.default_rng(args.seed).choice(len(pending), size=min(args.sample, len(pending)), replace=False)
+        names = [pending[i] for i in sorted(chosen)]
+        if not names:
+            names = ["giwbc.none_such"]
+    elif args.rerun_survivors:
         names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)
                  and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
-    if not args.report_only and (names or not args.rerun_survivors):
+    if not args.report_only and (names or not (args.rerun_survivors or args.sample)):
         _mutmut(work, ["run", "--max-children", str(args.jobs), *names], budget, log)
     elapsed = time.monotonic() - started
     status = {n: s for n, s in results(work).items() if group.selects(n)}
@@ -220,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fresh", action="store_true", help="forget earlier results of these groups")
     parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived")
     parser.add_argument("--only", nargs="*", default=[], help="with --rerun-survivors: only mutants matching these globs")
+    parser.add_argument("--sample", type=int, default=0, help="run only a seeded random sample of this many of the mutants not run yet")
+    parser.add_argument("--seed", type=int, default=0, help="seed of --sample")
     parser.add_argument("--report-only", action="store_true", help="run nothing: report the groups' saved results")
     parser.add_argument("--no-diffs", action="store_true", help="list surviving mutants without their diffs")
     args = parser.parse_args(argv)
