@@ -33,8 +33,9 @@ def random_qp(rng: np.random.Generator, n: int = 8, n_eq: int = 2, n_in: int = 6
     cx = C @ feasible
     l = cx - rng.uniform(0.05, 0.5, n_in)
     u = cx + rng.uniform(0.05, 0.5, n_in)
-    l[0] = -np.inf  # one-sided rows too
-    u[1] = np.inf
+    if n_in >= 2:
+        l[0] = -np.inf  # one-sided rows too
+        u[1] = np.inf
     g = -H @ rng.normal(scale=3.0, size=n)
     return QpProblem(H=H, g=g, A=A, b=A @ feasible, C=C, l=l, u=u, lb=np.full(n, -1.0), ub=np.full(n, 1.0), structure=structure)
 
@@ -116,3 +117,101 @@ def test_a_copy_of_the_controllers_problem_gets_the_same_answer_from_the_same_ba
         assert again.ok, again.message
         np.testing.assert_allclose(again.x, x, atol=1e-6)
     assert wbc.solve().ok  # and back to the controller's own problem
+
+
+def shapes_of_qps(rng: np.random.Generator) -> list[QpProblem]:
+    """Random QPs of several shapes: with and without bounds, inequalities, equalities; sparse
+    patterns given for one (the entries outside them are zero)."""
+    full = random_qp(rng, structure=11)
+    no_bounds = random_qp(rng, structure=12)
+    no_bounds.lb = no_bounds.ub = None
+    no_bounds.l = no_bounds.l - 5.0  # a bounded problem without the box: keep it bounded
+    no_inequalities = random_qp(rng, n=6, n_eq=2, n_in=0, structure=13)
+    no_equalities = random_qp(rng, n=5, n_eq=0, n_in=4, structure=14)
+    patterned = random_qp(rng, structure=15)
+    mask = rng.uniform(size=patterned.C.shape) < 0.6
+    patterned.C = np.where(mask, patterned.C, 0.0)
+    patterned.AC_pattern = np.vstack([np.ones_like(patterned.A, dtype=bool), mask])
+    patterned.H_pattern = np.ones_like(patterned.H, dtype=bool)
+    for p in (full, no_bounds, no_inequalities, no_equalities, patterned):
+        p.validate()
+    return [full, no_bounds, no_inequalities, no_equalities, patterned]
+
+
+@pytest.mark.parametrize(
+    "name, settings",
+    [
+        ("proxsuite", BACKENDS["proxsuite"]),
+        ("proxsuite", {**BACKENDS["proxsuite"], "active_set_guess": False, "polish": False, "deterministic": False}),
+        ("proxsuite", {**BACKENDS["proxsuite"], "polish": False}),
+        ("osqp", BACKENDS["osqp"]),
+        ("osqp", {**BACKENDS["osqp"], "active_set_guess": False}),
+        ("qpsolvers:osqp", BACKENDS["qpsolvers:osqp"]),
+    ],
+    ids=["proxsuite", "proxsuite-plain", "proxsuite-unpolished", "osqp", "osqp-plain", "qpsolvers"],
+)
+def test_one_backend_instance_solves_a_stream_of_qps_of_changing_shapes(name: str, settings: dict) -> None:
+    """One backend object, problems of five shapes in turn and each one again with a moved
+    gradient (its warm path): every answer feasible and a KKT point, checked independently."""
+    rng = np.random.default_rng(8)
+    backend = make_solver(name, **settings)
+    for problem in shapes_of_qps(rng) * 2:
+        for _ in range(2):
+            solution = backend.solve(problem)
+            assert solution.ok, (name, problem.structure, solution.message)
+            x = solution.x
+            assert x.shape == (problem.n,) and problem.violation(x) < 1e-6
+            bounded = problem if problem.lb is not None else _with_infinite_bounds(problem)
+            assert kkt_residual(bounded, x) < 1e-4 * max(1.0, np.abs(problem.g).max()), (name, problem.structure)
+            problem.g = problem.g + rng.normal(scale=0.5, size=problem.n)
+
+
+def _with_infinite_bounds(p: QpProblem) -> QpProblem:
+    q = p.copy()
+    q.lb, q.ub = np.full(p.n, -np.inf), np.full(p.n, np.inf)
+    return q
+
+
+def test_solvers_by_name() -> None:
+    from giwbc.control import OsqpSolver, ProxsuiteSolver, QpsolversSolver, available_solvers
+
+    assert isinstance(make_solver(), ProxsuiteSolver)
+    assert isinstance(make_solver("ProxQP"), ProxsuiteSolver) and isinstance(make_solver("OSQP"), OsqpSolver)
+    via = make_solver("qpsolvers:osqp")
+    assert isinstance(via, QpsolversSolver) and via.name == "osqp"
+    names = available_solvers()
+    assert names[:2] == ["proxsuite", "osqp"] and "proxqp" not in names and len(set(names)) == len(names)
+    with pytest.raises(ValueError, match=r"^unknown QP solver 'simplex'; available: \['proxsuite', 'osqp'"):
+        make_solver("simplex")
+    with pytest.raises(ValueError, match=r"^qpsolvers backend 'cplex' is not installed; available: "):
+        QpsolversSolver("cplex")
+    with pytest.raises(ValueError, match=r"^max_iter and max_iter_in must be >= 1, got 0, 10$"):
+        ProxsuiteSolver(max_iter=0)
+    with pytest.raises(ValueError, match=r"^max_iter and max_iter_in must be >= 1, got 10, 0$"):
+        ProxsuiteSolver(max_iter_in=0)
+
+
+@pytest.mark.parametrize("name", ["proxsuite", "osqp", "qpsolvers:osqp"])
+def test_an_infeasible_qp_fails_cleanly_and_the_backend_recovers(name: str) -> None:
+    """x₀ = 1 and 2 ≤ x₀ ≤ 3: infeasible. NaN answer, a failure status, a message naming the
+    backend; the next, feasible, problem is solved (no warm start from the failure)."""
+    infeasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([1.0]), C=np.ones((1, 1)),
+                           l=np.array([2.0]), u=np.array([3.0]), structure=21)  # fmt: skip
+    backend = make_solver(name, **BACKENDS[name])
+    solution = backend.solve(infeasible)
+    assert not solution.ok and np.all(np.isnan(solution.x)) and solution.x.shape == (1,)
+    assert solution.message.startswith(backend.name) and solution.solver == backend.name
+    assert solution.solve_time >= 0.0
+    feasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([2.5]), C=np.ones((1, 1)),
+                         l=np.array([2.0]), u=np.array([3.0]), structure=21)  # fmt: skip
+    np.testing.assert_allclose(backend.solve(feasible).x, [2.5], atol=1e-5)
+
+
+def test_proxsuite_bounds_its_work_per_tick() -> None:
+    """``max_iter`` outer iterations of at most ``max_iter_in`` inner ones each, cold retry
+    included: the reported (inner) iterations never exceed ``max_iter · (max_iter_in + 1)``."""
+    rng = np.random.default_rng(9)
+    backend = make_solver("proxsuite", eps_abs=1e-12, max_iter=3, max_iter_in=4, active_set_guess=False, polish=False, deterministic=False)
+    for _ in range(4):
+        solution = backend.solve(random_qp(rng, n=20, n_eq=3, n_in=25, structure=31))
+        assert solution.iterations <= 3 * (4 + 1)
