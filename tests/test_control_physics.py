@@ -710,3 +710,42 @@ def test_corner_forces_recovered_from_a_wrench_and_the_residual_outside_the_cone
     forces, residual = corner_forces_from_wrench(outside, X, Y, mu)
     missing = np.linalg.norm(wrench_of @ forces.reshape(-1) - outside)
     assert residual == pytest.approx(missing, rel=1e-6) and residual > 100.0
+
+
+def test_the_lever_rule_uses_where_the_feet_were_made_on_a_turned_robot_with_ramping_feet(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """The robot turned 0.6 rad (the line between its feet crosses both world axes), both feet
+    made with ramps of 10 and 20 ticks and the support point midway: each foot's share is its
+    activation's share (the lever weights a half each); the total carried is the weight. Then the
+    whole robot slides 5 cm: the shares still refer to where the feet were made."""
+    wbc, regularization = regularized_controller(g1, g1_model, "surface")
+    for contact, ticks in zip(wbc.contacts, (10, 20)):
+        wbc.add_contact(contact, ramp_time=ticks * g1.timestep)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    q[3:7] = pin.Quaternion(pin.rpy.rpyToMatrix(0.0, 0.0, 0.6)).coeffs()
+    kin = Kinodynamics(g1_model)
+    kin.update(q, v)
+    left, right = (c.placement_in_world(kin).translation for c in wbc.contacts)  # (bound to this model)
+    assert abs(left[0] - right[0]) > 0.05 and abs(left[1] - right[1]) > 0.05
+    regularization.set_support_point(0.5 * (left + right) + np.array([0.0, 0.0, 0.7]))
+    weight = g1.total_mass * 9.81
+    for tick in range(10):
+        result = wbc.update(q, v)
+    activations = np.array([wbc.contact_activation(c.name) for c in wbc.contacts])
+    assert activations[0] == pytest.approx(0.9) and activations[1] == pytest.approx(0.45)
+    np.testing.assert_allclose(normal_shares(wbc, result), activations / activations.sum(), atol=2e-3)
+    result = wbc.update(q, v)  # the left foot fully made: the lever fast path
+    load = np.array([wbc.contact_wrench_world(c.name, result)[2] for c in wbc.contacts])
+    assert load.sum() == pytest.approx(weight, rel=0.01)
+    regularization.set_support_point(0.3 * left + 0.7 * right)
+    for _ in range(12):
+        result = wbc.update(q, v)
+    np.testing.assert_allclose(normal_shares(wbc, result), [0.3, 0.7], atol=2e-3)
+    slid = q.copy()
+    slid[:2] += [0.05, 0.03]
+    result = wbc.update(slid, v)
+    np.testing.assert_allclose(normal_shares(wbc, result), [0.3, 0.7], atol=2e-3)
+    regularization.set_support_point(left + 0.5 * (left - right))  # beyond the left foot: all on it, no more
+    result = wbc.update(q, v)
+    load = np.array([wbc.contact_wrench_world(c.name, result)[2] for c in wbc.contacts])
+    np.testing.assert_allclose(load / load.sum(), [1.0, 0.0], atol=2e-3)
+    assert load.sum() == pytest.approx(weight, rel=0.01)
