@@ -204,6 +204,10 @@ def test_removing_a_task_gives_the_answer_of_a_controller_without_it(g1: RobotDe
     assert np.max(np.abs(after - before)) > 1e-3  # the removed task mattered
     full.remove_task(regularization.name)  # the force regularisation is removed by name too
     assert full.force_regularization is None
+    reduced.remove_task(reduced.force_regularization.name)
+    built, expected = full.build(q, v).copy(), reduced.build(q, v)
+    np.testing.assert_array_equal(built.H, expected.H)
+    np.testing.assert_array_equal(built.g, expected.g)
 
 
 @pytest.mark.parametrize("contact_model", ["surface", "corners"])
@@ -260,9 +264,17 @@ def test_a_fixed_base_falls_back_to_its_gravity_torque_before_any_success() -> N
     np.testing.assert_allclose(first.tau, np.clip(gravity, -limits, limits), rtol=1e-9)
     second = wbc.update(q, np.zeros(2))
     np.testing.assert_allclose(second.tau, 0.5 * first.tau, rtol=1e-12)
+    assert first.contact_wrenches == {} and np.all(np.isnan(first.forces))
+    command = first.impedance  # the fallback's impedance: hold nothing, damp, feed the torque forward
+    np.testing.assert_array_equal(command.q_ref, q)
+    np.testing.assert_array_equal(command.kp, 0.0)
+    np.testing.assert_array_equal(command.tau_ff, first.tau)
+    hanging = np.array([-0.3, -0.5])  # the mirror image: gravity pushes the other way
+    assert abs(arm.gravity(hanging)[0]) > limits[0] and arm.gravity(hanging)[0] < 0
+    np.testing.assert_allclose(controller().update(hanging, np.zeros(2)).tau, np.clip(arm.gravity(hanging), -limits, limits), rtol=1e-9)
     fresh = controller()
-    invalid = fresh.update(np.array([np.nan, 0.5]), np.zeros(2))
-    assert invalid.status is WbcStatus.INVALID_STATE and np.all(invalid.tau == 0.0)
+    invalid = fresh.update(np.array([np.nan, 0.5]), np.zeros(2), t=0.5)
+    assert invalid.status is WbcStatus.INVALID_STATE and np.all(invalid.tau == 0.0) and invalid.t == 0.5
     np.testing.assert_array_equal(invalid.impedance.q_ref, np.zeros(2))  # no finite position to hold
 
 
@@ -534,6 +546,8 @@ def test_each_foot_accelerates_as_its_motion_rows_ask(g1: RobotDescription, g1_m
     wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits * 10, dt=g1.timestep)
     for contact in foot_contacts(g1, contact_model, mu=0.8, kd=6.0, kp=kp):
         wbc.add_contact(contact)
+    if contact_model == "surface":  # a third contact (a hand on a rail): the batch handles any number
+        wbc.add_contact(SurfaceContact("hand", "left_wrist_yaw_link", 0.02, 0.02, mu=0.8, kd=6.0))
     wbc.add_task(ComTask(weight=10.0, kp=100.0))
     wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
     wbc.add_task(ContactForceRegularization(weight=1e-5))
@@ -602,9 +616,20 @@ def test_a_broken_foot_carries_nothing_moves_freely_and_can_be_made_again(g1: Ro
         broken = wbc.contact(name)
         free = pin.getFrameClassicalAcceleration(g1_model, data, broken.joint_id, broken.placement, pin.ReferenceFrame.LOCAL).vector
         assert np.linalg.norm(free) > 1e-2  # the broken foot is not held
-    wbc.add_contact(wbc.contact(name))
-    result = wbc.update(q, v)
+    left = wbc.contact(wbc.contacts[0].name).placement_in_world(wbc.kin).translation
+    wbc.force_regularization.set_support_point(left)  # the lever rule reads where the feet were made
+    wbc.add_contact(wbc.contact(name), ramp_time=4 * g1.timestep)
+    result = wbc.update(q, v)  # made again: its ramp starts here, at zero load
     assert result.ok and name in wbc.active_contacts
+    assert result.contact_wrenches.get(name, np.zeros(6))[2] <= 1e-6
+    wbc.force_regularization.set_support_point(None)
+    for _ in range(4):
+        result = wbc.update(q, v)
+        # (a contact made again ramps its cap up to the model's weight)
+        normal = result.contact_wrenches[name][2]  # the cap is on the normal of the sole (contact frame)
+        assert wbc.contact_activation(name) == 1.0 or normal <= wbc.contact_activation(name) * wbc.kin.mass * np.linalg.norm(wbc.kin.gravity) * (1 + 1e-7) + 1e-6
+    result = wbc.update(q, v)
+    assert result.ok and wbc.contact_activation(name) == 1.0
     assert wbc.contact_wrench_world(name, result)[2] > 0.2 * g1.total_mass * 9.81
     pin.forwardKinematics(g1_model, data, q, v, result.qdd)
     made = wbc.contact(name)
@@ -629,6 +654,9 @@ def test_a_failed_tick_reports_what_happened(g1: RobotDescription, g1_model: pin
     np.testing.assert_array_equal(result.tau, 0.0)
     timings = result.timings
     assert 0.0 <= timings.total <= elapsed
+    listed = wbc.update([0, 1], [0, 0])  # Python integers: taken as floats
+    np.testing.assert_allclose(listed.tau, wbc.update(np.array([0.0, 1.0]), np.zeros(2)).tau)
+    assert listed.ok
     with pytest.raises(ValueError, match=r"^v has shape \(1,\), expected \(2,\)"):
         wbc.update(np.array([0.3, 0.5]), np.zeros(1))
     # A QP failure: the timings of each phase, inside the call.
