@@ -143,6 +143,9 @@ def test_contact_jacobian_drift_and_motion_target_against_finite_differences(
     np.testing.assert_allclose(drift, np.concatenate([rotation.T @ rate[:3], rotation.T @ rate[3:]]), rtol=1e-4, atol=1e-4)
     assert np.linalg.norm(drift) > 0.1  # a moving robot: the check is not a comparison of zeros
 
+    target = np.zeros(6)
+    contact.motion_target(kin, target)  # not made yet (no reference): no pose feedback
+    np.testing.assert_allclose(target, -drift - kd * (J @ v), atol=1e-9)
     offset = pin.SE3(pin.exp3(np.array([0.02, -0.03, 0.01])), np.array([0.01, 0.0, -0.02]))
     contact.reference = placement * offset  # where the contact was made: a little off
     expected = -drift - kd * (J @ v) - kp * pin.log6(contact.reference.actInv(placement)).vector
