@@ -4,14 +4,14 @@ from the description, references anchored by ``reset(q)``, and the loop on a rob
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pinocchio as pin
 import pytest
 
 from giwbc.control import WbcStatus, make_balance_controller
-from giwbc.control.balance import BalanceConfig, BalanceController, BalanceOnEstimate
+from giwbc.control.balance import BalanceController, BalanceOnEstimate
 from giwbc.robot import MujocoRobot, RobotDescription
 
 ACCURATE = {"eps_abs": 1e-9, "max_iter": 100, "max_iter_in": 100}
@@ -88,8 +88,6 @@ def test_limits_and_gains_come_from_the_description_and_the_config(g1: RobotDesc
 
 
 def _fixed(g1: RobotDescription) -> RobotDescription:
-    from dataclasses import replace
-
     return replace(g1, floating_base=False)
 
 

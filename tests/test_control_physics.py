@@ -13,9 +13,11 @@ import pytest
 from test_wbc_mujoco_dynamics import mujoco_residual
 
 from giwbc.control import (
+    AngularMomentumTask,
     ComTask,
     ContactForceRegularization,
     FrameOrientationTask,
+    FramePoseTask,
     Kinodynamics,
     PostureTask,
     SurfaceContact,
@@ -23,6 +25,8 @@ from giwbc.control import (
     WholeBodyController,
     foot_contacts,
 )
+from giwbc.control.contacts import corner_forces_from_wrench, corner_wrench_map, rectangle_corners
+from giwbc.control.qp import QpProblem
 from giwbc.testing import DoublePendulum
 from giwbc.testing.pinocchio_models import build_pinocchio_model
 from giwbc.robot import MujocoRobot, RobotDescription
@@ -325,8 +329,6 @@ def test_misuse_is_refused_with_a_clear_message(g1: RobotDescription, g1_model: 
     wbc.build(q, v)
     assert wbc.solve().ok
     # solve() takes any problem: a 2-variable one, min ½‖x‖² − x₁ s.t. x₀ + x₁ = 1 → (0, 1).
-    from giwbc.control.qp import QpProblem
-
     small = QpProblem(H=np.eye(2), g=np.array([0.0, -1.0]), A=np.ones((1, 2)), b=np.ones(1), C=np.zeros((0, 2)), l=np.zeros(0), u=np.zeros(0), structure=99)
     np.testing.assert_allclose(wbc.solve(small).x, [0.0, 1.0], atol=1e-6)
 
@@ -416,8 +418,6 @@ def test_the_task_stack_minimises_the_weighted_task_residuals(g1: RobotDescripti
     """A falling robot (no contacts) with every kind of task, per-row weights and gains, velocity
     and acceleration references: the controller's q̈ is the weighted least-squares answer built
     from the definitions — and stays so after weights, gains and references change."""
-    from giwbc.control import AngularMomentumTask, FramePoseTask
-
     model = tilted_model(g1)
     wbc = WholeBodyController(model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=np.full(29, np.inf), dt=g1.timestep)
     com = wbc.add_task(ComTask(weight=np.array([5.0, 8.0, 2.0]), kp=np.array([40.0, 60.0, 30.0])))
@@ -450,8 +450,6 @@ def test_orientation_of_a_frame_rotated_on_the_base_against_finite_differences(g
     """The base-orientation shortcut (rows from the base rotation, no Pinocchio call) for a frame
     rotated in the pelvis: its error is the rotation vector from the frame to the reference and
     its rows the derivative of the frame's world rotation, by finite differences."""
-    from giwbc.control import FramePoseTask
-
     model = tilted_model(g1)
     task = FrameOrientationTask("tilted") if mask is None else FramePoseTask("tilted", mask=mask)
     kin = Kinodynamics(model)
@@ -728,8 +726,6 @@ def test_corner_forces_recovered_from_a_wrench_and_the_residual_outside_the_cone
     """Inside the wrench cone: four corner forces in their pyramids that add up to the wrench.
     Outside it (more tangential force than μ allows): the residual is the size of the part of the
     wrench they cannot produce, in newtons."""
-    from giwbc.control.contacts import corner_forces_from_wrench, corner_wrench_map, rectangle_corners
-
     X, Y, mu = 0.1, 0.05, 0.5
     wrench_of = corner_wrench_map(rectangle_corners(X, Y))
     inside = np.array([20.0, -10.0, 300.0, 3.0, -5.0, 1.0])

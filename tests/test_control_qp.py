@@ -12,7 +12,20 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
-from giwbc.control import QpStatus, make_solver
+from giwbc.control import (
+    ComTask,
+    ContactForceRegularization,
+    FrameOrientationTask,
+    OsqpSolver,
+    PostureTask,
+    ProxsuiteSolver,
+    QpsolversSolver,
+    QpStatus,
+    WholeBodyController,
+    available_solvers,
+    foot_contacts,
+    make_solver,
+)
 from giwbc.control.qp import ActiveSetGuess, QpProblem
 
 BACKENDS = {
@@ -98,8 +111,6 @@ def test_a_copy_of_the_controllers_problem_gets_the_same_answer_from_the_same_ba
     """The controller lays ``A`` and ``C`` out in one buffer and the active-set guess reads them
     through one view; a copy of the problem (same sizes, separate arrays) handed to the same
     backend afterwards must be read as itself, not through that view past the end of its ``A``."""
-    from giwbc.control import ComTask, ContactForceRegularization, FrameOrientationTask, PostureTask, WholeBodyController, foot_contacts
-
     wbc = WholeBodyController(g1.build_pinocchio(), solver=solver, solver_settings=BACKENDS[solver], torque_limits=g1.effort_limits)
     for contact in foot_contacts(g1, mu=0.6):
         wbc.add_contact(contact)
@@ -173,8 +184,6 @@ def _with_infinite_bounds(p: QpProblem) -> QpProblem:
 
 
 def test_solvers_by_name() -> None:
-    from giwbc.control import OsqpSolver, ProxsuiteSolver, QpsolversSolver, available_solvers
-
     assert isinstance(make_solver(), ProxsuiteSolver)
     assert isinstance(make_solver("ProxQP"), ProxsuiteSolver) and isinstance(make_solver("OSQP"), OsqpSolver)
     via = make_solver("qpsolvers:osqp")
