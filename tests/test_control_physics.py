@@ -20,6 +20,7 @@ from giwbc.control import (
     FramePoseTask,
     Kinodynamics,
     PostureTask,
+    QpStatus,
     SurfaceContact,
     WbcStatus,
     WholeBodyController,
@@ -776,3 +777,90 @@ def test_the_lever_rule_uses_where_the_feet_were_made_on_a_turned_robot_with_ram
     load = np.array([wbc.contact_wrench_world(c.name, result)[2] for c in wbc.contacts])
     np.testing.assert_allclose(load / load.sum(), [1.0, 0.0], atol=2e-3)
     assert load.sum() == pytest.approx(weight, rel=0.01)
+
+
+def test_a_solved_tick_reports_its_solver_status_counts_and_timings(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """Solver status, iterations, message, the failures so far (a failed tick counts on), and
+    timings of each phase that add up within the call."""
+    wbc = standing_controller(g1, g1_model, "proxsuite", "surface", g1.effort_limits)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    bad = q.copy()
+    bad[0] = np.nan
+    for state, failures in ((q, 0), (q, 0), (bad, 1), (q, 1)):
+        before = time.perf_counter()
+        result = wbc.update(state, v)
+        elapsed = time.perf_counter() - before
+        assert result.failures == failures
+        if state is bad:
+            continue
+        assert result.ok and result.qp_status is QpStatus.SOLVED and isinstance(result.message, str)
+        assert type(result.iterations) is int and result.iterations >= 0
+        t = result.timings
+        assert min(t.pinocchio, t.build, t.solve) >= 0.0 and t.pinocchio + t.build + t.solve <= t.total <= elapsed
+    with pytest.raises(TypeError, match=r"^expected a Contact, got str$"):
+        wbc.add_contact("left_foot")  # type: ignore[arg-type]
+
+
+def test_a_contact_replaced_under_its_name_brings_its_own_friction_and_keeps_its_load(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """Made feet replaced by new contacts of the same names: with μ = 0.2 (same model), an
+    impossible sideways acceleration saturates friction at the new μ; with the other foot model
+    (a new size), the foot keeps carrying its load through the swap (its activation is kept)."""
+    wbc = standing_controller(g1, g1_model, "proxsuite", "surface", g1.effort_limits * 100)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    assert wbc.update(q, v).ok
+    for contact in foot_contacts(g1, "surface", mu=0.2):
+        wbc.add_contact(contact)
+    com = next(task for task in wbc.tasks if isinstance(task, ComTask))
+    com.set_reference(wbc.kin.com, acceleration=np.array([0.0, 4.0, 0.0]))
+    result = wbc.update(q, v)
+    assert result.ok, result.message
+    total = sum(wbc.contact_wrench_world(contact.name, result)[:3] for contact in wbc.contacts)
+    assert total[1] == pytest.approx(0.2 * total[2], rel=1e-6)
+    com.set_reference(wbc.kin.com)
+    assert wbc.update(q, v).ok
+    swapped = foot_contacts(g1, "corners", mu=0.8)[1]
+    wbc.add_contact(swapped, ramp_time=0.1)
+    result = wbc.update(q, v)
+    assert result.ok and wbc.contact(swapped.name) is swapped
+    assert wbc.contact_activation(swapped.name) == 1.0
+    assert result.contact_wrenches[swapped.name][2] > 0.3 * g1.total_mass * 9.81  # no drop to zero
+
+
+def test_a_made_foot_can_carry_more_than_the_weight(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """Once its ramp is over a contact has no cap: asked to accelerate the CoM up hard, the feet
+    push ``m (g + c̈_z)`` together (Newton), more than the weight each."""
+    wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits * 100, dt=g1.timestep)
+    for contact in foot_contacts(g1, "surface", mu=0.8):
+        wbc.add_contact(contact, ramp_time=2 * g1.timestep)
+    com = wbc.add_task(ComTask(weight=100.0, kp=0.0, kd=0.0))
+    wbc.add_task(FrameOrientationTask("pelvis", kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    wbc.add_task(ContactForceRegularization(weight=1e-5))
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    for _ in range(4):
+        wbc.update(q, v)
+    com.set_reference(wbc.kin.com, acceleration=np.array([0.0, 0.0, 40.0]))
+    result = wbc.update(q, v)
+    assert result.ok, result.message
+    load = np.array([result.contact_wrenches[c.name][2] for c in wbc.contacts])
+    weight = wbc.kin.mass * 9.81
+    rise = (wbc.kin.com_jacobian @ result.qdd + wbc.kin.com_drift)[2]  # the CoM's vertical acceleration
+    assert load.sum() == pytest.approx(wbc.kin.mass * (9.81 + rise), rel=1e-6)  # Newton: Σ f = m (c̈ − g)
+    assert np.all(load > weight)
+
+
+def test_changing_the_regularisation_weight_with_a_support_point_gives_the_problem_of_that_weight(g1: RobotDescription, g1_model: pin.Model) -> None:
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    changed, reg = regularized_controller(g1, g1_model, "surface")
+    built, reg_built = regularized_controller(g1, g1_model, "surface")
+    reg_built.set_weight(0.5)
+    for wbc, regularization in ((changed, reg), (built, reg_built)):
+        wbc.update(q, v)
+        left = wbc.contact(wbc.contacts[0].name).placement_in_world(wbc.kin).translation
+        regularization.set_support_point(left - [0.0, 0.05, 0.0])
+        wbc.update(q, v)
+        wbc.update(q, v)
+    reg.set_weight(0.5)
+    a, b = changed.build(q, v).copy(), built.build(q, v)
+    np.testing.assert_allclose(a.H, b.H, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(a.g, b.g, rtol=1e-12, atol=1e-12)
