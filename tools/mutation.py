@@ -200,8 +200,9 @@ def run_group(group: Group, args: argparse.Namespace) -> list[str]:
         if not names:
             names = ["giwbc.none_such"]
     elif args.rerun_survivors:
-        names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)
-                 and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
+        excluded = equivalents()
+        names = [n for n, s in results(work).items() if s not in KILLED and s != "not checked" and n not in excluded
+                 and group.selects(n) and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
     if not args.report_only and (names or not (args.rerun_survivors or args.sample)):
         _mutmut(work, ["run", "--max-children", str(args.jobs), *names], budget, log)
     elapsed = time.monotonic() - started
@@ -233,7 +234,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget-scale", type=float, default=1.0, help="multiplies every group's time budget")
     parser.add_argument("--jobs", type=int, default=2, help="mutants tested in parallel")
     parser.add_argument("--fresh", action="store_true", help="forget earlier results of these groups")
-    parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived")
+    parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived (equivalents left out)")
     parser.add_argument("--only", nargs="*", default=[], help="with --rerun-survivors: only mutants matching these globs")
     parser.add_argument("--sample", type=int, default=0, help="run only a seeded random sample of this many of the mutants not run yet")
     parser.add_argument("--seed", type=int, default=0, help="seed of --sample")
