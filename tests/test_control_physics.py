@@ -82,7 +82,7 @@ def test_tight_torque_limits_bind_and_the_answer_still_obeys_mujocos_dynamics_an
         wbc = standing_controller(g1, g1_model, solver, contact_model, limits)
         result = wbc.update(q, v)
         assert result.ok, result.message
-        assert np.all(np.abs(result.tau) <= limits * (1 + 1e-6) + 1e-9)
+        assert np.all(np.abs(result.tau) <= limits)  # exactly: the output never exceeds a limit
         bound += int(np.sum(np.abs(result.tau) >= limits * (1 - 1e-4)))
         residual = mujoco_residual(mj_model, scratch, g1.base_link, q, v, result, wbc)
         assert np.max(np.abs(residual)) < 1e-6 * g1.total_mass * 9.81, np.max(np.abs(residual))
@@ -864,3 +864,30 @@ def test_changing_the_regularisation_weight_with_a_support_point_gives_the_probl
     a, b = changed.build(q, v).copy(), built.build(q, v)
     np.testing.assert_allclose(a.H, b.H, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(a.g, b.g, rtol=1e-12, atol=1e-12)
+
+
+def test_contact_settings_are_checked_and_feet_are_built_from_the_description(g1: RobotDescription) -> None:
+    with pytest.raises(ValueError, match=r"^contact 'foot': friction coefficient mu must be > 0, got 0.0$"):
+        SurfaceContact("foot", "pelvis", 0.1, 0.05, mu=0.0)
+    with pytest.raises(ValueError, match=r"^contact 'foot': friction coefficient mu must be > 0, got inf$"):
+        SurfaceContact("foot", "pelvis", 0.1, 0.05, mu=np.inf)
+    with pytest.raises(ValueError, match=r"^contact 'foot': need 0 <= min_normal_force <= max_normal_force, got 20.0, 10.0$"):
+        SurfaceContact("foot", "pelvis", 0.1, 0.05, min_normal_force=20.0, max_normal_force=10.0)
+    pinned = SurfaceContact("foot", "pelvis", 0.1, 0.05, min_normal_force=10.0, max_normal_force=10.0)  # equal bounds: allowed
+    assert pinned.min_normal_force == pinned.max_normal_force == 10.0
+    with pytest.raises(ValueError, match=r"^contact 'foot': gains must be >= 0$"):
+        SurfaceContact("foot", "pelvis", 0.1, 0.05, kd=-1.0)
+    with pytest.raises(ValueError, match=r"^contact 'foot': half_length and half_width must be > 0$"):
+        SurfaceContact("foot", "pelvis", 0.0, 0.05)
+    shifted = SurfaceContact("foot", "pelvis", 0.1, 0.05, offset=[0.01, -0.02, 0.03])
+    np.testing.assert_array_equal(shifted.offset.translation, [0.01, -0.02, 0.03])
+    np.testing.assert_array_equal(shifted.offset.rotation, np.eye(3))
+    with pytest.raises(ValueError, match=r"^unknown contact model 'points'; choose from \['corners', 'surface'\]$"):
+        foot_contacts(g1, "points")
+    for scale in (0.0, 1.5):
+        with pytest.raises(ValueError, match=rf"^scale must be in \(0, 1\], got {scale}$"):
+            foot_contacts(g1, scale=scale)
+    for contact, rectangle in zip(foot_contacts(g1, "corners", scale=0.5, mu=0.3), g1.contacts):
+        assert (contact.name, contact.link, contact.mu) == (rectangle.name, rectangle.link, 0.3)
+        assert contact.half_length == 0.5 * rectangle.half_length and contact.half_width == 0.5 * rectangle.half_width
+        np.testing.assert_array_equal(contact.offset.translation, rectangle.center)
