@@ -162,3 +162,27 @@ def test_a_posture_task_measures_joint_angles_and_holds_where_it_starts(g1, rng)
     np.testing.assert_allclose(task.desired_acceleration(), -1.0 + 4.0 * 0.1 + 2.0 * (0.3 - v[6:]))
     qdd = rng.normal(size=35)
     np.testing.assert_allclose(task.residual(qdd), qdd[6:] - task.desired_acceleration())
+
+
+@pytest.mark.parametrize("mask", [[1, 1, 1, 1, 1, 1], [1, 0, 1, 1, 0, 0], [0, 1, 0, 0, 1, 1]], ids=["pose", "x-z-roll", "y-pitch-yaw"])
+def test_a_frame_pose_task_error_is_the_position_and_rotation_to_its_reference(g1, rng, mask) -> None:
+    """``[p_ref − p; log3(R_ref Rᵀ)]`` on the selected rows, from Pinocchio's placement of the
+    frame; the velocity and acceleration references keep the selected rows of the 6D ones."""
+    model = g1.build_pinocchio()
+    kin = Kinodynamics(model)
+    task = FramePoseTask("torso_link", mask=mask)
+    task.bind(kin)
+    q = pin.integrate(model, g1.default_configuration(), rng.uniform(-0.3, 0.3, 35))
+    kin.update(q, np.zeros(35))
+    reference = pin.SE3(pin.rpy.rpyToMatrix(0.2, -0.1, 0.3), np.array([0.1, -0.2, 0.9]))
+    velocity, acceleration = rng.normal(size=6), rng.normal(size=6)
+    task.set_reference(reference, velocity=velocity, acceleration=acceleration)
+    rows = np.flatnonzero(mask)
+    np.testing.assert_array_equal(task.velocity_ref, velocity[rows])
+    np.testing.assert_array_equal(task.acceleration_ref, acceleration[rows])
+    task.compute(kin)
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    placement = data.oMf[model.getFrameId("torso_link")]
+    full = np.concatenate([reference.translation - placement.translation, pin.log3(reference.rotation @ placement.rotation.T)])
+    np.testing.assert_allclose(task.error, full[rows], atol=1e-12)
