@@ -28,7 +28,7 @@ from giwbc.control import (
 )
 from giwbc.control.contacts import corner_forces_from_wrench, corner_wrench_map, rectangle_corners
 from giwbc.control.qp import QpProblem
-from giwbc.testing import DoublePendulum
+from giwbc.testing import DoublePendulum, SimplePendulum
 from giwbc.testing.pinocchio_models import build_pinocchio_model
 from giwbc.robot import MujocoRobot, RobotDescription
 
@@ -891,3 +891,17 @@ def test_contact_settings_are_checked_and_feet_are_built_from_the_description(g1
         assert (contact.name, contact.link, contact.mu) == (rectangle.name, rectangle.link, 0.3)
         assert contact.half_length == 0.5 * rectangle.half_length and contact.half_width == 0.5 * rectangle.half_width
         np.testing.assert_array_equal(contact.offset.translation, rectangle.center)
+
+
+def test_the_first_joint_rotation_of_a_one_joint_model(rng: np.random.Generator) -> None:
+    """``base_rotation`` is the world rotation of the model's first joint — also when that is its
+    only joint (a pendulum), and it follows every update."""
+    model = build_pinocchio_model(SimplePendulum.uniform_rod())
+    kin = Kinodynamics(model)
+    data = model.createData()
+    for angle in rng.uniform(-2.0, 2.0, 3):
+        q = np.array([angle])
+        kin.update(q, np.zeros(1))
+        pin.forwardKinematics(model, data, q)
+        np.testing.assert_allclose(kin.base_rotation, data.oMi[1].rotation, atol=1e-15)
+        assert not np.allclose(kin.base_rotation, np.eye(3))
