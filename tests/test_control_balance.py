@@ -64,8 +64,10 @@ def test_the_cop_margin_binds_under_a_forward_com_acceleration(g1: RobotDescript
 
 
 def test_limits_and_gains_come_from_the_description_and_the_config(g1: RobotDescription) -> None:
-    controller = make_balance_controller(g1, torque_limit_scale=0.5, impedance_kp_scale=0.2, impedance_kd_scale=0.3, com_kp=64.0, contact_ramp_time=0.1)
+    model = g1.build_pinocchio()
+    controller = make_balance_controller(g1, model=model, solver="osqp", torque_limit_scale=0.5, impedance_kp_scale=0.2, impedance_kd_scale=0.3, com_kp=64.0, contact_ramp_time=0.1)
     wbc = controller.wbc
+    assert wbc.model is model and wbc.solver.name == "osqp"
     np.testing.assert_allclose(wbc.torque_limits, 0.5 * g1.effort_limits)
     np.testing.assert_allclose(wbc.impedance_kp, 0.2 * g1.kp)
     np.testing.assert_allclose(wbc.impedance_kd, 0.3 * g1.kd)
@@ -115,9 +117,10 @@ def test_reset_anchors_the_references_at_a_configuration(g1: RobotDescription, r
     np.testing.assert_allclose(reference.translation, q[:3])
     np.testing.assert_allclose(controller.posture_task.position_ref, g1.default_positions)
     np.testing.assert_allclose(controller.momentum_task.velocity_ref, 0.0)
-    controller.set_com_offset([0.0, 0.02, -0.01], velocity=[0.0, 0.1, 0.0])
+    controller.set_com_offset([0.0, 0.02, -0.01], velocity=[0.0, 0.1, 0.0], acceleration=[0.5, 0.0, 0.0])
     np.testing.assert_allclose(controller.com_task.position_ref, controller.nominal_com + [0.0, 0.02, -0.01])
     np.testing.assert_allclose(controller.com_task.velocity_ref, [0.0, 0.1, 0.0])
+    np.testing.assert_allclose(controller.com_task.acceleration_ref, [0.5, 0.0, 0.0])
     lower, upper = g1.position_limits
     controller.set_posture(upper + 1.0, velocities=np.full(29, 0.5))
     np.testing.assert_allclose(controller.posture_task.position_ref, upper)
@@ -156,6 +159,13 @@ def test_step_closes_the_loop_on_a_robot_and_on_an_estimate(g1: RobotDescription
         q: np.ndarray
         v: np.ndarray
 
+    ramped = BalanceOnEstimate(g1, contact_ramp_time=0.1)  # its clock is the robot's: a ramp shows it
+    ramped(robot, Estimate(q, v))
+    for _ in range(5):
+        robot.step()
+    ramped(robot, Estimate(q, v))
+    name = ramped.controller.contacts[0].name
+    assert ramped.controller.wbc.contact_activation(name) == pytest.approx(5 * g1.timestep / 0.1)
     closing = BalanceOnEstimate(g1, com_kp=90.0)
     assert closing.controller.config.com_kp == 90.0
     closing(robot, Estimate(q, v))
