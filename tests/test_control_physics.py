@@ -772,6 +772,12 @@ def test_the_lever_rule_uses_where_the_feet_were_made_on_a_turned_robot_with_ram
     slid[:2] += [0.05, 0.03]
     result = wbc.update(slid, v)
     np.testing.assert_allclose(normal_shares(wbc, result), [0.3, 0.7], atol=2e-3)
+    regularization.set_support_point(0.6 * left + 0.4 * right)  # a moved point: the lever's fast path
+    result = wbc.update(slid, v)
+    np.testing.assert_allclose(normal_shares(wbc, result), [0.6, 0.4], atol=2e-3)
+    regularization.set_weight(0.9)  # a new weight: the general path, from where the feet were made
+    result = wbc.update(slid, v)
+    np.testing.assert_allclose(normal_shares(wbc, result), [0.6, 0.4], atol=2e-3)
     regularization.set_support_point(left + 0.5 * (left - right))  # beyond the left foot: all on it, no more
     result = wbc.update(q, v)
     load = np.array([wbc.contact_wrench_world(c.name, result)[2] for c in wbc.contacts])
@@ -817,6 +823,15 @@ def test_a_contact_replaced_under_its_name_brings_its_own_friction_and_keeps_its
     total = sum(wbc.contact_wrench_world(contact.name, result)[:3] for contact in wbc.contacts)
     assert total[1] == pytest.approx(0.2 * total[2], rel=1e-6)
     com.set_reference(wbc.kin.com)
+    assert wbc.update(q, v).ok
+    weight = wbc.kin.mass * 9.81
+    for contact in foot_contacts(g1, "surface", mu=0.8, max_normal_force=0.45 * weight):  # new bounds too
+        wbc.add_contact(contact)
+    result = wbc.update(q, v)
+    load = np.array([result.contact_wrenches[c.name][2] for c in wbc.contacts])
+    np.testing.assert_allclose(load, 0.45 * weight, rtol=1e-6)  # both at the new cap (the robot sinks)
+    for contact in foot_contacts(g1, "surface", mu=0.8):
+        wbc.add_contact(contact)
     assert wbc.update(q, v).ok
     swapped = foot_contacts(g1, "corners", mu=0.8)[1]
     wbc.add_contact(swapped, ramp_time=0.1)
@@ -905,3 +920,22 @@ def test_the_first_joint_rotation_of_a_one_joint_model(rng: np.random.Generator)
         pin.forwardKinematics(model, data, q)
         np.testing.assert_allclose(kin.base_rotation, data.oMi[1].rotation, atol=1e-15)
         assert not np.allclose(kin.base_rotation, np.eye(3))
+
+
+def test_a_zero_force_reference_regularises_towards_no_force(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """``reference="zero"``: the regularisation's gradient on the force variables is zero — with
+    or without a support point — where the default reference asks for the weight."""
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    gradients = {}
+    for reference in ("weight", "zero"):
+        wbc = WholeBodyController(g1_model, torque_limits=g1.effort_limits)
+        for contact in foot_contacts(g1, "surface"):
+            wbc.add_contact(contact)
+        wbc.add_task(ComTask())
+        regularization = wbc.add_task(ContactForceRegularization(weight=1e-3, reference=reference))
+        wbc.update(q, v)
+        regularization.set_support_point(wbc.kin.com)
+        wbc.update(q, v)
+        gradients[reference] = wbc.build(q, v).g[g1_model.nv :].copy()
+    np.testing.assert_array_equal(gradients["zero"], 0.0)
+    assert np.all(gradients["weight"][[2, 8]] < 0.0)  # towards a positive normal force on each foot
