@@ -174,7 +174,12 @@ def test_one_backend_instance_solves_a_stream_of_qps_of_changing_shapes(name: st
             assert x.shape == (problem.n,) and problem.violation(x) < 1e-6
             bounded = problem if problem.lb is not None else _with_infinite_bounds(problem)
             assert kkt_residual(bounded, x) < 1e-4 * max(1.0, np.abs(problem.g).max()), (name, problem.structure)
+            assert type(solution.iterations) is int and isinstance(solution.solve_time, float) and solution.solve_time >= 0.0
             problem.g = problem.g + rng.normal(scale=0.5, size=problem.n)
+            # and the limits moved in place (the same arrays: a backend's fast path must read them again)
+            problem.b[...] += rng.normal(scale=0.01, size=problem.n_eq)
+            problem.l[...] -= 0.05
+            problem.u[...] += 0.05
 
 
 def _with_infinite_bounds(p: QpProblem) -> QpProblem:
@@ -224,3 +229,18 @@ def test_proxsuite_bounds_its_work_per_tick() -> None:
     for _ in range(4):
         solution = backend.solve(random_qp(rng, n=20, n_eq=3, n_in=25, structure=31))
         assert solution.iterations <= 3 * (4 + 1)
+
+
+def test_osqp_with_a_variable_in_no_constraint_and_the_guess_answering_a_repeated_problem() -> None:
+    """min ½‖x‖² − (1, 2, 3)·x  s.t.  x₀ + x₁ = 1,  x₀ ≤ 0.3, with x₂ in no constraint (an empty
+    column of OSQP's constraint matrix): the optimum is (0, 1, 3). Solved again, the active-set
+    guess answers, with no OSQP iteration."""
+    problem = QpProblem(H=np.eye(3), g=-np.array([1.0, 2.0, 3.0]), A=np.array([[1.0, 1.0, 0.0]]), b=np.ones(1),
+                        C=np.array([[1.0, 0.0, 0.0]]), l=np.array([-np.inf]), u=np.array([0.3]), structure=41)  # fmt: skip
+    backend = make_solver("osqp", **BACKENDS["osqp"])
+    first = backend.solve(problem)
+    np.testing.assert_allclose(first.x, [0.0, 1.0, 3.0], atol=1e-6)
+    assert first.message == "" and first.iterations > 0
+    again = backend.solve(problem)
+    assert again.message == "active-set guess" and again.iterations == 0
+    np.testing.assert_allclose(again.x, [0.0, 1.0, 3.0], atol=1e-9)
