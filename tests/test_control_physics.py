@@ -939,3 +939,34 @@ def test_a_zero_force_reference_regularises_towards_no_force(g1: RobotDescriptio
         gradients[reference] = wbc.build(q, v).g[g1_model.nv :].copy()
     np.testing.assert_array_equal(gradients["zero"], 0.0)
     assert np.all(gradients["weight"][[2, 8]] < 0.0)  # towards a positive normal force on each foot
+
+
+def test_kinodynamics_of_fixed_base_models_and_its_checks(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator) -> None:
+    """On a fixed-base arm the CoM drift written in place equals Pinocchio's CoM acceleration at
+    q̈ = 0, joint rotations follow every update, and bad models or names are refused by name."""
+    model = build_pinocchio_model(DoublePendulum())
+    kin = Kinodynamics(model)
+    data = model.createData()
+    out = np.zeros(3)
+    for _ in range(2):
+        q, v = rng.uniform(-2.0, 2.0, 2), rng.uniform(-3.0, 3.0, 2)
+        kin.update(q, v)
+        kin.com_drift_into(out)
+        pin.centerOfMass(model, data, q, v, np.zeros(2))
+        np.testing.assert_allclose(out, data.acom[0], atol=1e-12)
+        assert np.linalg.norm(out) > 0.1
+        pin.forwardKinematics(model, data, q)
+        for joint in (1, 2):
+            np.testing.assert_allclose(kin.joint_rotation(joint), data.oMi[joint].rotation, atol=1e-15)
+    all_base = Kinodynamics(model, n_base=2)  # every coordinate unactuated: allowed
+    assert (all_base.n_base, all_base.n_joints) == (2, 0)
+    with pytest.raises(ValueError, match=r"^n_base must be in \[0, 2\], got 3$"):
+        Kinodynamics(model, n_base=3)
+    with pytest.raises(TypeError, match=r"^expected a pinocchio.Model, got str$"):
+        Kinodynamics("g1")  # type: ignore[arg-type]
+    with pytest.raises(KeyError, match=r"model '.*' has no frame 'wing'"):
+        Kinodynamics(g1_model).frame_id("wing")
+    spherical = pin.Model()
+    spherical.addJoint(0, pin.JointModelSpherical(), pin.SE3.Identity(), "ball")
+    with pytest.raises(ValueError, match=r"^the joints after the base must all be single-DoF \(nq == nv\); got nq=4, nv=3, n_base=0$"):
+        Kinodynamics(spherical)
