@@ -177,3 +177,26 @@ def test_step_closes_the_loop_on_a_robot_and_on_an_estimate(g1: RobotDescription
     closing(robot, Estimate(bad, v))
     assert closing.failures == 1 and closing.controller.wbc.failures == 1
     assert closing.controller.update(bad, v).status is WbcStatus.INVALID_STATE
+
+
+def test_every_configured_option_reaches_the_controller(g1: RobotDescription) -> None:
+    weight = g1.total_mass * 9.81
+    controller = make_balance_controller(
+        g1, solver_settings={"max_iter": 7}, joint_limits=True, acceleration_regularization=1e-4, impedance_lookahead=0.01,
+        mu=0.5, min_normal_force=12.0, max_normal_force=900.0, contact_kp=3.0, contact_kd=4.0,
+        com_weight=7.0, com_kp=49.0, com_kd=3.0, base_weight=2.0, base_kp=36.0, base_kd=5.0,
+        posture_weight=0.2, posture_kp=25.0, posture_kd=1.0,
+    )  # fmt: skip
+    wbc = controller.wbc
+    assert wbc.solver.max_iter == 7 and wbc.joint_limits and wbc.acceleration_regularization == 1e-4 and wbc.impedance_lookahead == 0.01
+    for contact in controller.contacts:
+        assert (contact.mu, contact.min_normal_force, contact.max_normal_force, contact.kp, contact.kd) == (0.5, 12.0, 900.0, 3.0, 4.0)
+    for task, (w, kp, kd) in ((controller.com_task, (7.0, 49.0, 3.0)), (controller.base_task, (2.0, 36.0, 5.0)), (controller.posture_task, (0.2, 25.0, 1.0))):
+        np.testing.assert_allclose(task.weight, w)
+        np.testing.assert_allclose(task.kp, kp)
+        np.testing.assert_allclose(task.kd, kd)
+    default = make_balance_controller(g1)
+    assert all(c.max_normal_force == pytest.approx(3.0 * weight) and c.min_normal_force == pytest.approx(0.06 * weight) for c in default.contacts)
+    assert BalanceOnEstimate(g1).failures == 0
+    with pytest.raises(ValueError, match=r"^robot 'g1' has no foot contacts; a balance controller needs some$"):
+        BalanceController(replace(g1, contacts=()))
