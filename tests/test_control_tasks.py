@@ -186,3 +186,27 @@ def test_a_frame_pose_task_error_is_the_position_and_rotation_to_its_reference(g
     placement = data.oMf[model.getFrameId("torso_link")]
     full = np.concatenate([reference.translation - placement.translation, pin.log3(reference.rotation @ placement.rotation.T)])
     np.testing.assert_allclose(task.error, full[rows], atol=1e-12)
+
+
+def test_task_defaults_and_given_gains() -> None:
+    """The documented defaults (weight 1; frame tasks kp 100, posture kp 0; critical damping) and
+    gains given to every task class reach it."""
+    for task in (FramePoseTask("pelvis"), FramePositionTask("pelvis"), FrameOrientationTask("pelvis"), ComTask()):
+        np.testing.assert_array_equal(task.weight, 1.0)
+        np.testing.assert_array_equal(task.kp, 100.0)
+        np.testing.assert_array_equal(task.kd, 20.0)
+    posture = PostureTask(dim=3)
+    np.testing.assert_array_equal(posture.weight, 1.0)
+    np.testing.assert_array_equal(posture.kp, 0.0)
+    for task in (FramePoseTask("pelvis", weight=2.0, kp=9.0, kd=1.5), FramePositionTask("pelvis", weight=2.0, kp=9.0, kd=1.5),
+                 FrameOrientationTask("pelvis", weight=2.0, kp=9.0, kd=1.5), ComTask(weight=2.0, kp=9.0, kd=1.5),
+                 PostureTask(dim=4, weight=2.0, kp=9.0, kd=1.5)):  # fmt: skip
+        np.testing.assert_array_equal(task.weight, 2.0)
+        np.testing.assert_array_equal(task.kp, 9.0)
+        np.testing.assert_array_equal(task.kd, 1.5)
+    momentum = AngularMomentumTask(weight=0.3)
+    np.testing.assert_array_equal(momentum.weight, 0.3)
+    np.testing.assert_array_equal(momentum.kd, 10.0)
+    with pytest.raises(ValueError, match=r"^posture reference must be finite, got \[nan\]$"):
+        PostureTask(reference=[np.nan])
+    np.testing.assert_array_equal(PostureTask(reference=[0.5, 0.25]).position_ref, [0.5, 0.25])
