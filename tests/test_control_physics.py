@@ -23,6 +23,7 @@ from giwbc.control import (
     QpStatus,
     SurfaceContact,
     WbcStatus,
+    WbcTask,
     WholeBodyController,
     foot_contacts,
 )
@@ -415,6 +416,26 @@ def weighted_least_squares_answer(wbc: WholeBodyController, q: np.ndarray, v: np
     return np.linalg.solve(kkt, np.concatenate([J.T @ b, -bias[:6]]))[:nv]
 
 
+class JointSumTask(WbcTask):
+    """The sum of two joint angles (one row, a constant Jacobian coupling two joints): its Gram
+    matrix is not diagonal, unlike the posture task's."""
+
+    constant_jacobian = True
+
+    def __init__(self, first: int, second: int, target: float, **gains: float) -> None:
+        super().__init__("joint_sum", 1, **gains)
+        self.first, self.second, self.target = first, second, target
+
+    def compute_error(self, kin: Kinodynamics) -> np.ndarray:
+        q = kin.q[kin.joint_q]
+        return np.array([self.target - q[self.first] - q[self.second]])
+
+    def compute_jacobian(self, kin: Kinodynamics) -> np.ndarray:
+        row = np.zeros((1, kin.nv))
+        row[0, kin.n_base + self.first] = row[0, kin.n_base + self.second] = 1.0
+        return row
+
+
 def test_the_task_stack_minimises_the_weighted_task_residuals(g1: RobotDescription, rng: np.random.Generator) -> None:
     """A falling robot (no contacts) with every kind of task, per-row weights and gains, velocity
     and acceleration references: the controller's q̈ is the weighted least-squares answer built
@@ -427,6 +448,7 @@ def test_the_task_stack_minimises_the_weighted_task_residuals(g1: RobotDescripti
     hand = wbc.add_task(FramePoseTask("left_wrist_yaw_link", weight=0.5, kp=np.array([10.0, 20.0, 30.0, 5.0, 6.0, 7.0])))
     momentum = wbc.add_task(AngularMomentumTask(weight=0.2, kd=4.0))
     posture = wbc.add_task(PostureTask(reference=g1.default_positions, weight=np.linspace(0.01, 0.1, 29), kp=np.linspace(20.0, 60.0, 29), kd=3.0))
+    coupled = wbc.add_task(JointSumTask(3, 9, 0.4, weight=2.0, kp=30.0))  # a non-diagonal constant Hessian part
     for _ in range(3):
         q, v = disturbed_state(g1, model, rng, scale=0.2, speed=1.0)
         result = wbc.update(q, v)
@@ -439,7 +461,12 @@ def test_the_task_stack_minimises_the_weighted_task_residuals(g1: RobotDescripti
         hand.set_reference(pin.SE3(pin.exp3(rng.normal(0, 0.3, 3)), rng.normal(0, 0.3, 3)), velocity=rng.normal(0, 0.3, 6))
         momentum.set_reference(rng.normal(0, 1.0, 3), rate=rng.normal(0, 1.0, 3))
         posture.set_reference(g1.default_positions + rng.normal(0, 0.1, 29), velocity=rng.normal(0, 0.2, 29), acceleration=rng.normal(0, 0.5, 29))
-        pelvis.set_weight(np.array([1.0, 2.0, 3.0]))  # per-row weights: no longer a constant Gram matrix
+        coupled.set_weight(rng.uniform(1.0, 3.0))
+        pelvis.set_weight(rng.uniform(1.0, 4.0))  # one weight: still a constant Gram matrix, of another size
+    pelvis.set_weight(np.array([1.0, 2.0, 3.0]))  # per-row weights: no longer a constant Gram matrix
+    q, v = disturbed_state(g1, model, rng, scale=0.2, speed=1.0)
+    result = wbc.update(q, v)
+    np.testing.assert_allclose(result.qdd, weighted_least_squares_answer(wbc, q, v), rtol=1e-5, atol=1e-5)
     wbc.remove_task(hand.name)
     q, v = disturbed_state(g1, model, rng, scale=0.2, speed=1.0)
     result = wbc.update(q, v)

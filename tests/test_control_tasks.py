@@ -204,6 +204,9 @@ def test_task_defaults_and_given_gains() -> None:
         np.testing.assert_array_equal(task.weight, 2.0)
         np.testing.assert_array_equal(task.kp, 9.0)
         np.testing.assert_array_equal(task.kd, 1.5)
+    regularization = ContactForceRegularization()
+    assert (regularization.name, regularization.weight, regularization.reference) == ("contact_forces", 1e-5, "weight")
+    assert regularization.support_point is None and regularization.support_xy is None
     momentum = AngularMomentumTask(weight=0.3)
     np.testing.assert_array_equal(momentum.weight, 0.3)
     np.testing.assert_array_equal(momentum.kd, 10.0)
