@@ -1,6 +1,7 @@
 # Two commands: `make demo` runs the main job, `make test` runs the tests. Each sets up .venv first.
-# `make mutation` (not in CI: about an hour on 2 vCPUs) runs mutmut over the core modules and writes
-# mutation-report.txt; MUTATION_ARGS passes options, e.g. MUTATION_ARGS="safety --budget-scale 0.5".
+# `make mutation` (not in CI: hours on 2 vCPUs) runs mutmut over the core modules and writes
+# mutation-report.txt; MUTATION_ARGS passes options, e.g. MUTATION_ARGS="safety --budget-scale 0.5"
+# or MUTATION_ARGS="wbc --sample 200 --seed 1".
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin

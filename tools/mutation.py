@@ -17,6 +17,7 @@ diff of every surviving mutant.
     python tools/mutation.py                       # every group, default budgets
     python tools/mutation.py safety protocols      # some groups
     python tools/mutation.py --budget-scale 0.5    # half the time
+    python tools/mutation.py wbc --sample 200      # a seeded random sample of the mutants not run yet
 """
 
 from __future__ import annotations
@@ -32,6 +33,8 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRATCH = ROOT / ".mutation"
@@ -49,10 +52,14 @@ class Group:
     tests: tuple[str, ...]  # pytest arguments selecting the tests
     budget_s: float  # wall-clock budget of the mutation run on 2 vCPUs
     functions: tuple[str, ...] = ()  # mutant-name globs: only these are run and scored (default: all)
+    excluded: tuple[str, ...] = ()  # module globs left out of ``modules`` (mutmut's do_not_mutate)
 
     def selects(self, name: str) -> bool:
         return not self.functions or any(fnmatch.fnmatchcase(name, pattern) for pattern in self.functions)
 
+
+# The parts of giwbc/control/ with a group of their own; the "wbc" group takes the rest.
+CONTROL_PARTS = ("giwbc/control/qp/*", "giwbc/control/tasks.py", "giwbc/control/kinodynamics.py", "giwbc/control/balance.py")
 
 GROUPS: tuple[Group, ...] = (
     Group("safety", ("giwbc/hal/safety.py",),
@@ -74,9 +81,22 @@ GROUPS: tuple[Group, ...] = (
            "giwbc.apps.evaluation.xǁComparisonǁ*", "giwbc.apps.evaluation.x_wilson_interval*", "giwbc.apps.evaluation.x_mcnemar_exact*",
            "giwbc.apps.evaluation.xǁPushProtocolǁ*", "giwbc.apps.sim_to_sim.x_run_job*", "giwbc.apps.sim_to_sim.x_evaluate*",
            "giwbc.apps.sim_to_sim.xǁCellǁ*", "giwbc.apps.sim_to_sim.xǁPushSettingǁ*")),
-    Group("control", ("giwbc/control/*",),
-          ("tests/test_wbc.py", "tests/test_wbc_mujoco_dynamics.py", "tests/test_kinodynamics.py", "tests/test_wbc_reset.py", "tests/test_wbc_bounded.py",
-           "tests/test_analytic_dynamics.py", "-m", "not slow"), 2400),
+    # control/, split so that every mutant runs within its budget: each part with the fast tests that
+    # reach it (the closed-loop runs, marked slow, stay out). The globs are fnmatch patterns, where
+    # "*" also matches "/": "wbc" takes every module of giwbc/control/ that no other part takes.
+    Group("qp", ("giwbc/control/qp/*",),
+          ("tests/test_control_qp.py", "tests/test_wbc.py", "tests/test_wbc_bounded.py", "-m", "not slow"), 1500),
+    Group("wbc", ("giwbc/control/*.py",),
+          ("tests/test_wbc.py", "tests/test_wbc_mujoco_dynamics.py", "tests/test_wbc_reset.py", "tests/test_wbc_bounded.py",
+           "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "-m", "not slow"), 2400,
+          excluded=CONTROL_PARTS),
+    Group("tasks", ("giwbc/control/tasks.py",),
+          ("tests/test_control_tasks.py", "tests/test_wbc.py", "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "-m", "not slow"), 1500),
+    Group("kinodynamics", ("giwbc/control/kinodynamics.py",),
+          ("tests/test_kinodynamics.py", "tests/test_analytic_dynamics.py", "tests/test_wbc_mujoco_dynamics.py",
+           "tests/test_control_physics.py", "-m", "not slow"), 1200),
+    Group("balance", ("giwbc/control/balance.py",),
+          ("tests/test_control_balance.py", "tests/test_wbc.py", "tests/test_wbc_reset.py", "-m", "not slow"), 900),
 )
 
 
@@ -100,6 +120,7 @@ def prepare(group: Group, fresh: bool) -> Path:
         "[tool.mutmut]\n"
         'source_paths = ["giwbc/"]\n'
         f"only_mutate = {_toml_list(group.modules)}\n"
+        f"do_not_mutate = {_toml_list(group.excluded)}\n"
         f"pytest_add_cli_args_test_selection = {_toml_list(group.tests)}\n"
         'pytest_add_cli_args = ["-p", "no:cacheprovider"]\n'
         'also_copy = ["robots/", "policies/"]\n'
@@ -166,10 +187,23 @@ def run_group(group: Group, args: argparse.Namespace) -> list[str]:
     budget = group.budget_s * args.budget_scale
     started = time.monotonic()
     names: list[str] = list(group.functions)
-    if args.rerun_survivors:
-        names = [n for n, s in results(work).items() if s not in KILLED and group.selects(n)
-                 and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
-    if not args.report_only and (names or not args.rerun_survivors):
+    if args.sample and not args.report_only:
+        # A seeded random sample of the mutants not run yet: an unbiased estimate of the score
+        # where the budget cannot run them all (mutmut itself runs the cheapest first).
+        status = results(work)
+        if not status:  # not generated yet: a filter that matches nothing stops mutmut after
+            _mutmut(work, ["run", "--max-children", str(args.jobs), "giwbc.none_such"], budget, log)  # generation and stats
+            status = results(work)
+        pending = sorted(n for n, s in status.items() if s == "not checked" and group.selects(n))
+        chosen = np.random.default_rng(args.seed).choice(len(pending), size=min(args.sample, len(pending)), replace=False)
+        names = [pending[i] for i in sorted(chosen)]
+        if not names:
+            names = ["giwbc.none_such"]
+    elif args.rerun_survivors:
+        excluded = equivalents()
+        names = [n for n, s in results(work).items() if s not in KILLED and s != "not checked" and n not in excluded
+                 and group.selects(n) and (not args.only or any(fnmatch.fnmatchcase(n, pattern) for pattern in args.only))]
+    if not args.report_only and (names or not (args.rerun_survivors or args.sample)):
         _mutmut(work, ["run", "--max-children", str(args.jobs), *names], budget, log)
     elapsed = time.monotonic() - started
     status = {n: s for n, s in results(work).items() if group.selects(n)}
@@ -200,8 +234,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget-scale", type=float, default=1.0, help="multiplies every group's time budget")
     parser.add_argument("--jobs", type=int, default=2, help="mutants tested in parallel")
     parser.add_argument("--fresh", action="store_true", help="forget earlier results of these groups")
-    parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived")
+    parser.add_argument("--rerun-survivors", action="store_true", help="only test again the mutants that survived (equivalents left out)")
     parser.add_argument("--only", nargs="*", default=[], help="with --rerun-survivors: only mutants matching these globs")
+    parser.add_argument("--sample", type=int, default=0, help="run only a seeded random sample of this many of the mutants not run yet")
+    parser.add_argument("--seed", type=int, default=0, help="seed of --sample")
     parser.add_argument("--report-only", action="store_true", help="run nothing: report the groups' saved results")
     parser.add_argument("--no-diffs", action="store_true", help="list surviving mutants without their diffs")
     args = parser.parse_args(argv)

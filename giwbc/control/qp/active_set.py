@@ -96,7 +96,7 @@ class ActiveSetGuess:
             else:
                 self._in_limits[0] = p.l
                 self._in_limits[1] = p.u
-            if self._rows is not None:
+            if not self._adjacent:
                 self._fill_rows(p)
             return
         n, ne, ni = p.n, p.n_eq, p.n_in
@@ -104,17 +104,7 @@ class ActiveSetGuess:
         key = (n, ne, ni, bounds)
         if key != self._layout:
             m = ni + (n if bounds else 0)  # inequality rows, bounds included
-            adjacent = (
-                not bounds
-                and ne > 0
-                and p.A.flags.c_contiguous
-                and p.C.flags.c_contiguous
-                and p.A.ctypes.data + p.A.nbytes == p.C.ctypes.data
-            )
-            self._adjacent = adjacent
-            self._rows = None if adjacent else np.zeros((ne + m, n))
-            if bounds:
-                self._rows[ne + ni :] = np.eye(n)  # type: ignore[index]
+            self._rows = None  # the guess's own copy of [A; C; I], made when a problem needs it
             self._m = m
             self._limits = np.zeros(2 * (ne + m))  # [lower; upper] limits of [A; C; I] x
             self._lo = self._limits[: ne + m]  # (equality rows: b in both)
@@ -129,11 +119,24 @@ class ActiveSetGuess:
             self._source = (None, None)
             self._lu_source = (None, None, None)
             self._set_active(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool))
+        # Decided for every new problem, not once per layout: a problem of the same size whose A
+        # and C are separate arrays (a copy) must not be read through a view spanning both.
+        self._adjacent = (
+            not bounds
+            and ne > 0
+            and p.A.flags.c_contiguous
+            and p.C.flags.c_contiguous
+            and p.A.ctypes.data + p.A.nbytes == p.C.ctypes.data
+        )
         if self._adjacent:
             if self._source[0] is not p.A:  # a view spanning A and C (they are adjacent)
                 self._source = (p.A, np.lib.stride_tricks.as_strided(p.A, shape=(ne + ni, n), strides=p.A.strides, writeable=False))
             self._stack = self._source[1]
         else:
+            if self._rows is None:
+                self._rows = np.zeros((ne + self._m, n))
+                if bounds:
+                    self._rows[ne + ni :] = np.eye(n)
             self._stack = self._rows
             self._fill_rows(p)
         np.copyto(self._eq_limits, p.b)

@@ -1,0 +1,246 @@
+"""The QP backends against the optimality conditions, checked independently of any solver.
+
+A random strictly convex QP with equalities, two-sided inequalities and variable bounds: every
+backend's answer must be feasible and satisfy the KKT conditions, with multipliers found here by
+a bounded least-squares fit (scipy), not read from the solver — and, the optimum of a strictly
+convex QP being unique, all backends must agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.optimize import lsq_linear
+
+from giwbc.control import (
+    ComTask,
+    ContactForceRegularization,
+    FrameOrientationTask,
+    OsqpSolver,
+    PostureTask,
+    ProxsuiteSolver,
+    QpsolversSolver,
+    QpStatus,
+    WholeBodyController,
+    available_solvers,
+    foot_contacts,
+    make_solver,
+)
+from giwbc.control.qp import ActiveSetGuess, QpProblem
+
+BACKENDS = {
+    "proxsuite": {"eps_abs": 1e-9, "max_iter": 100, "max_iter_in": 100},
+    "osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 50000},
+    "qpsolvers:osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 50000, "polishing": True},
+}
+
+
+def random_qp(rng: np.random.Generator, n: int = 8, n_eq: int = 2, n_in: int = 6, structure: int = 1) -> QpProblem:
+    """A strictly convex QP whose unconstrained optimum lies outside the feasible set (so that
+    inequalities and bounds bind), with a known feasible point."""
+    root = rng.normal(size=(n, n))
+    H = root @ root.T + 0.5 * np.eye(n)
+    feasible = rng.uniform(-0.5, 0.5, n)
+    A = rng.normal(size=(n_eq, n))
+    C = rng.normal(size=(n_in, n))
+    cx = C @ feasible
+    l = cx - rng.uniform(0.05, 0.5, n_in)
+    u = cx + rng.uniform(0.05, 0.5, n_in)
+    if n_in >= 2:
+        l[0] = -np.inf  # one-sided rows too
+        u[1] = np.inf
+    g = -H @ rng.normal(scale=3.0, size=n)
+    return QpProblem(H=H, g=g, A=A, b=A @ feasible, C=C, l=l, u=u, lb=np.full(n, -1.0), ub=np.full(n, 1.0), structure=structure)
+
+
+def kkt_residual(p: QpProblem, x: np.ndarray, active: float = 1e-6) -> float:
+    """Smallest ``‖Hx + g + Aᵀy + Σ z_i c_i‖∞`` over multipliers with the signs the active rows
+    allow (``z ≥ 0`` at an upper limit, ``≤ 0`` at a lower one, 0 for an inactive row)."""
+    rows = [p.C, np.eye(p.n)]
+    lower = np.concatenate([p.l, p.lb])
+    upper = np.concatenate([p.u, p.ub])
+    value = np.concatenate([p.C @ x, x])
+    normals = np.vstack(rows)
+    at_upper = value >= upper - active
+    at_lower = value <= lower + active
+    columns = [p.A.T, normals[at_upper].T, normals[at_lower].T]
+    matrix = np.hstack(columns)
+    low = np.concatenate([np.full(p.n_eq, -np.inf), np.zeros(at_upper.sum()), np.full(at_lower.sum(), -np.inf)])
+    high = np.concatenate([np.full(p.n_eq, np.inf), np.full(at_upper.sum(), np.inf), np.zeros(at_lower.sum())])
+    fit = lsq_linear(matrix, -(p.H @ x + p.g), bounds=(low, high), method="bvls", tol=1e-14)
+    return float(np.max(np.abs(matrix @ fit.x + p.H @ x + p.g)))
+
+
+@pytest.mark.parametrize("seed", [3, 4, 5])
+def test_every_backend_returns_the_kkt_point_of_a_random_qp(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    problem = random_qp(rng)
+    answers = {}
+    for name, settings in BACKENDS.items():
+        solution = make_solver(name, **settings).solve(problem.copy())
+        assert solution.status is QpStatus.SOLVED, (name, solution.message)
+        x = solution.x
+        assert problem.violation(x) < 1e-7, name
+        assert kkt_residual(problem, x) < 1e-5 * max(1.0, np.abs(problem.g).max()), name
+        answers[name] = x
+    reference = answers["proxsuite"]
+    for name, x in answers.items():
+        np.testing.assert_allclose(x, reference, atol=1e-5, err_msg=name)
+    # The problem binds something: otherwise the check above would not test the constraints.
+    unconstrained = np.linalg.solve(problem.H, -problem.g)
+    assert problem.violation(unconstrained) > 1e-2
+
+
+def test_the_active_set_guess_solves_the_qp_from_the_active_set_it_learned() -> None:
+    rng = np.random.default_rng(6)
+    problem = random_qp(rng)
+    reference = make_solver("proxsuite", **BACKENDS["proxsuite"]).solve(problem.copy()).x
+    guess = ActiveSetGuess()
+    x = guess.polish(problem, reference)
+    assert x is not None
+    np.testing.assert_allclose(x, reference, atol=1e-6)
+    assert problem.violation(x) < 1e-9 and kkt_residual(problem, x) < 1e-8  # exact, not approximate
+    before = guess.hits
+    again = guess.try_solve(problem)  # the learned active set answers the same problem (unregularised)
+    assert again is not None and guess.hits == before + 1
+    np.testing.assert_allclose(again, x, atol=1e-10)
+
+
+@pytest.mark.parametrize("solver", ["proxsuite", "osqp"])
+def test_a_copy_of_the_controllers_problem_gets_the_same_answer_from_the_same_backend(g1, solver: str) -> None:
+    """The controller lays ``A`` and ``C`` out in one buffer and the active-set guess reads them
+    through one view; a copy of the problem (same sizes, separate arrays) handed to the same
+    backend afterwards must be read as itself, not through that view past the end of its ``A``."""
+    wbc = WholeBodyController(g1.build_pinocchio(), solver=solver, solver_settings=BACKENDS[solver], torque_limits=g1.effort_limits)
+    for contact in foot_contacts(g1, mu=0.6):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask(weight=10.0, kp=100.0))
+    wbc.add_task(FrameOrientationTask("pelvis", kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    wbc.add_task(ContactForceRegularization(weight=1e-5))
+    problem = wbc.build(g1.default_configuration(), np.zeros(35))
+    original = wbc.solve()
+    assert original.ok
+    x = original.x.copy()
+    copy = problem.copy()
+    for _ in range(2):  # cold for the copy, then its warm path
+        again = wbc.solve(copy)
+        assert again.ok, again.message
+        np.testing.assert_allclose(again.x, x, atol=1e-6)
+    assert wbc.solve().ok  # and back to the controller's own problem
+
+
+def shapes_of_qps(rng: np.random.Generator) -> list[QpProblem]:
+    """Random QPs of several shapes: with and without bounds, inequalities, equalities; sparse
+    patterns given for one (the entries outside them are zero)."""
+    full = random_qp(rng, structure=11)
+    no_bounds = random_qp(rng, structure=12)
+    no_bounds.lb = no_bounds.ub = None
+    no_bounds.l = no_bounds.l - 5.0  # a bounded problem without the box: keep it bounded
+    no_inequalities = random_qp(rng, n=6, n_eq=2, n_in=0, structure=13)
+    no_equalities = random_qp(rng, n=5, n_eq=0, n_in=4, structure=14)
+    patterned = random_qp(rng, structure=15)
+    mask = rng.uniform(size=patterned.C.shape) < 0.6
+    patterned.C = np.where(mask, patterned.C, 0.0)
+    patterned.AC_pattern = np.vstack([np.ones_like(patterned.A, dtype=bool), mask])
+    patterned.H_pattern = np.ones_like(patterned.H, dtype=bool)
+    for p in (full, no_bounds, no_inequalities, no_equalities, patterned):
+        p.validate()
+    return [full, no_bounds, no_inequalities, no_equalities, patterned]
+
+
+@pytest.mark.parametrize(
+    "name, settings",
+    [
+        ("proxsuite", BACKENDS["proxsuite"]),
+        ("proxsuite", {**BACKENDS["proxsuite"], "active_set_guess": False, "polish": False, "deterministic": False}),
+        ("proxsuite", {**BACKENDS["proxsuite"], "polish": False}),
+        ("osqp", BACKENDS["osqp"]),
+        ("osqp", {**BACKENDS["osqp"], "active_set_guess": False}),
+        ("qpsolvers:osqp", BACKENDS["qpsolvers:osqp"]),
+    ],
+    ids=["proxsuite", "proxsuite-plain", "proxsuite-unpolished", "osqp", "osqp-plain", "qpsolvers"],
+)
+def test_one_backend_instance_solves_a_stream_of_qps_of_changing_shapes(name: str, settings: dict) -> None:
+    """One backend object, problems of five shapes in turn and each one again with a moved
+    gradient (its warm path): every answer feasible and a KKT point, checked independently."""
+    rng = np.random.default_rng(8)
+    backend = make_solver(name, **settings)
+    for problem in shapes_of_qps(rng) * 2:
+        for _ in range(2):
+            solution = backend.solve(problem)
+            assert solution.ok, (name, problem.structure, solution.message)
+            x = solution.x
+            assert x.shape == (problem.n,) and problem.violation(x) < 1e-6
+            bounded = problem if problem.lb is not None else _with_infinite_bounds(problem)
+            assert kkt_residual(bounded, x) < 1e-4 * max(1.0, np.abs(problem.g).max()), (name, problem.structure)
+            assert type(solution.iterations) is int and isinstance(solution.solve_time, float) and solution.solve_time >= 0.0
+            problem.g = problem.g + rng.normal(scale=0.5, size=problem.n)
+            # and the limits moved in place (the same arrays: a backend's fast path must read them again)
+            problem.b[...] += rng.normal(scale=0.01, size=problem.n_eq)
+            problem.l[...] -= 0.05
+            problem.u[...] += 0.05
+
+
+def _with_infinite_bounds(p: QpProblem) -> QpProblem:
+    q = p.copy()
+    q.lb, q.ub = np.full(p.n, -np.inf), np.full(p.n, np.inf)
+    return q
+
+
+def test_solvers_by_name() -> None:
+    assert isinstance(make_solver(), ProxsuiteSolver)
+    assert isinstance(make_solver("ProxQP"), ProxsuiteSolver) and isinstance(make_solver("OSQP"), OsqpSolver)
+    via = make_solver("qpsolvers:osqp")
+    assert isinstance(via, QpsolversSolver) and via.name == "osqp"
+    names = available_solvers()
+    assert names[:2] == ["proxsuite", "osqp"] and "proxqp" not in names and len(set(names)) == len(names)
+    with pytest.raises(ValueError, match=r"^unknown QP solver 'simplex'; available: \['proxsuite', 'osqp'"):
+        make_solver("simplex")
+    with pytest.raises(ValueError, match=r"^qpsolvers backend 'cplex' is not installed; available: "):
+        QpsolversSolver("cplex")
+    with pytest.raises(ValueError, match=r"^max_iter and max_iter_in must be >= 1, got 0, 10$"):
+        ProxsuiteSolver(max_iter=0)
+    with pytest.raises(ValueError, match=r"^max_iter and max_iter_in must be >= 1, got 10, 0$"):
+        ProxsuiteSolver(max_iter_in=0)
+
+
+@pytest.mark.parametrize("name", ["proxsuite", "osqp", "qpsolvers:osqp"])
+def test_an_infeasible_qp_fails_cleanly_and_the_backend_recovers(name: str) -> None:
+    """x₀ = 1 and 2 ≤ x₀ ≤ 3: infeasible. NaN answer, a failure status, a message naming the
+    backend; the next, feasible, problem is solved (no warm start from the failure)."""
+    infeasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([1.0]), C=np.ones((1, 1)),
+                           l=np.array([2.0]), u=np.array([3.0]), structure=21)  # fmt: skip
+    backend = make_solver(name, **BACKENDS[name])
+    solution = backend.solve(infeasible)
+    assert not solution.ok and np.all(np.isnan(solution.x)) and solution.x.shape == (1,)
+    assert solution.message.startswith(backend.name) and solution.solver == backend.name
+    assert solution.solve_time >= 0.0
+    feasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([2.5]), C=np.ones((1, 1)),
+                         l=np.array([2.0]), u=np.array([3.0]), structure=21)  # fmt: skip
+    np.testing.assert_allclose(backend.solve(feasible).x, [2.5], atol=1e-5)
+
+
+def test_proxsuite_bounds_its_work_per_tick() -> None:
+    """``max_iter`` outer iterations of at most ``max_iter_in`` inner ones each, cold retry
+    included: the reported (inner) iterations never exceed ``max_iter · (max_iter_in + 1)``."""
+    rng = np.random.default_rng(9)
+    backend = make_solver("proxsuite", eps_abs=1e-12, max_iter=3, max_iter_in=4, active_set_guess=False, polish=False, deterministic=False)
+    for _ in range(4):
+        solution = backend.solve(random_qp(rng, n=20, n_eq=3, n_in=25, structure=31))
+        assert solution.iterations <= 3 * (4 + 1)
+
+
+def test_osqp_with_a_variable_in_no_constraint_and_the_guess_answering_a_repeated_problem() -> None:
+    """min ½‖x‖² − (1, 2, 3)·x  s.t.  x₀ + x₁ = 1,  x₀ ≤ 0.3, with x₂ in no constraint (an empty
+    column of OSQP's constraint matrix): the optimum is (0, 1, 3). Solved again, the active-set
+    guess answers, with no OSQP iteration."""
+    problem = QpProblem(H=np.eye(3), g=-np.array([1.0, 2.0, 3.0]), A=np.array([[1.0, 1.0, 0.0]]), b=np.ones(1),
+                        C=np.array([[1.0, 0.0, 0.0]]), l=np.array([-np.inf]), u=np.array([0.3]), structure=41)  # fmt: skip
+    backend = make_solver("osqp", **BACKENDS["osqp"])
+    first = backend.solve(problem)
+    np.testing.assert_allclose(first.x, [0.0, 1.0, 3.0], atol=1e-6)
+    assert first.message == "" and first.iterations > 0
+    again = backend.solve(problem)
+    assert again.message == "active-set guess" and again.iterations == 0
+    np.testing.assert_allclose(again.x, [0.0, 1.0, 3.0], atol=1e-9)
