@@ -35,12 +35,14 @@ NAMESPACE = "giwbc"
 CARTPOLE_BALANCE = "giwbc/CartPoleBalance-v0"
 CARTPOLE_SWING_UP = "giwbc/CartPoleSwingUp-v0"
 G1_BALANCE = "giwbc/G1Balance-v0"
+G1_WALK = "giwbc/G1Walk-v0"
 
 # id -> (entry point, max_episode_steps); each entry point is a factory below.
 ENVIRONMENTS: dict[str, tuple[str, int]] = {
     CARTPOLE_BALANCE: ("giwbc.envs:cartpole_balance", 500),
     CARTPOLE_SWING_UP: ("giwbc.envs:cartpole_swing_up", 1000),
     G1_BALANCE: ("giwbc.envs:g1_balance", 1000),
+    G1_WALK: ("giwbc.envs:g1_walk", 1000),
 }
 
 
@@ -138,6 +140,28 @@ def g1_balance(
         controller_rate = 500.0 if kwargs.get("controller", "wbc") == "wbc" else agent_rate
     runtime, task = _split(kwargs)
     return simulated_env(G1Balance(description, **task), description, agent_rate=agent_rate, controller_rate=controller_rate,
+                         sim2real=sim2real, randomization=randomizer, **runtime)
+
+
+def g1_walk(
+    *,
+    robot: "str | RobotDescription" = "g1",
+    agent_rate: float = 50.0,
+    controller_rate: float = 500.0,
+    sim2real: Any = None,
+    **kwargs: Any,
+) -> "SimulatedRuntime":
+    """``giwbc/G1Walk-v0``: G1 tracking velocity commands, residual actions over the model-based
+    walker and its WBC (500 Hz). Pushes only when asked (``sim2real={"pushes": {...}}`` or the
+    ``randomization`` config's); task options: see :class:`~giwbc.tasks.walk.G1Walk`."""
+    from giwbc.randomization import make_randomizer
+    from giwbc.robot import RobotDescription, load
+    from giwbc.tasks.walk import G1Walk
+
+    description = robot if isinstance(robot, RobotDescription) else load(robot)
+    randomizer = make_randomizer(kwargs.pop("randomization", None), description)
+    runtime, task = _split(kwargs)
+    return simulated_env(G1Walk(description, **task), description, agent_rate=agent_rate, controller_rate=controller_rate,
                          sim2real=sim2real, randomization=randomizer, **runtime)
 
 
