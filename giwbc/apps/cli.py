@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from giwbc.apps.deploy import add_deploy_command
-from giwbc.apps.evaluation import add_evaluate_command
+from giwbc.apps.walk_evaluation import add_evaluate_command
 from giwbc.apps.play import add_play_command
 from giwbc.apps.sim_to_sim import add_sim_to_sim_command
 from giwbc.apps.training import add_train_command
