@@ -48,8 +48,8 @@ class WalkProtocol(PushProtocol):
     yaw rate (rad/s) the episode's command is drawn from (uniform), held the whole episode."""
 
     force: float = 80.0
-    interval: tuple[float, float] = (2.4, 2.8)
-    episode_seconds: float = 5.0
+    interval: tuple[float, float] = (1.8, 2.0)  # from the 4th step on (start-up: 0.3 s weight shift, 0.46 s steps)
+    episode_seconds: float = 3.8  # 1.6 s or more after the push; two 1-s tracking windows
     commands: tuple[tuple[float, float], tuple[float, float], tuple[float, float]] = ((0.1, 0.4), (-0.1, 0.1), (-0.3, 0.3))
 
     def __post_init__(self) -> None:
