@@ -189,3 +189,29 @@ def test_duration_residual_lengthens_single_support(make) -> None:
 
     slow, fast = single_support_ticks(1.0), single_support_ticks(-1.0)
     assert slow > fast + 2  # agent steps of single support per step
+
+
+def test_com_and_orientation_residuals_move_the_references_standing(make) -> None:
+    """Standing (zero command): a full com x residual shifts the CoM forward by its scale (3 cm), a
+    full pitch residual pitches the pelvis by its scale (0.1 rad), the CoM staying."""
+    standing = {**FORWARD, "standing": 1.0}
+
+    def hold(action: list[float]) -> tuple[np.ndarray, float]:
+        env = make(residuals=["com", "orientation"], commands=standing)
+        env.reset(seed=0)
+        walker = env.task.walker
+        for _ in range(5):
+            env.step(np.zeros(6, np.float32))
+        start = walker.state.com.copy()
+        for _ in range(75):
+            _, _, terminated, _, _ = env.step(np.array(action, np.float32))
+            assert not terminated
+        assert walker.phase is Phase.STAND and walker.state.steps == 0
+        x, y, z, w = env.sim_robot.base_state().quaternion
+        env.close()
+        return walker.state.com - start, math.asin(2.0 * (w * y - z * x))
+
+    moved, pitch = hold([1.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    assert moved[0] == pytest.approx(0.03, abs=0.006) and abs(moved[1]) < 0.006 and abs(pitch) < 0.03
+    moved, pitch = hold([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
+    assert pitch == pytest.approx(0.1, abs=0.03) and np.all(np.abs(moved[:2]) < 0.015)
