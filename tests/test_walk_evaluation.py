@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import json
 import math
 
@@ -83,3 +84,21 @@ def test_zero_policy_walks_like_the_walker_and_the_command_reports(tmp_path, cap
     (summary,) = json.loads(capsys.readouterr().out)["comparisons"]
     assert summary["paired"]["saved"] == summary["paired"]["lost"] == 0 and summary["tracking"]["n"] == 1
     assert summary["tracking"]["wbc_mean"] == pytest.approx(comparison.wbc.episodes[0].tracking_rms)
+
+
+def test_cached_arms_give_the_same_comparison(tmp_path) -> None:
+    from giwbc.apps.walk_evaluation import cached_arm, compare_cached
+
+    env_kwargs = {"residuals": ["step"], "sim2real": {"pushes": None}}
+    policy = _zero_walk_policy(tmp_path, env_kwargs)
+    cache = tmp_path / "cache"
+    protocol = WalkProtocol(force=30.0, duration=0.1, interval=(1.2, 1.3), episode_seconds=2.5, commands=((0.2, 0.3), (0.0, 0.0), (0.0, 0.0)))
+    alone = cached_arm(cache, None, env_id="giwbc.envs:giwbc/G1Walk-v0", env_kwargs=env_kwargs, protocol=protocol, episodes=1, seed=9, workers=1)
+    assert len(list(cache.glob("arm_*.json"))) == 1
+    first = compare_cached(policy, cache, protocol=protocol, episodes=1, seed=9, workers=1)
+    assert len(list(cache.glob("arm_*.json"))) == 2  # the walker-alone arm came from the cache
+    again = compare_cached(policy, cache, protocol=protocol, episodes=1, seed=9, workers=1)
+    assert first.wbc.episodes == alone.episodes == again.wbc.episodes and first.residual.episodes == again.residual.episodes
+    assert first.wbc.episodes == first.residual.episodes  # the zero policy is the walker alone
+    other = compare_cached(policy, cache, protocol=replace(protocol, force=35.0), episodes=1, seed=9, workers=1)
+    assert len(list(cache.glob("arm_*.json"))) == 4 and other.wbc.protocol.force == 35.0

@@ -16,10 +16,13 @@ standing protocol of :mod:`giwbc.apps.evaluation`).
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
+import os
 import sys
 from dataclasses import asdict, dataclass, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -28,10 +31,13 @@ from scipy import stats
 from giwbc.apps.evaluation import (
     ArmResult,
     Comparison,
+    EpisodeResult,
     PushProtocol,
     compare,
     compare_forces,
     format_table,
+    policy_env,
+    run_episodes,
     run_evaluate_command,
     sweep,
 )
@@ -108,6 +114,43 @@ def walk_summary(comparison: Comparison) -> dict[str, Any]:
     return {**comparison.summary(), "tracking": asdict(paired_tracking(comparison))}
 
 
+# --- arms kept on disk ----------------------------------------------------------------------------
+def _arm_key(policy_path: str | os.PathLike[str] | None, env_id: str, env_kwargs: dict[str, Any], protocol: PushProtocol,
+             episodes: int, seed: int) -> str:
+    """What an arm's episodes depend on: the policy file's bytes (none: the zero residual), the
+    environment and its options, the protocol, the seeds. (Not the number of workers: results do
+    not depend on it.)"""
+    policy = hashlib.sha256(Path(policy_path).read_bytes()).hexdigest() if policy_path is not None else None
+    spec = {"policy": policy, "env_id": env_id.split(":")[-1], "env_kwargs": env_kwargs, "protocol": asdict(protocol), "protocol_type": type(protocol).__name__,
+            "episodes": episodes, "seed": seed}
+    return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:24]
+
+
+def cached_arm(cache: str | os.PathLike[str], policy_path: str | os.PathLike[str] | None, *, env_id: str, env_kwargs: dict[str, Any],
+               protocol: PushProtocol, episodes: int, seed: int, workers: int = 2) -> ArmResult:
+    """:func:`~giwbc.apps.evaluation.run_episodes`, its episodes kept in ``cache`` (a folder) under
+    a key of everything they depend on: the walker-alone arm of a force and seeds is run once for
+    every policy compared on them."""
+    path = Path(cache) / f"arm_{_arm_key(policy_path, env_id, env_kwargs, protocol, episodes, seed)}.json"
+    name = "wbc" if policy_path is None else os.path.basename(str(policy_path))
+    if path.is_file():
+        rows = json.loads(path.read_text())
+        return ArmResult(name, protocol, tuple(EpisodeResult(**{**row, "push_force": tuple(row["push_force"])}) for row in rows))
+    arm = run_episodes(policy_path, env_id=env_id, env_kwargs=env_kwargs, protocol=protocol, episodes=episodes, seed=seed, workers=workers)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps([asdict(e) for e in arm.episodes]))
+    return arm
+
+
+def compare_cached(policy_path: str | os.PathLike[str], cache: str | os.PathLike[str], *, protocol: PushProtocol, episodes: int,
+                   seed: int, workers: int = 2) -> Comparison:
+    """:func:`~giwbc.apps.evaluation.compare` with both arms kept in ``cache`` (same results)."""
+    env_id, env_kwargs = policy_env(policy_path)
+    env_kwargs = {k: v for k, v in env_kwargs.items() if k != "max_episode_steps"}
+    common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": episodes, "seed": seed, "workers": workers}
+    return Comparison(cached_arm(cache, None, **common), cached_arm(cache, policy_path, **common), env_id, env_kwargs)
+
+
 # --- command line ------------------------------------------------------------------------------
 def add_evaluate_command(commands: Any) -> None:
     """``giwbc evaluate`` (:mod:`giwbc.apps.evaluation`) with ``--protocol stand|walk``."""
@@ -117,6 +160,8 @@ def add_evaluate_command(commands: Any) -> None:
                         help=f"stand: the standing push protocol; walk: pushes while walking on commands ({WALK_ENV_ID})")
     parser.add_argument("--commands", type=float, nargs=6, default=None, metavar=("VX0", "VX1", "VY0", "VY1", "WZ0", "WZ1"),
                         help=f"walk: command ranges per episode (default {[x for r in WalkProtocol.commands for x in r]})")
+    parser.add_argument("--cache", default=None, help="walk: keep each arm's episodes in this folder (the walker-alone arm "
+                        "is then run once for all policies compared on the same force and seeds)")
     parser.set_defaults(run=run_evaluate)
 
 
@@ -138,13 +183,20 @@ def run_evaluate(args: Any) -> int:
         comparisons: list[Comparison] = []
         if args.policy is None:
             env_kwargs = json.loads(args.env_kwargs) or WALK_ENV_KWARGS
-            rows = sweep(args.force, env_id=args.env or WALK_ENV_ID, env_kwargs=env_kwargs, protocol=protocol, **common)
+            if args.cache and runner is None:
+                rows = [cached_arm(args.cache, None, env_id=args.env or WALK_ENV_ID, env_kwargs=env_kwargs, protocol=replace(protocol, force=f),
+                                   episodes=args.episodes, seed=args.seed, workers=workers) for f in args.force]
+            else:
+                rows = sweep(args.force, env_id=args.env or WALK_ENV_ID, env_kwargs=env_kwargs, protocol=protocol, **common)
             summary: dict[str, Any] = {"env_id": args.env or WALK_ENV_ID,
                                        "arms": [r.summary() | tracking_summary(r) | {"force": r.protocol.force} for r in rows]}
         else:
             protocols = [replace(protocol, force=force) for force in args.force]
             if runner is not None:
                 comparisons = compare_forces(args.policy, protocols, **common)
+            elif args.cache:
+                comparisons = [compare_cached(args.policy, args.cache, protocol=p, episodes=args.episodes, seed=args.seed,
+                                              workers=workers) for p in protocols]
             else:
                 comparisons = [compare(args.policy, protocol=p, **common) for p in protocols]
             rows = [arm for c in comparisons for arm in (c.wbc, c.residual)]
