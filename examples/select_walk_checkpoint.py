@@ -18,8 +18,8 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from giwbc.apps.evaluation import Comparison, policy_env, run_episodes  # noqa: E402
-from giwbc.apps.walk_evaluation import WalkProtocol, paired_tracking  # noqa: E402
+from giwbc.apps.evaluation import Comparison, policy_env  # noqa: E402
+from giwbc.apps.walk_evaluation import WalkProtocol, cached_arm, paired_tracking  # noqa: E402
 
 EVALUATION_SEEDS = range(1000, 2000)  # kept for fresh-seed evaluation: never used to choose
 
@@ -32,6 +32,7 @@ def main() -> int:
     parser.add_argument("--seed", type=int, default=500)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--every", type=int, default=1, help="only every n-th checkpoint (the last one always)")
+    parser.add_argument("--cache", default="runs/eval_cache", help="arms kept here (the walker-alone arm runs once)")
     args = parser.parse_args()
     seeds = range(args.seed, args.seed + args.episodes)
     if seeds.stop > 1000 and seeds.start < 3000:
@@ -45,11 +46,11 @@ def main() -> int:
     protocol = WalkProtocol(force=args.force)
     common = {"env_id": env_id, "env_kwargs": env_kwargs, "protocol": protocol, "episodes": args.episodes, "seed": args.seed,
               "workers": args.workers}
-    alone = run_episodes(None, **common)
+    alone = cached_arm(args.cache, None, **common)
     print(json.dumps({"walker_alone": alone.summary()}), flush=True)
     rows = []
     for path in checkpoints:
-        comparison = Comparison(alone, run_episodes(path, **common), env_id, env_kwargs)
+        comparison = Comparison(alone, cached_arm(args.cache, path, **common), env_id, env_kwargs)
         tracking = paired_tracking(comparison)
         row = {"checkpoint": str(path), "steps": int(re.findall(r"\d+", path.stem)[0]), "success": comparison.residual.success_rate,
                "saved": comparison.saved, "lost": comparison.lost, "mcnemar_p": comparison.paired_p_value,
