@@ -121,8 +121,8 @@ def _arm_key(policy_path: str | os.PathLike[str] | None, env_id: str, env_kwargs
     environment and its options, the protocol, the seeds. (Not the number of workers: results do
     not depend on it.)"""
     policy = hashlib.sha256(Path(policy_path).read_bytes()).hexdigest() if policy_path is not None else None
-    spec = {"policy": policy, "env_id": env_id.split(":")[-1], "env_kwargs": env_kwargs, "protocol": asdict(protocol), "protocol_type": type(protocol).__name__,
-            "episodes": episodes, "seed": seed}
+    spec = {"policy": policy, "env_id": env_id.split(":")[-1], "env_kwargs": env_kwargs, "protocol": asdict(protocol),
+            "protocol_type": type(protocol).__name__, "episodes": episodes, "seed": seed}
     return hashlib.sha256(json.dumps(spec, sort_keys=True, default=list).encode()).hexdigest()[:24]
 
 

@@ -649,14 +649,17 @@ class WalkingController:
         """Offsets on the references the walker gives the WBC: the DCM reference (world x, y, m;
         in steady state a CoM offset), the CoM height (m) and the pelvis orientation (roll, pitch,
         yaw about the walker's heading, rad)."""
-        values = [np.zeros(2) if dcm is None else np.asarray(dcm, dtype=float).reshape(2), np.zeros(3) if orientation is None else np.asarray(orientation, dtype=float).reshape(3)]
+        values = [np.zeros(2) if dcm is None else np.asarray(dcm, dtype=float).reshape(2),
+                  np.zeros(3) if orientation is None else np.asarray(orientation, dtype=float).reshape(3)]
         if not (all(np.all(np.isfinite(x)) for x in values) and math.isfinite(height)):
             raise ValueError(f"reference residual must be finite, got {dcm}, {height}, {orientation}")
         self._dcm_offset = values[0].copy() if values[0].any() else None
         self._height_offset = float(height)
         orientation_offset = values[1].copy() if values[1].any() else None
         previous = self._orientation_offset
-        if (previous is None) != (orientation_offset is None) or (previous is not None and not np.array_equal(previous, orientation_offset)):
+        same = (previous is None and orientation_offset is None) or (
+            previous is not None and orientation_offset is not None and np.array_equal(previous, orientation_offset))
+        if not same:
             self._orientation_changed = True
         self._orientation_offset = orientation_offset
 
