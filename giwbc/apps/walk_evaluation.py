@@ -106,7 +106,7 @@ def paired_tracking(comparison: Comparison, resamples: int = 10_000, seed: int =
 
 def tracking_summary(arm: ArmResult) -> dict[str, Any]:
     values = np.array([e.tracking_rms for e in arm.episodes if e.survived and math.isfinite(e.tracking_rms)])
-    return {"episodes": len(values), "mean_tracking_rms": float(values.mean()) if len(values) else math.nan,
+    return {"tracking_episodes": len(values), "mean_tracking_rms": float(values.mean()) if len(values) else math.nan,
             "mean_tracking_rms_95ci": list(_bootstrap_mean(values, 10_000, np.random.default_rng(0)))}
 
 
@@ -220,7 +220,7 @@ def run_evaluate(args: Any) -> int:
             t = tracking_summary(row)
             low, high = t["mean_tracking_rms_95ci"]
             print(f"tracking at {row.protocol.force:g} N: RMS {t['mean_tracking_rms']:.3f} m/s [{low:.3f}, {high:.3f}] over "
-                  f"{t['episodes']} surviving episodes")
+                  f"{t['tracking_episodes']} surviving episodes")
         return 0
     print("same pushes in both arms: " + ", ".join(str(c.same_pushes) for c in comparisons))
     for c in comparisons:
