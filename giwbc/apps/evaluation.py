@@ -76,7 +76,7 @@ class EpisodeResult:
     push_time: float  # s, first agent step at which the push was on (nan: none)
     push_force: tuple[float, float, float]
     episode_return: float
-    tracking_rms: float = math.nan  # m/s, walking tasks (see velocity_tracking_rms); nan otherwise
+    tracking_rms: float | None = None  # m/s, walking tasks (see velocity_tracking_rms); None otherwise or when no window fits
 
 
 def velocity_tracking_rms(times: np.ndarray, xy: np.ndarray, yaw: np.ndarray, commands: np.ndarray,
@@ -260,10 +260,11 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
                     push_force = tuple(float(f) for f in info["push_force"])
             final_tilt = _tilt(env)
             survived = not terminated
-            tracking = math.nan
+            tracking = None
             if trace:
                 times, xy, yaw, commands = (np.array(column) for column in zip(*trace))
-                tracking = velocity_tracking_rms(times, xy, yaw, commands)
+                rms = velocity_tracking_rms(times, xy, yaw, commands)
+                tracking = rms if math.isfinite(rms) else None
             results.append(EpisodeResult(
                 seed=seed, survived=survived, success=survived and final_tilt < protocol.upright_tilt,
                 survival_time=float(info.get("time", 0.0)), final_tilt=final_tilt, max_tilt=max_tilt,

@@ -70,6 +70,10 @@ class WalkProtocol(PushProtocol):
         return {**super().env_overrides(base_kwargs, agent_hz), "commands": commands}
 
 
+def _finite(value: float | None) -> bool:
+    return value is not None and math.isfinite(value)
+
+
 def _bootstrap_mean(values: np.ndarray, resamples: int, rng: np.random.Generator) -> tuple[float, float]:
     if len(values) == 0:
         return (math.nan, math.nan)
@@ -94,7 +98,7 @@ class TrackingComparison:
 def paired_tracking(comparison: Comparison, resamples: int = 10_000, seed: int = 0) -> TrackingComparison:
     """The paired tracking comparison (bootstrap intervals from a seeded generator)."""
     pairs = np.array([(a.tracking_rms, b.tracking_rms) for a, b in zip(comparison.wbc.episodes, comparison.residual.episodes)
-                      if a.survived and b.survived and math.isfinite(a.tracking_rms) and math.isfinite(b.tracking_rms)]).reshape(-1, 2)
+                      if a.survived and b.survived and _finite(a.tracking_rms) and _finite(b.tracking_rms)]).reshape(-1, 2)
     rng = np.random.default_rng(seed)
     difference = pairs[:, 1] - pairs[:, 0]
     p = float(stats.wilcoxon(pairs[:, 1], pairs[:, 0]).pvalue) if np.any(difference != 0) else 1.0
@@ -105,7 +109,7 @@ def paired_tracking(comparison: Comparison, resamples: int = 10_000, seed: int =
 
 
 def tracking_summary(arm: ArmResult) -> dict[str, Any]:
-    values = np.array([e.tracking_rms for e in arm.episodes if e.survived and math.isfinite(e.tracking_rms)])
+    values = np.array([e.tracking_rms for e in arm.episodes if e.survived and _finite(e.tracking_rms)])
     return {"tracking_episodes": len(values), "mean_tracking_rms": float(values.mean()) if len(values) else math.nan,
             "mean_tracking_rms_95ci": list(_bootstrap_mean(values, 10_000, np.random.default_rng(0)))}
 
