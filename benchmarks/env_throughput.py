@@ -6,7 +6,7 @@ to one thread; the share of wall time in the physics engine, in the controller (
 G1Balance) and in everything else comes from the runtime's own timers. Every case runs on both
 engines (the ``*_pybullet`` entries: same task, same description, ``engine="pybullet"``).
 G1Balance-v0 runs as registered (random pushes) and without pushes (quiet standing: the WBC's
-warm-started best case). Scaling: the same work (two identical jobs: same env, same seed, same
+warm-started best case). G1Walk-v0 runs as registered (random velocity commands, no pushes). Scaling: the same work (two identical jobs: same env, same seed, same
 number of steps) run by 1 worker process in turn, then by 2 worker processes at once (fork);
 identical jobs so that the two workers finish together and the ratio measures the machine, not
 the spread of episode lengths between seeds. Repeated ``--scaling-repeats`` times (interleaved:
@@ -37,6 +37,8 @@ BASE_CASES: dict[str, tuple[str, dict[str, Any]]] = {
     "g1_balance_wbc": (giwbc.envs.G1_BALANCE, {"controller_rate": 500.0}),
     "g1_balance_wbc_no_pushes": (giwbc.envs.G1_BALANCE, {"controller_rate": 500.0, "sim2real": {"pushes": None}}),
     "g1_balance_pd": (giwbc.envs.G1_BALANCE, {"controller": "pd", "controller_rate": 50.0}),
+    # walking on random commands (standing 15 % of the time), the walker + WBC at 500 Hz, policy 50 Hz
+    "g1_walk": (giwbc.envs.G1_WALK, {"residuals": ["step"]}),
 }
 # Every case on MuJoCo (its name) and on PyBullet (its name + "_pybullet").
 CASES: dict[str, tuple[str, dict[str, Any]]] = {

@@ -113,3 +113,22 @@ def test_training_is_reproducible_and_a_checkpoint_is_the_final_policy_of_a_shor
     again = run("again", 128, 0)
     assert short.policy.read_bytes() == again.policy.read_bytes()
     assert (tmp_path / "long" / "checkpoints" / "step_128.onnx").read_bytes() == short.policy.read_bytes()
+
+
+def test_training_resumes_from_a_checkpoint(tmp_path) -> None:
+    """``resume``: the checkpoint's model and normalizer go on to the total, checkpoints numbered on from it."""
+    pytest.importorskip("stable_baselines3")
+    from stable_baselines3 import PPO
+
+    from giwbc.apps.training import TrainConfig, train
+
+    common = {"n_envs": 2, "seed": 3, "vectorization": "dummy", "progress_bar": False, "eval_episodes": 0, "net_arch": (8, 8),
+              "ppo": {"n_steps": 32, "batch_size": 32, "n_epochs": 1}}
+    first = train(TrainConfig(total_timesteps=128, checkpoint_every=64, out_dir=str(tmp_path / "a"), **common))
+    checkpoint = tmp_path / "a" / "checkpoints" / "step_64.zip"
+    resumed = train(TrainConfig(total_timesteps=192, checkpoint_every=64, out_dir=str(tmp_path / "b"), resume=str(checkpoint), **common))
+    assert [p.name for p in resumed.checkpoints] == ["step_128.onnx", "step_192.onnx"]
+    assert PPO.load(resumed.model, device="cpu").num_timesteps == 192
+    assert first.policy.read_bytes() != resumed.policy.read_bytes()
+    with pytest.raises(FileNotFoundError):
+        train(TrainConfig(total_timesteps=192, out_dir=str(tmp_path / "c"), resume=str(tmp_path / "missing.zip"), **common))

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from giwbc.apps.deploy import add_deploy_command
-from giwbc.apps.evaluation import add_evaluate_command
+from giwbc.apps.walk_evaluation import add_evaluate_command
 from giwbc.apps.motors import add_motors_command
 from giwbc.apps.log_report import add_log_command
 from giwbc.apps.play import add_play_command

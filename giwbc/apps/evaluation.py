@@ -80,6 +80,29 @@ class EpisodeResult:
     push_time: float  # s, first agent step at which the push was on (nan: none)
     push_force: tuple[float, float, float]
     episode_return: float
+    tracking_rms: float | None = None  # m/s, walking tasks (see velocity_tracking_rms); None otherwise or when no window fits
+
+
+def velocity_tracking_rms(times: np.ndarray, xy: np.ndarray, yaw: np.ndarray, commands: np.ndarray,
+                          window: float = 1.0, start: float = 1.0) -> float:
+    """RMS over consecutive ``window``-s windows from ``start`` s of ``‖v̄ − v_cmd‖`` (xy, m/s): the
+    base displacement over the window in the heading frame of its start, divided by its duration
+    (a window average: the gait's sway averages out), against the command held over the window
+    (windows where the command changed are skipped). nan when no window fits."""
+    times = np.asarray(times, dtype=float)
+    errors = []
+    i = int(np.searchsorted(times, start - 1e-9))
+    while i < len(times):
+        j = int(np.searchsorted(times, times[i] + window - 1e-9))
+        if j >= len(times):
+            break
+        if np.array_equal(commands[i], commands[j]):
+            c, s = math.cos(yaw[i]), math.sin(yaw[i])
+            d = (xy[j] - xy[i]) / (times[j] - times[i])
+            v = np.array([c * d[0] + s * d[1], -s * d[0] + c * d[1]])
+            errors.append(float(np.sum((v - commands[i][:2]) ** 2)))
+        i = j
+    return math.sqrt(float(np.mean(errors))) if errors else math.nan
 
 
 def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
@@ -230,20 +253,28 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
             total, max_tilt, push_time, push_force = 0.0, 0.0, math.nan, (0.0, 0.0, 0.0)
             terminated = truncated = False
             info: dict[str, Any] = {}
+            trace: list[tuple[float, np.ndarray, float, np.ndarray]] = []  # walking tasks: time, base xy, yaw, command
             while not (terminated or truncated):
                 action = policy(observation) if policy is not None else zero
                 observation, reward, terminated, truncated, info = env.step(action)
                 total += float(reward)
                 max_tilt = max(max_tilt, _tilt(env))
+                if "command" in info:
+                    trace.append((float(info["time"]), info["base_xy"], float(info["base_yaw"]), info["command"]))
                 if math.isnan(push_time) and info.get("pushes", 0) > 0:
                     push_time = float(info["time"])
                     push_force = tuple(float(f) for f in info["push_force"])
             final_tilt = _tilt(env)
             survived = not terminated
+            tracking = None
+            if trace:
+                times, xy, yaw, commands = (np.array(column) for column in zip(*trace))
+                rms = velocity_tracking_rms(times, xy, yaw, commands)
+                tracking = rms if math.isfinite(rms) else None
             results.append(EpisodeResult(
                 seed=seed, survived=survived, success=survived and final_tilt < protocol.upright_tilt,
                 survival_time=float(info.get("time", 0.0)), final_tilt=final_tilt, max_tilt=max_tilt,
-                push_time=push_time, push_force=push_force, episode_return=total,
+                push_time=push_time, push_force=push_force, episode_return=total, tracking_rms=tracking,
             ))
             if tick is not None:
                 tick(1)
@@ -425,10 +456,10 @@ def add_evaluate_command(commands: Any) -> None:
     add_ray_argument(parser)
     parser.add_argument("--force", type=float, nargs="+", default=[PushProtocol.force], help="push magnitude(s), N")
     parser.add_argument("--duration", type=float, default=PushProtocol.duration)
-    parser.add_argument("--interval", type=float, nargs=2, default=list(PushProtocol.interval), help="push start window, s")
-    parser.add_argument("--episode-seconds", type=float, default=PushProtocol.episode_seconds)
+    parser.add_argument("--interval", type=float, nargs=2, default=None, help=f"push start window, s (default {list(PushProtocol.interval)})")
+    parser.add_argument("--episode-seconds", type=float, default=None, help=f"default {PushProtocol.episode_seconds}")
     parser.add_argument("--upright-tilt", type=float, default=PushProtocol.upright_tilt, help="success: final tilt below this, rad")
-    parser.add_argument("--env", default=DEFAULT_ENV_ID, help="environment of the WBC-alone arm when no --policy is given")
+    parser.add_argument("--env", default=None, help=f"environment of the WBC-alone arm when no --policy is given (default {DEFAULT_ENV_ID})")
     parser.add_argument("--env-kwargs", default=json.dumps(DEFAULT_ENV_KWARGS), help="JSON options of --env")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", default=None, metavar="FILE",
@@ -446,8 +477,8 @@ def run_evaluate_command(args: Any) -> int:
     try:
         if args.plot:
             check_plot_path(args.plot)  # before the run, not after it
-        protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval),
-                                episode_seconds=args.episode_seconds, upright_tilt=args.upright_tilt)
+        protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval or PushProtocol.interval),
+                                episode_seconds=args.episode_seconds or PushProtocol.episode_seconds, upright_tilt=args.upright_tilt)
         connection = connect(args.ray) if getattr(args, "ray", None) else None
         runner = RayRunner(connection) if connection is not None else None
         workers = args.workers or (runner.cpus if runner is not None else 2)
@@ -460,8 +491,8 @@ def run_evaluate_command(args: Any) -> int:
         comparisons: list[Comparison] = []
         summary: dict[str, Any]
         if args.policy is None:
-            rows = sweep(args.force, env_id=args.env, env_kwargs=json.loads(args.env_kwargs), protocol=protocol, **common)
-            summary = {"env_id": args.env, "arms": [r.summary() | {"force": r.protocol.force} for r in rows]}
+            rows = sweep(args.force, env_id=args.env or DEFAULT_ENV_ID, env_kwargs=json.loads(args.env_kwargs), protocol=protocol, **common)
+            summary = {"env_id": args.env or DEFAULT_ENV_ID, "arms": [r.summary() | {"force": r.protocol.force} for r in rows]}
         else:
             from dataclasses import replace
 

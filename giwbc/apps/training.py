@@ -53,6 +53,7 @@ class TrainConfig:
     ppo: dict[str, Any] = field(default_factory=dict)
     progress_bar: bool = True
     eval_episodes: int = 3
+    resume: str | None = None  # a checkpoint's .zip (its .vecnormalize.pkl beside it): continue that run to total_timesteps
 
     def __post_init__(self) -> None:
         if self.vectorization not in ("subproc", "dummy", "ray"):
@@ -193,15 +194,25 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
                         vec_env_cls=vec_cls, vec_env_kwargs=vec_kwargs)
     ppo_kwargs = {"gamma": 0.99, **config.ppo}
     normalize = config.normalize_observations or config.normalize_rewards
+    resume = Path(config.resume) if config.resume else None
+    if resume is not None and not resume.is_file():
+        raise FileNotFoundError(f"no checkpoint to resume at {resume}")
     if normalize:
-        venv = VecNormalize(venv, norm_obs=config.normalize_observations, norm_reward=config.normalize_rewards,
-                            clip_obs=10.0, gamma=ppo_kwargs["gamma"])
-    model = PPO(
-        "MlpPolicy", venv, seed=config.seed, device="cpu", verbose=0,
-        policy_kwargs={"net_arch": {"pi": list(config.net_arch), "vf": list(config.net_arch)},
-                       "activation_fn": _activation(config.activation), "log_std_init": config.log_std_init},
-        **ppo_kwargs,
-    )
+        if resume is not None:  # the running statistics of the checkpoint, not fresh ones
+            venv = VecNormalize.load(str(resume.with_suffix(".vecnormalize.pkl")), venv)
+        else:
+            venv = VecNormalize(venv, norm_obs=config.normalize_observations, norm_reward=config.normalize_rewards,
+                                clip_obs=10.0, gamma=ppo_kwargs["gamma"])
+    if resume is not None:
+        model = PPO.load(resume, env=venv, device="cpu")
+    else:
+        model = PPO(
+            "MlpPolicy", venv, seed=config.seed, device="cpu", verbose=0,
+            policy_kwargs={"net_arch": {"pi": list(config.net_arch), "vf": list(config.net_arch)},
+                           "activation_fn": _activation(config.activation), "log_std_init": config.log_std_init},
+            **ppo_kwargs,
+        )
+    start = model.num_timesteps
     training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
                      "n_envs": config.n_envs}
     checkpoints: list[Path] = []
@@ -225,7 +236,7 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
 
         def __init__(self, every: int) -> None:
             super().__init__()
-            self.every, self.next = every, every
+            self.every, self.next = every, (start // every + 1) * every if every else 0
 
         def _checkpoint(self) -> None:
             if self.every and self.num_timesteps >= self.next:
@@ -243,8 +254,8 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
             return True
 
     try:
-        model.learn(total_timesteps=config.total_timesteps, callback=Checkpoints(config.checkpoint_every),
-                    progress_bar=config.progress_bar)
+        model.learn(total_timesteps=max(config.total_timesteps - start, 0), callback=Checkpoints(config.checkpoint_every),
+                    progress_bar=config.progress_bar, reset_num_timesteps=resume is None)
         policy_path = save(out, "policy", model.num_timesteps)
     finally:
         venv.close()
@@ -270,6 +281,7 @@ def add_train_command(commands: Any) -> None:
     parser.add_argument("--log-std-init", type=float, default=TrainConfig.log_std_init,
                         help="initial log std of the actor (e.g. -1 for residual policies over a working controller)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--resume", default=None, help="continue from a checkpoint .zip of the same run (to --timesteps in all)")
     add_ray_argument(parser)
     parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
                         help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
@@ -282,7 +294,7 @@ def run_train_command(args: Any) -> int:
                          checkpoint_every=args.checkpoint_every, vectorization="ray" if args.ray else args.vectorization,
                          ray_address=args.ray, envs_per_worker=args.envs_per_worker,
                          env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
-                         net_arch=tuple(args.net_arch), log_std_init=args.log_std_init)
+                         net_arch=tuple(args.net_arch), log_std_init=args.log_std_init, resume=args.resume)
     result = train(config)
     print(f"policy: {result.policy}")
     if result.evaluation is not None:

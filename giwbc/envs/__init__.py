@@ -26,12 +26,14 @@ NAMESPACE = "giwbc"
 CARTPOLE_BALANCE = "giwbc/CartPoleBalance-v0"
 CARTPOLE_SWING_UP = "giwbc/CartPoleSwingUp-v0"
 G1_BALANCE = "giwbc/G1Balance-v0"
+G1_WALK = "giwbc/G1Walk-v0"
 
 # id -> (entry point, max_episode_steps); each entry point is a factory of giwbc.envs.factories.
 ENVIRONMENTS: dict[str, tuple[str, int]] = {
     CARTPOLE_BALANCE: ("giwbc.envs.factories:cartpole_balance", 500),
     CARTPOLE_SWING_UP: ("giwbc.envs.factories:cartpole_swing_up", 1000),
     G1_BALANCE: ("giwbc.envs.factories:g1_balance", 1000),
+    G1_WALK: ("giwbc.envs.factories:g1_walk", 1000),
 }
 
 # What gymnasium.make options go to the runtime rather than the task (a deployment drops them too).
@@ -48,4 +50,4 @@ def register_envs() -> None:
 
 register_envs()
 
-__all__ = ["CARTPOLE_BALANCE", "CARTPOLE_SWING_UP", "ENVIRONMENTS", "G1_BALANCE", "NAMESPACE", "RUNTIME_OPTIONS", "register_envs"]
+__all__ = ["CARTPOLE_BALANCE", "CARTPOLE_SWING_UP", "ENVIRONMENTS", "G1_BALANCE", "G1_WALK", "NAMESPACE", "RUNTIME_OPTIONS", "register_envs"]

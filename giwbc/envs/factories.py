@@ -12,6 +12,7 @@ from giwbc.randomization import make_randomizer
 from giwbc.robot import RobotDescription, load
 from giwbc.runtimes import PushConfig, SimulatedRuntime
 from giwbc.tasks.balance import G1Balance
+from giwbc.tasks.walk import G1Walk
 from giwbc.tasks.cartpole import CartPoleBalance, CartPoleSwingUp
 from giwbc.tasks.task import Task
 
@@ -99,4 +100,26 @@ def g1_balance(
                          sim2real=sim2real, randomization=randomizer, **runtime)
 
 
-__all__ = ["cartpole_balance", "cartpole_swing_up", "g1_balance", "simulated_env"]
+def g1_walk(
+    *,
+    robot: str | RobotDescription = "g1",
+    agent_rate: float = 50.0,
+    controller_rate: float = 500.0,
+    sim2real: Any = None,
+    **kwargs: Any,
+) -> SimulatedRuntime:
+    """``giwbc/G1Walk-v0``: G1 tracking velocity commands, residual actions over the model-based
+    walker and its WBC (500 Hz). Pushes only when asked (``sim2real={"pushes": {...}}`` or the
+    ``randomization`` config's); task options: see :class:`~giwbc.tasks.walk.G1Walk`."""
+    from giwbc.randomization import make_randomizer
+    from giwbc.robot import RobotDescription, load
+    from giwbc.tasks.walk import G1Walk
+
+    description = robot if isinstance(robot, RobotDescription) else load(robot)
+    randomizer = make_randomizer(kwargs.pop("randomization", None), description)
+    runtime, task = _split(kwargs)
+    return simulated_env(G1Walk(description, **task), description, agent_rate=agent_rate, controller_rate=controller_rate,
+                         sim2real=sim2real, randomization=randomizer, **runtime)
+
+
+__all__ = ["cartpole_balance", "cartpole_swing_up", "g1_balance", "g1_walk", "simulated_env"]

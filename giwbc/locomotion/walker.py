@@ -121,6 +121,9 @@ class WalkerState:
     early_touchdowns: int = 0
     late_touchdowns: int = 0
     notes: list[str] = field(default_factory=list)
+    # The swing target before and after the step residual (:meth:`WalkingController.set_step_residual`).
+    planned_target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
 
 
 class WalkingController:
@@ -156,6 +159,7 @@ class WalkingController:
         self.adapter: StepAdapter | None = None
         self.dcm_controller: DcmController | None = None
         self._anchored = False
+        self._clear_residuals()
 
     # --- commands ------------------------------------------------------------------------------
     def set_command(self, vx: float = 0.0, vy: float = 0.0, yaw_rate: float = 0.0, *, step_in_place: bool = False) -> list[str]:
@@ -214,6 +218,7 @@ class WalkingController:
         self._reference: DcmReference | None = None
         self._time = 0.0
         self._anchored = True
+        self._clear_residuals()
 
     # --- measurements ------------------------------------------------------------------------------
     def _measure(self, q: np.ndarray, v: np.ndarray) -> None:
@@ -261,6 +266,8 @@ class WalkingController:
         self.state.dcm = xi
         self._advance(t, xi, foot_forces or {})
         xi_ref, xi_rate_ref, support = self._references(t, xi)
+        if self._dcm_offset is not None:
+            xi_ref = xi_ref + self._dcm_offset
         controller = self.dcm_controller
         controller.gain = self.config.standing_dcm_gain if self._phase is Phase.STAND else self.config.dcm_gain
         cop = controller.desired_cop(xi, xi_ref, xi_rate_ref, support)
@@ -269,7 +276,7 @@ class WalkingController:
         # The CoM task's horizontal rows have no damping (set in reset): their position error
         # carries the acceleration, ẍ* = kp (c + c̈/kp − c) = c̈ — one reference, no rates to gather.
         kp = self._com_kp
-        self.balance.com_task.set_reference(np.array([self._com[0] + acceleration[0] / kp, self._com[1] + acceleration[1] / kp, self._ground + self._com_height]))
+        self.balance.com_task.set_reference(np.array([self._com[0] + acceleration[0] / kp, self._com[1] + acceleration[1] / kp, self._ground + self._com_height + self._height_offset]))
         if self._phase is not Phase.SINGLE:  # (one foot: it carries the weight, no split to set)
             self.balance.force_regularization.set_support_point(np.array([cop[0], cop[1], 0.0]))
         self._heading_reference()
@@ -380,6 +387,11 @@ class WalkingController:
         target = self.planner.constrain(stance_foot, target)
         self._nominal_feet[swing] = target
         self._nominal_target = target
+        self.state.planned_target = target.position
+        target = self._apply_step_offset(stance_foot, target)
+        self.state.target = target.position
+        self._swing_nominal = duration
+        duration = self._swing_duration(duration)
         self._phase_end = t + duration
         start = self._sole_world(swing)
         rotation = start.rotation
@@ -430,6 +442,8 @@ class WalkingController:
         swing = other_side(self._stance)
         assert self._swing is not None and self._nominal_target is not None
         elapsed = t - self._phase_start
+        if self._duration_offset != 0.0 or self._phase_end != self._phase_start + self._swing_nominal:
+            self._phase_end = self._phase_start + self._swing_duration(self._swing_nominal)
         remaining_range = (max(cfg.min_swing - elapsed, 0.02), max(cfg.max_swing - elapsed, 0.02))
         # (The adapter sees the measured DCM only: adding the disturbance lead here made
         # recoveries worse, 8/30 vs 15/30 at 150 N — the foot over-reached once the push ended.)
@@ -441,6 +455,9 @@ class WalkingController:
             self._landing_box(swing), remaining_range,
         )
         target = Footstep(swing, adjustment.position, self._nominal_target.yaw)
+        self.state.planned_target = target.position
+        target = self._apply_step_offset(stance, target)
+        self.state.target = target.position
         touchdown = t + adjustment.remaining_time
         moved = np.linalg.norm(target.position - self._target.position) > 2e-3 or abs(touchdown - self._swing.t1) > 4e-3  # type: ignore[union-attr]
         if moved:
@@ -595,9 +612,88 @@ class WalkingController:
             else:
                 right = self._target.yaw
         yaw = left + 0.5 * wrap_angle(right - left)
-        if yaw == self._heading:
+        if yaw == self._heading and not self._orientation_changed:
             return
         self._heading = yaw
+        self._orientation_changed = False
         c, s = math.cos(yaw), math.sin(yaw)
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        if self._orientation_offset is not None:
+            rotation = rotation @ pin.rpy.rpyToMatrix(self._orientation_offset)
         self.balance.base_task.set_reference(pin.SE3(rotation, np.zeros(3)))
+
+    # --- residuals (a policy's corrections on top of the model-based walker) ----------------------
+    # All zero (the default) leaves every computation of the walker untouched: bit for bit the
+    # walker alone.
+    def _clear_residuals(self) -> None:
+        self._step_offset: np.ndarray | None = None  # stance-sole frame (x forward, y left), m
+        self._duration_offset = 0.0  # s, added to the nominal single support
+        self._swing_nominal = self.config.gait.single_support
+        self._dcm_offset: np.ndarray | None = None  # world x, y, m
+        self._height_offset = 0.0  # m
+        self._orientation_offset: np.ndarray | None = None  # roll, pitch, yaw, rad
+        self._orientation_changed = False
+
+    def set_step_residual(self, offset: np.ndarray, duration: float = 0.0) -> None:
+        """Shift where the swinging (or next) foot lands by ``offset`` (x, y in the stance sole's
+        frame, m) on top of the plan and the step adapter's correction, and change the single
+        support by ``duration`` s. The result stays inside the step adapter's landing box and
+        ``[min_swing, max_swing]``; applied at once to a foot in flight (re-targeted swing)."""
+        offset = np.asarray(offset, dtype=float).reshape(2)
+        if not (np.all(np.isfinite(offset)) and math.isfinite(duration)):
+            raise ValueError(f"step residual must be finite, got {offset}, {duration}")
+        self._step_offset = offset.copy() if offset.any() else None
+        self._duration_offset = float(duration)
+
+    def set_reference_residual(self, dcm: np.ndarray | None = None, height: float = 0.0, orientation: np.ndarray | None = None) -> None:
+        """Offsets on the references the walker gives the WBC: the DCM reference (world x, y, m;
+        in steady state a CoM offset), the CoM height (m) and the pelvis orientation (roll, pitch,
+        yaw about the walker's heading, rad)."""
+        values = [np.zeros(2) if dcm is None else np.asarray(dcm, dtype=float).reshape(2),
+                  np.zeros(3) if orientation is None else np.asarray(orientation, dtype=float).reshape(3)]
+        if not (all(np.all(np.isfinite(x)) for x in values) and math.isfinite(height)):
+            raise ValueError(f"reference residual must be finite, got {dcm}, {height}, {orientation}")
+        self._dcm_offset = values[0].copy() if values[0].any() else None
+        self._height_offset = float(height)
+        orientation_offset = values[1].copy() if values[1].any() else None
+        previous = self._orientation_offset
+        same = (previous is None and orientation_offset is None) or (
+            previous is not None and orientation_offset is not None and np.array_equal(previous, orientation_offset))
+        if not same:
+            self._orientation_changed = True
+        self._orientation_offset = orientation_offset
+
+    def _apply_step_offset(self, stance: Footstep, target: Footstep) -> Footstep:
+        if self._step_offset is None:
+            return target
+        local = stance.to_local(target.position) + self._step_offset
+        (x_lo, x_hi), (y_lo, y_hi) = self._landing_box(target.side)
+        local = np.array([min(max(local[0], x_lo), x_hi), min(max(local[1], y_lo), y_hi)])
+        return Footstep(target.side, stance.to_world(local), target.yaw)
+
+    def _swing_duration(self, nominal: float) -> float:
+        if self._duration_offset == 0.0:
+            return nominal
+        return min(max(nominal + self._duration_offset, self.config.min_swing), self.config.max_swing)
+
+    # --- what a policy observes ----------------------------------------------------------------------
+    @property
+    def phase(self) -> Phase:
+        return self._phase if self._anchored else Phase.STAND
+
+    def phase_progress(self) -> float:
+        """Fraction of the current double or single support elapsed at the last tick (0 standing)."""
+        if not self._anchored or self._phase is Phase.STAND:
+            return 0.0
+        end = self._swing.t1 if self._phase is Phase.SINGLE and self._swing is not None else self._phase_end
+        span = end - self._phase_start
+        return min(max((self._time - self._phase_start) / span, 0.0), 1.0) if span > 0 else 1.0
+
+    def next_footstep(self) -> Footstep:
+        """Where the next foot lands: the swing target in single support, the plan's next step in
+        double support, the first swing foot where it stands when standing."""
+        if self._phase is Phase.SINGLE and self._target is not None:
+            return self._target
+        if self._phase is Phase.DOUBLE:
+            return self.planner.next_step(self.feet[self._stance], self.command)
+        return self.feet[self.planner.first_swing_side(self.command)]

@@ -1,0 +1,351 @@
+"""Walking on velocity commands: the policy adds residuals to a model-based walker.
+
+Beneath the action runs :class:`~giwbc.locomotion.walker.WalkingController` (footstep planner,
+DCM reference and controller, online step adapter, swing trajectories, contact schedule) on the
+QP whole-body controller, at the controller rate, from the measured ``(q, v)`` and foot forces of
+the :class:`~giwbc.robot.interface.Robot` interface. Any description with a floating base and
+two feet named ``left_*`` / ``right_*`` works.
+
+Velocity commands ``(vx, vy, yaw_rate)`` (body frame) are drawn at reset for the whole episode
+from :class:`CommandRanges` (uniform per component, or standing still with some probability),
+each held for a uniform random time, all from the runtime's seeded generator.
+
+Action blocks (``residuals=``; each entry in [-1, 1] times its scale):
+
+- ``step``: offsets to the next footstep (x, y in the stance sole's frame, m) and to the single
+  support duration (s), on top of the plan and the step adapter's correction; the landing spot
+  stays in the step adapter's landing box and the duration in ``[min_swing, max_swing]``;
+- ``com``: offsets of the DCM reference (x, y in the heading frame; a CoM offset in steady state)
+  and of the CoM height (m);
+- ``orientation``: pelvis roll, pitch, yaw offsets about the walker's heading (rad).
+
+The zero action is the walker alone, bit for bit.
+
+Observation (what the robot and its walker know): gravity in the IMU frame, IMU angular rate,
+joint positions minus the default pose, joint velocities, the base velocity in the heading frame
+(vx, vy, yaw rate), the command, the gait phase (stand / double / single one-hot, stance side,
+progress), the next footstep relative to the base (x, y, yaw), the DCM error (heading frame), the
+previous action. Reward: alive + velocity tracking (xy and yaw rate) + uprightness, minus effort,
+action-rate and a fall penalty. Terminates when the pelvis drops or tilts too far.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
+from giwbc.robot.description import RobotDescription
+from giwbc.robot.interface import BaseState, quat_to_matrix
+from giwbc.tasks.task import ActionBlock, ResidualLayout, Task
+
+ANGULAR_VELOCITY_SCALE = 0.25  # observation scalings: keep entries of order 1
+JOINT_VELOCITY_SCALE = 0.05
+BLOCKS = ("step", "com", "orientation")
+_PHASES = (Phase.STAND, Phase.DOUBLE, Phase.SINGLE)
+
+
+def _pair(value: Any, name: str) -> tuple[float, float]:
+    low, high = (float(v) for v in value)
+    if not (math.isfinite(low) and math.isfinite(high) and low <= high):
+        raise ValueError(f"{name} must be a finite range (low <= high), got {value}")
+    return low, high
+
+
+@dataclass(frozen=True)
+class CommandRanges:
+    """Velocity commands of an episode: each held ``interval`` s (uniform), zero with
+    probability ``standing``, else uniform in ``vx``, ``vy`` (m/s) and ``yaw_rate`` (rad/s)."""
+
+    vx: tuple[float, float] = (-0.1, 0.4)
+    vy: tuple[float, float] = (-0.1, 0.1)
+    yaw_rate: tuple[float, float] = (-0.3, 0.3)
+    standing: float = 0.15
+    interval: tuple[float, float] = (2.0, 4.0)
+    horizon: float = 60.0  # s of commands drawn at reset
+
+    def __post_init__(self) -> None:
+        for name in ("vx", "vy", "yaw_rate", "interval"):
+            object.__setattr__(self, name, _pair(getattr(self, name), name))
+        if not (0.0 <= self.standing <= 1.0):
+            raise ValueError(f"standing must be a probability, got {self.standing}")
+        if self.interval[0] <= 0 or not (0 < self.horizon < math.inf):
+            raise ValueError("command interval and horizon must be > 0")
+
+    def draw(self, rng: np.random.Generator) -> list[tuple[float, tuple[float, float, float]]]:
+        """``[(start time, (vx, vy, yaw_rate)), ...]`` covering ``horizon`` s."""
+        schedule, t = [], 0.0
+        while t < self.horizon:
+            if rng.uniform() < self.standing:
+                command = (0.0, 0.0, 0.0)
+            else:
+                command = tuple(float(rng.uniform(*r)) for r in (self.vx, self.vy, self.yaw_rate))
+            schedule.append((t, command))
+            t += float(rng.uniform(*self.interval))
+        return schedule  # type: ignore[return-value]
+
+
+@dataclass(frozen=True)
+class WalkRewards:
+    """Reward weights and widths of :class:`G1Walk` (per agent step)."""
+
+    alive: float = 1.0
+    tracking: float = 1.0
+    tracking_width: float = 0.25  # m/s of xy velocity error at which the term falls to 1/e
+    yaw_tracking: float = 0.5
+    yaw_tracking_width: float = 0.5  # rad/s
+    upright: float = 0.5
+    upright_width: float = 0.1  # rad
+    effort: float = 0.05  # times the mean squared effort / effort limit
+    action_rate: float = 0.05  # times the mean squared action change
+    fall: float = 20.0
+
+
+@dataclass(frozen=True)
+class WalkScales:
+    """Physical size of a full (±1) action entry, per block entry."""
+
+    step: tuple[float, float, float] = (0.1, 0.08, 0.1)  # m, m, s
+    com: tuple[float, float, float] = (0.03, 0.03, 0.02)  # m
+    orientation: tuple[float, float, float] = (0.1, 0.1, 0.1)  # rad
+
+    def __post_init__(self) -> None:
+        for name in BLOCKS:
+            value = getattr(self, name)
+            values = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else (value,) * 3))
+            if len(values) != 3:
+                raise ValueError(f"scale {name} needs 3 entries, got {value}")
+            object.__setattr__(self, name, values)
+
+
+def _layout(scales: WalkScales, names: Sequence[str]) -> ResidualLayout:
+    names = tuple(names)
+    if not names or len(set(names)) != len(names) or set(names) - set(BLOCKS):
+        raise ValueError(f"residuals must be distinct names among {BLOCKS}, got {list(names)}")
+    labels = {"step": ("x", "y", "duration"), "com": ("x", "y", "z"), "orientation": ("roll", "pitch", "yaw")}
+    return ResidualLayout([ActionBlock(name, 3, getattr(scales, name), labels[name]) for name in BLOCKS if name in names])
+
+
+def _yaw(quaternion: np.ndarray) -> float:
+    x, y, z, w = quaternion
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class G1Walk(Task):
+    """Track velocity commands: residual actions over the walker (see the module docstring)."""
+
+    def __init__(
+        self,
+        description: RobotDescription,
+        *,
+        residuals: Sequence[str] | None = None,
+        scales: WalkScales | dict[str, Any] | None = None,
+        rewards: WalkRewards | dict[str, float] | None = None,
+        commands: CommandRanges | dict[str, Any] | None = None,
+        initial_joint_noise: float = 0.02,
+        min_height_ratio: float = 0.7,
+        max_tilt: float = 0.7,
+        walker: dict[str, Any] | None = None,  # WalkerConfig fields (scalars)
+        wbc_options: dict[str, Any] | None = None,
+    ) -> None:
+        super().__init__()
+        if not description.floating_base or len(description.contacts) != 2:
+            raise ValueError(f"G1Walk needs a floating-base robot with two feet, got {description.name!r}")
+        self.description = description
+        self.scales = WalkScales(**scales) if isinstance(scales, dict) else scales or WalkScales()
+        self.rewards = WalkRewards(**rewards) if isinstance(rewards, dict) else rewards or WalkRewards()
+        self.commands = CommandRanges(**commands) if isinstance(commands, dict) else commands or CommandRanges()
+        self.layout = _layout(self.scales, residuals or ("step",))
+        self.initial_joint_noise = float(initial_joint_noise)
+        self.max_tilt = float(max_tilt)
+        config = WalkerConfig(**(walker or {}))
+        if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
+            config = replace(config, balance=replace(config.balance, **wbc_options))
+        self.walker = WalkingController(description, config, description.pinocchio_model)
+        self.q0 = description.default_configuration()
+        self.min_height = min_height_ratio * float(self.q0[2])
+        self.default_positions = description.default_positions
+        self._effort_scale = np.where(description.effort_limits > 0, 1.0 / np.maximum(description.effort_limits, 1e-9), 0.0)
+        self.schedule: list[tuple[float, tuple[float, float, float]]] = []
+        self._next_command = 0
+        self.command = np.zeros(3)
+        self.last_action = np.zeros(self.layout.size)
+        self.previous_action = np.zeros(self.layout.size)
+        self._base: tuple[float, BaseState] | None = None
+        self.result: Any = None
+
+    # --- spaces ---------------------------------------------------------------------------
+    def create_spaces(self) -> tuple[spaces.Box, spaces.Box]:
+        if tuple(self.robot.joint_names) != self.description.joint_names:
+            raise ValueError(f"robot joints {self.robot.joint_names} differ from the description's")
+        n, m = self.robot.dofs, self.layout.size
+        high = np.concatenate([np.ones(3), np.full(3 + 2 * n, 10.0), np.full(3 + 3, 10.0), np.ones(5), np.full(5, 10.0), np.ones(m)])
+        return self.layout.space(), spaces.Box(-high.astype(np.float32), high.astype(np.float32), dtype=np.float32)
+
+    def observation_names(self) -> tuple[str, ...]:
+        joints = self.description.joint_names
+        return (
+            *(f"gravity_imu/{a}" for a in "xyz"),
+            *(f"angular_velocity_imu/{a}" for a in "xyz"),
+            *(f"joint_position_offset/{j}" for j in joints),
+            *(f"joint_velocity/{j}" for j in joints),
+            "base_velocity/vx", "base_velocity/vy", "base_velocity/yaw_rate",
+            "command/vx", "command/vy", "command/yaw_rate",
+            "phase/stand", "phase/double", "phase/single", "phase/stance_side", "phase/progress",
+            "next_footstep/x", "next_footstep/y", "next_footstep/yaw",
+            "dcm_error/x", "dcm_error/y",
+            *(f"last_action/{name}" for name in self.layout.entry_names()),
+        )
+
+    def action_names(self) -> tuple[str, ...]:
+        return self.layout.entry_names()
+
+    # --- episode --------------------------------------------------------------------------
+    def initial_state(self) -> tuple[np.ndarray, np.ndarray]:
+        q = self.q0.copy()
+        q[7:] += self.np_random.uniform(-self.initial_joint_noise, self.initial_joint_noise, self.robot.dofs)
+        return q, np.zeros(len(q) - 1)
+
+    def reset_task(self) -> None:
+        self._base = None
+        self.result = None
+        self.schedule = self.commands.draw(self.np_random)
+        self._next_command = 0
+        self.command = np.zeros(3)
+        self.last_action = np.zeros(self.layout.size)
+        self.previous_action = np.zeros(self.layout.size)
+        q, _ = self.robot.generalized_state()
+        self.walker.reset(q)
+
+    def set_action(self, action: np.ndarray) -> None:
+        self.previous_action = self.last_action
+        self.last_action = np.array(action, dtype=float)
+        residuals = self.layout.split(self.last_action)
+        walker = self.walker
+        if "step" in residuals:
+            step = residuals["step"]
+            walker.set_step_residual(step[:2], float(step[2]))
+        if "com" in residuals or "orientation" in residuals:
+            com = residuals.get("com", np.zeros(3))
+            yaw = _yaw(self.robot.base_state().quaternion)
+            c, s = math.cos(yaw), math.sin(yaw)
+            dcm = np.array([c * com[0] - s * com[1], s * com[0] + c * com[1]])
+            walker.set_reference_residual(dcm, float(com[2]), residuals.get("orientation"))
+
+    def apply_command(self) -> None:
+        """Switch to the next scheduled command when due, then one walker tick."""
+        robot = self.robot
+        t = robot.time()
+        schedule = self.schedule
+        while self._next_command < len(schedule) and schedule[self._next_command][0] <= t + 1e-9:
+            self.command = np.array(schedule[self._next_command][1])
+            self.walker.set_command(*schedule[self._next_command][1])
+            self._next_command += 1
+        self.result = self.walker.step(robot)
+
+    def controller_failure(self) -> str | None:
+        result = self.result
+        if result is None or result.ok:
+            return None
+        return f"whole-body controller {result.status.value} ({result.qp_status.value if result.qp_status else 'no QP'}): {result.message}"
+
+    # --- outputs --------------------------------------------------------------------------
+    def base_state(self) -> BaseState:
+        """The robot's base state, read once per robot time."""
+        now = self.robot.time()
+        if self._base is None or self._base[0] != now:
+            self._base = (now, self.robot.base_state())
+        return self._base[1]
+
+    def heading_velocity(self) -> np.ndarray:
+        """Base ``(vx, vy, yaw_rate)`` in the heading frame (yaw of the pelvis)."""
+        base = self.base_state()
+        yaw = _yaw(base.quaternion)
+        c, s = math.cos(yaw), math.sin(yaw)
+        v = base.linear_velocity
+        return np.array([c * v[0] + s * v[1], -s * v[0] + c * v[1], base.angular_velocity[2]])
+
+    def tilt(self) -> float:
+        x, y, _, _ = self.base_state().quaternion
+        return math.acos(min(1.0, max(-1.0, 1.0 - 2.0 * (x * x + y * y))))
+
+    def get_observation(self) -> np.ndarray:
+        robot, walker = self.robot, self.walker
+        imu = robot.imu()
+        up = quat_to_matrix(imu.quaternion)[2]
+        base = self.base_state()
+        yaw = _yaw(base.quaternion)
+        c, s = math.cos(yaw), math.sin(yaw)
+        phase = walker.phase
+        step = walker.next_footstep()
+        dx, dy = step.position[0] - base.position[0], step.position[1] - base.position[1]
+        error = walker.state.dcm - walker.state.dcm_ref if phase is not Phase.STAND or walker.state.steps else np.zeros(2)
+        return np.concatenate([
+            -up,
+            ANGULAR_VELOCITY_SCALE * imu.angular_velocity,
+            robot.joint_positions() - self.default_positions,
+            JOINT_VELOCITY_SCALE * robot.joint_velocities(),
+            self.heading_velocity(),
+            self.command,
+            [float(phase is p) for p in _PHASES],
+            [1.0 if walker.state.stance == "left" else -1.0, walker.phase_progress()],
+            [c * dx + s * dy, -s * dx + c * dy, math.remainder(step.yaw - yaw, 2 * math.pi)],
+            [c * error[0] + s * error[1], -s * error[0] + c * error[1]],
+            self.last_action,
+        ]).astype(np.float32)
+
+    def get_reward(self) -> float:
+        w = self.rewards
+        velocity = self.heading_velocity()
+        error = velocity[:2] - self.command[:2]
+        yaw_error = velocity[2] - self.command[2]
+        effort = self.robot.joint_efforts() * self._effort_scale
+        change = self.last_action - self.previous_action
+        return float(
+            w.alive
+            + w.tracking * math.exp(-float(error @ error) / w.tracking_width**2)
+            + w.yaw_tracking * math.exp(-(yaw_error / w.yaw_tracking_width) ** 2)
+            + w.upright * math.exp(-((self.tilt() / w.upright_width) ** 2))
+            - w.effort * float(effort @ effort) / effort.size
+            - w.action_rate * float(change @ change) / change.size
+            - (w.fall if self.is_terminated() else 0.0)
+        )
+
+    def is_terminated(self) -> bool:
+        return bool(self.base_state().position[2] < self.min_height or self.tilt() > self.max_tilt)
+
+    def get_info(self) -> dict[str, Any]:
+        base = self.base_state()
+        state = self.walker.state
+        return {
+            "base_height": float(base.position[2]),
+            "tilt": self.tilt(),
+            "base_xy": base.position[:2].copy(),
+            "base_yaw": _yaw(base.quaternion),
+            "command": self.command.copy(),
+            "phase": self.walker.phase.value,
+            "steps": state.steps,
+            "recovery_steps": state.recovery_steps,
+        }
+
+    def describe(self) -> dict[str, Any]:
+        d = self.description
+        return {
+            **super().describe(),
+            "controller": "walker",
+            "action_layout": self.layout.describe(),
+            "action_scale": self.layout.scales.tolist(),
+            "default_joint_positions": d.default_positions.tolist(),
+            "kp": d.kp.tolist(),
+            "kd": d.kd.tolist(),
+            "effort_limits": d.effort_limits.tolist(),
+            "observation_scales": {"angular_velocity": ANGULAR_VELOCITY_SCALE, "joint_velocity": JOINT_VELOCITY_SCALE},
+        }
+
+
+__all__ = ["CommandRanges", "G1Walk", "WalkRewards", "WalkScales"]

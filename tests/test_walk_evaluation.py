@@ -1,0 +1,104 @@
+"""Walking push-recovery evaluation: tracking metric, protocol, paired statistics, the command (short episodes)."""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import replace
+import json
+import math
+
+import numpy as np
+import pytest
+
+pytest.importorskip("onnxruntime")
+pytest.importorskip("onnx")
+
+from giwbc.apps.evaluation import ArmResult, Comparison, EpisodeResult, compare, velocity_tracking_rms  # noqa: E402
+from giwbc.apps.walk_evaluation import WalkProtocol, add_evaluate_command, paired_tracking  # noqa: E402
+from giwbc.policy import MlpWeights, export_onnx  # noqa: E402
+
+# 0.1 s push in [1.2, 1.3] s of a 2.5 s walking episode, forward commands only.
+SHORT = WalkProtocol(force=30.0, duration=0.1, interval=(1.2, 1.3), episode_seconds=2.5, commands=((0.2, 0.3), (0.0, 0.0), (0.0, 0.0)))
+
+
+def test_tracking_rms_of_known_motions() -> None:
+    times = np.arange(0, 5.0001, 0.02)
+    yaw = np.full(len(times), math.pi / 2)  # heading +y: a body-frame vx moves along world +y
+    xy = np.stack([np.zeros(len(times)), 0.25 * times], axis=1)
+    commands = np.tile([0.3, 0.0, 0.0], (len(times), 1))
+    assert velocity_tracking_rms(times, xy, yaw, commands) == pytest.approx(0.05)
+    wobble = xy + np.stack([0.03 * np.sin(2 * math.pi * times), np.zeros(len(times))], axis=1)  # 1 Hz sway: averages out
+    assert velocity_tracking_rms(times, wobble, yaw, commands) == pytest.approx(0.05, abs=1e-9)
+    commands[125:] = [0.25, 0.0, 0.0]  # from 2.5 s: the command is met; the window across the change is skipped
+    assert velocity_tracking_rms(times, xy, yaw, commands) == pytest.approx(math.sqrt(0.05**2 / 3))
+    assert math.isnan(velocity_tracking_rms(times[:40], xy[:40], yaw[:40], commands[:40]))
+
+
+def test_walk_protocol_draws_one_command_per_episode() -> None:
+    overrides = SHORT.env_overrides({"residuals": ["step"], "commands": {"vx": [-0.1, 0.1]}}, 50.0)
+    assert overrides["commands"]["vx"] == [0.2, 0.3] and overrides["commands"]["standing"] == 0.0
+    assert overrides["commands"]["interval"][0] > SHORT.episode_seconds and overrides["max_episode_steps"] == 125
+    assert overrides["sim2real"]["pushes"]["force"] == [30.0, 30.0]
+    with pytest.raises(ValueError):
+        WalkProtocol(commands=((0.3, 0.1), (0.0, 0.0), (0.0, 0.0)))
+
+
+def _episode(seed: int, success: bool, tracking: float) -> EpisodeResult:
+    return EpisodeResult(seed, success, success, 2.0, 0.0, 0.1, 1.0, (1.0, 0.0, 0.0), 0.0, tracking)
+
+
+def test_paired_tracking_statistics() -> None:
+    rng = np.random.default_rng(0)
+    base = rng.uniform(0.05, 0.2, 30)
+    wbc = ArmResult("wbc", SHORT, tuple(_episode(i, True, b) for i, b in enumerate(base)))
+    better = ArmResult("p", SHORT, tuple(_episode(i, i != 0, b - 0.02) for i, b in enumerate(base)))
+    t = paired_tracking(Comparison(wbc, better, "giwbc/G1Walk-v0"))
+    assert t.n == 29  # the episode the policy lost is not paired
+    assert t.mean_difference == pytest.approx(-0.02) and t.difference_ci[1] < 0 and t.wilcoxon_p < 1e-5
+    same = paired_tracking(Comparison(wbc, wbc, "giwbc/G1Walk-v0"))
+    assert same.mean_difference == 0.0 and same.wilcoxon_p == 1.0
+
+
+def _zero_walk_policy(tmp_path, env_kwargs):
+    from giwbc.apps.training import describe_env
+
+    described = describe_env("giwbc/G1Walk-v0", env_kwargs)
+    n_obs, n_act = len(described["observation_names"]), len(described["action_names"])
+    weights = MlpWeights(((np.zeros((8, n_obs)), np.zeros(8)), (np.zeros((n_act, 8)), np.zeros(n_act))))
+    return export_onnx(tmp_path / "zero.onnx", weights, {**described, "env_id": "giwbc/G1Walk-v0", "env_kwargs": env_kwargs})
+
+
+def test_zero_policy_walks_like_the_walker_and_the_command_reports(tmp_path, capsys) -> None:
+    policy = _zero_walk_policy(tmp_path, {"residuals": ["step", "com"], "sim2real": {"pushes": None}})
+    comparison = compare(policy, protocol=SHORT, episodes=2, seed=4, workers=2)
+    assert comparison.same_pushes
+    for wbc, residual in zip(comparison.wbc.episodes, comparison.residual.episodes):
+        assert wbc == residual and wbc.success and 1.2 <= wbc.push_time <= 1.34
+        assert 0.0 < wbc.tracking_rms < 0.3
+    parser = argparse.ArgumentParser()
+    add_evaluate_command(parser.add_subparsers())
+    args = parser.parse_args(["evaluate", "--protocol", "walk", "--policy", str(policy), "--episodes", "1", "--workers", "1",
+                              "--force", "30", "--duration", "0.1", "--interval", "1.2", "1.3", "--episode-seconds", "2.5",
+                              "--commands", "0.2", "0.3", "0", "0", "0", "0", "--seed", "4", "--json"])
+    assert args.run(args) == 0
+    (summary,) = json.loads(capsys.readouterr().out)["comparisons"]
+    assert summary["paired"]["saved"] == summary["paired"]["lost"] == 0 and summary["tracking"]["n"] == 1
+    assert summary["tracking"]["wbc_mean"] == pytest.approx(comparison.wbc.episodes[0].tracking_rms)
+
+
+def test_cached_arms_give_the_same_comparison(tmp_path) -> None:
+    from giwbc.apps.walk_evaluation import cached_arm, compare_cached
+
+    env_kwargs = {"residuals": ["step"], "sim2real": {"pushes": None}}
+    policy = _zero_walk_policy(tmp_path, env_kwargs)
+    cache = tmp_path / "cache"
+    protocol = WalkProtocol(force=30.0, duration=0.1, interval=(1.2, 1.3), episode_seconds=2.5, commands=((0.2, 0.3), (0.0, 0.0), (0.0, 0.0)))
+    alone = cached_arm(cache, None, env_id="giwbc.envs:giwbc/G1Walk-v0", env_kwargs=env_kwargs, protocol=protocol, episodes=1, seed=9, workers=1)
+    assert len(list(cache.glob("arm_*.json"))) == 1
+    first = compare_cached(policy, cache, protocol=protocol, episodes=1, seed=9, workers=1)
+    assert len(list(cache.glob("arm_*.json"))) == 2  # the walker-alone arm came from the cache
+    again = compare_cached(policy, cache, protocol=protocol, episodes=1, seed=9, workers=1)
+    assert first.wbc.episodes == alone.episodes == again.wbc.episodes and first.residual.episodes == again.residual.episodes
+    assert first.wbc.episodes == first.residual.episodes  # the zero policy is the walker alone
+    other = compare_cached(policy, cache, protocol=replace(protocol, force=35.0), episodes=1, seed=9, workers=1)
+    assert len(list(cache.glob("arm_*.json"))) == 4 and other.wbc.protocol.force == 35.0
