@@ -56,6 +56,7 @@ import numpy as np
 from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
 from giwbc.apps.live import HOST as LIVE_HOST
 from giwbc.apps.scene import SceneChannels
+from giwbc.apps.deploy_walk import WalkCommand, WalkHold
 from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
 
 from giwbc.control.balance import make_balance_controller
@@ -83,7 +84,7 @@ if TYPE_CHECKING:
     import mujoco
 
 TASKS = ("stand", "balance")
-CONTROLLERS = ("wbc", "pd")
+CONTROLLERS = ("wbc", "pd", "walk")
 EMULATOR_MODES = ("lockstep", "process")
 
 
@@ -185,7 +186,10 @@ class WbcHold:
         return f"whole-body controller {last.status.value} ({last.qp_status.value if last.qp_status else 'no QP'}): {last.message}"
 
 
-def make_controller(name: str, description: RobotDescription) -> Any:
+def make_controller(name: str, description: RobotDescription, walk: WalkCommand | None = None) -> Any:
+    """A deployment controller by name; ``walk``: the ``walk`` controller's command (default: stand)."""
+    if name == "walk":
+        return WalkHold(description, walk)
     if name == "pd":
         return PdHold(description)
     if name == "wbc":
@@ -224,6 +228,7 @@ class DeployOptions:
     emulated_hardware: str | None = None  # with emulate: the emulated robot's true wiring (default: the plan), e.g. to rehearse a wrong sign
     scene_rate: float = 50.0  # Hz of the 3D scene (link transforms, contact forces) in the log; 0: none
     foxglove_port: int | None = None  # also stream the scene to Foxglove on this loopback port (the logger's process)
+    walk: WalkCommand | None = None  # the walk controller's command (None: stand)
 
 
 @dataclass
@@ -240,6 +245,7 @@ class DeployOutcome:
     emulator: ActuatorEmulator | EmulatorProcess | None = None
     fault_onsets: dict[str, float] = field(default_factory=dict)  # host-side injected faults: robot time each first acted
     imu_counters: dict[str, int] | None = None  # a serial or CAN IMU driver's counters (samples, checksum errors, ...)
+    walking: dict[str, Any] | None = None  # the walk controller's counts: steps (touch-downs), single-support ticks
 
 
 def deploy(
@@ -284,6 +290,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     task_name = options.task or ("balance" if metadata is not None else "stand")
     if task_name not in TASKS:
         raise DeployError(f"unknown task {task_name!r}; choose from {', '.join(TASKS)}")
+    if options.controller == "walk" and task_name != "stand":
+        raise DeployError("the walk controller runs the 'stand' task (no policy)")
     if task_name == "stand" and policy is not None:
         raise DeployError("the 'stand' task takes no action: a policy needs --task balance")
 
@@ -369,7 +377,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         if not clock:
             clock.append(lambda: robot.time() + 1.0 / options.control_rate)
         if task_name == "stand":
-            task: Any = StandingTask(make_controller(options.controller, description), description.default_positions)
+            task: Any = StandingTask(make_controller(options.controller, description, options.walk), description.default_positions)
         else:
             task = _balance_task(description, metadata, options.controller)
         if host_faults:
@@ -429,8 +437,14 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     if standing is not None:
         say(
             f"emulated robot while running: base height {standing['min_height']:.3f}..{standing['max_height']:.3f} m, "
-            f"max tilt {math.degrees(standing['max_tilt']):.1f} deg ({'stood' if standing['stood'] else 'FELL'})"
+            f"max tilt {math.degrees(standing['max_tilt']):.1f} deg ({'stood' if standing['stood'] else 'FELL'}), "
+            f"base moved {standing['dx']:+.2f} m forward, {standing['dy']:+.2f} m sideways"
         )
+    walking = None
+    if isinstance(task, StandingTask) and isinstance(task.controller, WalkHold):
+        walker = task.controller
+        walking = {"steps": walker.steps, "single_support_ticks": walker.single_support_ticks, "notes": list(walker.notes)}
+        say(f"walking: {walker.steps} steps" + (f" (command: {'; '.join(walker.notes)})" if walker.notes else ""))
     say(f"log: {log.path}")
     if result.ok:
         message = "clean run: motors ramped to damping and switched off"
@@ -446,7 +460,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
     return DeployOutcome(
-        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters
+        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters, walking
     )
 
 
@@ -476,8 +490,10 @@ def _standing(emulator: ActuatorEmulator | EmulatorProcess, result: RunResult) -
         return None
     heights, tilts = rows[:, 1], rows[:, 2]
     stood = bool(tilts.max() < math.radians(10.0) and heights.min() > 0.8 * heights[0])
+    moved = rows[:, 3:5] - rows[0, 3:5]  # world frame (the emulated robot starts facing +x)
     return {"min_height": float(heights.min()), "max_height": float(heights.max()), "max_tilt": float(tilts.max()),
-            "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood}  # fmt: skip
+            "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood, "dx": float(moved[-1, 0]), "dy": float(moved[-1, 1]),
+            "max_excursion": float(np.hypot(moved[:, 0], moved[:, 1]).max())}  # fmt: skip
 
 
 def _us(value: float | None) -> str:
@@ -491,7 +507,13 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--robot", default="g1")
     parser.add_argument("--policy", default=None, help="policy .onnx (or its metadata .json); optional")
     parser.add_argument("--task", choices=TASKS, default=None, help="default: balance with a policy, stand without")
-    parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP or joint-PD hold")
+    parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP, joint-PD hold, or the walking WBC")
+    parser.add_argument("--vx", type=float, default=0.0, help="with --controller walk: forward speed, m/s (body frame)")
+    parser.add_argument("--vy", type=float, default=0.0, help="with --controller walk: lateral speed, m/s")
+    parser.add_argument("--yaw-rate", type=float, default=0.0, help="with --controller walk: turning rate, rad/s")
+    parser.add_argument("--step-in-place", action="store_true", help="with --controller walk: step with a zero command")
+    parser.add_argument("--walk-delay", type=float, default=WalkCommand.walk_delay,
+                        help="with --controller walk: seconds of standing after the start-up ramp before the command")
     parser.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")
     parser.add_argument("--emulate", action="store_true", help="rehearse on the actuator emulator instead of the configured buses")
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
@@ -533,12 +555,21 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
     if args.foxglove:
         require_foxglove()  # before the motors, not after
+    walk_flags = args.vx or args.vy or args.yaw_rate or args.step_in_place
+    if walk_flags and args.controller != "walk":
+        print("giwbc deploy: error: --vx/--vy/--yaw-rate/--step-in-place need --controller walk", file=sys.stderr)
+        return 2
+    try:
+        walk = WalkCommand(args.vx, args.vy, args.yaw_rate, args.step_in_place, args.walk_delay) if args.controller == "walk" else None
+    except DeployError as error:
+        print(f"giwbc deploy: error: {error}", file=sys.stderr)
+        return 2
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
         startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
-        foxglove_port=args.foxglove_port if args.foxglove else None,
+        foxglove_port=args.foxglove_port if args.foxglove else None, walk=walk,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
@@ -547,7 +578,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             "exit_code": outcome.exit_code, "message": outcome.message, "log": outcome.log_path,
             "fault": None if result is None or result.fault is None else result.fault.as_dict(),
             "faults": [] if result is None else [f.kind.value for f in result.faults],
-            "timing": None if result is None else result.timing, "standing": outcome.standing,
+            "timing": None if result is None else result.timing, "standing": outcome.standing, "walking": outcome.walking,
         }))  # fmt: skip
     elif outcome.exit_code:
         print(f"giwbc deploy: {outcome.message}", file=sys.stderr)
