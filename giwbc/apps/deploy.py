@@ -56,7 +56,7 @@ import numpy as np
 from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
 from giwbc.apps.live import HOST as LIVE_HOST
 from giwbc.apps.scene import SceneChannels
-from giwbc.apps.deploy_walk import WalkCommand, WalkHold
+from giwbc.apps.deploy_walk import WalkCommand, WalkHold, add_walk_arguments, walk_command
 from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
 
 from giwbc.control.balance import make_balance_controller
@@ -508,12 +508,7 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--policy", default=None, help="policy .onnx (or its metadata .json); optional")
     parser.add_argument("--task", choices=TASKS, default=None, help="default: balance with a policy, stand without")
     parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP, joint-PD hold, or the walking WBC")
-    parser.add_argument("--vx", type=float, default=0.0, help="with --controller walk: forward speed, m/s (body frame)")
-    parser.add_argument("--vy", type=float, default=0.0, help="with --controller walk: lateral speed, m/s")
-    parser.add_argument("--yaw-rate", type=float, default=0.0, help="with --controller walk: turning rate, rad/s")
-    parser.add_argument("--step-in-place", action="store_true", help="with --controller walk: step with a zero command")
-    parser.add_argument("--walk-delay", type=float, default=WalkCommand.walk_delay,
-                        help="with --controller walk: seconds of standing after the start-up ramp before the command")
+    add_walk_arguments(parser)
     parser.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")
     parser.add_argument("--emulate", action="store_true", help="rehearse on the actuator emulator instead of the configured buses")
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
@@ -555,12 +550,8 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
     if args.foxglove:
         require_foxglove()  # before the motors, not after
-    walk_flags = args.vx or args.vy or args.yaw_rate or args.step_in_place
-    if walk_flags and args.controller != "walk":
-        print("giwbc deploy: error: --vx/--vy/--yaw-rate/--step-in-place need --controller walk", file=sys.stderr)
-        return 2
     try:
-        walk = WalkCommand(args.vx, args.vy, args.yaw_rate, args.step_in_place, args.walk_delay) if args.controller == "walk" else None
+        walk = walk_command(args)
     except DeployError as error:
         print(f"giwbc deploy: error: {error}", file=sys.stderr)
         return 2

@@ -12,6 +12,7 @@ as :class:`giwbc.apps.deploy.WbcHold` does.
 
 from __future__ import annotations
 
+import argparse
 import math
 from dataclasses import dataclass, replace
 from typing import Any
@@ -19,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from giwbc.errors import DeployError
+from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import ImpedanceCommand, Robot
@@ -51,6 +53,7 @@ class WalkCommand:
 # walker's default touch-down threshold (0.15 of the weight, ~50 N) late in a swing. Deployed, a
 # touch-down needs 0.35 of the weight (~120 N): a real landing gets there within a few ms.
 DEPLOY_TOUCHDOWN_FORCE = 0.35
+DEPLOY_SWING_KP = 250.0
 
 
 def deploy_walker_config() -> WalkerConfig:
@@ -59,8 +62,10 @@ def deploy_walker_config() -> WalkerConfig:
     Without online step adjustment: from the *estimated* DCM (its velocity errs by a few cm/s
     around each touch-down, where the stance foot rolls) the adapter moved the landing spots and
     times enough that the emulated G1 landed on a sole edge (ankle roll at its limit) within
-    2-3 steps at 0.3 m/s; with the nominal footsteps it walks (measured in the module's tests)."""
-    return replace(WalkerConfig(), touchdown_force=DEPLOY_TOUCHDOWN_FORCE, step_adaptation=False)
+    2-3 steps at 0.3 m/s; with the nominal footsteps it walks (tests/test_deploy_walk.py). A
+    softer swing foot (kp 250 instead of 400): with the process emulator's one-cycle reply delay
+    the stiffer one landed on a sole edge after ~9 steps."""
+    return replace(WalkerConfig(), touchdown_force=DEPLOY_TOUCHDOWN_FORCE, step_adaptation=False, swing_kp=DEPLOY_SWING_KP)
 
 
 class WalkHold:
@@ -77,6 +82,7 @@ class WalkHold:
         self.command = command or WalkCommand()
         self._links = {side: contact.link for side, contact in self.walker.contacts.items()}
         order = [c.link for c in description.contacts]  # the estimator's contact order
+        self._index = {side: order.index(link) for side, link in self._links.items()}
         self._plans = {side: np.array([link == self._links[side] for link in order]) for side in self._links}
         self._anchor = True
         self._started_at: float | None = None
@@ -103,7 +109,7 @@ class WalkHold:
             c = self.command
             self.notes.extend(walker.set_command(c.vx, c.vy, c.yaw_rate, step_in_place=c.step_in_place))
             self._commanded = True
-        forces = {side: float(robot.contact_wrench(link).force[2]) for side, link in self._links.items()} if self.foot_forces else None
+        forces = self._foot_forces(robot) if self.foot_forces else None
         self.last = walker.update(q, v, now, forces)
         single = walker.state.phase is Phase.SINGLE
         self.single_support_ticks += single
@@ -115,6 +121,14 @@ class WalkHold:
             stance = walker.state.stance
             set_plan(self._plans[stance] if single else None)
         return self.last.impedance
+
+    def _foot_forces(self, robot: Robot) -> dict[str, float]:
+        """Normal ground force per sole (N): the estimate's own array on an estimating robot (its
+        ``contact_wrench`` would also compute the link poses, ~2 forward kinematics a tick)."""
+        if isinstance(robot, EstimatedRobot):
+            forces = robot.estimate.contact_forces
+            return {side: float(forces[i, 2]) for side, i in self._index.items()}
+        return {side: float(robot.contact_wrench(link).force[2]) for side, link in self._links.items()}
 
     @property
     def steps(self) -> int:
@@ -131,4 +145,24 @@ class WalkHold:
         return f"{self.walker.wbc.consecutive_failures} ticks in a row: walking whole-body controller {last.status.value} ({last.qp_status.value if last.qp_status else 'no QP'}): {last.message}"
 
 
-__all__ = ["WalkCommand", "WalkHold"]
+def add_walk_arguments(parser: argparse.ArgumentParser) -> None:
+    """``giwbc deploy``'s walking options."""
+    parser.add_argument("--vx", type=float, default=0.0, help="with --controller walk: forward speed, m/s (body frame)")
+    parser.add_argument("--vy", type=float, default=0.0, help="with --controller walk: lateral speed, m/s")
+    parser.add_argument("--yaw-rate", type=float, default=0.0, help="with --controller walk: turning rate, rad/s")
+    parser.add_argument("--step-in-place", action="store_true", help="with --controller walk: step with a zero command")
+    parser.add_argument("--walk-delay", type=float, default=WalkCommand.walk_delay,
+                        help="with --controller walk: seconds of standing after the start-up ramp before the command")
+
+
+def walk_command(args: argparse.Namespace) -> WalkCommand | None:
+    """The walk command of parsed ``giwbc deploy`` arguments (None without ``--controller walk``);
+    :class:`DeployError` for walking options given to another controller or a non-finite one."""
+    if args.controller != "walk":
+        if args.vx or args.vy or args.yaw_rate or args.step_in_place:
+            raise DeployError("--vx/--vy/--yaw-rate/--step-in-place need --controller walk")
+        return None
+    return WalkCommand(args.vx, args.vy, args.yaw_rate, args.step_in_place, args.walk_delay)
+
+
+__all__ = ["WalkCommand", "WalkHold", "add_walk_arguments", "walk_command"]
