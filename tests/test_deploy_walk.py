@@ -57,3 +57,9 @@ def test_bad_walk_commands_are_refused(g1):
     assert args.run(args) == 2
     args = parser.parse_args(["deploy", "--emulate", "--controller", "walk", "--vy", "nan"])
     assert args.run(args) == 2
+
+
+def test_unpaced_runs_only_on_the_lockstep_emulator(g1):
+    for options in (DeployOptions(realtime=False), DeployOptions(emulate=True, emulator_mode="process", realtime=False)):
+        outcome = deploy(options, description=g1, out=None)
+        assert outcome.exit_code == 2 and "unpaced" in outcome.message

@@ -279,6 +279,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         raise DeployError(str(error)) from error
     if options.emulator_mode not in EMULATOR_MODES:
         raise DeployError(f"emulator mode must be one of {', '.join(EMULATOR_MODES)}, got {options.emulator_mode!r}")
+    if not options.realtime and not options.emulate:
+        raise DeployError("real motors run in real time: an unpaced run (--unpaced, realtime=False) needs --emulate")
     if options.emulate and options.emulator_mode == "process" and not options.realtime:
         raise DeployError("the emulator process runs in real time: an unpaced run (realtime=False) needs the lockstep emulator")
 
@@ -514,6 +516,8 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
                         help="with --emulate: in the control loop's thread on virtual buses (lockstep), or in its own process (real time)")
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds of control after the start-up ramp")
+    parser.add_argument("--unpaced", action="store_true",
+                        help="with --emulator lockstep: as fast as the machine allows, in the emulator's time (no real-time pacing)")
     parser.add_argument("--rate", type=float, default=500.0, help="control rate, Hz")
     parser.add_argument("--log", default=None, help="run log (.mcap); default runs/deploy-<robot>-<time>.mcap")
     parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
@@ -557,7 +561,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         return 2
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
-        emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
+        emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log, realtime=not args.unpaced,
         startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
         foxglove_port=args.foxglove_port if args.foxglove else None, walk=walk,
