@@ -44,7 +44,9 @@ def test_dry_run_holds_g1_standing_with_the_wbc_in_real_time(g1, model, tmp_path
     wall = time.perf_counter() - started
     assert outcome.exit_code == 0, outcome.message
     result = outcome.result
-    assert result.ok and result.robot_time == pytest.approx(2.95, abs=0.1)
+    calibrating = result.phase_times["running"] - result.phase_times["calibrate"]  # held still until the IMU calibrated
+    assert outcome.calibration is not None and 0.75 <= calibrating < StartupConfig().calibration_timeout
+    assert result.ok and result.robot_time == pytest.approx(2.95 + calibrating, abs=0.1)
     # Paced by the wall clock, not run as fast as possible: the run never got ahead of wall time
     # (its own robot time, less one period, at most), and no logged cycle started before its slot.
     assert wall >= result.robot_time - 0.002
@@ -59,7 +61,7 @@ def test_dry_run_holds_g1_standing_with_the_wbc_in_real_time(g1, model, tmp_path
     assert set(log.schemas) == (set(SCHEMAS) - {"/faults"}) | set(SCENE_SCHEMAS) and not log.faults  # with the 3D scene
     assert log.metadata["robot"] == "g1" and log.joint_names == g1.joint_names
     assert [e["detail"]["phase"] for e in log.events if e["event"] == "phase"] == [
-        "enable", "settle", "ramp", "running", "shutdown", "damping", "off"]  # fmt: skip
+        "enable", "settle", "ramp", "calibrate", "running", "shutdown", "damping", "off"]  # fmt: skip
     running = [m for m in log.topic("/commands") if m["phase"] == "running" and m["kind"] == "command"]
     assert len(running) >= 200
     tau = np.array([m["tau_ff"] for m in running[10:]])
@@ -70,7 +72,7 @@ def test_dry_run_holds_g1_standing_with_the_wbc_in_real_time(g1, model, tmp_path
     assert all(b > a for a, b in zip(slots, slots[1:]))  # one cycle per slot at most, never a burst
     assert min(m["lateness_us"] for m in timing) >= 0.0 and max(m["lateness_us"] for m in timing) > 0.0
     estimate = log.array("/estimator", "position")
-    truth = outcome.emulator.truth_between(0.5, 2.5)
+    truth = outcome.emulator.truth_between(result.phase_times["running"], result.phase_times["shutdown"])
     est_t = log.array("/estimator", "t")
     height = np.interp(truth[:, 0], est_t, estimate[:, 2])
     assert np.abs(height - truth[:, 1]).max() < 0.03  # the estimator tracks the emulated base

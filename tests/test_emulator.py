@@ -26,6 +26,7 @@ from giwbc.hal.hardware import load_hardware
 from giwbc.hal.motor import MOTOR_PRESETS, MotorConfig
 from giwbc.hal.protocols import MitProtocol
 from giwbc.hal.protocols.mit import REPLY_VARIANTS
+from giwbc.robot.noise import SensorNoiseConfig
 
 DT = 0.002
 
@@ -367,6 +368,32 @@ def test_imu_comes_from_mujoco_at_emulator_time_and_the_gantry_holds(rig):
         emu.poll(k * DT)
     assert not emu.robot.data.xfrc_applied.any()  # released
     assert emu.robot.base_state().position[2] < z0 - 0.05  # limp: it sinks
+
+
+def test_a_mems_imu_profile_publishes_gyro_and_accelerometer_with_its_drawn_errors(rig):
+    """The ``mems`` profile: no orientation output (NaN quaternion), the turn-on gyro bias drawn from
+    the seed in every sample (the robot hangs still in the gantry), 2 samples of latency, about 1 %
+    of samples dropped (repeated); the same seed draws the same bias."""
+    mems = SensorNoiseConfig.profile("mems")
+    host = rig(gantry=Gantry(until=5.0), imu=mems, seed=3)
+    emu = host.emulator
+    assert np.abs(emu.imu_errors.gyro_bias).max() > 0.1 * mems.gyro_bias  # drawn, not zero
+    readings, truth = [], []
+    for k in range(1, 1501):
+        emu.poll(k * DT)
+        readings.append(emu.imu_channel.read())
+        truth.append(emu.robot.imu().angular_velocity)
+    assert all(np.isnan(r.quaternion).all() for r in readings)
+    gyro = np.array([r.angular_velocity for r in readings[250:]])
+    error = gyro.mean(axis=0) - np.mean(truth[250:], axis=0)  # the limp legs sway the hanging base a little
+    np.testing.assert_allclose(error, emu.imu_gyro_bias, atol=0.002)  # noise 0.011/sample, 1250 samples
+    times = np.array([r.time for r in readings])
+    lag = np.median(np.arange(1, 1501) * DT - times)
+    assert lag == pytest.approx(2 * DT, abs=0.2 * DT)  # two samples late (jitter aside)
+    repeats = np.mean(np.diff(times) == 0.0)
+    assert 0.003 < repeats < 0.025  # ~1 % dropouts
+    again = rig(gantry=Gantry(until=5.0), imu=mems, seed=3).emulator
+    np.testing.assert_array_equal(again.imu_errors.gyro_bias, emu.imu_errors.gyro_bias)
 
 
 def test_vectorized_codec_matches_the_protocol(rng):

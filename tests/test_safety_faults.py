@@ -17,6 +17,7 @@ from giwbc.emulation import EmulatorConfig, FaultInjection
 from giwbc.runlog import read_log
 from giwbc.hal.safety import FaultKind, SafetyConfig, SafetySupervisor, SignalWatch
 from giwbc.robot.interface import ImuReading
+from giwbc.robot.noise import SensorNoiseConfig
 
 T_FAULT = 0.3  # s: after the 0.22 s start-up, while the controller runs
 DT = 0.002
@@ -146,6 +147,18 @@ def test_fall(run, g1):
     imu = log.array("/estimator", "imu_quaternion")
     tilt = np.degrees(np.arccos(np.clip(1 - 2 * (imu[:, 0] ** 2 + imu[:, 1] ** 2), -1, 1)))
     assert tilt[: int(T_FAULT / DT) - 5].max() < 5.0 and tilt.max() > np.degrees(SAFETY.max_tilt)
+
+
+def test_fall_with_a_mems_imu_without_orientation_output(run, g1):
+    """The same push, the emulated IMU a MEMS one (no orientation output, biased gyro): the
+    supervisor's own gyro + gravity tilt still sees the fall, as the base passes the limit."""
+    mems = SensorNoiseConfig.profile("mems")
+    outcome = run([FaultInjection("push", force=(0.0, 300.0, 0.0), start=T_FAULT, stop=T_FAULT + 0.4)], seconds=1.2, imu=mems)
+    fault, log = assert_safe_stop(outcome, FaultKind.FALL, g1)
+    assert np.isnan(log.array("/estimator", "imu_quaternion")).all()  # the host never saw an orientation
+    truth = outcome.emulator.truth_between(0.0, fault.time + 1e-9)
+    assert abs(truth[:, 2].max() - SAFETY.max_tilt) < 0.1  # caught at the limit (truth 37.7 deg for 40.1), not long before or after
+    assert truth[truth[:, 0] < T_FAULT, 2].max() < np.radians(5.0)  # no false alarm before the push
 
 
 def test_policy_nan(run, g1):

@@ -13,6 +13,7 @@ import pytest
 
 from giwbc.hal.can_robot import CycleReport
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
+from giwbc.robot import so3
 from giwbc.robot.interface import ImuReading
 
 DT = 0.002
@@ -56,8 +57,9 @@ def test_every_cycle_count_must_be_at_least_one(name: str) -> None:
 
 
 def test_tilt_and_damping_settings_are_validated() -> None:
-    message = "safety max_tilt must be > 0, damping_time and damping_kd_scale >= 0"
-    for bad in ({"max_tilt": 0.0}, {"damping_time": -0.1}, {"damping_kd_scale": -1.0}, {"max_tilt": -1.0, "damping_time": 1.0}):
+    message = "safety max_tilt and gravity_tilt_gain must be > 0, damping_time and damping_kd_scale >= 0"
+    for bad in ({"max_tilt": 0.0}, {"damping_time": -0.1}, {"damping_kd_scale": -1.0}, {"max_tilt": -1.0, "damping_time": 1.0},
+                {"gravity_tilt_gain": 0.0}):  # fmt: skip
         with pytest.raises(ValueError) as raised:
             SafetyConfig(**bad)
         assert str(raised.value) == message
@@ -185,6 +187,55 @@ def test_base_tilt_is_the_angle_of_the_base_z_axis_from_vertical(g1, rng) -> Non
         assert sup.base_tilt(ImuReading(quaternion, np.zeros(3), np.zeros(3))) == pytest.approx(expected, abs=1e-9)
     # Upside down, with a quaternion a hair off unit length: pi, not a math domain error.
     assert sup.base_tilt(ImuReading(np.array([1.0 + 1e-9, 0.0, 0.0, 0.0]), np.zeros(3), np.zeros(3))) == pytest.approx(math.pi)
+
+
+# --- an IMU without orientation output ------------------------------------------------------------
+NO_ORIENTATION = np.full(4, np.nan)
+
+
+def _mems_sample(rotation: np.ndarray, omega: np.ndarray, t: float, rng, *, gyro_bias=np.zeros(3), force=None) -> ImuReading:
+    """A gyro + accelerometer sample of a base at ``rotation`` (world) turning at ``omega`` (body):
+    noise of a MEMS IMU; ``force``: the specific force in the body frame (default: gravity's)."""
+    specific = rotation.T @ np.array([0.0, 0.0, 9.81]) if force is None else force
+    return ImuReading(NO_ORIENTATION, omega + gyro_bias + 0.011 * rng.standard_normal(3),
+                      specific + 0.045 * rng.standard_normal(3), t)  # fmt: skip
+
+
+def test_without_orientation_output_a_biased_standing_imu_never_trips_and_a_tilt_is_read_from_gravity(g1, rng) -> None:
+    """A standing robot with a cheap IMU (2 deg/s gyro bias on every axis, no orientation output):
+    60 s without a fault, the tilt within a few degrees; then the same IMU held still at a tilt
+    beyond the limit (a fault injected as a tilt): FALL."""
+    checker = Checker(g1)
+    bias = np.full(3, math.radians(2.0))
+    tilts = []
+    for k in range(int(60.0 / DT)):
+        imu = _mems_sample(np.eye(3), np.zeros(3), k * DT, rng, gyro_bias=bias)
+        assert checker(imu=imu) == []
+        tilts.append(checker.sup.imu_tilt(imu))  # the same sample again: not taken twice
+    assert max(tilts) < math.radians(5.0) and tilts[-1] < math.radians(0.5)  # the bias's lag (4.3 deg), then learnt
+    assert [f.kind for f in checker(imu=ImuReading(NO_ORIENTATION, np.array([0.0, np.nan, 0.0]), np.zeros(3), 60.0))] == [FaultKind.IMU]
+    tilted = so3.exp(np.array([CONFIG.max_tilt + 0.1, 0.0, 0.0]))
+    checker.sup.reset()
+    faults = [checker(imu=_mems_sample(tilted, np.zeros(3), 61.0 + k * DT, rng)) for k in range(10)]
+    assert faults[0] and faults[0][0].kind is FaultKind.FALL and "beyond 40.1°" in faults[0][0].message
+
+
+def test_without_orientation_output_a_fall_the_accelerometer_cannot_see_is_caught_by_the_gyro(g1, rng) -> None:
+    """Tipping over the feet like a pendulum, the specific force stays along the body's z axis:
+    gravity alone would read "level" all the way down. Tipping at 1 rad/s from level, the gyro
+    path reports FALL before the base is 0.05 rad past the limit."""
+    checker = Checker(g1)
+    for k in range(int(2.0 / DT)):  # standing: the filter settles
+        assert checker(imu=_mems_sample(np.eye(3), np.zeros(3), k * DT, rng)) == []
+    rate = np.array([0.0, 1.0, 0.0])
+    for k in range(int(1.5 / DT)):
+        angle = k * DT * 1.0
+        along_body = np.array([0.0, 0.0, 9.81 * math.cos(angle)])  # no tangential component: a pendulum's
+        faults = checker(imu=_mems_sample(so3.exp(rate * angle), rate, 2.0 + k * DT, rng, force=along_body))
+        if faults:
+            break
+    assert [f.kind for f in faults] == [FaultKind.FALL]
+    assert CONFIG.max_tilt < angle < CONFIG.max_tilt + 0.05, angle  # caught 0.024 rad past the limit
 
 
 def test_a_rotated_imu_mount_measures_the_base_tilt(g1, monkeypatch, rng) -> None:

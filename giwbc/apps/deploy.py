@@ -16,9 +16,11 @@ Procedure (:func:`deploy`):
 4. build the CAN robot (IMU from the plan's source) and, when the controller needs a base state,
    wrap it: ``EstimatedRobot(CanRobot(...))`` (the base from the state estimator); the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
-   run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``;
-5. report: exit code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's
-   number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
+   run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``
+   (with a state estimator, after the start-up ramp the robot holds still until the estimator's
+   IMU calibration is done: phase ``calibrate``, :mod:`giwbc.runtimes.phases`);
+5. report (with the IMU calibration found, also in the run log's ``calibration`` event): exit
+   code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
    inside the loop; 1 for other faults, the watchdog's included; 2 for configuration errors).
 
 Real buses: before anything is sent, the SocketCAN pre-flight (:mod:`giwbc.hal.preflight`) checks
@@ -33,6 +35,11 @@ as CAN frames, read through the real drivers.
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
+
+IMU: ``--imu-profile`` names the IMU's class (:data:`giwbc.robot.noise.IMU_PROFILES`): the
+estimator is set up for it (``mems``, ``cheap``: no orientation output, tilt from gravity and the
+feet) and, with ``--emulate``, the emulated IMU carries its errors (turn-on biases drawn from the
+emulator's seed, noise, latency, dropouts).
 """
 
 from __future__ import annotations
@@ -64,14 +71,16 @@ from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.emulation.process import EmulatorProcess
 from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import DeployError
+from giwbc.estimation.calibration import CalibrationReport, StandstillConfig
 from giwbc.estimation.estimated_robot import EstimatedRobot
-from giwbc.estimation.estimator import StateEstimator
+from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
 from giwbc.hal.can_robot import CanRobot
 from giwbc.hal.hardware import HardwareConfigError, load_hardware
 from giwbc.hal.imu import imu_source_for
 from giwbc.policy import OnnxPolicy, PolicyFormatError
 from giwbc.hal.safety import SafetyConfig
 from giwbc.robot.description import RobotDescription, RobotDescriptionError, load
+from giwbc.robot.noise import IMU_PROFILES, SensorNoiseConfig
 from giwbc.robot.standing import PdHold
 from giwbc.runlog import RunLogWriter
 from giwbc.runtimes.faults import HostFaults, fault_case
@@ -228,6 +237,7 @@ class DeployOptions:
     emulated_hardware: str | None = None  # with emulate: the emulated robot's true wiring (default: the plan), e.g. to rehearse a wrong sign
     scene_rate: float = 50.0  # Hz of the 3D scene (link transforms, contact forces) in the log; 0: none
     foxglove_port: int | None = None  # also stream the scene to Foxglove on this loopback port (the logger's process)
+    imu_profile: str | None = None  # the IMU's class (giwbc.robot.noise.IMU_PROFILES): the emulated IMU's errors, the estimator's setup
     walk: WalkCommand | None = None  # the walk controller's command (None: stand)
 
 
@@ -245,6 +255,7 @@ class DeployOutcome:
     emulator: ActuatorEmulator | EmulatorProcess | None = None
     fault_onsets: dict[str, float] = field(default_factory=dict)  # host-side injected faults: robot time each first acted
     imu_counters: dict[str, int] | None = None  # a serial or CAN IMU driver's counters (samples, checksum errors, ...)
+    calibration: CalibrationReport | None = None  # what the state estimator's start-up calibration found
     walking: dict[str, Any] | None = None  # the walk controller's counts: steps (touch-downs), single-support ticks
 
 
@@ -313,6 +324,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         say(f"  {line}")
 
 
+    sensors = _imu_profile(options)
     host_faults = HostFaults(options.faults)
     if host_faults and not options.emulate:
         raise DeployError("injected faults are for rehearsals: they need --emulate")
@@ -327,6 +339,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             first_run, safety = first_run_settings(safety, say)
         if options.emulate:
             config = options.emulator or EmulatorConfig()
+            if sensors is not None and config.imu is None:
+                config = replace(config, imu=sensors)
             if first_run is not None:
                 config = with_gantry(config)
             if options.faults:
@@ -362,7 +376,11 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
         if wants_estimator and description.floating_base:
-            estimator = StateEstimator(description)
+            # The start-up holds the robot still anyway: a 4 s calibration window (16 blocks, not 0.75 s) averages the
+            # gyro's noise to ~0.2 mrad/s per axis (the held robot's slow sway is read from the leg encoders).
+            standstill = StandstillConfig(startup_blocks=16)
+            estimator = StateEstimator(description, EstimatorConfig.for_sensors(sensors, standstill=standstill) if sensors is not None
+                                       else EstimatorConfig(standstill=standstill))  # fmt: skip
         clock: list[Callable[[], float]] = []  # robot time for host-side faults (set once the robot exists)
         if isinstance(emulator, ActuatorEmulator):
             clock.append(lambda: emulator.time)  # lockstep: the emulator is at the cycle's time when the host sends
@@ -424,6 +442,11 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         if log is not None:
             log.close()
 
+    calibration = estimator.calibration if estimator is not None else None
+    if calibration is not None:
+        say(calibration.summary())
+    elif estimator is not None and estimator.config.calibrate:
+        say(f"IMU not calibrated: the state estimator was waiting for {estimator.waiting_for}")
     standing = None
     if emulator is not None and description.floating_base:
         standing = _standing(emulator, result)
@@ -462,8 +485,18 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
     return DeployOutcome(
-        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters, walking
+        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters, calibration, walking
     )
+
+
+def _imu_profile(options: DeployOptions) -> SensorNoiseConfig | None:
+    """The IMU's sensor model: the named profile, else the emulator's configured IMU, else None."""
+    if options.imu_profile is not None:
+        try:
+            return SensorNoiseConfig.profile(options.imu_profile)
+        except ValueError as error:
+            raise DeployError(str(error)) from error
+    return options.emulator.imu if options.emulate and options.emulator is not None else None
 
 
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
@@ -538,6 +571,9 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--fault", default=None, metavar="KIND",
                         help="with --emulate: inject one fault of the fault table (giwbc.runtimes.faults.FAULT_CASES), e.g. bus_off")
     parser.add_argument("--fault-at", type=float, default=1.0, help="seconds after the start-up ramp at which --fault starts")
+    parser.add_argument("--imu-profile", choices=sorted(IMU_PROFILES), default=None,
+                        help="the IMU's class: with --emulate the emulated IMU's errors (mems, cheap: no orientation output); "
+                             "sets up the state estimator for it")  # fmt: skip
     parser.set_defaults(run=run_deploy_command)
     return parser
 
@@ -564,7 +600,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log, realtime=not args.unpaced,
         startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
-        foxglove_port=args.foxglove_port if args.foxglove else None, walk=walk,
+        foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
@@ -574,6 +610,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             "fault": None if result is None or result.fault is None else result.fault.as_dict(),
             "faults": [] if result is None else [f.kind.value for f in result.faults],
             "timing": None if result is None else result.timing, "standing": outcome.standing, "walking": outcome.walking,
+            "calibration": None if outcome.calibration is None else outcome.calibration.as_dict(),
         }))  # fmt: skip
     elif outcome.exit_code:
         print(f"giwbc deploy: {outcome.message}", file=sys.stderr)

@@ -9,6 +9,7 @@ import numpy as np
 
 from giwbc.emulation.faults import FaultInjection
 from giwbc.emulation.thermal import ThermalModel
+from giwbc.robot.noise import SensorNoiseConfig
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,9 @@ class EmulatorConfig:
     faults: tuple[FaultInjection, ...] = ()
     record: bool = False  # keep per-poll snapshots of what the motors apply (tests)
     record_truth: bool = True  # keep (time, base height, base tilt, base x, base y) after every physics advance
+    # The IMU's errors (e.g. SensorNoiseConfig.profile("mems"): gyro + accelerometer only, turn-on
+    # biases drawn from the seed, latency, dropouts); None: MuJoCo's exact IMU.
+    imu: SensorNoiseConfig | None = None
 
 
 @dataclass(frozen=True)

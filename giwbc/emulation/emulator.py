@@ -37,7 +37,10 @@ python-can's per-frame cost is what remains (~5 us per send or receive on ``virt
 Temperature: :class:`~giwbc.emulation.thermal.ThermalModel`. The IMU is MuJoCo's, published to an :class:`~giwbc.hal.imu.ImuChannel` after each physics advance,
 and, when the plan's IMU is ``serial`` or ``can``, sent as that device's bytes
 (:mod:`~giwbc.emulation.imu_devices`: a pseudo-terminal whose path :meth:`host_plan` gives, or
-frames on the IMU's bus), so the host reads it through its real driver.
+frames on the IMU's bus), so the host reads it through its real driver. With
+:attr:`EmulatorConfig.imu` it carries a real IMU's errors (:class:`~giwbc.robot.noise.SensorModel`:
+biases drawn once from the seed, noise, latency counted in published samples, dropouts, no orientation output
+for a ``mems`` profile); :attr:`ActuatorEmulator.imu_errors` keeps what was drawn, for judging a calibration.
 """
 
 from __future__ import annotations
@@ -63,6 +66,7 @@ from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import ActuatorProtocol, CanProtocolError
 from giwbc.robot.interface import ImpedanceCommand
 from giwbc.robot.mujoco_robot import MujocoRobot
+from giwbc.robot.noise import SensorErrors, SensorModel
 
 if TYPE_CHECKING:
     import mujoco
@@ -153,6 +157,12 @@ class ActuatorEmulator(FaultEffects):
         for f in c.faults:
             self.add_fault(f)
         self.imu_channel = ImuChannel()
+        self.imu_errors: SensorErrors | None = None  # the IMU's drawn errors (None: exact)
+        self._imu_model: SensorModel | None = None
+        if c.imu is not None:
+            imu_rng = np.random.default_rng(None if c.seed is None else (c.seed, 0x1A0))  # a stream of its own
+            self.imu_errors = c.imu.errors(imu_rng)
+            self._imu_model = SensorModel(self.robot, self.imu_errors, imu_rng)
         # A serial or CAN IMU in the plan: its bytes too, for the host's real driver (the channel
         # keeps every sample, for tests).
         self.imu_device = imu_device_for(plan.imu, {b.name: p for b, p in zip(plan.buses, self.ports)})
@@ -467,10 +477,16 @@ class ActuatorEmulator(FaultEffects):
     def _publish_imu(self) -> None:
         if self.faults and any(f.kind == "imu_silent" and f.active(self.time) for f in self.faults):
             return
-        reading = self.robot.imu()
+        model = self._imu_model
+        reading = self.robot.imu() if model is None else model.imu()
         self.imu_channel.publish(reading)
         if self.imu_device is not None:
             self.imu_device.publish(reading)
+
+    @property
+    def imu_gyro_bias(self) -> np.ndarray | None:
+        """The emulated IMU's gyro bias now (rad/s, IMU frame; turn-on plus random walk), None for an exact IMU."""
+        return None if self._imu_model is None else self._imu_model.gyro_bias.copy()
 
     def _snapshot(self) -> AppliedSnapshot:
         imp = self._impedance

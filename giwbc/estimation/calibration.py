@@ -5,13 +5,16 @@ accelerometer reads gravity (plus its bias), and its leg kinematics give the bas
 feet. :class:`StandstillDetector` decides, from the samples themselves, when that holds: samples
 are summed in blocks of ``block_time``; a block is still when the gyro's and accelerometer's
 spread are at noise level, the leg joints' mean positions did not move since the last block, and
-both feet carried load throughout; ``blocks`` consecutive still blocks whose first and last mean
+both feet carried load throughout; ``blocks`` consecutive still blocks (``startup_blocks`` for the
+start-up calibration's window, when the owner asks for a longer one) whose first and last mean
 gyro agree to within what the sensors' noise explains, whose gravity direction turns slower than
 ``max_tilt_rate`` and whose leg joints did not move make a :class:`StandstillWindow`. A slow
 rotation about a horizontal axis (a robot rocking on its soles moves no joint), which the gyro
-alone cannot tell from a bias, shows as the turn of the gravity direction between the first and
-last block: where that turn is significant, :attr:`StandstillWindow.tilt_rate` carries it and
-the gyro bias is the mean gyro less it. Everything per sample is a few float additions; the tests run once
+alone cannot tell from a bias, shows as the turn of the gravity direction over the window (the
+slope of a least-squares line through the blocks' mean specific force): where it is significant, :attr:`StandstillWindow.tilt_rate` carries it and
+the gyro bias is the mean gyro less it (with both feet flat, the estimator reads the base's turn
+from the leg encoders of the first and last block instead: a slow sway accelerates the IMU, which
+would pass for a turn of gravity). Everything per sample is a few float additions; the tests run once
 per block.
 
 :class:`CalibrationReport` is what the estimator found in its start-up calibration, for a log or
@@ -35,6 +38,7 @@ class StandstillConfig:
 
     block_time: float = 0.25  # s
     blocks: int = 3  # consecutive still blocks make a window
+    startup_blocks: int | None = None  # ... the start-up calibration's window (None: blocks; longer: less gyro-bias noise)
     gyro_std: float = 0.05  # rad/s: largest spread of the gyro within a block
     accel_std: float = 0.35  # m/s^2: largest spread of the specific force within a block
     # Change of the block means between the window's first and last block: at most `noise_sigmas`
@@ -48,6 +52,8 @@ class StandstillConfig:
     def __post_init__(self) -> None:
         if self.block_time <= 0 or self.blocks < 2 or min(self.gyro_std, self.accel_std, self.joint_change) <= 0:
             raise ValueError("standstill thresholds and block_time must be > 0, blocks >= 2")
+        if self.startup_blocks is not None and self.startup_blocks < 2:
+            raise ValueError(f"standstill startup_blocks must be >= 2, got {self.startup_blocks}")
         for floor, cap in (self.gyro_change,):
             if not 0 < floor <= cap:
                 raise ValueError("standstill change bounds need 0 < floor <= cap")
@@ -64,6 +70,9 @@ class StandstillWindow:
     gyro_std: np.ndarray
     accel_std: np.ndarray
     joint_positions: np.ndarray
+    first_joints: np.ndarray  # the leg joints' mean positions in the first block ...
+    last_joints: np.ndarray  # ... and in the last one
+    span: float  # s between the first and the last block's centres
     duration: float
     samples: int
     end_time: float
@@ -140,12 +149,14 @@ class StandstillDetector:
         if leg_joints is not None and len(leg_joints) and np.array_equal(leg_joints, np.arange(leg_joints[0], leg_joints[0] + len(leg_joints))):
             leg_joints = slice(int(leg_joints[0]), int(leg_joints[0]) + len(leg_joints))  # a view, not a gather
         self._leg_joints = leg_joints
+        self.blocks = self.config.blocks  # still blocks a window needs (the owner may ask for more)
         self.reset()
 
     def reset(self) -> None:
         self._block: _Block | None = None
         self._still: list[tuple] = []  # (block, stats) of the last consecutive still blocks
         self.still = False  # the last blocks made a window
+        self.rejection = "no block of samples yet"  # why the last block made no window (for a person)
 
     def add(self, time: float, gyro: Sequence[float], accel: Sequence[float], joint_positions: np.ndarray, load: float) -> StandstillWindow | None:
         """One sample (``load``: the least loaded foot's confidence, 0 when a foot is off the
@@ -176,31 +187,46 @@ class StandstillDetector:
         self.still = False
         if not quiet:
             self._still = []
+            self.rejection = (
+                f"a foot unloaded (least load confidence {block.min_load:.2f} < {c.min_load})" if block.min_load < c.min_load
+                else f"IMU not quiet (gyro spread {gyro_std.max():.3f} rad/s, accelerometer {accel_std.max():.3f} m/s^2)"
+            )  # fmt: skip
             return None
-        self._still = (self._still + [(block, stats)])[-c.blocks :]
-        if len(self._still) < c.blocks:
+        self._still = (self._still + [(block, stats)])[-self.blocks :]
+        if len(self._still) < self.blocks:
+            self.rejection = f"{len(self._still)} of {self.blocks} still blocks"
             return None
         (first, (g0, a0, gs0, as0, j0)), (last, (g1, a1, gs1, as1, j1)) = self._still[0], self._still[-1]
         root = math.sqrt(1.0 / first.n + 1.0 / last.n)  # std of a difference of two block means, per unit noise
         floor, cap = c.gyro_change
         if (np.abs(g1 - g0) > np.clip(c.noise_sigmas * root * np.maximum(gs0, gs1), floor, cap)).any():
+            self.rejection = f"the mean gyro changed by {np.abs(g1 - g0).max():.4f} rad/s across the window (turning)"
             return None
         if np.abs(j1 - j0).max() > c.joint_change:
+            self.rejection = f"a leg joint moved by {np.abs(j1 - j0).max():.4f} rad across the window"
             return None
-        # The turn of the gravity direction between the block centres: d(up)/dt = up x omega.
-        span = 0.5 * (time - first.start) * (1.0 - 1.0 / c.blocks) * 2.0  # first to last block centre
-        norm = float(np.linalg.norm(a1 + a0)) * 0.5
-        rate_up = (a1 - a0) / (norm * max(span, 1e-9))
-        up = (a0 + a1) / (2.0 * norm)
-        rate = np.cross(up, rate_up)  # the omega (perpendicular to up) that turns up at rate_up
-        if np.linalg.norm(rate) > c.max_tilt_rate:
-            return None
-        rate_noise = 2.0 * root * np.maximum(as0, as1) / (norm * max(span, 1e-9))  # 2 sigma, per axis
-        rate = np.where(np.abs(rate) > rate_noise, rate, 0.0)
+        # The turn of the gravity direction over the window, d(up)/dt = up x omega (so the omega
+        # perpendicular to up is d(up)/dt x up): the slope of a least-squares line through the
+        # blocks' mean specific force (weighted by their samples).
         counts = np.array([b.n for b, _ in self._still], float)
         weights = counts / counts.sum()
+        centres = np.array([b.start for b, _ in self._still]) + 0.5 * c.block_time
+        centres -= weights @ centres
+        accels = np.array([st[1] for _, st in self._still])
+        spread = max(float(weights @ (centres * centres)), 1e-12)
+        mean_accel = weights @ accels
+        norm = float(np.linalg.norm(mean_accel))
+        up = mean_accel / norm
+        rate = np.cross((weights * centres) @ (accels - mean_accel) / (spread * norm), up)  # the omega (perpendicular to up) that turns up so
+        if np.linalg.norm(rate) > c.max_tilt_rate:
+            self.rejection = f"the gravity direction turned at {np.linalg.norm(rate):.3f} rad/s (tilting)"
+            return None
+        accel_var = np.array([st[3] for _, st in self._still]) ** 2 / counts[:, None]  # of each block's mean
+        rate_noise = 2.0 * math.sqrt(float(((weights * centres) ** 2 @ accel_var).max())) / (spread * norm)  # 2 sigma
+        rate = np.where(np.abs(rate) > rate_noise, rate, 0.0)
         mean = [sum(w * st[k] for w, (_, st) in zip(weights, self._still)) for k in (0, 1, 4)]
         self.still = True
+        self.rejection = ""
         return StandstillWindow(
             gyro=mean[0],
             accel=mean[1],
@@ -208,6 +234,9 @@ class StandstillDetector:
             gyro_std=np.max([st[2] for _, st in self._still], axis=0),
             accel_std=np.max([st[3] for _, st in self._still], axis=0),
             joint_positions=mean[2],
+            first_joints=j0,
+            last_joints=j1,
+            span=float(centres[-1] - centres[0]),
             duration=time - first.start,
             samples=int(counts.sum()),
             end_time=time,

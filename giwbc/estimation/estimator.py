@@ -10,7 +10,8 @@ so the same code runs on MuJoCo sensor data and on CAN/IMU data:
    windows in double support re-estimate the gyro bias (zero-velocity updates);
 1. orientation: a complementary filter on SO(3) (gyro propagation, gyro bias estimated) pulled
    toward, best first: the base orientation that flat stance feet imply (tilt from the joint
-   encoders, heading held while the foot stays down; a foot counts as flat while its centre of
+   encoders, heading held while the foot stays down and re-anchored only when it twists fast,
+   :mod:`~giwbc.estimation.headings`, so the yaw gyro bias is learnt; a foot counts as flat while its centre of
    pressure, from the leg's efforts, is well inside the sole), the IMU's own orientation output
    (less its calibrated offset), or the accelerometer's gravity direction corrected by the base
    acceleration the stance legs measure;
@@ -50,6 +51,7 @@ from giwbc.robot import so3
 from giwbc.estimation.calibration import CalibrationReport, StandstillConfig, StandstillDetector, StandstillWindow
 from giwbc.estimation.contacts import ContactDetector
 from giwbc.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
+from giwbc.estimation.headings import FootHeadings
 
 _HOLDING = int(HOLDING_FAULTS)
 GRAVITY_NORM = 9.81
@@ -106,7 +108,8 @@ class EstimatorConfig:
     flat_min_load: float = 0.5  # a foot counts as flat with at least this load confidence ...
     flat_cop_margin: float = 0.6  # ... and its centre of pressure within this fraction of the sole's half sizes
     accel_compensation_time: float = 0.1  # s: low-pass matching the accelerometer with the legs' velocity change
-    foot_twist: float = math.radians(0.4)  # rad: a foot whose heading moved more than this twisted on the ground
+    foot_twist: float = math.radians(0.4)  # rad: a foot whose heading turned more than this ...
+    foot_twist_time: float = 0.05  # s: ... within this time twisted on the ground (a slip; slower is gyro bias)
     max_gyro_bias: float = math.radians(20.0)  # rad/s per axis: the largest gyro bias the estimator believes
     orientation_offset_time: float = 5.0  # s: time constant of the orientation output's offset from the feet's
 
@@ -127,6 +130,8 @@ class EstimatorConfig:
             raise ValueError("zero_velocity_gain must be in [0, 1] and flat_cop_margin in (0, 1]")
         if self.accel_compensation_time <= 0 or self.orientation_offset_time <= 0:
             raise ValueError("accel_compensation_time and orientation_offset_time must be > 0")
+        if self.foot_twist <= 0 or self.foot_twist_time <= 0:
+            raise ValueError("foot_twist and foot_twist_time must be > 0")
 
 
 @dataclass(frozen=True)
@@ -223,6 +228,7 @@ class StateEstimator:
         self._leg_joint_index = np.flatnonzero(self._leg_mask.any(axis=0))
         self._sole_half = [(c.half_length, c.half_width) for c in description.contacts]
         self.standstill = StandstillDetector(c.standstill, self._leg_joint_index)
+        self.headings = FootHeadings(n_feet, c.foot_twist, c.foot_twist_time)
         self.reset()
 
     # --- public ---------------------------------------------------------------------------
@@ -233,15 +239,16 @@ class StateEstimator:
         self.orientation.initialized = False
         self.detector.reset()
         self.standstill.reset()
+        startup = self.config.standstill.startup_blocks
+        self.standstill.blocks = startup if startup is not None and self.config.calibrate else self.config.standstill.blocks
         self.calibration: CalibrationReport | None = None
         self.zero_velocity_updates = 0
-        self.foot_twists = 0  # stance feet whose heading changed (slipped): re-anchored
         self._ready = not self.config.calibrate
         self._restart_filter = False
         self._restart_pending = False
         self._accel_bias = (0.0, 0.0, 0.0)
         self._output_offset = (0.0, 0.0, 0.0)  # rotation vector (IMU frame) from the orientation output to the estimate
-        self._foot_yaw: list[float | None] = [None] * self.kinematics.n_feet
+        self.headings.reset()
         self._flat = [False] * self.kinematics.n_feet
         self._specific_force_lp: list[float] | None = None  # world frame, low-passed
         self._leg_velocity_lp: list[float] | None = None  # IMU velocity from the stance legs, world, low-passed
@@ -258,6 +265,22 @@ class StateEstimator:
     def ready(self) -> bool:
         """Whether the start-up calibration is done (see :meth:`update`)."""
         return self._ready
+
+    @property
+    def waiting_for(self) -> str:
+        """Why the estimator is not :attr:`ready` yet, for a person ("" once ready)."""
+        if self._ready:
+            return ""
+        if not self.orientation.initialized:
+            return "no usable IMU sample yet"
+        if self.calibration is not None:
+            return "calibrated: restarting from it at the next sample"
+        return f"a standstill on both feet ({self.standstill.rejection})"
+
+    @property
+    def foot_twists(self) -> int:
+        """Stance feet that twisted on the ground (slipped) and were re-anchored since the last reset."""
+        return self.headings.twists
 
     @property
     def flat_feet(self) -> np.ndarray:
@@ -418,7 +441,7 @@ class StateEstimator:
         the flat feet; None without one. A foot is flat while loaded and with its centre of
         pressure (from the leg's efforts) well inside the sole."""
         c, kin = self.config, self.kinematics
-        margin, min_load, twist = c.flat_cop_margin, c.flat_min_load, c.foot_twist
+        margin, min_load, headings, now = c.flat_cop_margin, c.flat_min_load, self.headings, self._time
         wrenches = kin.foot_wrenches.tolist() if use_efforts else None
         rotations = kin.foot_rotations.tolist()
         valid = [True] * len(flags) if position_ok is self._all_feet else position_ok.tolist()
@@ -428,18 +451,12 @@ class StateEstimator:
         for i, (standing, load) in enumerate(zip(flags, loads)):
             loaded = standing and load >= min_load and valid[i]
             flat = loaded
-            if not standing:
-                self._foot_yaw[i] = None
             (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotations[i]
-            if loaded:  # a loaded foot keeps its heading, even rolling on an edge ...
-                heading = math.atan2(m10, m00)
-                held = self._foot_yaw[i]
-                error = 0.0 if held is None else math.remainder(held - heading, math.tau)
-                if held is None or abs(error) > twist:  # ... unless it twisted (a slip): take its new heading
-                    self._foot_yaw[i], error = heading, 0.0
-                    self.foot_twists += held is not None
-                yaw_error += error
+            if loaded:  # a loaded foot keeps its heading, even rolling on an edge, unless it twists (a slip)
+                yaw_error += headings.update(i, now, math.atan2(m10, m00))
                 yaw_count += 1
+            elif not standing:
+                headings.lift(i)
             if flat and wrenches is not None:
                 _, _, fz, tx, ty, _ = wrenches[i]
                 if fz <= 0.0:
@@ -451,9 +468,7 @@ class StateEstimator:
             self._flat[i] = flat
             if not flat:
                 continue
-            yaw = self._foot_yaw[i]
-            if yaw is None:
-                yaw = self._foot_yaw[i] = math.atan2(m10, m00)
+            yaw = headings.held[i]  # set: a flat foot is loaded
             cy, sy = math.cos(yaw), math.sin(yaw)
             # vee of (E - E^T) / 2 with E = Rz(yaw) R_foot^T: the world rotation that levels the sole at its heading
             ex += 0.5 * (m12 - sy * m20 - cy * m21)
@@ -498,18 +513,32 @@ class StateEstimator:
         gyro bias (and, with flat feet holding the tilt, of the accelerometer bias)."""
         c = self.config
         if not all(flags):
+            self.standstill.rejection = "still, but not on both feet (contact flags)"
             return
         if self.calibration is None and c.calibrate:
             self._calibrate(window, output, base_rotation)
             return
         k = c.zero_velocity_gain
         bias = np.asarray(self.orientation.gyro_bias_floats)
-        self.orientation.set_gyro_bias(bias + k * (window.gyro - window.tilt_rate - bias))
+        self.orientation.set_gyro_bias(bias + k * (window.gyro - self._window_rotation(window) - bias))
         if self.reference == "feet" and all(self._flat):
             rotation = np.asarray(base_rotation).reshape(3, 3) @ self.kinematics.imu_rotation
             accel_bias = np.asarray(self._accel_bias)
             self._accel_bias = tuple((accel_bias + k * (window.accel - GRAVITY_NORM * rotation[2] - accel_bias)).tolist())
         self.zero_velocity_updates += 1
+
+    def _window_rotation(self, window: StandstillWindow) -> np.ndarray:
+        """The base's mean angular velocity over a standstill window (IMU frame), what the gyro
+        read besides its bias: with both feet flat on the ground, from the leg encoders (the soles
+        stay put, so the base turned by R_bf(q_first) R_bf(q_last)^T: exact, and blind to the IMU's
+        own acceleration in a slow sway, which the gravity direction is not); otherwise the turn
+        of the gravity direction (tilt only)."""
+        if not (self.config.use_flat_feet and all(self._flat)) or window.span <= 0.0:
+            return window.tilt_rate
+        first, last = self._positions.copy(), self._positions.copy()
+        first[self._leg_joint_index], last[self._leg_joint_index] = window.first_joints, window.last_joints
+        turns = [so3.log(r0 @ r1.T) for r0, r1 in zip(self.kinematics.sole_rotations(first), self.kinematics.sole_rotations(last))]
+        return self.kinematics.imu_rotation.T @ (np.mean(turns, axis=0) / window.span)
 
     def _calibrate(self, window: StandstillWindow, output: list[float] | None, base_rotation: so3.Matrix3) -> None:
         """Start-up calibration from a standstill window in double support (module doc)."""
@@ -530,7 +559,7 @@ class StateEstimator:
             yaw = math.atan2(self._output_heading[1], self._output_heading[0])
         base = tilt_from_gravity(up, yaw)
         imu = so3.matrix_to_quat(base @ imu_in_base)
-        gyro_bias = window.gyro - window.tilt_rate
+        gyro_bias = window.gyro - self._window_rotation(window)
         self.orientation.reset_to(imu, gyro_bias)
         if source == "feet":
             accel_bias = accel - GRAVITY_NORM * (imu_in_base.T @ up)
@@ -541,9 +570,10 @@ class StateEstimator:
         if output is not None:
             self._output_offset = quaternion_error(output, imu.tolist())
             offset = math.sqrt(sum(e * e for e in self._output_offset))
-        self._foot_yaw = [None] * kin.n_feet
+        self.headings.reset()
         self._specific_force_lp = self._leg_velocity_lp = None
         self._restart_pending = True
+        self.standstill.blocks = c.standstill.blocks  # later windows: zero-velocity updates
         self.calibration = CalibrationReport(
             time=window.end_time, gyro_bias=gyro_bias, accel_bias=accel_bias, roll=math.atan2(base[2, 1], base[2, 2]),
             pitch=-math.asin(max(-1.0, min(1.0, base[2, 0]))), tilt_source=source,

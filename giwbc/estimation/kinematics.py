@@ -85,6 +85,7 @@ class LegKinematics:
         self.imu_offset = self._frame_motion[n, :3]
         self.foot_wrenches = np.zeros((n, 6))
         self.foot_rotations = np.zeros((n, 3, 3))  # each sole frame in world axes (at the estimated base orientation)
+        self._pose_q, self._pose_data = self._q.copy(), legs.createData()  # for sole_rotations (compute's own stay untouched)
 
     @staticmethod
     def _imu_placement(description: RobotDescription, model: pin.Model) -> tuple[np.ndarray, np.ndarray]:
@@ -98,6 +99,14 @@ class LegKinematics:
                 "the estimator supports base-mounted IMUs only"
             )
         return frame.placement.translation.copy(), frame.placement.rotation.copy()
+
+    def sole_rotations(self, joint_positions: np.ndarray) -> np.ndarray:
+        """Each sole's orientation in the base frame (n, 3, 3) at ``joint_positions``."""
+        model, data, q = self._legs, self._pose_data, self._pose_q
+        q[3:7] = (0.0, 0.0, 0.0, 1.0)
+        q[7:] = np.asarray(joint_positions, float)[self._leg_model_joints]
+        pin.framesForwardKinematics(model, data, q)
+        return np.array([data.oMf[frame].rotation for frame in self._frames[: self.n_feet]])
 
     @property
     def n_feet(self) -> int:

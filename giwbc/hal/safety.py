@@ -4,7 +4,8 @@
 :class:`~giwbc.hal.can_robot.CycleReport` plus joint state and IMU) against :class:`SafetyConfig`
 and returns the :class:`Fault` s it finds: missing replies for N cycles, corrupt frames on a bus,
 joints beyond their soft limits, velocity or torque beyond limits, base tilt beyond the fall
-threshold, motor error codes, a motor that left motor mode (Damiao state 0), over-temperature, a
+threshold (from the IMU's orientation output or, for an IMU without one, from its gyro and
+accelerometer, see :meth:`SafetySupervisor.imu_tilt`), motor error codes, a motor that left motor mode (Damiao state 0), over-temperature, a
 silent IMU, a bus whose driver refuses every frame (bus-off) or raises what no CAN driver should
 (a driver bug). The runtime adds the faults it sees itself (non-finite policy or controller
 output, controller exceptions and fallbacks, signals, ``KeyboardInterrupt``, task termination), and
@@ -33,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 import can
 import numpy as np
 
+from giwbc.estimation.orientation import OrientationFilter
 from giwbc.robot.interface import ImpedanceCommand, ImuReading
 
 if TYPE_CHECKING:
@@ -102,6 +104,7 @@ class SafetyConfig:
     torque_scale: float = 1.1  # x the effort limits (replies are quantized, saturation reads at the limit)
     torque_cycles: int = 3  # consecutive cycles beyond the torque limit
     max_tilt: float = 0.7  # rad between the base z axis and the vertical
+    gravity_tilt_gain: float = 0.5  # 1/s: pull of the gravity direction on the gyro-propagated tilt (IMU without orientation output)
     max_temperature: float = 80.0  # °C, below the firmware's own trip
     imu_timeout_cycles: int = 10  # cycles without a fresh IMU sample
     max_stall: float = 0.1  # s a control cycle may start after its deadline (a stalled loop)
@@ -117,8 +120,8 @@ class SafetyConfig:
                      "bus_off_cycles", "watchdog_periods"):  # fmt: skip
             if getattr(self, name) < 1:
                 raise ValueError(f"safety {name} must be >= 1")
-        if not (self.max_tilt > 0 and self.damping_time >= 0 and self.damping_kd_scale >= 0):
-            raise ValueError("safety max_tilt must be > 0, damping_time and damping_kd_scale >= 0")
+        if not (self.max_tilt > 0 and self.damping_time >= 0 and self.damping_kd_scale >= 0 and self.gravity_tilt_gain > 0):
+            raise ValueError("safety max_tilt and gravity_tilt_gain must be > 0, damping_time and damping_kd_scale >= 0")
         if not self.stop_margin > 0:
             raise ValueError(f"safety stop_margin must be > 0, got {self.stop_margin}")
 
@@ -152,6 +155,11 @@ class SafetySupervisor:
         self._bus_down = np.zeros(self._corrupt.shape[1], dtype=np.int64)
         self._down_any = False  # some bus refused every frame lately (its count must go on or reset)
         self.checks = 0
+        # The tilt of an IMU without orientation output: gyro-propagated, pulled toward gravity, the gyro
+        # bias learnt slowly (its integral runs within 10 degrees: a cheap gyro's turn-on bias lags the tilt by ~6).
+        self._tilt_filter = OrientationFilter(orientation_gain=0.0, accel_gain=c.gravity_tilt_gain, bias_gain=0.0,
+                                              integral_window=math.radians(10.0))  # fmt: skip
+        self._tilt_time = -math.inf  # timestamp of the last IMU sample the tilt filter took
 
     def reset(self) -> None:
         self._bus_down[:] = 0
@@ -161,10 +169,39 @@ class SafetySupervisor:
         self._torque_over[:] = 0
         self._armed_limits[:] = False
         self._imu_stale = 0
+        self._tilt_filter.initialized = False
+        self._tilt_time = -math.inf
 
     def base_tilt(self, imu: ImuReading) -> float:
         """Angle (rad) between the base z axis and the vertical, from the IMU orientation."""
-        x, y, z, w = (float(v) for v in imu.quaternion)
+        return self._tilt_of(*(float(v) for v in imu.quaternion))
+
+    def imu_tilt(self, imu: ImuReading) -> float:
+        """The base tilt (rad) this sample shows: from the IMU's orientation output, or, for an IMU
+        without one (an all-NaN quaternion, as :class:`~giwbc.robot.interface.ImuReading` reports
+        it), from a complementary filter of its own: the gyro propagates the tilt (a robot tipping
+        over its feet turns its accelerometer's reading with it, so gravity alone would not see the
+        fall) and the accelerometer's gravity direction pulls it back at ``gravity_tilt_gain``
+        while the specific force is near 1 g. Each new sample (by timestamp) is taken once; NaN
+        when the sample is not finite."""
+        quaternion = imu.quaternion
+        if not math.isnan(quaternion[0]) or not np.isnan(quaternion).all():  # (one float test on the quiet path)
+            return self.base_tilt(imu)
+        gyro, accel = np.asarray(imu.angular_velocity, float), np.asarray(imu.linear_acceleration, float)
+        if not (np.isfinite(gyro).all() and np.isfinite(accel).all() and math.isfinite(imu.time)):
+            return math.nan
+        f, now = self._tilt_filter, float(imu.time)
+        if not f.initialized:
+            if not f.initialize(None, accel):  # no gravity to start from (free fall): vertical unknown
+                return math.nan
+            self._tilt_time = now
+        elif now > self._tilt_time:
+            f.update(gyro, min(now - self._tilt_time, 0.1), None, accel)
+            self._tilt_time = now
+        return self._tilt_of(*f.quaternion_floats)
+
+    def _tilt_of(self, x: float, y: float, z: float, w: float) -> float:
+        """Angle (rad) between the base z axis and the vertical, for the IMU orientation ``(x, y, z, w)``."""
         r = self._base_z_in_imu  # the base z axis in IMU coordinates
         # Last row of the IMU's rotation matrix (world z in IMU coordinates) dotted with it.
         cos_tilt = 2 * (x * z - y * w) * r[0] + 2 * (y * z + x * w) * r[1] + (1 - 2 * (x * x + y * y)) * r[2]
@@ -227,7 +264,7 @@ class SafetySupervisor:
         if self._imu_stale >= c.imu_timeout_cycles:
             add(FaultKind.IMU, f"no fresh IMU sample for {self._imu_stale} cycles")
         elif imu is not None:
-            tilt = self.base_tilt(imu)
+            tilt = self.imu_tilt(imu)
             if not math.isfinite(tilt) or not all(math.isfinite(v) for v in imu.angular_velocity):
                 add(FaultKind.IMU, f"IMU sample is not finite: {imu}")
             elif tilt > c.max_tilt:

@@ -2,7 +2,16 @@
 
     idle -> check (motors read without torque: refuse joints outside their limits)
          -> enable (enter motor mode) -> settle (damping) -> ramp (measured pose -> default pose)
+         -> calibrate (joint-PD hold of the default pose, until the state estimator is ready)
          -> running (controller) -> shutdown (ramp to damping) -> damping -> off (exit motor mode)
+
+Calibrate (only with a state estimator that calibrates): the estimator takes the IMU's gyro bias,
+the base tilt and the accelerometer bias from a window of samples in which it *detects* a
+standstill on both loaded feet (:mod:`giwbc.estimation.calibration`). The robot is only still on
+both feet once the ramp holds the default pose (in damping it sags), so this is the first moment
+it can; the controller, which reads the estimate, gets its first tick only once the estimator is
+ready. No readiness within ``calibration_timeout``: a ``startup`` fault saying what the
+standstill detector last saw. What it found is logged (event ``calibration``).
 
 A fault at any point goes to damping for ``damping_time``, then off (:meth:`PhaseSequence._safe_stop`).
 :class:`StartupConfig` holds the start-up and shutdown timing. Phase values are the strings the
@@ -35,6 +44,7 @@ class Phase(enum.StrEnum):
     ENABLE = "enable"
     SETTLE = "settle"
     RAMP = "ramp"
+    CALIBRATE = "calibrate"
     RUNNING = "running"
     SHUTDOWN = "shutdown"
     DAMPING = "damping"
@@ -53,12 +63,15 @@ class StartupConfig:
     off_delay: float = 0.5  # damping held before motors off after a clean run
     enable_attempts: int = 5  # cycles of enter-motor-mode frames before giving up (plus the robot's reply lag)
     exit_attempts: int = 3  # cycles of exit-motor-mode frames, fewer when every motor confirmed
+    calibration_timeout: float = 15.0  # s of holding still for the state estimator's calibration before giving up
 
     def __post_init__(self) -> None:
         if self.ramp_profile not in PROFILES:
             raise ValueError(f"ramp_profile must be one of {list(PROFILES)}, got {self.ramp_profile!r}")
         if min(self.settle_time, self.ramp_time, self.shutdown_time, self.off_delay) < 0 or self.enable_attempts < 1:
             raise ValueError("start-up times must be >= 0 and enable_attempts >= 1")
+        if not self.calibration_timeout > 0:
+            raise ValueError(f"calibration_timeout must be > 0, got {self.calibration_timeout}")
 
 
 class PhaseSequence:
@@ -133,10 +146,32 @@ class PhaseSequence:
 
         ramp()
         self._run_for(duration, ramp)
+        if self.fault is None:
+            self._calibrate()
         if self.fault is not None:
             self._safe_stop()
             return
         self._set_phase(Phase.RUNNING)
+
+    def _calibrate(self) -> None:
+        """Hold the ramp's last command (the default pose) until the state estimator is ready
+        (module doc); a ``startup`` fault after ``calibration_timeout``."""
+        estimator = self.calibrating_estimator
+        if estimator is None or estimator.ready:
+            return
+        self._set_phase(Phase.CALIBRATE)
+        timeout = self.startup.calibration_timeout
+        end = self._now + timeout - 0.5 * self.period
+        while not estimator.ready and self._now < end:
+            self._cycle(None)
+            if self.fault is not None:
+                return
+        if not estimator.ready:
+            self._fail(FaultKind.STARTUP, f"the state estimator did not calibrate within {timeout:g} s: "
+                                          f"still waiting for {estimator.waiting_for}")  # fmt: skip
+            return
+        report = estimator.calibration
+        self._event("calibration", report.as_dict() if report is not None else {})
 
     def _joints_within_limits(self) -> bool:
         """Before any motor is enabled: read every joint with zero-gain, zero-torque commands (no

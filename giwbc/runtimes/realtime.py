@@ -8,8 +8,8 @@ comes back), safety checks, then the controller tick (the Task's ``apply_command
 the controller rate) computes the next command, then the cycle is logged. The policy runs at the
 agent rate between :meth:`RealtimeRuntime.step` calls.
 
-Phases (:mod:`giwbc.runtimes.phases`): idle -> enable -> settle -> ramp -> running -> shutdown
--> damping -> off; the process settings while the motors are on: :mod:`giwbc.runtimes.os_settings`.
+Phases (:mod:`giwbc.runtimes.phases`): idle -> enable -> settle -> ramp -> calibrate (with a
+state estimator) -> running -> shutdown -> damping -> off; the process settings while the motors are on: :mod:`giwbc.runtimes.os_settings`.
 
 Hand-over: after the ramp (and after every later reset) the task's first controller tick runs
 between two cycles, while the motors hold their last command, and the schedule restarts after it
@@ -52,6 +52,7 @@ import numpy as np
 from giwbc.hal.can_robot import COMMAND, CanRobot, CycleReport, NonFiniteCommand
 from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, SignalWatch, damping_command
 from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.estimation.estimator import StateEstimator
 from giwbc.robot.interface import ImpedanceCommand, RobotWrapper
 from giwbc.runlog import RunLogWriter
 from giwbc.runtimes.clock import DeadlineClock
@@ -286,7 +287,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
                 pass  # the watchdog stopped the motors
             elif self.fault is not None or self.phase in (Phase.ENABLE, Phase.SHUTDOWN, Phase.DAMPING):
                 self._safe_stop()
-            elif self.phase in (Phase.SETTLE, Phase.RAMP, Phase.RUNNING):
+            elif self.phase in (Phase.SETTLE, Phase.RAMP, Phase.CALIBRATE, Phase.RUNNING):
                 self._shut_down()
         except LoopAbandoned:
             pass
@@ -502,6 +503,13 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
             log.estimator(report.cycle, t, imu, estimate)
 
     # --- helpers ----------------------------------------------------------------------------
+    @property
+    def calibrating_estimator(self) -> StateEstimator | None:
+        """The state estimator the start-up calibrates (the :class:`EstimatedRobot`'s, when its
+        ``calibrate`` is on), or None."""
+        estimator = self.estimated.estimator if self.estimated is not None else None
+        return estimator if estimator is not None and estimator.config.calibrate else None
+
     def _observe(self) -> np.ndarray:
         observation = np.asarray(self.task.get_observation(), dtype=np.float64)
         low, high = self.observation_space.low, self.observation_space.high
