@@ -32,6 +32,11 @@ refuses to start when one is outside its limits (a wrong sign or zero offset).
 ``--emulate --imu serial|can``: the emulator sends its IMU as an Xsens MTi on a pseudo-terminal or
 as CAN frames, read through the real drivers.
 
+Walking: ``--controller walk --vx 0.3 [--vy --yaw-rate] [--step-in-place]``
+(:mod:`giwbc.apps.deploy_walk`): the walking WBC on the estimated robot, standing for ``--walk-delay``
+s after the start-up, then walking. ``--emulate --unpaced``: the lockstep emulator as fast as the
+machine allows (a rehearsal on a machine too slow for the loop and the physics in real time).
+
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
