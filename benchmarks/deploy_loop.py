@@ -3,8 +3,10 @@
 For each control rate (500 Hz for 60 s and 1 kHz for 10 s by default): the actuator emulator, the
 CAN robot, the real-time runtime paced by absolute deadlines under ``SCHED_FIFO`` (as granted: see
 ``scheduler``), a controller (joint-PD hold by default, ``--controller wbc`` for the QP balance
-controller with the estimator, what ``giwbc deploy`` runs) and the MCAP run log, as ``giwbc deploy
---emulate`` runs them. Measured over the running phase only:
+controller with the estimator, what ``giwbc deploy`` runs; ``--controller walk``: the walking WBC
+walking forward at ``--vx`` after 0.5 s of standing; several controllers alternate in one run, for
+a comparison on the same machine state) and the MCAP run log, as ``giwbc deploy --emulate`` runs
+them. Measured over the running phase only:
 
 - period error |start_k - start_(k-1) - T| and lateness (start - deadline): p50 / p99 / max, us;
 - overruns (a cycle's work ending after the next deadline) and skipped slots, and why each overrun
@@ -12,6 +14,8 @@ controller with the estimator, what ``giwbc deploy`` runs) and the MCAP run log,
   running) or ``long_work`` (its work took too long), and among those ``cpu_short`` (the thread's
   CPU time fell 20 % or more short of the wall time, with no context switch: time the hypervisor
   took); ``steal_ms``: CPU time the kernel saw stolen by the hypervisor during the phase, per CPU;
+- host work per cycle (wall time of the loop's own work, from the cycle's start to its command
+  sent: mean and p50 / p99; with the lockstep emulator it includes the emulator's physics);
 - CPU time per cycle (thread time), the host's CAN path alone (drain, encode, send, receive,
   decode, IMU, estimator) and the host's CPU time per CAN frame (one command plus one reply per
   motor and cycle); the emulator's CPU time (its own process, or the loop's thread in lockstep);
@@ -52,6 +56,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from giwbc.apps.deploy import make_controller, scene_channels  # noqa: E402
+from giwbc.apps.deploy_walk import WalkCommand  # noqa: E402
 from giwbc.estimation.estimated_robot import EstimatedRobot  # noqa: E402
 from giwbc.estimation.estimator import StateEstimator  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
@@ -145,7 +150,7 @@ def _free_port() -> int:
 
 
 def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
-             mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False) -> dict:  # fmt: skip
+             mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False, vx: float = 0.3) -> dict:  # fmt: skip
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     cpus = sorted(os.sched_getaffinity(0))
     split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
@@ -157,9 +162,10 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         emulator = ActuatorEmulator(plan, description, EmulatorConfig(), model=copy.copy(model))
         can_robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
     # The WBC needs a base state: giwbc deploy's EstimatedRobot(CanRobot(...)).
-    robot = EstimatedRobot(can_robot, StateEstimator(description)) if controller == "wbc" else can_robot
+    robot = EstimatedRobot(can_robot, StateEstimator(description)) if controller in ("wbc", "walk") else can_robot
     meter = _CpuMeter(emulator if mode == "lockstep" else None, can_robot, robot if robot is not can_robot else None)
-    task = StandingTask(make_controller(controller, description), description.default_positions)
+    walk = WalkCommand(vx=vx) if controller == "walk" else None
+    task = StandingTask(make_controller(controller, description, walk), description.default_positions)
     port = _free_port() if live else None
     scene = scene_channels(description, description.joint_names, scene_rate, port)
     writer = RunLogWriter(log_dir / f"deploy_loop_{int(rate)}.mcap", description.joint_names, {"benchmark": "deploy_loop"},
@@ -212,7 +218,15 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     steal_start, steal_end = start.get("steal", {}), end.get("steal", {})
     frames = 2 * len(plan.motors)
     loads = list(plan.loads.values())
+    walking = None
+    if controller == "walk":
+        truth = emulator.truth_between(runtime.phase_times.get("running", 0.0), runtime.phase_times.get("shutdown", math.inf))
+        walking = {"vx": vx, "steps": task.controller.steps,
+                   "dx_m": float(truth[-1, 3] - truth[0, 3]) if len(truth) else None,
+                   "max_tilt_deg": float(np.degrees(truth[:, 2].max())) if len(truth) else None}  # fmt: skip
     return {
+        "controller": controller,
+        "walking": walking,
         "rate_hz": rate,
         "seconds": seconds,
         "scheduler": runtime.scheduler,
@@ -223,6 +237,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         "period_error_us": summary["period_error_us"],
         "lateness_us": summary["lateness_us"],
         "work_us": summary["work_us"],
+        "work_mean_us": 1e6 * float(np.mean(stats.work)) if len(stats.work) else None,
         "overruns": summary["overruns"],
         "skipped_slots": summary["skipped_slots"],
         "overrun_causes": _overrun_causes(stats, period),
@@ -256,7 +271,9 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, nargs="+", default=[60.0, 10.0],
                         help="seconds of control per rate (one value, or one per rate; the issue asks 60 s at 500 Hz)")
     parser.add_argument("--repeat", type=int, default=1, help="runs per rate")
-    parser.add_argument("--controller", choices=("pd", "wbc"), default="pd")
+    parser.add_argument("--controller", choices=("pd", "wbc", "walk"), nargs="+", default=["pd"],
+                        help="one or more: several alternate run by run (compared on the same machine state)")
+    parser.add_argument("--vx", type=float, default=0.3, help="the walk controller's forward command, m/s")
     parser.add_argument("--no-log", action="store_true", help="run without the MCAP log")
     parser.add_argument("--scene-rate", type=float, default=50.0, help="Hz of the 3D scene in the log (0: none)")
     parser.add_argument("--foxglove", action="store_true",
@@ -278,10 +295,11 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for rate, duration in zip(args.rates, seconds):
             for _ in range(max(1, args.repeat)):
-                for name, scene_rate, live in variants:  # alternated: slow drifts of the machine hit both
-                    result = run_rate(description, model, rate, duration, args.controller, Path(tmp), not args.no_log,
-                                      args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live)  # fmt: skip
-                    results.append({"variant": name, **result} if name else result)
+                for controller in args.controller:
+                    for name, scene_rate, live in variants:  # alternated: slow drifts of the machine hit both
+                        result = run_rate(description, model, rate, duration, controller, Path(tmp), not args.no_log,
+                                          args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live, args.vx)  # fmt: skip
+                        results.append({"variant": name, **result} if name else result)
     effect = None
     if args.foxglove:
         effect = {
@@ -297,7 +315,13 @@ def main() -> None:
         "benchmark": "deploy_loop",
         "robot": args.robot,
         "joints": description.dofs,
-        "controller": args.controller,
+        "controller": args.controller[0] if len(args.controller) == 1 else args.controller,
+        "work_by_controller_us": {
+            f"{rate:g}": {c: {"mean": float(np.median([r["work_mean_us"] for r in results if r["rate_hz"] == rate and r["controller"] == c])),
+                              "p99": float(np.median([r["work_us"]["p99"] for r in results if r["rate_hz"] == rate and r["controller"] == c]))}
+                          for c in args.controller}
+            for rate in args.rates
+        },  # medians over --repeat
         "log": not args.no_log,
         "transport": ("giwbc-unix channels (AF_UNIX SOCK_SEQPACKET), emulator in its own process" if args.emulator == "process"
                       else "python-can virtual, emulator in the loop thread (lockstep)"),

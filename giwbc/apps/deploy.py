@@ -32,6 +32,11 @@ refuses to start when one is outside its limits (a wrong sign or zero offset).
 ``--emulate --imu serial|can``: the emulator sends its IMU as an Xsens MTi on a pseudo-terminal or
 as CAN frames, read through the real drivers.
 
+Walking: ``--controller walk --vx 0.3 [--vy --yaw-rate] [--step-in-place]``
+(:mod:`giwbc.apps.deploy_walk`): the walking WBC on the estimated robot, standing for ``--walk-delay``
+s after the start-up, then walking. ``--emulate --unpaced``: the lockstep emulator as fast as the
+machine allows (a rehearsal on a machine too slow for the loop and the physics in real time).
+
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
@@ -63,6 +68,7 @@ import numpy as np
 from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
 from giwbc.apps.live import HOST as LIVE_HOST
 from giwbc.apps.scene import SceneChannels
+from giwbc.apps.deploy_walk import WalkCommand, WalkHold, add_walk_arguments, walk_command
 from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
 
 from giwbc.control.balance import make_balance_controller
@@ -92,7 +98,7 @@ if TYPE_CHECKING:
     import mujoco
 
 TASKS = ("stand", "balance")
-CONTROLLERS = ("wbc", "pd")
+CONTROLLERS = ("wbc", "pd", "walk")
 EMULATOR_MODES = ("lockstep", "process")
 
 
@@ -194,7 +200,10 @@ class WbcHold:
         return f"whole-body controller {last.status.value} ({last.qp_status.value if last.qp_status else 'no QP'}): {last.message}"
 
 
-def make_controller(name: str, description: RobotDescription) -> Any:
+def make_controller(name: str, description: RobotDescription, walk: WalkCommand | None = None) -> Any:
+    """A deployment controller by name; ``walk``: the ``walk`` controller's command (default: stand)."""
+    if name == "walk":
+        return WalkHold(description, walk)
     if name == "pd":
         return PdHold(description)
     if name == "wbc":
@@ -234,6 +243,7 @@ class DeployOptions:
     scene_rate: float = 50.0  # Hz of the 3D scene (link transforms, contact forces) in the log; 0: none
     foxglove_port: int | None = None  # also stream the scene to Foxglove on this loopback port (the logger's process)
     imu_profile: str | None = None  # the IMU's class (giwbc.robot.noise.IMU_PROFILES): the emulated IMU's errors, the estimator's setup
+    walk: WalkCommand | None = None  # the walk controller's command (None: stand)
 
 
 @dataclass
@@ -251,6 +261,7 @@ class DeployOutcome:
     fault_onsets: dict[str, float] = field(default_factory=dict)  # host-side injected faults: robot time each first acted
     imu_counters: dict[str, int] | None = None  # a serial or CAN IMU driver's counters (samples, checksum errors, ...)
     calibration: CalibrationReport | None = None  # what the state estimator's start-up calibration found
+    walking: dict[str, Any] | None = None  # the walk controller's counts: steps (touch-downs), single-support ticks
 
 
 def deploy(
@@ -284,6 +295,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         raise DeployError(str(error)) from error
     if options.emulator_mode not in EMULATOR_MODES:
         raise DeployError(f"emulator mode must be one of {', '.join(EMULATOR_MODES)}, got {options.emulator_mode!r}")
+    if not options.realtime and not options.emulate:
+        raise DeployError("real motors run in real time: an unpaced run (--unpaced, realtime=False) needs --emulate")
     if options.emulate and options.emulator_mode == "process" and not options.realtime:
         raise DeployError("the emulator process runs in real time: an unpaced run (realtime=False) needs the lockstep emulator")
 
@@ -295,6 +308,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     task_name = options.task or ("balance" if metadata is not None else "stand")
     if task_name not in TASKS:
         raise DeployError(f"unknown task {task_name!r}; choose from {', '.join(TASKS)}")
+    if options.controller == "walk" and task_name != "stand":
+        raise DeployError("the walk controller runs the 'stand' task (no policy)")
     if task_name == "stand" and policy is not None:
         raise DeployError("the 'stand' task takes no action: a policy needs --task balance")
 
@@ -387,7 +402,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         if not clock:
             clock.append(lambda: robot.time() + 1.0 / options.control_rate)
         if task_name == "stand":
-            task: Any = StandingTask(make_controller(options.controller, description), description.default_positions)
+            task: Any = StandingTask(make_controller(options.controller, description, options.walk), description.default_positions)
         else:
             task = _balance_task(description, metadata, options.controller)
         if host_faults:
@@ -452,8 +467,14 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     if standing is not None:
         say(
             f"emulated robot while running: base height {standing['min_height']:.3f}..{standing['max_height']:.3f} m, "
-            f"max tilt {math.degrees(standing['max_tilt']):.1f} deg ({'stood' if standing['stood'] else 'FELL'})"
+            f"max tilt {math.degrees(standing['max_tilt']):.1f} deg ({'stood' if standing['stood'] else 'FELL'}), "
+            f"base moved {standing['dx']:+.2f} m forward, {standing['dy']:+.2f} m sideways"
         )
+    walking = None
+    if isinstance(task, StandingTask) and isinstance(task.controller, WalkHold):
+        walker = task.controller
+        walking = {"steps": walker.steps, "single_support_ticks": walker.single_support_ticks, "notes": list(walker.notes)}
+        say(f"walking: {walker.steps} steps" + (f" (command: {'; '.join(walker.notes)})" if walker.notes else ""))
     say(f"log: {log.path}")
     if result.ok:
         message = "clean run: motors ramped to damping and switched off"
@@ -469,7 +490,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
     say(message)
     return DeployOutcome(
-        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters, calibration
+        result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters, calibration, walking
     )
 
 
@@ -509,8 +530,10 @@ def _standing(emulator: ActuatorEmulator | EmulatorProcess, result: RunResult) -
         return None
     heights, tilts = rows[:, 1], rows[:, 2]
     stood = bool(tilts.max() < math.radians(10.0) and heights.min() > 0.8 * heights[0])
+    moved = rows[:, 3:5] - rows[0, 3:5]  # world frame (the emulated robot starts facing +x)
     return {"min_height": float(heights.min()), "max_height": float(heights.max()), "max_tilt": float(tilts.max()),
-            "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood}  # fmt: skip
+            "seconds": float(rows[-1, 0] - rows[0, 0]), "stood": stood, "dx": float(moved[-1, 0]), "dy": float(moved[-1, 1]),
+            "max_excursion": float(np.hypot(moved[:, 0], moved[:, 1]).max())}  # fmt: skip
 
 
 def _us(value: float | None) -> str:
@@ -524,12 +547,15 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--robot", default="g1")
     parser.add_argument("--policy", default=None, help="policy .onnx (or its metadata .json); optional")
     parser.add_argument("--task", choices=TASKS, default=None, help="default: balance with a policy, stand without")
-    parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP or joint-PD hold")
+    parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP, joint-PD hold, or the walking WBC")
+    add_walk_arguments(parser)
     parser.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")
     parser.add_argument("--emulate", action="store_true", help="rehearse on the actuator emulator instead of the configured buses")
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
                         help="with --emulate: in the control loop's thread on virtual buses (lockstep), or in its own process (real time)")
     parser.add_argument("--seconds", type=float, default=10.0, help="seconds of control after the start-up ramp")
+    parser.add_argument("--unpaced", action="store_true",
+                        help="with --emulator lockstep: as fast as the machine allows, in the emulator's time (no real-time pacing)")
     parser.add_argument("--rate", type=float, default=500.0, help="control rate, Hz")
     parser.add_argument("--log", default=None, help="run log (.mcap); default runs/deploy-<robot>-<time>.mcap")
     parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
@@ -569,12 +595,17 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
     if args.foxglove:
         require_foxglove()  # before the motors, not after
+    try:
+        walk = walk_command(args)
+    except DeployError as error:
+        print(f"giwbc deploy: error: {error}", file=sys.stderr)
+        return 2
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
-        emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log,
+        emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log, realtime=not args.unpaced,
         startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
-        foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile,
+        foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:
@@ -583,7 +614,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             "exit_code": outcome.exit_code, "message": outcome.message, "log": outcome.log_path,
             "fault": None if result is None or result.fault is None else result.fault.as_dict(),
             "faults": [] if result is None else [f.kind.value for f in result.faults],
-            "timing": None if result is None else result.timing, "standing": outcome.standing,
+            "timing": None if result is None else result.timing, "standing": outcome.standing, "walking": outcome.walking,
             "calibration": None if outcome.calibration is None else outcome.calibration.as_dict(),
         }))  # fmt: skip
     elif outcome.exit_code:

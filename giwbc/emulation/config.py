@@ -36,7 +36,7 @@ class EmulatorConfig:
     gantry: Gantry | None = None
     faults: tuple[FaultInjection, ...] = ()
     record: bool = False  # keep per-poll snapshots of what the motors apply (tests)
-    record_truth: bool = True  # keep (time, base height, base tilt) after every physics advance
+    record_truth: bool = True  # keep (time, base height, base tilt, base x, base y) after every physics advance
     # The IMU's errors (e.g. SensorNoiseConfig.profile("mems"): gyro + accelerometer only, turn-on
     # biases drawn from the seed, latency, dropouts); None: MuJoCo's exact IMU.
     imu: SensorNoiseConfig | None = None

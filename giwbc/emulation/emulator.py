@@ -169,7 +169,7 @@ class ActuatorEmulator(FaultEffects):
         if isinstance(self.imu_device, SerialImuDevice):
             self._host_plan = self._host_plan.with_imu(replace(plan.imu, device=self.imu_device.path))
         self.snapshots: list[AppliedSnapshot] = []
-        self.truth: list[tuple[float, float, float]] = []  # ground truth for judging a dry run, never sent to the host
+        self.truth: list[tuple[float, ...]] = []  # ground truth (time, height, tilt, x, y) for judging a dry run, never sent to the host
         self._delayed: list[tuple[float, int, np.ndarray]] = []  # (due, bus, one-frame batch)
         self._impedance = ImpedanceCommand.damping(description.dofs, 0.0)
         self._closed = False
@@ -277,7 +277,7 @@ class ActuatorEmulator(FaultEffects):
             if c.record_truth and self.description.floating_base:
                 qpos = robot.data.qpos
                 tilt = math.acos(max(-1.0, min(1.0, 1.0 - 2.0 * (qpos[4] ** 2 + qpos[5] ** 2))))
-                self.truth.append((self.time, float(qpos[2]), tilt))
+                self.truth.append((self.time, float(qpos[2]), tilt, float(qpos[0]), float(qpos[1])))
         if self.faults or self.error.any() or self.temperature.max() > c.thermal.trip:
             self._update_faults(self.time)
 
@@ -499,8 +499,8 @@ class ActuatorEmulator(FaultEffects):
 
     # ------------------------------------------------------------------ inspection
     def truth_between(self, start: float, stop: float = math.inf) -> np.ndarray:
-        """Ground truth rows (time, base height, tilt rad) with ``start <= time < stop``."""
-        rows = np.array(self.truth, dtype=float).reshape(-1, 3)
+        """Ground truth rows (time, base height, tilt rad, base x, base y) with ``start <= time < stop``."""
+        rows = np.array(self.truth, dtype=float).reshape(-1, 5)
         return rows[(rows[:, 0] >= start) & (rows[:, 0] < stop)]
 
     def joint_temperatures(self) -> np.ndarray:

@@ -133,7 +133,7 @@ class EmulatorProcess:
         args = (plan, description, self.config, prefix, self.imu_channel.name, child, rt_priority, cpu)
         self._process = children.start(_serve, args, "giwbc-emulator")  # motors do not hear Ctrl-C (see children)
         child.close()
-        self.truth = np.zeros((0, 3))
+        self.truth = np.zeros((0, 5))
         self.counters: EmulatorCounters | None = None
         self.cpu_seconds: float | None = None  # the child's user + system CPU time, after close()
         self.physics_dt: float | None = None
@@ -167,7 +167,7 @@ class EmulatorProcess:
         self._send(("fault", fault))
 
     def truth_between(self, start: float, stop: float = math.inf) -> np.ndarray:
-        """Ground truth rows (time, base height, tilt rad) with ``start <= time < stop``, after :meth:`close`."""
+        """Ground truth rows (time, base height, tilt rad, base x, base y) with ``start <= time < stop``, after :meth:`close`."""
         rows = self.truth
         return rows[(rows[:, 0] >= start) & (rows[:, 0] < stop)]
 
@@ -326,7 +326,7 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
             except can.CanOperationError:
                 running = False  # the host closed its buses
         cpu = os.times()
-        conn.send(("done", (np.array(emulator.truth, dtype=float).reshape(-1, 3), emulator.counters, cpu.user + cpu.system)))
+        conn.send(("done", (np.array(emulator.truth, dtype=float).reshape(-1, 5), emulator.counters, cpu.user + cpu.system)))
     finally:
         emulator.close()
         imu.close()

@@ -1,0 +1,168 @@
+"""``giwbc deploy --controller walk``: the walking controller
+(:class:`~giwbc.locomotion.walker.WalkingController`) on the deployment path.
+
+It reads what a deployment has: the estimated base and the encoders (``robot.generalized_state()``
+of an :class:`~giwbc.estimation.estimated_robot.EstimatedRobot`) and, for early and late
+touch-downs, the estimator's ground force on each sole (``robot.contact_wrench``: estimated from
+the leg's joint efforts, or a foot sensor's). It stands for ``walk_delay`` seconds after the
+start-up ramp (the WBC takes the robot over from the ramp's joint PD and the estimate settles),
+then walks at the command; it outputs the WBC's impedance command (feed-forward torque, low gains)
+as :class:`giwbc.apps.deploy.WbcHold` does.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from giwbc.errors import DeployError
+from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
+from giwbc.robot.description import RobotDescription
+from giwbc.robot.interface import ImpedanceCommand, Robot
+
+
+@dataclass(frozen=True)
+class WalkCommand:
+    """The velocity command of a deployed walk (body frame), and when it starts."""
+
+    vx: float = 0.0  # m/s
+    vy: float = 0.0  # m/s
+    yaw_rate: float = 0.0  # rad/s
+    step_in_place: bool = False
+    walk_delay: float = 0.5  # s after the controller's first tick (standing until then)
+
+    def __post_init__(self) -> None:
+        values = (self.vx, self.vy, self.yaw_rate, self.walk_delay)
+        if not all(math.isfinite(v) for v in values):
+            raise DeployError(f"walk command must be finite, got vx={self.vx}, vy={self.vy}, yaw_rate={self.yaw_rate}, delay={self.walk_delay}")
+        if self.walk_delay < 0:
+            raise DeployError(f"walk_delay must be >= 0, got {self.walk_delay}")
+
+    @property
+    def moves(self) -> bool:
+        return self.step_in_place or any(v != 0.0 for v in (self.vx, self.vy, self.yaw_rate))
+
+
+# The estimator's sole forces come from the legs' joint efforts, quasi-statically: a swinging leg's
+# own acceleration reads as up to ~60 N on its sole (measured on the emulated G1), above the
+# walker's default touch-down threshold (0.15 of the weight, ~50 N) late in a swing. Deployed, a
+# touch-down needs 0.35 of the weight (~120 N): a real landing gets there within a few ms.
+DEPLOY_TOUCHDOWN_FORCE = 0.35
+DEPLOY_SWING_KP = 250.0
+
+
+def deploy_walker_config() -> WalkerConfig:
+    """The walker's configuration on the deployment path (estimated base and foot forces).
+
+    Without online step adjustment: from the *estimated* DCM (its velocity errs by a few cm/s
+    around each touch-down, where the stance foot rolls) the adapter moved the landing spots and
+    times enough that the emulated G1 landed on a sole edge (ankle roll at its limit) within
+    2-3 steps at 0.3 m/s; with the nominal footsteps it walks (tests/test_deploy_walk.py). A
+    softer swing foot (kp 250 instead of 400): with the process emulator's one-cycle reply delay
+    the stiffer one landed on a sole edge after ~9 steps."""
+    return replace(WalkerConfig(), touchdown_force=DEPLOY_TOUCHDOWN_FORCE, step_adaptation=False, swing_kp=DEPLOY_SWING_KP)
+
+
+class WalkHold:
+    """The walking controller as a deployment controller: called with the robot each control
+    tick, returns the joint impedance command (see the module docstring)."""
+
+    def __init__(
+        self, description: RobotDescription, command: WalkCommand | None = None, config: WalkerConfig | None = None, *, foot_forces: bool = True,
+        contact_plan: bool = True, max_failed_ticks: int = 5,
+    ) -> None:
+        self.walker = WalkingController(description, config or deploy_walker_config())
+        self.foot_forces = foot_forces  # False: touch-downs on the schedule alone
+        self.contact_plan = contact_plan  # pass the schedule's contacts to an estimating robot
+        self.command = command or WalkCommand()
+        self._links = {side: contact.link for side, contact in self.walker.contacts.items()}
+        order = [c.link for c in description.contacts]  # the estimator's contact order
+        self._index = {side: order.index(link) for side, link in self._links.items()}
+        self._plans = {side: np.array([link == self._links[side] for link in order]) for side in self._links}
+        self._anchor = True
+        self._started_at: float | None = None
+        self._commanded = False
+        self.max_failed_ticks = max_failed_ticks
+        self.notes: list[str] = []
+        self.last: Any = None
+        self.single_support_ticks = 0  # ticks in single support (a foot swinging): the contact switches seen
+
+    def reset(self) -> None:
+        """Stand again, re-anchored at the next tick's measured state; the command starts again
+        ``walk_delay`` after it."""
+        self._anchor = True
+        self._commanded = False
+
+    def __call__(self, robot: Robot) -> ImpedanceCommand:
+        q, v = robot.generalized_state()
+        now = robot.time()
+        walker = self.walker
+        if self._anchor:
+            walker.reset(q)
+            self._anchor, self._started_at = False, now
+        if not self._commanded and self.command.moves and now - self._started_at >= self.command.walk_delay - 1e-9:
+            c = self.command
+            self.notes.extend(walker.set_command(c.vx, c.vy, c.yaw_rate, step_in_place=c.step_in_place))
+            self._commanded = True
+        forces = self._foot_forces(robot) if self.foot_forces else None
+        self.last = walker.update(q, v, now, forces)
+        single = walker.state.phase is Phase.SINGLE
+        self.single_support_ticks += single
+        set_plan = getattr(robot, "set_contact_plan", None)
+        if self.contact_plan and set_plan is not None:
+            # In single support the estimator's next update takes the schedule's contacts: a swinging
+            # foot is never taken as a still stance foot (its quasi-static force estimate can read
+            # tens of N); otherwise it detects them from the forces (a landing foot counts once loaded).
+            stance = walker.state.stance
+            set_plan(self._plans[stance] if single else None)
+        return self.last.impedance
+
+    def _foot_forces(self, robot: Robot) -> dict[str, float]:
+        """Normal ground force per sole (N): the estimate's own array on an estimating robot (its
+        ``contact_wrench`` would also compute the link poses, ~2 forward kinematics a tick)."""
+        if isinstance(robot, EstimatedRobot):
+            forces = robot.estimate.contact_forces
+            return {side: float(forces[i, 2]) for side, i in self._index.items()}
+        return {side: float(robot.contact_wrench(link).force[2]) for side, link in self._links.items()}
+
+    @property
+    def steps(self) -> int:
+        """Touch-downs so far."""
+        return self.walker.state.steps
+
+    def failure(self) -> str | None:
+        """Why the controller fell back to its safe command for ``max_failed_ticks`` ticks in a row,
+        or None (the runtime stops on it). A single infeasible tick at a contact switch is ridden
+        out on the decaying last torques, as in simulation."""
+        last = self.last
+        if last is None or last.ok or self.walker.wbc.consecutive_failures < self.max_failed_ticks:
+            return None
+        return f"{self.walker.wbc.consecutive_failures} ticks in a row: walking whole-body controller {last.status.value} ({last.qp_status.value if last.qp_status else 'no QP'}): {last.message}"
+
+
+def add_walk_arguments(parser: argparse.ArgumentParser) -> None:
+    """``giwbc deploy``'s walking options."""
+    parser.add_argument("--vx", type=float, default=0.0, help="with --controller walk: forward speed, m/s (body frame)")
+    parser.add_argument("--vy", type=float, default=0.0, help="with --controller walk: lateral speed, m/s")
+    parser.add_argument("--yaw-rate", type=float, default=0.0, help="with --controller walk: turning rate, rad/s")
+    parser.add_argument("--step-in-place", action="store_true", help="with --controller walk: step with a zero command")
+    parser.add_argument("--walk-delay", type=float, default=WalkCommand.walk_delay,
+                        help="with --controller walk: seconds of standing after the start-up ramp before the command")
+
+
+def walk_command(args: argparse.Namespace) -> WalkCommand | None:
+    """The walk command of parsed ``giwbc deploy`` arguments (None without ``--controller walk``);
+    :class:`DeployError` for walking options given to another controller or a non-finite one."""
+    if args.controller != "walk":
+        if args.vx or args.vy or args.yaw_rate or args.step_in_place:
+            raise DeployError("--vx/--vy/--yaw-rate/--step-in-place need --controller walk")
+        return None
+    return WalkCommand(args.vx, args.vy, args.yaw_rate, args.step_in_place, args.walk_delay)
+
+
+__all__ = ["WalkCommand", "WalkHold", "add_walk_arguments", "walk_command"]

@@ -1,0 +1,65 @@
+"""``giwbc deploy --controller walk``: the walking WBC over the emulated CAN buses with the state
+estimator in the loop (lockstep emulator, unpaced: simulated time, no wall clock)."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from giwbc.apps.deploy import DeployOptions, add_deploy_command, deploy
+from giwbc.apps.deploy_walk import WalkCommand
+from giwbc.errors import DeployError
+from giwbc.runtimes.phases import StartupConfig
+
+STARTUP = StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.3, off_delay=0.1)
+
+
+@pytest.fixture(scope="module")
+def model(g1):
+    return g1.build_mujoco()
+
+
+def _walk(g1, model, tmp_path, command: WalkCommand, seconds: float):
+    options = DeployOptions(
+        emulate=True, controller="walk", seconds=seconds, realtime=False, startup=STARTUP, walk=command,
+        log=str(tmp_path / "walk.mcap"), scene_rate=0.0,
+    )  # fmt: skip
+    outcome = deploy(options, model=model, description=g1, out=None)
+    assert outcome.exit_code == 0, outcome.message
+    return outcome
+
+
+def test_walks_forward_over_the_emulated_buses_on_the_estimate(g1, model, tmp_path):
+    outcome = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 3.5)
+    standing, walking = outcome.standing, outcome.walking
+    assert standing["stood"] and standing["seconds"] >= 3.4  # emulator ground truth: no fall
+    # 3 s of walking at 0.3 m/s commanded: the emulated base advanced, straight ahead.
+    assert standing["dx"] > 0.5 and abs(standing["dy"]) < 0.15
+    # Contacts switched: feet lifted (single-support ticks) and touched down again (steps counted).
+    assert walking["steps"] >= 5 and walking["single_support_ticks"] > 200
+
+
+def test_steps_in_place_within_a_small_area(g1, model, tmp_path):
+    outcome = _walk(g1, model, tmp_path, WalkCommand(step_in_place=True, walk_delay=0.5), 3.5)
+    standing, walking = outcome.standing, outcome.walking
+    assert standing["stood"]
+    assert walking["steps"] >= 5  # it stepped ...
+    assert standing["max_excursion"] < 0.1  # ... and stayed where it was (ground truth)
+
+
+def test_bad_walk_commands_are_refused(g1):
+    with pytest.raises(DeployError, match="finite"):
+        WalkCommand(vx=float("nan"))
+    parser = argparse.ArgumentParser()
+    add_deploy_command(parser.add_subparsers())
+    args = parser.parse_args(["deploy", "--emulate", "--vx", "0.3"])  # --vx without --controller walk
+    assert args.run(args) == 2
+    args = parser.parse_args(["deploy", "--emulate", "--controller", "walk", "--vy", "nan"])
+    assert args.run(args) == 2
+
+
+def test_unpaced_runs_only_on_the_lockstep_emulator(g1):
+    for options in (DeployOptions(realtime=False), DeployOptions(emulate=True, emulator_mode="process", realtime=False)):
+        outcome = deploy(options, description=g1, out=None)
+        assert outcome.exit_code == 2 and "unpaced" in outcome.message
