@@ -46,11 +46,13 @@ class StandstillConfig:
     noise_sigmas: float = 3.0
     gyro_change: tuple[float, float] = (0.01, 0.02)  # rad/s
     max_tilt_rate: float = 0.02  # rad/s: the gravity direction turns slower than this
-    joint_change: float = 1e-3  # rad: largest change of a leg joint's mean position
+    joint_change: float = 1e-3  # rad: largest change of a leg joint's mean position across the window ...
+    joint_rate: float = 1e-3  # rad/s: ... or this rate times the window's span, if larger (a PD-held robot creeps
+    # slowly while it settles; the base's turn over the window is taken from the encoders, so a slow creep is harmless)
     min_load: float = 0.5  # both feet's load confidence stays above this (double support)
 
     def __post_init__(self) -> None:
-        if self.block_time <= 0 or self.blocks < 2 or min(self.gyro_std, self.accel_std, self.joint_change) <= 0:
+        if self.block_time <= 0 or self.blocks < 2 or min(self.gyro_std, self.accel_std, self.joint_change) <= 0 or self.joint_rate < 0:
             raise ValueError("standstill thresholds and block_time must be > 0, blocks >= 2")
         if self.startup_blocks is not None and self.startup_blocks < 2:
             raise ValueError(f"standstill startup_blocks must be >= 2, got {self.startup_blocks}")
@@ -202,8 +204,9 @@ class StandstillDetector:
         if (np.abs(g1 - g0) > np.clip(c.noise_sigmas * root * np.maximum(gs0, gs1), floor, cap)).any():
             self.rejection = f"the mean gyro changed by {np.abs(g1 - g0).max():.4f} rad/s across the window (turning)"
             return None
-        if np.abs(j1 - j0).max() > c.joint_change:
-            self.rejection = f"a leg joint moved by {np.abs(j1 - j0).max():.4f} rad across the window"
+        joint_limit = max(c.joint_change, c.joint_rate * (last.start - first.start))
+        if np.abs(j1 - j0).max() > joint_limit:
+            self.rejection = f"a leg joint moved by {np.abs(j1 - j0).max():.4f} rad across the window (limit {joint_limit:.4f})"
             return None
         # The turn of the gravity direction over the window, d(up)/dt = up x omega (so the omega
         # perpendicular to up is d(up)/dt x up): the slope of a least-squares line through the
