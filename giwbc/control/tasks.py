@@ -538,7 +538,8 @@ class ContactForceRegularization:
     in proportion to their activations, or — after :meth:`set_support_point` with two contacts —
     split by the lever rule so that the weight is statically supported at that point (the CoM
     target of a balance controller), so the regularisation neither fights gravity nor a commanded
-    CoM shift. ``"zero"`` regularises towards no force.
+    CoM shift (the shares are computed by :class:`giwbc.control.contact_set.ContactSet`, the lever
+    rule by :class:`giwbc.control.contact_set.Lever`). ``"zero"`` regularises towards no force.
     """
 
     def __init__(self, name: str = "contact_forces", *, weight: float = 1e-5, reference: str = "weight") -> None:
@@ -562,24 +563,6 @@ class ContactForceRegularization:
         self.support_point = None if point is None else _vector(point, 3, "support point")
         self.support_xy = None if point is None else (float(self.support_point[0]), float(self.support_point[1]))
         self.version += 1
-
-    def shares(self, positions: list[np.ndarray], activations: list[float]) -> np.ndarray:
-        """Fraction of the weight for each contact (sums to 1 when any is active)."""
-        activation = np.asarray(activations, dtype=float)
-        if activation.sum() <= 0:
-            return np.zeros(len(activation))
-        share = activation / activation.sum()
-        active = np.flatnonzero(activation > 0)
-        if self.support_point is not None and len(active) == 2:
-            p1, p2 = (np.asarray(positions[i], dtype=float)[:2] for i in active)
-            d = p1 - p2
-            if d @ d > 1e-12:
-                alpha = float(np.clip((self.support_point[:2] - p2) @ d / (d @ d), 0.0, 1.0))
-                lever = np.zeros(len(activation))
-                lever[active] = [alpha, 1.0 - alpha]
-                share = lever * activation
-                share /= share.sum() if share.sum() > 0 else 1.0
-        return share
 
     def __repr__(self) -> str:
         return f"ContactForceRegularization({self.name!r}, weight={self.weight})"
