@@ -35,6 +35,8 @@ import pinocchio as pin
 from giwbc.control.kinodynamics import LWA, Kinodynamics
 
 _log3 = pin.log3
+_frame_jacobian = pin.getFrameJacobian
+_classical_acceleration = pin.getFrameClassicalAcceleration
 
 
 def _row_vector(value: float | np.ndarray, dim: int, what: str) -> np.ndarray:
@@ -371,6 +373,7 @@ class FramePoseTask(WbcTask):
         self._select = slice(int(self.rows[0]), int(self.rows[-1]) + 1) if contiguous else self.rows
         self._linear = bool(self.rows[0] < 3)
         self._angular = bool(self.rows[-1] >= 3)
+        self._full = len(self.rows) == 6
         super().__init__(name or f"{frame}_pose", len(self.rows), weight=weight, kp=kp, kd=kd)
         self.frame_id = -1
         self.reference: pin.SE3 | None = None  # None: hold the pose at the first tick
@@ -440,6 +443,13 @@ class FramePoseTask(WbcTask):
         placement = kin.frame_placement(self.frame_id)
         if self.reference is None:
             self.set_reference(placement)
+        if self._full:  # all six rows (a swing foot): no selection, the error written in place
+            model, data = kin.model, kin.data
+            rows[...] = _frame_jacobian(model, data, self.frame_id, LWA)
+            drift[...] = _classical_acceleration(model, data, self.frame_id, LWA).vector
+            np.subtract(self._reference_translation, placement.translation, out=error[:3])
+            error[3:] = _log3(self._reference_rotation @ placement.rotation.T)
+            return
         select = self._select
         rows[...] = kin.frame_jacobian(self.frame_id, LWA)[select]
         drift[...] = kin.frame_drift(self.frame_id, LWA)[select]
