@@ -94,6 +94,8 @@ class WalkerConfig:
     stiff_swing_error: float = 0.08  # m: a DCM error this large in a swing makes the swing foot task stiff
     hurry_error: float = 0.1  # m: a DCM error this large at touch-down cuts the double support short
     recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
+    trigger_lead: bool = False  # standing: step when the capture point *plus the disturbance lead* leaves the polygon
+    recovery_double_support: float | None = None  # s between recovery steps (None: the gait's double support)
 
     def __post_init__(self) -> None:
         if self.preview_steps < 1:
@@ -248,11 +250,17 @@ class WalkingController:
     # --- the tick ----------------------------------------------------------------------------------
     def update(self, q: np.ndarray, v: np.ndarray, t: float, foot_forces: dict[str, float] | None = None) -> WbcResult:
         """One tick at time ``t`` for the Pinocchio state ``(q, v)``; ``foot_forces`` are the
-        measured normal forces (N) per side (``None``: switch on the schedule alone)."""
-        if not self._anchored:
-            self.reset(q)
+        measured normal forces (N) per side (``None``: switch on the schedule alone).
+
+        A non-finite state plans nothing (the schedule and the references wait) and returns the
+        WBC's fallback command (``WbcStatus.INVALID_STATE``, with its message, counted in
+        ``wbc.failures``); it never raises. Wrong shapes raise ``ValueError``."""
         q = np.asarray(q, dtype=float)
         v = np.asarray(v, dtype=float)
+        if not math.isfinite(float(np.sum(q) + np.sum(v))):
+            return self.wbc.update(q, v, t)
+        if not self._anchored:
+            self.reset(q)
         self._time = t = float(t)
         self._measure(q, v)
         omega = self.omega
@@ -316,7 +324,7 @@ class WalkingController:
             if self.walking:
                 first = self.planner.first_swing_side(self.command)
                 self._begin_double(t, stance=other_side(first), duration=cfg.start_shift)
-            elif signed_distance(xi, self.support_polygon()) > cfg.push_margin:
+            elif signed_distance(xi + self._disturbance_lead() if cfg.trigger_lead else xi, self.support_polygon()) > cfg.push_margin:
                 swing = self._recovery_swing_side(xi)
                 self._recovering = True
                 self._nominal_feet = {}
@@ -464,7 +472,8 @@ class WalkingController:
             # Settle if the capture point is back inside both feet; otherwise the other foot steps.
             if signed_distance(self.state.dcm, self.support_polygon()) > -cfg.settle_margin:
                 # Feet alternate: the one just landed carries, the other closes up or steps on.
-                self._begin_double(t, stance=swing, duration=max(cfg.gait.double_support, cfg.contact_ramp))
+                between = cfg.gait.double_support if cfg.recovery_double_support is None else cfg.recovery_double_support
+                self._begin_double(t, stance=swing, duration=max(between, cfg.contact_ramp))
                 self.state.recovery_steps += 1
             else:
                 self._recovering = False
