@@ -96,6 +96,7 @@ class WalkerConfig:
     recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
     trigger_lead: bool = False  # standing: step when the capture point *plus the disturbance lead* leaves the polygon
     recovery_double_support: float | None = None  # s between recovery steps (None: the gait's double support)
+    settle_distance: float | None = None  # m: after a recovery step, feet farther apart than this close up before settling
 
     def __post_init__(self) -> None:
         if self.preview_steps < 1:
@@ -469,8 +470,10 @@ class WalkingController:
         self.state.steps += 1
         self._swing = None
         if self._recovering:
-            # Settle if the capture point is back inside both feet; otherwise the other foot steps.
-            if signed_distance(self.state.dcm, self.support_polygon()) > -cfg.settle_margin:
+            # Settle if the capture point is back inside both feet (and, with settle_distance, the
+            # feet are not split wide apart); otherwise the other foot steps (on, or closing up).
+            split = cfg.settle_distance is not None and float(np.linalg.norm(self.feet["left"].position - self.feet["right"].position)) > cfg.settle_distance
+            if split or signed_distance(self.state.dcm, self.support_polygon()) > -cfg.settle_margin:
                 # Feet alternate: the one just landed carries, the other closes up or steps on.
                 between = cfg.gait.double_support if cfg.recovery_double_support is None else cfg.recovery_double_support
                 self._begin_double(t, stance=swing, duration=max(between, cfg.contact_ramp))
