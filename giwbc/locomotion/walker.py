@@ -98,6 +98,7 @@ class WalkerConfig:
     # the polygon — ~0.05 s sooner than the capture point alone (150 N, tuning seeds 0-39: with the
     # wider recovery box 29/40 vs 25/40; the wider box alone 18/40, a narrower one 16/40).
     trigger_lead: bool = True
+    lead_settle_time: float = 0.5  # s after a walk stops: the capture point alone decides (the stop's own transient reads as a push)
     recovery_landing_box: tuple[tuple[float, float], tuple[float, float]] | None = ((-0.45, 0.5), (0.17, 0.75))  # standing recovery's (None: landing_box)
 
     def __post_init__(self) -> None:
@@ -107,6 +108,8 @@ class WalkerConfig:
             raise ValueError("need 0 < min_swing <= single_support <= max_swing")
         if self.contact_ramp < 0 or self.contact_ramp >= self.gait.double_support + 1e-12 and self.contact_ramp > 0.5:
             raise ValueError("contact_ramp must be >= 0 and short")
+        if not (self.lead_settle_time >= 0.0 and math.isfinite(self.lead_settle_time)):
+            raise ValueError(f"lead_settle_time must be finite and >= 0, got {self.lead_settle_time}")
         for name in ("landing_box", "recovery_landing_box"):
             box = getattr(self, name)
             if box is None and name == "recovery_landing_box":
@@ -217,6 +220,7 @@ class WalkingController:
         self._nominal_offset = np.zeros(2)
         self._nominal_target: Footstep | None = None
         self._recovering = False
+        self._lead_after = -math.inf
         self._xi_previous: np.ndarray | None = None
         self._xi_rate: np.ndarray | None = None
         self._last_cop: np.ndarray | None = None
@@ -334,7 +338,7 @@ class WalkingController:
             if self.walking:
                 first = self.planner.first_swing_side(self.command)
                 self._begin_double(t, stance=other_side(first), duration=cfg.start_shift)
-            elif signed_distance(xi + self._disturbance_lead() if cfg.trigger_lead else xi, self.support_polygon()) > cfg.push_margin:
+            elif signed_distance(xi + self._disturbance_lead() if cfg.trigger_lead and t >= self._lead_after else xi, self.support_polygon()) > cfg.push_margin:
                 swing = self._recovery_swing_side(xi)
                 self._recovering = True
                 self._nominal_feet = {}
@@ -494,6 +498,7 @@ class WalkingController:
             return
         if not self.walking and self._feet_together():
             self._settle(t)
+            self._lead_after = t + cfg.lead_settle_time
             return
         # A large DCM error (a push) shortens the double support to the force ramp: the next
         # foot gets going at once.
