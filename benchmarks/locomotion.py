@@ -1,8 +1,10 @@
 """Walking and push recovery by stepping (the G1 in MuJoCo): speeds, tracking, falls, push success.
 
 Usage: ``python benchmarks/locomotion.py [--full] [--seeds N] [--seconds S] [--episodes N]
-[--parts walking,push,walking_push,tick] [--workers N]``. Prints ONE JSON object; every figure
-comes with the seeds it was measured on.
+[--parts walking,push,walking_push,tick] [--workers N] [--seed-base S]``. Prints ONE JSON object;
+every figure comes with the seeds it was measured on: every part draws its seeds from
+``--seed-base`` on (default 2000: never the tuning seeds below 1000, nor the integrator's fresh
+seeds 1000-1999).
 
 * **walking**: commanded 0.3 / 0.5 / 0.7 m/s forward, 0.2 m/s lateral, 0.5 rad/s turning; per
   seeded run (initial joint angles and base velocity perturbed from the seed) the mean per-step
@@ -46,7 +48,7 @@ from giwbc.locomotion.walker import WalkerConfig  # noqa: E402
 from giwbc.robot import load  # noqa: E402
 
 COMMANDS = {"forward_0.3": (0.3, 0.0, 0.0), "forward_0.5": (0.5, 0.0, 0.0), "forward_0.7": (0.7, 0.0, 0.0), "lateral_0.2": (0.0, 0.2, 0.0), "turn_0.5": (0.0, 0.0, 0.5)}
-PUSH_SEED = 2000  # push episodes use seeds 2000.. (walking runs 0..)
+SEED_BASE = 2000  # every part's seeds start here (tuning used seeds < 1000; 1000-1999 are kept fresh)
 UPRIGHT_TILT = 0.35
 
 
@@ -128,18 +130,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--commands", default=",".join(COMMANDS), help=f"walking commands among {list(COMMANDS)}")
     parser.add_argument("--workers", type=int, default=1, help="processes (the machine has %d CPUs)" % (os.cpu_count() or 1))
     add_progress_argument(parser)
+    parser.add_argument("--seed-base", type=int, default=SEED_BASE, help="first seed of every part")
     args = parser.parse_args(argv)
     progress = wants_progress(args)
     seeds = args.seeds if args.seeds is not None else (10 if args.full else 1)
     seconds = args.seconds if args.seconds is not None else (20.0 if args.full else 10.0)
     episodes = args.episodes if args.episodes is not None else (100 if args.full else 10)
     parts = set(args.parts.split(","))
-    out: dict = {"benchmark": "locomotion", "robot": "g1", "machine": platform.machine(), "python": platform.python_version(), "cpus": os.cpu_count(), "full_protocol": bool(args.full)}
+    base = args.seed_base
+    out: dict = {"benchmark": "locomotion", "robot": "g1", "machine": platform.machine(), "python": platform.python_version(), "cpus": os.cpu_count(),
+                 "full_protocol": bool(args.full), "argv": sys.argv[1:] if argv is None else argv, "seed_base": base}
     started = time.perf_counter()
     walk_results: list[dict] = []
     if "walking" in parts or "tick" in parts:
         names = args.commands.split(",") if "walking" in parts else ["forward_0.3"]
-        jobs = [(name, COMMANDS[name], seconds, seed) for name in names for seed in range(seeds)]
+        jobs = [(name, COMMANDS[name], seconds, base + i) for name in names for i in range(seeds)]
         walk_results = _map(_walk, jobs, args.workers, progress)
     if "walking" in parts:
         walking = {}
@@ -159,8 +164,8 @@ def main(argv: list[str] | None = None) -> int:
             }
         out["walking"] = walking
     if "push" in parts:
-        jobs = [(force, PUSH_SEED + i, stepping, None, False) for force in args.forces for stepping in (True, False) for i in range(episodes)]
-        jobs += [(60.0, PUSH_SEED + i, stepping, math.pi, False) for stepping in (True, False) for i in range(max(1, min(episodes, 10)))]
+        jobs = [(force, base + i, stepping, None, False) for force in args.forces for stepping in (True, False) for i in range(episodes)]
+        jobs += [(60.0, base + i, stepping, math.pi, False) for stepping in (True, False) for i in range(max(1, min(episodes, 10)))]
         results = _map(_push_episode, jobs, args.workers, progress)
         push: dict = {"protocol": {"duration": 0.2, "start": [1.2, 1.6], "episode_seconds": 2.6, "upright_tilt": UPRIGHT_TILT, "direction": "uniform"}}
         for force in args.forces + [60.0]:
@@ -170,23 +175,23 @@ def main(argv: list[str] | None = None) -> int:
                 rs = [r for r in results if r["force"] == force and r["stepping"] == stepping and (label != "60N_backward" or r["direction"] == round(math.pi, 3))]
                 wins = sum(r["success"] for r in rs)
                 row["stepping" if stepping else "feet_in_place"] = {"success": wins, "episodes": len(rs), "rate": round(wins / len(rs), 3) if rs else None, "ci95": _wilson(wins, len(rs)), "mean_steps": round(float(np.mean([r["steps"] for r in rs])), 2) if rs else None}
-            row["seeds"] = [PUSH_SEED, PUSH_SEED + (episodes if label != "60N_backward" else max(1, min(episodes, 10))) - 1]
+            row["seeds"] = [base, base + (episodes if label != "60N_backward" else max(1, min(episodes, 10))) - 1]
             push[label] = row
         out["push_standing"] = push
     if "walking_push" in parts:
-        jobs = [(80.0, PUSH_SEED + i, True, None, True) for i in range(episodes)]
+        jobs = [(80.0, base + i, True, None, True) for i in range(episodes)]
         results = _map(_push_episode, jobs, args.workers, progress)
         wins = sum(r["success"] for r in results)
-        out["push_walking"] = {"speed": 0.3, "force": 80.0, "duration": 0.2, "success": wins, "episodes": len(results), "rate": round(wins / len(results), 3), "ci95": _wilson(wins, len(results)), "seeds": [PUSH_SEED, PUSH_SEED + episodes - 1]}
+        out["push_walking"] = {"speed": 0.3, "force": 80.0, "duration": 0.2, "success": wins, "episodes": len(results), "rate": round(wins / len(results), 3), "ci95": _wilson(wins, len(results)), "seeds": [base, base + episodes - 1]}
     if "tick" in parts:
         single = [x for r in walk_results for x in r["ticks"]["single"]]
         double = [x for r in walk_results for x in r["ticks"]["double"]]
         switch = [x for r in walk_results for x in r["ticks"]["switch"]]
         standing = simulate_walk(load("g1"), (0.0, 0.0, 0.0), 3.0, command_start=None, stepping=False)
-        dropped = _tick_split(simulate_walk(load("g1"), COMMANDS["forward_0.3"], 6.0, seed=0, config=WalkerConfig(drop_swing_contact=True)))
+        dropped = _tick_split(simulate_walk(load("g1"), COMMANDS["forward_0.3"], 6.0, seed=base, config=WalkerConfig(drop_swing_contact=True)))
         out["wbc_tick"] = {
             "walking_single_support": _stats(single), "walking_double_support": _stats(double), "contact_switch": _stats(switch),
-            "drop_swing_contact": {"single_support": _stats(dropped["single"]), "double_support": _stats(dropped["double"]), "contact_switch": _stats(dropped["switch"]), "seed": 0, "command": "forward_0.3"},
+            "drop_swing_contact": {"single_support": _stats(dropped["single"]), "double_support": _stats(dropped["double"]), "contact_switch": _stats(dropped["switch"]), "seed": base, "command": "forward_0.3"},
             "standing_feet_in_place_double_support": _stats(standing.tick_seconds[100:].tolist()),
             "note": "wall-clock WBC ticks inside the simulation loop (MuJoCo steps between ticks), one thread, not pinned; compare within this run only",
         }

@@ -1,6 +1,6 @@
 """Time one whole-body-controller tick: Pinocchio pass, QP assembly, solve, total.
 
-Usage: ``python benchmarks/wbc_tick.py --robot g1 [--solver proxsuite|osqp] [--ticks N]``.
+Usage: ``python benchmarks/wbc_tick.py --robot g1 [--solver proxsuite|osqp] [--seconds S] [--no-walk]``.
 Prints ONE JSON object.
 
 The states are realistic: a closed-loop MuJoCo run of the balance controller (standing, a ±3 cm
@@ -10,6 +10,15 @@ all Python overhead included), with every math library limited to one thread. ``
 recording (MuJoCo's step between ticks evicts caches, so it reads higher). Single-threaded and,
 as the target is stated for one core, pinned to one CPU (the last one the process may use);
 ``--no-pin-cpu`` lets the scheduler move it (measured 3-5 % slower median on the 2-vCPU VM).
+
+``walking`` (unless ``--no-walk``): the same for the walking controller
+(:mod:`giwbc.locomotion.walker`) — a closed-loop MuJoCo walk at 0.3 m/s (seed 0) is recorded
+(``(q, v, t, foot forces)``), then replayed through a fresh walking controller, which takes the
+same decisions bit for bit; each WBC tick is classified as single support, double support, or
+a contact switch (a tick whose contact activations differ from the previous tick's: the force
+ramps of lift-off and touch-down, and the first tick of each phase). Its single-support median
+is compared with the standing double-support median above (``single_over_standing``), all
+measured in this one process, interleaved replays (``--repeat``).
 """
 
 from __future__ import annotations
@@ -93,6 +102,61 @@ def record(description, solver: str, seconds: float, settings: dict) -> tuple[li
     return states, in_loop
 
 
+def record_walk(description, seconds: float, speed: float = 0.3, seed: int = 0) -> list:
+    """Closed-loop MuJoCo walk at ``speed`` m/s from 0.5 s: the walker's inputs of every tick."""
+    from giwbc.locomotion.simulation import perturbed_initial_state
+    from giwbc.locomotion.walker import WalkingController
+    from giwbc.robot import MujocoRobot
+    from giwbc.robot.mujoco_model import foot_sensor_names
+
+    robot = MujocoRobot(description)
+    robot.reset(*perturbed_initial_state(robot, np.random.default_rng(seed)))
+    walker = WalkingController(description)
+    q, v = robot.generalized_state()
+    walker.reset(q)
+    touch = {side: foot_sensor_names(contact.name)["touch"] for side, contact in walker.contacts.items()}
+    inputs = []
+    dt = description.timestep
+    for i in range(int(round(seconds / dt))):
+        if i == int(round(0.5 / dt)):
+            walker.set_command(speed, 0.0, 0.0)
+        q, v = robot.generalized_state()
+        forces = {side: float(robot.sensor(name)[0]) for side, name in touch.items()}
+        inputs.append((q, v, robot.time(), forces, i == int(round(0.5 / dt))))
+        result = walker.update(q, v, robot.time(), forces)
+        robot.set_joint_torques(result.tau)
+        robot.step()
+    return inputs
+
+
+def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str, list[float]], int]:
+    """Replay the recorded inputs through a fresh walking controller; tick times by kind."""
+    from giwbc.locomotion.walker import Phase, WalkingController
+
+    walker = WalkingController(description)
+    walker.reset(inputs[0][0])
+    names = [contact.name for contact in walker.contacts.values()]
+    kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": []}
+    previous = None
+    failures = 0
+    for i, (q, v, t, forces, start) in enumerate(inputs):
+        if start:
+            walker.set_command(speed, 0.0, 0.0)
+        result = walker.update(q, v, t, forces)
+        failures += not result.ok
+        activations = tuple(walker.wbc.contact_activation(name) for name in names)
+        phase = walker.state.phase
+        if i >= 50:  # (the first ticks include the solver's initialisation)
+            if activations != previous or (0.0 < min(activations) < 1.0):
+                kinds["switch"].append(result.timings.total)
+            elif phase is Phase.SINGLE:
+                kinds["single"].append(result.timings.total)
+            elif phase is Phase.DOUBLE or walker.state.steps:
+                kinds["double"].append(result.timings.total)
+        previous = activations
+    return kinds, failures
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--robot", default="g1")
@@ -102,6 +166,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-pin-cpu", dest="pin_cpu", action="store_false",
                         help="do not pin the process to one CPU (pinning hurts if another busy process runs there)")
     parser.add_argument("--no-guess", action="store_true", help="no active-set guess: every tick runs the solver (and its polish)")
+    parser.add_argument("--no-walk", dest="walk", action="store_false", help="skip the walking controller's single/double-support/switch ticks")
+    parser.add_argument("--walk-seconds", type=float, default=6.0, help="simulated seconds of the recorded walk")
     args = parser.parse_args(argv)
 
     cpu = _pin_to_one_cpu() if args.pin_cpu else None
@@ -116,9 +182,18 @@ def main(argv: list[str] | None = None) -> int:
     settings = {"active_set_guess": False} if args.no_guess else {}
     states, in_loop = record(description, args.solver, args.seconds, settings)
 
+    walk_inputs = record_walk(description, args.walk_seconds) if args.walk else []
+    walk_kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": []}
+    walk_failures = 0
+
     controller = make_balance_controller(description, solver=args.solver, solver_settings=settings)
     timings, iterations, failures = [], [], 0
     for _ in range(args.repeat):
+        if walk_inputs:  # interleaved with the standing replays: the same machine state for both
+            kinds, lost = replay_walk(description, walk_inputs)
+            walk_failures += lost
+            for key, values in kinds.items():
+                walk_kinds[key] += values
         controller.wbc.solver.reset()
         for q, v, t, com_ref in states:
             controller.set_com_target(com_ref)
@@ -150,6 +225,15 @@ def main(argv: list[str] | None = None) -> int:
         },
         "iterations": {"median": float(np.median(iterations)), "p99": float(np.percentile(iterations, 99)), "max": int(max(iterations))},
         "failures": failures,
+        "walking": None if not walk_inputs else {
+            "single_support_us": _stats(walk_kinds["single"]),
+            "double_support_us": _stats(walk_kinds["double"]),
+            "contact_switch_us": _stats(walk_kinds["switch"]),
+            "ticks": {key: len(values) for key, values in walk_kinds.items()},
+            "single_over_standing": round(float(np.median(walk_kinds["single"]) / np.median([t.total for t in timings])), 3),
+            "failures": walk_failures,
+            "scenario": f"replay of a recorded closed-loop MuJoCo walk at 0.3 m/s from 0.5 s, {args.walk_seconds:g} s, seed 0; switch = activations changed or ramping",
+        },
         "active_set_guess": _guess_stats(controller.wbc.solver),
         "backend_solves": _polish_stats(controller.wbc.solver),
         "iteration_bound": _iteration_bound(controller.wbc.solver),

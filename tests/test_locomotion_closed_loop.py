@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from giwbc.locomotion.simulation import Push, simulate_walk
+from giwbc.control import WbcStatus
 from giwbc.locomotion.walker import Phase, WalkingController
 from giwbc.robot import MujocoRobot
 
@@ -102,6 +103,47 @@ def test_bad_commands_are_refused_or_clamped_with_a_message(g1):
     notes = walker.set_command(3.0, 0.0, 0.0)
     assert notes and "clamped" in notes[0]
     assert walker.command.vx == pytest.approx(walker.planner.limits()["vx"][1])
+    for bad in [(0.0, math.inf, 0.0), (0.0, 0.0, -math.inf), (math.nan, math.nan, math.nan)]:
+        with pytest.raises(ValueError, match="finite"):
+            walker.set_command(*bad)
+    assert walker.command.vx == pytest.approx(walker.planner.limits()["vx"][1])  # a refused command changes nothing
+    limits = walker.planner.limits()
+    notes = walker.set_command(-2.0, -1.0, 4.0)
+    assert len(notes) == 3 and all("clamped" in note for note in notes)
+    assert [note.split(" ")[0] for note in notes] == ["vx", "vy", "yaw_rate"]
+    assert (walker.command.vx, walker.command.vy, walker.command.yaw_rate) == pytest.approx((limits["vx"][0], limits["vy"][0], limits["yaw_rate"][1]))
+    assert walker.state.notes[-3:] == notes
+
+
+def test_a_non_finite_state_gets_the_fallback_and_the_walk_goes_on(g1):
+    """A NaN in the measured state mid-swing: the tick returns the WBC's fallback (flagged, never an
+    exception), the schedule waits, and the next finite ticks walk on without a fall."""
+    robot = MujocoRobot(g1)
+    walker = WalkingController(g1)
+    q, _ = robot.generalized_state()
+    walker.reset(q)
+    bad_results = []
+    for i in range(int(3.0 / g1.timestep)):
+        if i == 100:
+            walker.set_command(0.3, 0.0, 0.0)
+        q, v = robot.generalized_state()
+        if len(bad_results) < 2 and walker.state.phase is Phase.SINGLE and walker.state.steps >= 2:
+            phase, steps = walker.state.phase, walker.state.steps
+            q = q.copy()
+            q[10] = math.nan
+            result = walker.update(q, v, robot.time(), {"left": 0.0, "right": 0.0})
+            assert result.status is WbcStatus.INVALID_STATE and "not finite" in result.message
+            assert np.all(np.isfinite(result.tau))
+            assert (walker.state.phase, walker.state.steps) == (phase, steps)
+            bad_results.append(result)
+        else:
+            result = walker.step(robot)
+            assert result.ok
+        robot.set_joint_torques(result.tau)
+        robot.step()
+    assert len(bad_results) == 2 and walker.wbc.failures == 2
+    assert walker.state.steps >= 5
+    assert robot.base_state().position[2] > 0.6  # still walking upright
 
 
 @pytest.mark.parametrize("ground", ["higher", "lower"])

@@ -13,6 +13,7 @@ from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, GaitConfig, Ve
 from giwbc.locomotion.lipm import dcm_at, natural_frequency
 from giwbc.locomotion.step_adapter import StepAdapter, StepAdapterWeights, solve_box_qp, solve_step_qp, step_qp_matrices
 from giwbc.locomotion.swing import SwingTrajectory
+from giwbc.locomotion.walker import WalkerConfig
 
 OMEGA = natural_frequency(0.68)
 
@@ -204,3 +205,11 @@ def test_the_locomotion_layer_imports_only_the_controller_and_robot_layers():
             for name in names:
                 if name.startswith("giwbc"):
                     assert name.startswith(allowed), f"{path.name} imports {name}"
+
+
+@pytest.mark.parametrize("field", ["landing_box", "recovery_landing_box"])
+@pytest.mark.parametrize("box", [((0.3, -0.3), (0.17, 0.6)), ((-0.3, 0.3), (0.0, 0.6)), ((-0.3, 0.3), (0.6, 0.2)), ((-0.3, math.nan), (0.17, 0.6))])
+def test_walker_config_refuses_an_empty_or_crossing_landing_box(field, box):
+    """A landing box must be non-empty and keep the foot on its own side (no crossing)."""
+    with pytest.raises(ValueError, match=field):
+        WalkerConfig(**{field: box})

@@ -85,7 +85,7 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: what giwbc can do today, end to end."""
-    return run_demo(seconds=args.seconds)
+    return run_demo(seconds=args.seconds, video=None if args.no_video else args.video)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -99,6 +99,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim.set_defaults(run=cmd_sim)
     demo = commands.add_parser("demo", help=cmd_demo.__doc__)
     demo.add_argument("--seconds", type=float, default=10.0)
+    demo.add_argument("--video", default="runs/demo_push_recovery.mp4",
+                      help="side-by-side video of the push recovery, when an offscreen GL backend is available")
+    demo.add_argument("--no-video", action="store_true", help="no video even when GL is available")
     demo.set_defaults(run=cmd_demo)
     add_train_command(commands)
     add_play_command(commands)

@@ -10,6 +10,7 @@ import sys
 import time
 from typing import Any
 
+import mujoco
 import numpy as np
 
 from giwbc.apps.live import DEFAULT_PORT, HOST, ScenePublisher, require_foxglove
@@ -17,6 +18,7 @@ from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.locomotion.simulation import Push, WalkRun, simulate_walk
 from giwbc.robot import load
 from giwbc.apps.play import write_video
+from giwbc.runtimes.rendering import offscreen_renderer
 
 VIDEO_FPS = 30.0
 PROGRESS_S = 0.1  # simulated seconds between progress updates without a video
@@ -43,7 +45,7 @@ class _Observer:
 
 
 class _FollowCamera:
-    """Offscreen frames from a camera that follows the base (needs MUJOCO_GL=egl|osmesa headless)."""
+    """Offscreen frames from a camera that follows the base (an offscreen GL backend, probed when first used)."""
 
     def __init__(self, size: tuple[int, int] = (480, 640)) -> None:
         self.size = size
@@ -51,17 +53,9 @@ class _FollowCamera:
         self._camera = None
 
     def __call__(self, robot: Any) -> np.ndarray:
-        import mujoco
-
         model, data = robot.model, robot.data
         if self._renderer is None:
-            height, width = self.size
-            model.vis.global_.offheight = max(model.vis.global_.offheight, height)
-            model.vis.global_.offwidth = max(model.vis.global_.offwidth, width)
-            try:
-                self._renderer = mujoco.Renderer(model, height, width)
-            except Exception as error:  # no display, no EGL/OSMesa
-                raise RuntimeError(f"cannot create an offscreen MuJoCo renderer ({error}); set MUJOCO_GL=egl or osmesa") from error
+            self._renderer = offscreen_renderer(model, *self.size)  # (RenderingUnavailableError without GL)
             self._camera = mujoco.MjvCamera()
             self._camera.distance, self._camera.azimuth, self._camera.elevation = 2.8, 135.0, -15.0
         self._camera.lookat[:] = robot.base_state().position * np.array([1.0, 1.0, 0.0]) + np.array([0.0, 0.0, 0.6])
@@ -147,7 +141,7 @@ def add_walk_command(commands: Any) -> None:
     parser.add_argument("--push-time", type=float, default=3.0, help="when the push starts, s")
     parser.add_argument("--push-direction", type=float, default=180.0, help="push direction, degrees (0: forward, 180: backward)")
     parser.add_argument("--seed", type=int, default=None, help="perturb the initial state from this seed")
-    parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs MUJOCO_GL=egl|osmesa headless")
+    parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs an offscreen GL library (libegl1 or libosmesa6)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--foxglove", action="store_true",
                         help="stream the robot in 3D to Foxglove over a loopback WebSocket (needs foxglove-sdk)")

@@ -4,6 +4,8 @@
 * :mod:`giwbc.control.tasks` — weighted acceleration tasks (CoM, frame pose, posture, momentum)
   and the contact-force regularisation.
 * :mod:`giwbc.control.contacts` — flat-foot contacts (wrench cone or corner pyramids), ramping.
+* :mod:`giwbc.control.contact_set` — the QP's contact slots, force ramps, activations and weight
+  shares (the lever rule).
 * :mod:`giwbc.control.qp` — the inspectable QP and its persistent solver backends.
 * :mod:`giwbc.control.wbc` — :class:`WholeBodyController` and its :class:`WbcResult`.
 * :mod:`giwbc.control.balance` — a ready-made standing/balance controller for any description

@@ -35,6 +35,8 @@ import pinocchio as pin
 from giwbc.control.kinodynamics import LWA, Kinodynamics
 
 _log3 = pin.log3
+_frame_jacobian = pin.getFrameJacobian
+_classical_acceleration = pin.getFrameClassicalAcceleration
 
 
 def _row_vector(value: float | np.ndarray, dim: int, what: str) -> np.ndarray:
@@ -371,6 +373,7 @@ class FramePoseTask(WbcTask):
         self._select = slice(int(self.rows[0]), int(self.rows[-1]) + 1) if contiguous else self.rows
         self._linear = bool(self.rows[0] < 3)
         self._angular = bool(self.rows[-1] >= 3)
+        self._full = len(self.rows) == 6
         super().__init__(name or f"{frame}_pose", len(self.rows), weight=weight, kp=kp, kd=kd)
         self.frame_id = -1
         self.reference: pin.SE3 | None = None  # None: hold the pose at the first tick
@@ -440,6 +443,13 @@ class FramePoseTask(WbcTask):
         placement = kin.frame_placement(self.frame_id)
         if self.reference is None:
             self.set_reference(placement)
+        if self._full:  # all six rows (a swing foot): no selection, the error written in place
+            model, data = kin.model, kin.data
+            rows[...] = _frame_jacobian(model, data, self.frame_id, LWA)
+            drift[...] = _classical_acceleration(model, data, self.frame_id, LWA).vector
+            np.subtract(self._reference_translation, placement.translation, out=error[:3])
+            error[3:] = _log3(self._reference_rotation @ placement.rotation.T)
+            return
         select = self._select
         rows[...] = kin.frame_jacobian(self.frame_id, LWA)[select]
         drift[...] = kin.frame_drift(self.frame_id, LWA)[select]
@@ -538,7 +548,8 @@ class ContactForceRegularization:
     in proportion to their activations, or — after :meth:`set_support_point` with two contacts —
     split by the lever rule so that the weight is statically supported at that point (the CoM
     target of a balance controller), so the regularisation neither fights gravity nor a commanded
-    CoM shift. ``"zero"`` regularises towards no force.
+    CoM shift (the shares are computed by :class:`giwbc.control.contact_set.ContactSet`, the lever
+    rule by :class:`giwbc.control.contact_set.Lever`). ``"zero"`` regularises towards no force.
     """
 
     def __init__(self, name: str = "contact_forces", *, weight: float = 1e-5, reference: str = "weight") -> None:
@@ -562,24 +573,6 @@ class ContactForceRegularization:
         self.support_point = None if point is None else _vector(point, 3, "support point")
         self.support_xy = None if point is None else (float(self.support_point[0]), float(self.support_point[1]))
         self.version += 1
-
-    def shares(self, positions: list[np.ndarray], activations: list[float]) -> np.ndarray:
-        """Fraction of the weight for each contact (sums to 1 when any is active)."""
-        activation = np.asarray(activations, dtype=float)
-        if activation.sum() <= 0:
-            return np.zeros(len(activation))
-        share = activation / activation.sum()
-        active = np.flatnonzero(activation > 0)
-        if self.support_point is not None and len(active) == 2:
-            p1, p2 = (np.asarray(positions[i], dtype=float)[:2] for i in active)
-            d = p1 - p2
-            if d @ d > 1e-12:
-                alpha = float(np.clip((self.support_point[:2] - p2) @ d / (d @ d), 0.0, 1.0))
-                lever = np.zeros(len(activation))
-                lever[active] = [alpha, 1.0 - alpha]
-                share = lever * activation
-                share /= share.sum() if share.sum() > 0 else 1.0
-        return share
 
     def __repr__(self) -> str:
         return f"ContactForceRegularization({self.name!r}, weight={self.weight})"

@@ -33,7 +33,8 @@ stacked Jacobian, the base orientation's constant Hessian ``w I`` on the diagona
 one batch, views of the problem and of Pinocchio's ``Data`` prepared once; the KKT guess ~50 µs
 (its ``dgesv`` on the 65 × 65 system ~25 µs); ~140 µs in all.
 
-Contacts can be added and removed at run time: a contact's normal-force upper bound ramps over
+Contacts can be added and removed at run time (their slots, ramps and force shares:
+:mod:`giwbc.control.contact_set`): a contact's normal-force upper bound ramps over
 ``ramp_time`` (see :mod:`giwbc.control.contacts`); a removed contact keeps its slot with zero force
 (no re-initialisation of the solver) — a 6D-wrench contact's motion rows then pin its wrench at
 zero, so single-support ticks keep a regular KKT system — and a new contact name grows the
@@ -59,14 +60,12 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
+from giwbc.control.contact_set import ContactSet, ContactSlot
 from giwbc.control.contacts import Contact
-from giwbc.control.kinodynamics import LOCAL, Kinodynamics
+from giwbc.control.kinodynamics import Kinodynamics
 from giwbc.control.qp import QpProblem, QpSolution, QpSolver, QpStatus, make_solver
 from giwbc.control.tasks import ContactForceRegularization, WbcTask, TaskStack
 from giwbc.robot.interface import ImpedanceCommand
-
-_frame_jacobian = pin.getFrameJacobian
-_classical_acceleration = pin.getFrameClassicalAcceleration
 
 UNLIMITED = 1e10  # limits at or above this (Pinocchio uses DBL_MAX) count as "no limit"
 
@@ -132,62 +131,6 @@ class WbcResult:
         qdd = self.qdd[len(self.qdd) - len(self.tau) :]
         h = lookahead
         return ImpedanceCommand(q + v * h + 0.5 * h * h * qdd, v + qdd * h, kp.copy(), kd.copy(), self.tau.copy())
-
-
-@dataclass
-class _ContactSlot:
-    """A contact's place in the problem and its ramp state."""
-
-    contact: Contact
-    columns: slice = field(default_factory=lambda: slice(0, 0))
-    motion_rows: slice = field(default_factory=lambda: slice(0, 0))
-    friction_rows: slice = field(default_factory=lambda: slice(0, 0))
-    activation: float = 0.0
-    ramp_from: float = 0.0
-    ramp_to: float = 1.0
-    ramp_time: float = 0.0
-    ramp_start: float | None = None  # None: starts at the next tick
-    ramping: bool = True  # False once the activation reached ramp_to
-    engaged: bool = True  # in contact: its motion rows constrain the robot
-    bounds_activation: float = -1.0  # activation the friction bounds were last written for
-    in_problem: bool = False  # motion rows currently written (True) or zeroed
-    pinned: bool = False  # broken: its force variables held at zero by its motion rows (see _disengage)
-    ramp_force: float = 0.0  # N: the normal force a ramp moves between 0 and
-    unit_index: np.ndarray | None = None  # entries of the force vector carrying normal force
-    xy: tuple[float, float] = (0.0, 0.0)  # ground position of the contact reference (cached)
-    xy_of: object = None  # the reference placement xy was read from
-    unit_value: np.ndarray | None = None  # their share of 1 N of normal force
-    last_normal: float = 0.0  # N: the normal force of the last solution
-    added_ramp_time: float = 0.0  # the ramp of its last add_contact (what reset() restarts)
-    # Views of the problem buffers (set by the layout): motion rows of A, of b, columns of D.
-    a_rows: np.ndarray | None = field(default=None, repr=False)
-    b_rows: np.ndarray | None = field(default=None, repr=False)
-    d_columns: np.ndarray | None = field(default=None, repr=False)
-
-    def normal_limit(self) -> float | None:
-        """Cap on the total normal force: none once fully made, ``activation · ramp_force`` else."""
-        if not self.ramping and self.ramp_to > 0.0:
-            return None
-        return self.activation * self.ramp_force
-
-    def start_ramp(self, target: float, duration: float) -> None:
-        self.ramp_from, self.ramp_to, self.ramp_time, self.ramp_start = self.activation, target, float(duration), None
-        self.ramping = True
-        self.engaged = True
-
-    def advance(self, t: float) -> float:
-        """Activation at time ``t``; a contact ramped down to zero is no longer engaged."""
-        if self.ramp_start is None:
-            self.ramp_start = t
-        if self.ramp_time <= 0.0:
-            progress = 1.0
-        else:
-            progress = min(max((t - self.ramp_start) / self.ramp_time, 0.0), 1.0)
-        self.activation = self.ramp_from + (self.ramp_to - self.ramp_from) * progress
-        if progress >= 1.0:
-            self.ramping = False
-            self.engaged = self.ramp_to > 0.0
-        return self.activation
 
 
 def _as_joint_array(value: float | np.ndarray | None, n: int, what: str, default: float = 0.0) -> np.ndarray:
@@ -272,7 +215,7 @@ class WholeBodyController:
 
         self.tasks: list[WbcTask] = []
         self.force_regularization: ContactForceRegularization | None = None
-        self._slots: dict[str, _ContactSlot] = {}
+        self.contact_set = ContactSet(self.kin)
         self._structure = 0
         self._layout_dirty = True
         self._tasks_dirty = True
@@ -328,24 +271,8 @@ class WholeBodyController:
             raise TypeError(f"expected a Contact, got {type(contact).__name__}")
         if ramp_time < 0:
             raise ValueError("ramp_time must be >= 0")
-        contact.bind(self.kin)
-        slot = self._slots.get(contact.name)
-        if slot is None or slot.contact.n_force != contact.n_force or slot.contact.n_ineq != contact.n_ineq:
-            activation = 0.0 if slot is None else slot.activation
-            slot = _ContactSlot(contact, activation=activation)
-            self._slots[contact.name] = slot
+        if self.contact_set.add(contact, ramp_time):
             self._layout_dirty = True
-        elif slot.contact is not contact:
-            slot.contact = contact
-            slot.bounds_activation = -1.0
-            slot.in_problem = False
-            if not self._layout_dirty and self.problem is not None:
-                self.problem.C[slot.friction_rows, slot.columns] = contact.friction_matrix()
-        if slot.activation == 0.0:
-            contact.reference = None  # re-anchored at the next tick
-        slot.ramp_force = float(np.linalg.norm(self.kin.gravity)) * self.kin.mass
-        slot.start_ramp(1.0, ramp_time)
-        slot.added_ramp_time = float(ramp_time)
         return contact
 
     def remove_contact(self, name: str, ramp_time: float = 0.0) -> None:
@@ -353,16 +280,11 @@ class WholeBodyController:
         motion constraint is dropped (the slot stays, with zero force)."""
         if ramp_time < 0:
             raise ValueError("ramp_time must be >= 0")
-        slot = self._slot(name)
-        if slot.ramp_to > 0.0:
-            # Ramp down from the load it carries now (its activation scales that from here on).
-            slot.ramp_force = slot.last_normal / slot.activation if slot.activation > 0.0 else 0.0
-        slot.start_ramp(0.0, ramp_time)
+        self.contact_set.remove(name, ramp_time)
 
     def forget_contact(self, name: str) -> None:
         """Delete a contact's slot altogether (shrinks the problem; the solver re-initialises)."""
-        self._slot(name)
-        del self._slots[name]
+        self.contact_set.forget(name)
         self._layout_dirty = True
 
     def contact(self, name: str) -> Contact:
@@ -374,17 +296,14 @@ class WholeBodyController:
 
     @property
     def contacts(self) -> list[Contact]:
-        return [slot.contact for slot in self._slots.values()]
+        return [slot.contact for slot in self.contact_set.slots.values()]
 
     @property
     def active_contacts(self) -> list[str]:
-        return [name for name, slot in self._slots.items() if slot.engaged]
+        return [name for name, slot in self.contact_set.slots.items() if slot.engaged]
 
-    def _slot(self, name: str) -> _ContactSlot:
-        try:
-            return self._slots[name]
-        except KeyError:
-            raise KeyError(f"no contact named {name!r}; contacts: {list(self._slots)}") from None
+    def _slot(self, name: str) -> ContactSlot:
+        return self.contact_set.slot(name)
 
     # --- layout ----------------------------------------------------------------------------------
     def _layout(self) -> None:
@@ -396,24 +315,14 @@ class WholeBodyController:
         one copy of ``M`` and one copy of each contact's ``−JᵀΦ`` per tick.
         """
         nv, nb, nj = self.nv, self.n_base, self.n_joints
-        n, eq = nv, 0
-        for slot in self._slots.values():
-            c = slot.contact
-            slot.columns = slice(n, n + c.n_force)
-            slot.motion_rows = slice(eq, eq + c.n_motion)
-            n, eq = n + c.n_force, eq + c.n_motion
-            slot.bounds_activation = -1.0
-            slot.pinned = False
-            slot.in_problem = not slot.engaged  # a broken contact is pinned again (_disengage) at the next tick
+        contacts = self.contact_set
+        n, eq = contacts.lay_out_columns(nv)
         n_eq = eq + nb
         limited = np.flatnonzero(np.isfinite(self.torque_limits))
         self._torque_all = len(limited) == nj
         self._torque_idx = limited
         n_torque = len(limited)
-        ineq = n_torque
-        for slot in self._slots.values():
-            slot.friction_rows = slice(ineq, ineq + slot.contact.n_ineq)
-            ineq += slot.contact.n_ineq
+        ineq = contacts.lay_out_friction(n_torque)
         self.n_force = n - nv
 
         AC = np.zeros((n_eq + ineq, n))
@@ -444,11 +353,8 @@ class WholeBodyController:
             self._limit_dv = np.array([-s * T, -1.0 / T, -s * T, -1.0 / T])[:, None] * np.ones(nj)
         self._tau_lo = -self.torque_limits[limited]
         self._tau_hi = self.torque_limits[limited]
-        for slot in self._slots.values():
-            C[slot.friction_rows, slot.columns] = slot.contact.friction_matrix()
+        contacts.write_constants(C)
         self._h_diag = np.lib.stride_tricks.as_strided(H, shape=(n,), strides=((n + 1) * H.itemsize,))
-        self._reg_f = self._h_diag[nv:]  # the force regularisation: written when it changes only
-        self._g_force = g[nv:]
         self._H_qq, self._h_diag_q, self._g_q = H[:nv, :nv], self._h_diag[:nv], g[:nv]
         self._D_M = self._D[:, :nv]
         self._D_tau = self._D[nb:]
@@ -456,25 +362,6 @@ class WholeBodyController:
         self._b_base = b[eq:n_eq]
         self._l_torque, self._u_torque = lo[:n_torque], hi[:n_torque]
         self._neg_limits = -self.torque_limits
-        self._force_version = -1
-        self._weight_force = float(np.linalg.norm(self.kin.gravity)) * self.kin.mass
-        self._force_weight = -1.0
-        self._lever: tuple | None = None
-        self._slot_list = list(self._slots.values())
-        contacts = [slot.contact for slot in self._slot_list]
-        if contacts and all(c.phi is None and c.n_motion == 6 for c in contacts) and len({c.kd for c in contacts}) == 1:
-            rows = 6 * len(contacts)
-            self._batch: tuple | None = (A[:rows, :nv], b[:rows], self._D[:, nv:n], contacts[0].kd, np.zeros(rows))
-        else:
-            self._batch = None
-        for slot in self._slot_list:
-            slot.a_rows = A[slot.motion_rows, :nv]
-            slot.b_rows = b[slot.motion_rows]
-            slot.d_columns = self._D[:, slot.columns]
-            unit = slot.contact.nominal_force(1.0)
-            nonzero = np.flatnonzero(unit)
-            slot.unit_index = nonzero + (slot.columns.start - nv)
-            slot.unit_value = unit[nonzero]
         self._tau = np.zeros(nj)
 
         # Structural patterns for sparse backends.
@@ -486,16 +373,11 @@ class WholeBodyController:
         d_rows = np.concatenate([eq + np.arange(nb), n_eq + np.arange(n_torque)])  # rows of [A; C]
         d_source = np.concatenate([np.arange(nb), nb + limited])  # their rows of D
         ac_pattern[d_rows, :nv] = m_pattern[d_source]
-        for slot in self._slots.values():
-            cols = supports[slot.contact.joint_id]
-            ac_pattern[slot.motion_rows, :nv] = cols
-            if slot.contact.n_force == slot.contact.n_motion:  # f = 0 rows of a broken contact
-                ac_pattern[slot.motion_rows, slot.columns] = np.eye(slot.contact.n_force, dtype=bool)
-            ac_pattern[d_rows, slot.columns] = cols[d_source][:, None]
-            rows = slice(n_eq + slot.friction_rows.start, n_eq + slot.friction_rows.stop)
-            ac_pattern[rows, slot.columns] = slot.contact.friction_matrix() != 0
+        contacts.pattern(ac_pattern, supports, d_rows, d_source, n_eq)
         self._structure += 1
         self.problem = QpProblem(H, g, A, b, C, lo, hi, lb, ub, h_pattern, ac_pattern, self._structure)
+        # (the force regularisation's diagonal is written when it changes only)
+        contacts.bind(self.problem, self._D, self._h_diag[nv:], nv)
         self._layout_dirty = False
         self._tasks_dirty = True
 
@@ -563,44 +445,8 @@ class WholeBodyController:
         if nb:
             np.negative(h[:nb], out=self._b_base)
 
-        # Contacts.
-        force_changed = False
-        batch = self._batch
-        for slot in self._slot_list:
-            c = slot.contact
-            if slot.ramping or slot.bounds_activation < 0.0:
-                activation = slot.advance(t)
-                if activation != slot.bounds_activation:
-                    rows = slot.friction_rows
-                    c.friction_bounds(p.l[rows], p.u[rows], slot.normal_limit())
-                    slot.bounds_activation = activation
-                    force_changed = True
-            if slot.engaged:
-                if slot.pinned:
-                    self._reengage(p, slot)
-                if c.reference is None:
-                    c.reference = c.placement_in_world(kin)
-                if batch is not None and (c.kd != batch[3] or c.kp != 0.0):
-                    batch = None
-            else:
-                batch = None
-        if batch is not None:
-            self._assemble_contacts(kin, batch)
-        else:
-            for slot in self._slot_list:
-                c = slot.contact
-                if slot.engaged:
-                    c.assemble(kin, slot.a_rows, slot.b_rows, slot.d_columns)
-                    slot.in_problem = True
-                elif slot.in_problem:
-                    self._disengage(p, slot)
-
-        # The force regularisation (constant between ramps and support-point moves).
-        reg = self.force_regularization
-        if force_changed:
-            self._lever = None
-        if force_changed or (reg is not None and reg.version != self._force_version) or (reg is None and self._force_version != -1):
-            self._update_force_regularization()
+        # Contacts: ramps, motion rows, −JᵀΦ columns; the force regularisation when it changed.
+        self.contact_set.assemble(t, self.force_regularization)
 
         # Torque limits: τ_min − h_j ≤ M_j q̈ − (JᵀΦ)_j f ≤ τ_max − h_j.
         hj = h[nb:]
@@ -618,134 +464,6 @@ class WholeBodyController:
 
         if self.joint_limits:
             self._joint_limit_bounds(p)
-
-    def _disengage(self, p: QpProblem, slot: _ContactSlot) -> None:
-        """A broken contact keeps its slot: its motion rows no longer constrain the robot and,
-        when it has as many force variables as motion rows (a 6D wrench), they become ``f = 0``
-        instead of zero rows, its friction rows unbounded — a regular KKT system (zero rows and
-        the 16 cone faces meeting at ``f = 0`` would make every tick's first solve singular)."""
-        p.A[slot.motion_rows] = 0.0
-        slot.b_rows[...] = 0.0
-        slot.d_columns[...] = 0.0
-        slot.in_problem = False
-        slot.contact.reference = None
-        if slot.contact.n_force == slot.contact.n_motion:
-            p.A[slot.motion_rows, slot.columns] = np.eye(slot.contact.n_force)
-            rows = slot.friction_rows
-            p.l[rows] = -np.inf
-            p.u[rows] = np.inf
-            slot.bounds_activation = math.nan  # (rewritten when it is made again)
-            slot.pinned = True
-            self._force_version = -2  # the force regularisation's gradient is recomputed
-
-    def _reengage(self, p: QpProblem, slot: _ContactSlot) -> None:
-        """Undo :meth:`_disengage`'s ``f = 0`` rows and unbounded friction rows."""
-        p.A[slot.motion_rows, slot.columns] = 0.0
-        slot.contact.friction_bounds(p.l[slot.friction_rows], p.u[slot.friction_rows], slot.normal_limit())
-        slot.bounds_activation = slot.activation
-        slot.pinned = False
-
-    def _assemble_contacts(self, kin: Kinodynamics, batch: tuple) -> None:
-        """:meth:`Contact.assemble` for all contacts at once, when every one is engaged, has the
-        6D wrench as variables (``Φ = I``), the same ``kd`` and no ``kp`` (the balance
-        controller's feet): their motion rows and force columns are then contiguous, so the
-        twist, the damping and ``−Jᵀ`` are one numpy call each for all of them."""
-        motion, rhs, columns, kd, twist = batch
-        model, data, v = kin.model, kin.data, kin.v
-        rows = 0
-        for slot in self._slot_list:
-            c = slot.contact
-            J = c.jacobian = _frame_jacobian(model, data, c.joint_id, c.placement, LOCAL)
-            c.drift = _classical_acceleration(model, data, c.joint_id, c.placement, LOCAL).vector
-            motion[rows : rows + 6] = J
-            rows += 6
-        np.dot(motion, v, out=twist)
-        np.multiply(twist, -kd, out=rhs)
-        rows = 0
-        for slot in self._slot_list:
-            rhs[rows : rows + 6] -= slot.contact.drift
-            rows += 6
-        np.negative(motion.T, out=columns)
-        for slot in self._slot_list:
-            slot.in_problem = True
-
-    def _update_force_regularization(self) -> None:
-        """Gradient of ``w ‖f − f_ref‖²`` (and its diagonal): called when activations, the weight
-        or the support point change — at every tick while a balance controller moves its CoM
-        target, so the common case (two fully active contacts, only the point moved) is a few
-        float operations and scalar writes."""
-        reg = self.force_regularization
-        g = self._g_force
-        weight = 0.0 if reg is None else reg.weight
-        lever = self._lever
-        if lever is not None and reg is not None and weight == self._force_weight and reg.support_xy is not None:
-            # (the lever is dropped whenever an activation changes)
-            (i1, i2), (x2, y2, dx, dy, norm) = lever
-            px, py = reg.support_xy
-            alpha = min(max(((px - x2) * dx + (py - y2) * dy) / norm, 0.0), 1.0)
-            scale = -weight * self._weight_force
-            g[i1] = scale * alpha
-            g[i2] = scale * (1.0 - alpha)
-            self._force_version = reg.version
-            return
-        if reg is None or reg.version != self._force_version or self._force_weight != weight:
-            self._reg_f[:] = weight
-            self._force_weight = weight
-        self._force_version = -1 if reg is None else reg.version
-        shares = self._force_shares(reg) if reg is not None and reg.reference == "weight" and weight > 0 else None
-        scale = -weight * self._weight_force
-        for i, slot in enumerate(self._slot_list):
-            share = 0.0 if shares is None else shares[i]
-            if len(slot.unit_index) == 1:
-                g[slot.unit_index[0]] = scale * share
-            else:
-                g[slot.unit_index] = (scale * share) * slot.unit_value
-        # Remember the lever geometry for the fast path: two fully active single-entry contacts.
-        self._lever = None
-        activations = [slot.activation for slot in self._slot_list]
-        active = [i for i, value in enumerate(activations) if value > 0.0]
-        if shares is not None and len(active) == 2 and all(activations[i] == 1.0 for i in active):
-            s1, s2 = (self._slot_list[i] for i in active)
-            if len(s1.unit_index) == 1 and len(s2.unit_index) == 1 and s1.contact.reference is not None and s2.contact.reference is not None:
-                p1, p2 = self._contact_xy(s1), self._contact_xy(s2)
-                dx, dy = p1[0] - p2[0], p1[1] - p2[1]
-                norm = dx * dx + dy * dy
-                if norm > 1e-12:
-                    self._lever = ((int(s1.unit_index[0]), int(s2.unit_index[0])), (p2[0], p2[1], dx, dy, norm))
-
-    def _force_shares(self, reg: ContactForceRegularization) -> list[float]:
-        """Weight share of each contact: by activation, or by the lever rule about the support
-        point when exactly two contacts are active."""
-        slots = self._slot_list
-        activations = [slot.activation for slot in slots]
-        total = sum(activations)
-        if total <= 0.0:
-            return [0.0] * len(slots)
-        shares = [a / total for a in activations]
-        point = reg.support_point
-        active = [i for i, a in enumerate(activations) if a > 0.0]
-        if point is not None and len(active) == 2:
-            i, j = active
-            p1, p2 = self._contact_xy(slots[i]), self._contact_xy(slots[j])
-            dx, dy = p1[0] - p2[0], p1[1] - p2[1]
-            norm = dx * dx + dy * dy
-            if norm > 1e-12:
-                alpha = min(max(((point[0] - p2[0]) * dx + (point[1] - p2[1]) * dy) / norm, 0.0), 1.0)
-                a1, a2 = alpha * activations[i], (1.0 - alpha) * activations[j]
-                if a1 + a2 > 0.0:
-                    shares[i], shares[j] = a1 / (a1 + a2), a2 / (a1 + a2)
-        return shares
-
-    def _contact_xy(self, slot: _ContactSlot) -> tuple[float, float]:
-        """Ground position of a contact: where it was made (cached), or where it is now."""
-        reference = slot.contact.reference
-        if reference is None:
-            translation = slot.contact.placement_in_world(self.kin).translation
-            return float(translation[0]), float(translation[1])
-        if slot.xy_of is not reference:
-            slot.xy = (float(reference.translation[0]), float(reference.translation[1]))
-            slot.xy_of = reference
-        return slot.xy
 
     def _joint_limit_bounds(self, p: QpProblem) -> None:
         """q̈ bounds that stop each joint at its position limit within the horizon ``T``
@@ -775,13 +493,7 @@ class WholeBodyController:
         self._last_tau = None
         self.failures = 0
         self.consecutive_failures = 0
-        for name, slot in list(self._slots.items()):
-            fresh = _ContactSlot(slot.contact)
-            fresh.ramp_force = float(np.linalg.norm(self.kin.gravity)) * self.kin.mass
-            fresh.start_ramp(1.0, slot.added_ramp_time)
-            fresh.added_ramp_time = slot.added_ramp_time
-            slot.contact.reference = None
-            self._slots[name] = fresh
+        self.contact_set.reset()
         self._layout_dirty = True
         self._tasks_dirty = True
         self.problem = None
@@ -828,13 +540,7 @@ class WholeBodyController:
             tau += kin.nonlinear_effects[self.n_base :]
         np.minimum(tau, self.torque_limits, out=tau)
         np.maximum(tau, self._neg_limits, out=tau)
-        wrenches = {}
-        for slot in self._slot_list:
-            if slot.activation > 0.0:
-                forces = x[slot.columns]
-                phi = slot.contact.phi
-                wrench = wrenches[slot.contact.name] = forces if phi is None else phi @ forces
-                slot.last_normal = wrench[2]
+        wrenches = self.contact_set.wrenches(x)
         self._last_tau = tau
         self.consecutive_failures = 0
         end = clock()
@@ -914,7 +620,7 @@ class WholeBodyController:
     def generalized_contact_forces(self, forces: np.ndarray) -> np.ndarray:
         """``Σ Jᵀ Φ f`` (nv,) for the current kinematics and a vector of force variables."""
         out = np.zeros(self.nv)
-        for slot in self._slots.values():
+        for slot in self.contact_set.slots.values():
             if slot.engaged:
                 c = slot.contact
                 f = forces[slot.columns.start - self.nv : slot.columns.stop - self.nv]
