@@ -7,6 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from giwbc.control.contact_set import Lever
 from giwbc.control import (
     AngularMomentumTask,
     ComTask,
@@ -21,27 +22,22 @@ from giwbc.control import (
 from giwbc.control.tasks import critical_damping
 
 
-def test_weight_shares_by_activation_and_by_the_lever_rule() -> None:
+def test_the_lever_rule_and_the_support_point() -> None:
     """Two feet 0.2 m apart along y: a support point a quarter of the way from the second foot
-    gives it 3/4 of the weight (its projection on the line counts, clamped to the segment); with
-    no point, or three contacts, the split follows the activations; none active: no weight."""
+    gives it 3/4 of the weight (its projection on the line counts, clamped to the segment); two
+    coincident points define no split. The regularisation keeps the support point's xy and counts
+    its changes (the activation-weighted shares on a robot: tests/test_contact_set.py)."""
+    lever = Lever.between((0.0, 0.1), (0.0, -0.1))
+    assert lever is not None
+    assert lever.share(0.3, -0.05) == pytest.approx(0.25)  # off the line: only its projection matters
+    assert lever.share(0.0, 0.0) == pytest.approx(0.5)
+    assert lever.share(0.0, 0.5) == 1.0 and lever.share(0.0, -0.5) == 0.0  # beyond a foot: clamped
+    turned = Lever.between((0.1, 0.1), (-0.1, -0.1))
+    assert turned is not None and turned.share(0.05, 0.05) == pytest.approx(0.75)
+    assert Lever.between((0.2, 0.1), (0.2, 0.1)) is None
     reg = ContactForceRegularization()
-    feet = [np.array([0.0, 0.1, 0.0]), np.array([0.0, -0.1, 0.0])]
-    np.testing.assert_allclose(reg.shares(feet, [0.0, 0.0]), [0.0, 0.0])
-    np.testing.assert_allclose(reg.shares(feet, [1.0, 1.0]), [0.5, 0.5])
-    np.testing.assert_allclose(reg.shares(feet, [1.0, 0.25]), [0.8, 0.2])
-    reg.set_support_point([0.3, -0.05, 0.8])  # off the line: only its projection matters
+    reg.set_support_point([0.3, -0.05, 0.8])
     assert reg.support_xy == (0.3, -0.05)
-    np.testing.assert_allclose(reg.shares(feet, [1.0, 1.0]), [0.25, 0.75])
-    np.testing.assert_allclose(reg.shares(feet, [1.0, 0.5]), [0.25 / 0.625, 0.375 / 0.625])  # lever × activation
-    np.testing.assert_allclose(reg.shares(feet, [0.0, 0.5]), [0.0, 1.0])  # one active contact carries all
-    reg.set_support_point([0.0, 0.5, 0.0])  # beyond the first foot: clamped
-    np.testing.assert_allclose(reg.shares(feet, [1.0, 1.0]), [1.0, 0.0])
-    reg.set_support_point([0.0, -0.5, 0.0])
-    np.testing.assert_allclose(reg.shares(feet, [1.0, 1.0]), [0.0, 1.0])
-    np.testing.assert_allclose(reg.shares([feet[0], feet[0]], [1.0, 3.0]), [0.25, 0.75])  # one place: by activation
-    three = [*feet, np.array([0.3, 0.0, 0.0])]
-    np.testing.assert_allclose(reg.shares(three, [1.0, 1.0, 2.0]), [0.25, 0.25, 0.5])
     version = reg.version
     reg.set_support_point(None)
     assert reg.support_point is None and reg.support_xy is None and reg.version == version + 1
