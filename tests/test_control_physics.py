@@ -287,6 +287,31 @@ def test_a_fixed_base_falls_back_to_its_gravity_torque_before_any_success() -> N
     np.testing.assert_array_equal(invalid.impedance.q_ref, np.zeros(2))  # no finite position to hold
 
 
+def test_the_fallback_damps_with_its_own_gains_and_a_late_task_counts() -> None:
+    """The fallback's impedance damps with ``fallback_kd`` when given (``impedance_kd`` otherwise);
+    a task added after the first solved tick changes the next answer as a first-tick task would."""
+    arm = DoublePendulum()
+    model = build_pinocchio_model(arm)
+    q, v = np.array([0.3, 0.5]), np.zeros(2)
+    for fallback_kd, expected in ((None, [2.0, 3.0]), (np.array([7.0, 9.0]), [7.0, 9.0])):
+        wbc = WholeBodyController(model, impedance_kd=np.array([2.0, 3.0]), fallback_kd=fallback_kd)
+        wbc.add_task(PostureTask(reference=np.zeros(2)))
+        failed = wbc.update(np.array([np.nan, 0.5]), v)
+        assert not failed.ok
+        np.testing.assert_array_equal(failed.impedance.kd, expected)
+        np.testing.assert_array_equal(wbc.update(q, v).impedance.kd, [2.0, 3.0])  # solved: the impedance gains
+    late = WholeBodyController(model)
+    late.add_task(PostureTask(reference=np.zeros(2), kp=100.0))
+    first = late.update(q, v)
+    late.add_task(PostureTask("hold", reference=q, weight=1e4, kp=100.0))  # pulls toward where it is
+    after = late.update(q, v)
+    fresh = WholeBodyController(model)
+    fresh.add_task(PostureTask(reference=np.zeros(2), kp=100.0))
+    fresh.add_task(PostureTask("hold", reference=q, weight=1e4, kp=100.0))
+    np.testing.assert_allclose(after.qdd, fresh.update(q, v).qdd, rtol=1e-9, atol=1e-9)
+    assert np.linalg.norm(after.qdd) < 0.1 * np.linalg.norm(first.qdd)
+
+
 def test_the_internal_clock_ticks_by_dt_from_zero(g1: RobotDescription, g1_model: pin.Model) -> None:
     """Without explicit times, the first tick is at t = 0 and each later one (built or updated)
     dt after the previous (``build`` alone does not count a tick): a contact ramp of 5 ticks
