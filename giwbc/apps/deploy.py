@@ -194,10 +194,7 @@ class WbcHold:
     def failure(self) -> str | None:
         """Why the last tick fell back to its safe command (infeasible QP, unusable state), or None:
         the runtime stops on it (a fault), instead of running on a decaying fallback."""
-        last = self.last
-        if last is None or last.ok:
-            return None
-        return f"whole-body controller {last.status.value} ({last.qp_status.value if last.qp_status else 'no QP'}): {last.message}"
+        return None if self.last is None else self.last.failure()
 
 
 def make_controller(name: str, description: RobotDescription, walk: WalkCommand | None = None) -> Any:

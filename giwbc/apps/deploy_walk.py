@@ -142,7 +142,7 @@ class WalkHold:
         last = self.last
         if last is None or last.ok or self.walker.wbc.consecutive_failures < self.max_failed_ticks:
             return None
-        return f"{self.walker.wbc.consecutive_failures} ticks in a row: walking whole-body controller {last.status.value} ({last.qp_status.value if last.qp_status else 'no QP'}): {last.message}"
+        return f"{self.walker.wbc.consecutive_failures} ticks in a row: walking {last.failure()}"
 
 
 def add_walk_arguments(parser: argparse.ArgumentParser) -> None:

@@ -117,6 +117,12 @@ class WbcResult:
     def ok(self) -> bool:
         return self.status is WbcStatus.OK
 
+    def failure(self) -> str | None:
+        """Why this tick fell back to the safe command (status, QP status, message), or None when it solved."""
+        if self.ok:
+            return None
+        return f"whole-body controller {self.status.value} ({self.qp_status.value if self.qp_status else 'no QP'}): {self.message}"
+
     @property
     def impedance(self) -> ImpedanceCommand:
         """The equivalent per-joint impedance command (see the module docstring); a new object

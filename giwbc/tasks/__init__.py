@@ -2,6 +2,7 @@
 
 from giwbc.tasks.balance import BalanceRewards, G1Balance, ResidualScales
 from giwbc.tasks.cartpole import CartPoleBalance, CartPoleSwingUp, CartPoleTask
+from giwbc.tasks.floating_base import FloatingBaseTask
 from giwbc.tasks.standing import StandingTask
 from giwbc.tasks.task import ActionBlock, InvalidActionError, ResidualLayout, Task
 
@@ -13,6 +14,7 @@ __all__ = [
     "CartPoleBalance",
     "CartPoleSwingUp",
     "CartPoleTask",
+    "FloatingBaseTask",
     "InvalidActionError",
     "ResidualLayout",
     "StandingTask",

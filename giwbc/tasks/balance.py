@@ -34,7 +34,8 @@ from gymnasium import spaces
 
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, ImpedanceCommand, Robot, quat_to_matrix
-from giwbc.tasks.task import ActionBlock, ResidualLayout, Task
+from giwbc.tasks.floating_base import FloatingBaseTask
+from giwbc.tasks.task import ActionBlock, ResidualLayout
 from giwbc.control.balance import make_balance_controller
 from giwbc.randomization import Nominal, randomized_pinocchio_model
 
@@ -155,16 +156,13 @@ class _WholeBody:
 
     def failure(self) -> str | None:
         """Why the last tick fell back (see :meth:`Task.controller_failure`), or None."""
-        result = self.result
-        if result is None or result.ok:
-            return None
-        return f"whole-body controller {result.status.value} ({result.qp_status.value if result.qp_status else 'no QP'}): {result.message}"
+        return None if self.result is None else self.result.failure()
 
     def posture_reference(self) -> np.ndarray:
         return self.posture
 
 
-class G1Balance(Task):
+class G1Balance(FloatingBaseTask):
     """Stand under pushes: residual actions over a balance controller (see the module docstring)."""
 
     def __init__(
@@ -288,18 +286,6 @@ class G1Balance(Task):
             self.last_action,
         ]).astype(np.float32)
 
-    def base_state(self) -> BaseState:
-        """The robot's base state, read once per robot time (reward, termination and info share it)."""
-        now = self.robot.time()
-        if self._base is None or self._base[0] != now:
-            self._base = (now, self.robot.base_state())
-        return self._base[1]
-
-    def tilt(self) -> float:
-        """Angle between the pelvis z axis and the vertical (rad)."""
-        x, y, _, _ = self.base_state().quaternion
-        return math.acos(min(1.0, max(-1.0, 1.0 - 2.0 * (x * x + y * y))))
-
     def com_error(self) -> np.ndarray:
         """Horizontal CoM error (m): the CoM relative to the feet, minus the same at the standing pose."""
         return self._com_offset(self.robot.generalized_state()[0]) - self.nominal_com_offset
@@ -330,9 +316,6 @@ class G1Balance(Task):
             - w.action_rate * float(change @ change) / change.size
             - (w.fall if self.is_terminated() else 0.0)
         )
-
-    def is_terminated(self) -> bool:
-        return bool(self.base_state().position[2] < self.min_height or self.tilt() > self.max_tilt)
 
     def get_info(self) -> dict[str, Any]:
         return {"base_height": float(self.base_state().position[2]), "tilt": self.tilt()}

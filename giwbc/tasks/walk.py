@@ -42,7 +42,8 @@ from gymnasium import spaces
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, quat_to_matrix
-from giwbc.tasks.task import ActionBlock, ResidualLayout, Task
+from giwbc.tasks.floating_base import FloatingBaseTask
+from giwbc.tasks.task import ActionBlock, ResidualLayout
 
 ANGULAR_VELOCITY_SCALE = 0.25  # observation scalings: keep entries of order 1
 JOINT_VELOCITY_SCALE = 0.05
@@ -136,7 +137,7 @@ def _yaw(quaternion: np.ndarray) -> float:
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
-class G1Walk(Task):
+class G1Walk(FloatingBaseTask):
     """Track velocity commands: residual actions over the walker (see the module docstring)."""
 
     def __init__(
@@ -249,19 +250,9 @@ class G1Walk(Task):
         self.result = self.walker.step(robot)
 
     def controller_failure(self) -> str | None:
-        result = self.result
-        if result is None or result.ok:
-            return None
-        return f"whole-body controller {result.status.value} ({result.qp_status.value if result.qp_status else 'no QP'}): {result.message}"
+        return None if self.result is None else self.result.failure()
 
     # --- outputs --------------------------------------------------------------------------
-    def base_state(self) -> BaseState:
-        """The robot's base state, read once per robot time."""
-        now = self.robot.time()
-        if self._base is None or self._base[0] != now:
-            self._base = (now, self.robot.base_state())
-        return self._base[1]
-
     def heading_velocity(self) -> np.ndarray:
         """Base ``(vx, vy, yaw_rate)`` in the heading frame (yaw of the pelvis)."""
         base = self.base_state()
@@ -269,10 +260,6 @@ class G1Walk(Task):
         c, s = math.cos(yaw), math.sin(yaw)
         v = base.linear_velocity
         return np.array([c * v[0] + s * v[1], -s * v[0] + c * v[1], base.angular_velocity[2]])
-
-    def tilt(self) -> float:
-        x, y, _, _ = self.base_state().quaternion
-        return math.acos(min(1.0, max(-1.0, 1.0 - 2.0 * (x * x + y * y))))
 
     def get_observation(self) -> np.ndarray:
         robot, walker = self.robot, self.walker
@@ -315,9 +302,6 @@ class G1Walk(Task):
             - w.action_rate * float(change @ change) / change.size
             - (w.fall if self.is_terminated() else 0.0)
         )
-
-    def is_terminated(self) -> bool:
-        return bool(self.base_state().position[2] < self.min_height or self.tilt() > self.max_tilt)
 
     def get_info(self) -> dict[str, Any]:
         base = self.base_state()
