@@ -46,6 +46,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.util.toml import TomlPlace
 from giwbc.errors import HardwareConfigError
 from giwbc.hal.bus import frame_bits
 from giwbc.hal.frames import CAN_EFF_FLAG, CAN_EFF_MASK, CAN_ERR_FLAG, CAN_RTR_FLAG, CAN_SFF_MASK, FRAME
@@ -168,7 +169,8 @@ def example_layout() -> CanImuLayout:
 
 # ----------------------------------------------------------------------------- configuration
 def _fail(source: str, msg: str) -> HardwareConfigError:
-    return HardwareConfigError(f"{source}: imu: {msg}")
+    """The error for ``msg`` in the plan's ``[imu]`` table (the hardware plan's TOML place)."""
+    return TomlPlace(f"{source}: imu", HardwareConfigError).fail(msg)  # type: ignore[return-value]
 
 
 def _number(source: str, where: str, v: Any) -> float:
