@@ -109,8 +109,8 @@ def test_training_is_reproducible_and_a_checkpoint_is_the_final_policy_of_a_shor
 
     long = run("long", 192, 64)
     assert [p.name for p in long.checkpoints] == ["step_64.onnx", "step_128.onnx", "step_192.onnx"]
-    short = run("short", 128, 0)
-    again = run("again", 128, 0)
+    short = run("short", 128, 64)  # the same command but --timesteps (checkpoints are restart boundaries of the run)
+    again = run("again", 128, 64)
     assert short.policy.read_bytes() == again.policy.read_bytes()
     assert (tmp_path / "long" / "checkpoints" / "step_128.onnx").read_bytes() == short.policy.read_bytes()
 
@@ -130,5 +130,82 @@ def test_training_resumes_from_a_checkpoint(tmp_path) -> None:
     assert [p.name for p in resumed.checkpoints] == ["step_128.onnx", "step_192.onnx"]
     assert PPO.load(resumed.model, device="cpu").num_timesteps == 192
     assert first.policy.read_bytes() != resumed.policy.read_bytes()
+    with pytest.raises(ValueError, match="seed"):
+        TrainConfig(seed=-1)
     with pytest.raises(FileNotFoundError):
         train(TrainConfig(total_timesteps=192, out_dir=str(tmp_path / "c"), resume=str(tmp_path / "missing.zip"), **common))
+
+
+def _state(run_dir):
+    """Everything a run leaves that learning depends on: policy and value parameters, Adam's state,
+    the step count, the normalizer's statistics."""
+    import pickle
+
+    import torch
+    from stable_baselines3 import PPO
+
+    model = PPO.load(run_dir / "policy.zip", device="cpu")
+    tensors = {**{f"policy.{k}": v for k, v in model.policy.state_dict().items()},
+               **{f"adam.{k}": v for k, v in _flat(model.policy.optimizer.state_dict()).items() if isinstance(v, torch.Tensor)}}
+    normalizer = pickle.loads((run_dir / "policy.vecnormalize.pkl").read_bytes())
+    return model.num_timesteps, tensors, normalizer
+
+
+def _flat(tree, prefix=""):
+    if isinstance(tree, dict):
+        return {k: v for key, value in tree.items() for k, v in _flat(value, f"{prefix}{key}.").items()}
+    if isinstance(tree, list):
+        return {k: v for i, value in enumerate(tree) for k, v in _flat(value, f"{prefix}{i}.").items()}
+    return {prefix: tree}
+
+
+def test_a_resumed_run_equals_the_uninterrupted_run_bit_for_bit(tmp_path) -> None:
+    """N/2 steps then ``--resume`` to N == N steps in one go: parameters, Adam, normalizer, ONNX file.
+
+    Episodes of the cart-pole run across the boundary (episodes of up to 500 steps, 2 x 64 steps per
+    rollout), and the learner samples and shuffles after it: a resume that restarted the
+    environments or the generators differently would differ."""
+    pytest.importorskip("stable_baselines3")
+    from giwbc.apps.training import TrainConfig, train
+
+    common = {"n_envs": 2, "seed": 5, "vectorization": "dummy", "progress_bar": False, "eval_episodes": 0, "net_arch": (8, 8),
+              "checkpoint_every": 256, "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 2}}
+    whole = train(TrainConfig(total_timesteps=512, out_dir=str(tmp_path / "whole"), **common))
+    train(TrainConfig(total_timesteps=256, out_dir=str(tmp_path / "half"), **common))
+    resumed = train(TrainConfig(total_timesteps=512, out_dir=str(tmp_path / "resumed"),
+                                resume=str(tmp_path / "half" / "checkpoints" / "step_256.zip"), **common))
+    steps, tensors, normalizer = _state(tmp_path / "whole")
+    steps_r, tensors_r, normalizer_r = _state(tmp_path / "resumed")
+    assert steps == steps_r == 512 and tensors.keys() == tensors_r.keys() and len(tensors) > 10
+    for name, value in tensors.items():
+        assert value.dtype == tensors_r[name].dtype and bool((value == tensors_r[name]).all()), name
+    for stats in ("obs_rms", "ret_rms"):
+        a, b = getattr(normalizer, stats), getattr(normalizer_r, stats)
+        assert np.array_equal(a.mean, b.mean) and np.array_equal(a.var, b.var) and a.count == b.count
+    assert whole.policy.read_bytes() == resumed.policy.read_bytes()
+    # The restart is seeded from the run: the same checkpoint resumed with another seed goes another way.
+    other = train(TrainConfig(total_timesteps=512, out_dir=str(tmp_path / "other"),
+                              resume=str(tmp_path / "whole" / "checkpoints" / "step_256.zip"), **{**common, "seed": 6}))
+    assert other.policy.read_bytes() != whole.policy.read_bytes()
+
+
+@pytest.mark.slow
+def test_a_resumed_g1_walk_run_equals_the_uninterrupted_run(tmp_path) -> None:
+    """The same on a tiny G1Walk run in worker processes (walker, WBC, pushes and commands restarted
+    at the boundary): 128 steps in one go == 64 steps, then ``--resume`` to 128 (~20 s)."""
+    pytest.importorskip("stable_baselines3")
+    from giwbc.apps.training import TrainConfig, train
+
+    common = {"env_id": "giwbc/G1Walk-v0", "n_envs": 2, "seed": 0, "vectorization": "subproc", "progress_bar": False, "eval_episodes": 0,
+              "net_arch": (16, 16), "checkpoint_every": 64, "log_std_init": -1.0, "env_kwargs": {"residuals": ["step"], "max_episode_steps": 400},
+              "ppo": {"n_steps": 16, "batch_size": 16, "n_epochs": 2}}
+    whole = train(TrainConfig(total_timesteps=128, out_dir=str(tmp_path / "whole"), **common))
+    train(TrainConfig(total_timesteps=64, out_dir=str(tmp_path / "half"), **common))
+    resumed = train(TrainConfig(total_timesteps=128, out_dir=str(tmp_path / "resumed"),
+                                resume=str(tmp_path / "half" / "checkpoints" / "step_64.zip"), **common))
+    steps, tensors, normalizer = _state(tmp_path / "whole")
+    steps_r, tensors_r, normalizer_r = _state(tmp_path / "resumed")
+    assert steps == steps_r == 128
+    assert all(bool((value == tensors_r[name]).all()) for name, value in tensors.items())
+    assert np.array_equal(normalizer.obs_rms.mean, normalizer_r.obs_rms.mean) and normalizer.ret_rms.var == normalizer_r.ret_rms.var
+    assert whole.policy.read_bytes() == resumed.policy.read_bytes()

@@ -9,6 +9,24 @@ Layout of a run folder::
     out/config.json                                     the TrainConfig
     out/checkpoints/step_<N>.{zip,vecnormalize.pkl,onnx}  every checkpoint_every steps
     out/policy.{zip,vecnormalize.pkl,onnx}              the final policy (SB3 model, normalizer, ONNX)
+
+Exact resume. A run is defined by its seed and its configuration, ``checkpoint_every`` included:
+each checkpoint is a *restart boundary*. Right after a checkpoint is saved (at the start of a
+rollout, after the previous PPO update), every environment is reset with seeds derived from
+``(seed, N)`` (``N``: the environment steps so far, :func:`boundary_seeds`), and the learner's
+generators (numpy's and torch's global ones: action sampling, minibatch shuffling) are reseeded
+from the same pair. The episodes running at that moment are cut; the rollout that ended there
+already bootstrapped their value from the next observation, as for a time limit. ``--resume
+step_N.zip`` loads the model (parameters, Adam state, step count) and the normalizer's
+statistics, and performs the same restart before learning, so it continues exactly as the
+uninterrupted run did: same seed and configuration => the resumed run's files equal the
+uninterrupted run's, bit for bit (tested). Nothing else needs saving: the environments' state
+(simulator, controller warm starts, latency buffers, push schedules) is not serialisable in
+general, and after a boundary no state from before it is used. A checkpoint at ``N`` is the final
+policy of the same command with ``--timesteps N`` (the same ``--checkpoint-every``: the
+boundaries are part of the run). Resuming from a file that is not a boundary of the run (the
+final ``policy.zip`` between checkpoints, another ``--checkpoint-every``, changed options) works
+but starts a new branch: not the uninterrupted run's continuation.
 """
 
 from __future__ import annotations
@@ -60,6 +78,8 @@ class TrainConfig:
             raise ValueError(f"vectorization must be 'subproc', 'dummy' or 'ray', got {self.vectorization!r}")
         if self.n_envs < 1 or self.total_timesteps < 1 or (self.envs_per_worker is not None and self.envs_per_worker < 1):
             raise ValueError("n_envs, total_timesteps and envs_per_worker must be >= 1")
+        if self.seed < 0 or self.checkpoint_every < 0:
+            raise ValueError(f"seed and checkpoint_every must be >= 0, got {self.seed} and {self.checkpoint_every}")
         try:
             json.dumps(self.env_kwargs)
         except TypeError as error:
@@ -81,6 +101,25 @@ class TrainResult:
 def _module_id(env_id: str) -> str:
     """``giwbc.envs:giwbc/X``: worker processes register the ids themselves, whatever the start method."""
     return env_id if ":" in env_id or not env_id.startswith("giwbc/") else f"giwbc.envs:{env_id}"
+
+
+def boundary_seeds(seed: int, steps: int) -> tuple[int, int]:
+    """The learner's seed and the environments' base seed (environment ``i`` gets ``base + i``) at
+    the restart boundary after ``steps`` environment steps of the run with ``seed`` (module docstring)."""
+    learner, envs = np.random.SeedSequence([seed, steps]).generate_state(2)
+    return int(learner), int(envs) >> 1  # numpy's legacy seeding takes < 2**32; env seeds base + i stay below
+
+
+def _restart(model: "PPO", venv: Any, seed: int, steps: int) -> None:
+    """The restart boundary after ``steps`` steps: reseed the learner, reset every environment from
+    derived seeds (the normalizer's discounted returns restart with them)."""
+    from stable_baselines3.common.utils import set_random_seed
+
+    learner, envs = boundary_seeds(seed, steps)
+    set_random_seed(learner)
+    venv.seed(envs)
+    model._last_obs = venv.reset()
+    model._last_episode_starts = np.ones((venv.num_envs,), dtype=bool)
 
 
 def _activation(name: str) -> Any:
@@ -205,6 +244,7 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
                                 clip_obs=10.0, gamma=ppo_kwargs["gamma"])
     if resume is not None:
         model = PPO.load(resume, env=venv, device="cpu")
+        _restart(model, venv, config.seed, model.num_timesteps)  # the boundary the checkpoint was saved at
     else:
         model = PPO(
             "MlpPolicy", venv, seed=config.seed, device="cpu", verbose=0,
@@ -232,20 +272,26 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
 
         Saved at the start of a rollout, after the previous update: a checkpoint at ``N`` steps is
         then exactly the final policy of the same run with ``total_timesteps=N`` (constant schedules).
+        Each one is a restart boundary (module docstring): after saving, the environments and the
+        learner's generators restart from seeds derived from ``(seed, N)``, as a resume from it does.
         """
 
         def __init__(self, every: int) -> None:
             super().__init__()
             self.every, self.next = every, (start // every + 1) * every if every else 0
 
-        def _checkpoint(self) -> None:
-            if self.every and self.num_timesteps >= self.next:
-                while self.next <= self.num_timesteps:
-                    self.next += self.every
-                checkpoints.append(save(out / "checkpoints", f"step_{self.num_timesteps}", self.num_timesteps))
+        def _checkpoint(self) -> bool:
+            """Save one if due; whether it was."""
+            if not (self.every and self.num_timesteps >= self.next):
+                return False
+            while self.next <= self.num_timesteps:
+                self.next += self.every
+            checkpoints.append(save(out / "checkpoints", f"step_{self.num_timesteps}", self.num_timesteps))
+            return True
 
         def _on_rollout_start(self) -> None:
-            self._checkpoint()
+            if self._checkpoint():
+                _restart(model, venv, config.seed, self.num_timesteps)
 
         def _on_training_end(self) -> None:
             self._checkpoint()
@@ -281,7 +327,8 @@ def add_train_command(commands: Any) -> None:
     parser.add_argument("--log-std-init", type=float, default=TrainConfig.log_std_init,
                         help="initial log std of the actor (e.g. -1 for residual policies over a working controller)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--resume", default=None, help="continue from a checkpoint .zip of the same run (to --timesteps in all)")
+    parser.add_argument("--resume", default=None, help="continue from a checkpoint .zip of the same run (to --timesteps in all; with the run's "
+                        "seed and options it continues exactly as the uninterrupted run: see giwbc.apps.training)")
     add_ray_argument(parser)
     parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
                         help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
