@@ -1,10 +1,14 @@
-"""``giwbc deploy --controller walk``: the walking WBC over the emulated CAN buses with the state
-estimator in the loop (lockstep emulator, unpaced: simulated time, no wall clock)."""
+"""``giwbc deploy --controller walk`` and ``--policy g1_walk_residual.onnx``: the walking WBC (and
+the walking policy over it) on the emulated CAN buses with the state estimator in the loop
+(lockstep emulator, unpaced: simulated time, no wall clock)."""
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from giwbc.apps.deploy import DeployOptions, add_deploy_command, deploy
@@ -63,3 +67,63 @@ def test_unpaced_runs_only_on_the_lockstep_emulator(g1):
     for options in (DeployOptions(realtime=False), DeployOptions(emulate=True, emulator_mode="process", realtime=False)):
         outcome = deploy(options, description=g1, out=None)
         assert outcome.exit_code == 2 and "unpaced" in outcome.message
+
+
+# --- the walking policy (giwbc/G1Walk-v0, residuals on the walker) on the deployment path -----------
+POLICIES = Path(__file__).resolve().parents[1] / "policies"
+WALK_POLICY = POLICIES / "g1_walk_residual.onnx"
+
+
+@pytest.fixture(scope="module")
+def walk_policy():
+    pytest.importorskip("onnxruntime")
+    from giwbc.apps.deploy import load_policy
+
+    return load_policy(WALK_POLICY)
+
+
+def test_the_walking_policy_walks_over_the_emulated_buses_at_its_rate(g1, model, tmp_path, walk_policy):
+    policy, metadata = walk_policy
+    actions = []
+
+    def recorded(observation):
+        actions.append(policy(observation))
+        return actions[-1]
+
+    options = DeployOptions(
+        emulate=True, seconds=3.0, realtime=False, startup=STARTUP, walk=WalkCommand(vx=0.3, walk_delay=0.5),
+        log=str(tmp_path / "walk_policy.mcap"), scene_rate=0.0,
+    )  # fmt: skip
+    outcome = deploy(options, policy=recorded, policy_metadata=metadata, model=model, description=g1, out=None)
+    assert outcome.exit_code == 0, outcome.message
+    standing, walking = outcome.standing, outcome.walking
+    assert standing["stood"] and standing["dx"] > 0.4 and abs(standing["dy"]) < 0.15  # walked forward (ground truth)
+    assert walking["steps"] >= 4
+    # The policy ran at its 50 Hz over the 3 s (one action per 10 control cycles) and moved the steps.
+    assert len(actions) == 150 and np.abs(np.array(actions)).max() > 1e-3
+    assert outcome.result.cycles >= 10 * len(actions)
+
+
+@pytest.mark.parametrize(
+    ("options", "match"),
+    [
+        ({"task": "balance"}, "run it with --task walk"),
+        ({"controller": "pd"}, "--controller pd cannot run it"),
+        ({"estimator": False}, "needs a floating base and the estimator"),
+    ],
+)
+def test_unsupported_walking_policy_combinations_are_refused(g1, walk_policy, options, match):
+    policy, metadata = walk_policy
+    outcome = deploy(DeployOptions(emulate=True, **options), policy=policy, policy_metadata=metadata, description=g1, out=None)
+    assert outcome.exit_code == 2 and match in outcome.message
+
+
+def test_a_balance_policy_is_not_a_walking_one(g1):
+    pytest.importorskip("onnxruntime")
+    options = DeployOptions(emulate=True, policy=str(POLICIES / "g1_balance_residual.onnx"), task="walk")
+    outcome = deploy(options, description=g1, out=None)
+    assert outcome.exit_code == 2 and "needs a giwbc/G1Walk-v0 policy" in outcome.message
+    outcome = deploy(replace(options, task=None, walk=WalkCommand(vx=0.3)), description=g1, out=None)
+    assert outcome.exit_code == 2 and "need --controller walk or a walking policy" in outcome.message
+    outcome = deploy(DeployOptions(emulate=True, task="walk"), description=g1, out=None)
+    assert outcome.exit_code == 2 and "give --policy" in outcome.message

@@ -36,6 +36,12 @@ Walking: ``--controller walk --vx 0.3 [--vy --yaw-rate] [--step-in-place]``
 (:mod:`giwbc.apps.deploy_walk`): the walking WBC on the estimated robot, standing for ``--walk-delay``
 s after the start-up, then walking. ``--emulate --unpaced``: the lockstep emulator as fast as the
 machine allows (a rehearsal on a machine too slow for the loop and the physics in real time).
+A walking policy (metadata ``env_id`` ``giwbc/G1Walk-v0``; task ``walk``, the default for it):
+``--policy g1_walk_residual.onnx --vx 0.3``: the same walker on the estimated robot, the policy's
+residuals (where and when the feet land, ...) at its agent rate
+(:class:`giwbc.apps.deploy_walk.WalkPolicyTask`). Refused: a walking policy with ``--task
+balance`` or ``--controller pd``, a balance policy with ``--task walk``, walking options for a
+task that does not walk, and the walking policy without the state estimator.
 
 Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
@@ -68,7 +74,7 @@ import numpy as np
 from giwbc.apps.live import DEFAULT_PORT, LiveServer, require_foxglove
 from giwbc.apps.live import HOST as LIVE_HOST
 from giwbc.apps.scene import SceneChannels
-from giwbc.apps.deploy_walk import WalkCommand, WalkHold, add_walk_arguments, walk_command
+from giwbc.apps.deploy_walk import WalkCommand, WalkHold, WalkPolicyTask, add_walk_arguments, walk_command
 from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
 
 from giwbc.control.balance import make_balance_controller
@@ -97,7 +103,8 @@ from giwbc.tasks.standing import StandingTask
 if TYPE_CHECKING:
     import mujoco
 
-TASKS = ("stand", "balance")
+TASKS = ("stand", "balance", "walk")
+WALK_ENV = "giwbc/G1Walk-v0"  # a walking policy's env_id: the deploy task "walk"
 CONTROLLERS = ("wbc", "pd", "walk")
 EMULATOR_MODES = ("lockstep", "process")
 
@@ -215,7 +222,7 @@ class DeployOptions:
 
     robot: str = "g1"
     policy: str | None = None
-    task: str | None = None  # default: "balance" with a policy, "stand" without
+    task: str | None = None  # default: with a policy its own ("walk" for a G1Walk-v0 policy, else "balance"), "stand" without
     controller: str = "wbc"
     hardware: str | None = None  # default: the robot folder's hardware.toml
     emulate: bool = False
@@ -302,13 +309,10 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         policy, metadata = load_policy(options.policy)
     if metadata is not None:
         agent_rate = check_policy_metadata(metadata, description, options.control_rate)
-    task_name = options.task or ("balance" if metadata is not None else "stand")
-    if task_name not in TASKS:
-        raise DeployError(f"unknown task {task_name!r}; choose from {', '.join(TASKS)}")
-    if options.controller == "walk" and task_name != "stand":
-        raise DeployError("the walk controller runs the 'stand' task (no policy)")
-    if task_name == "stand" and policy is not None:
-        raise DeployError("the 'stand' task takes no action: a policy needs --task balance")
+    task_name = _task_name(options, metadata, policy)
+    if task_name == "walk" and (options.estimator is False or not description.floating_base):
+        raise DeployError("the walking policy walks on the state estimator's base state: it needs a floating base and the estimator")
+
 
     hardware = Path(options.hardware) if options.hardware else description.folder / "hardware.toml"
     names = description.joint_names
@@ -377,6 +381,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 "read through its driver")  # fmt: skip
         estimator = None
         wants_estimator = options.estimator if options.estimator is not None else not (task_name == "stand" and options.controller == "pd")
+
         if wants_estimator and description.floating_base:
             # The start-up holds the robot still anyway: a 4 s calibration window (16 blocks, not 0.75 s) averages the
             # gyro's noise to ~0.2 mrad/s per axis (the held robot's slow sway is read from the leg encoders).
@@ -400,6 +405,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             clock.append(lambda: robot.time() + 1.0 / options.control_rate)
         if task_name == "stand":
             task: Any = StandingTask(make_controller(options.controller, description, options.walk), description.default_positions)
+        elif task_name == "walk":
+            task = _walk_task(description, metadata, options.walk)
         else:
             task = _balance_task(description, metadata, options.controller)
         if host_faults:
@@ -468,8 +475,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             f"base moved {standing['dx']:+.2f} m forward, {standing['dy']:+.2f} m sideways"
         )
     walking = None
-    if isinstance(task, StandingTask) and isinstance(task.controller, WalkHold):
-        walker = task.controller
+    hold = task.hold if isinstance(task, WalkPolicyTask) else task.controller if isinstance(task, StandingTask) else None
+    if isinstance(hold, WalkHold):
+        walker = hold
         walking = {"steps": walker.steps, "single_support_ticks": walker.single_support_ticks, "notes": list(walker.notes)}
         say(f"walking: {walker.steps} steps" + (f" (command: {'; '.join(walker.notes)})" if walker.notes else ""))
     say(f"log: {log.path}")
@@ -501,8 +509,50 @@ def _imu_profile(options: DeployOptions) -> SensorNoiseConfig | None:
     return options.emulator.imu if options.emulate and options.emulator is not None else None
 
 
+def _task_name(options: DeployOptions, metadata: Mapping[str, Any] | None, policy: Any) -> str:
+    """The task to run (see :class:`DeployOptions`); :class:`DeployError` for combinations that cannot run."""
+    env_id = str((metadata or {}).get("env_id") or "").split(":", 1)[-1]
+    walking_policy = env_id == WALK_ENV
+    if options.task is not None:
+        task_name = options.task
+    elif metadata is not None:
+        task_name = "walk" if walking_policy else "balance"
+    else:
+        task_name = "stand"
+    if task_name not in TASKS:
+        raise DeployError(f"unknown task {task_name!r}; choose from {', '.join(TASKS)}")
+    if task_name == "stand" and policy is not None:
+        raise DeployError("the 'stand' task takes no action: a policy needs --task balance or walk")
+    if task_name == "walk":
+        if metadata is None:
+            raise DeployError(f"the 'walk' task runs a walking policy ({WALK_ENV}): give --policy (or walk without one: --controller walk)")
+        if not walking_policy:
+            raise DeployError(f"the 'walk' task needs a {WALK_ENV} policy; this one is for {env_id or 'an unnamed env'}")
+        if options.controller == "pd":
+            raise DeployError("the walking policy runs over the walker and its WBC: --controller pd cannot run it (use walk, or leave the default)")
+    elif options.controller == "walk" and task_name != "stand":
+        raise DeployError("the walk controller runs the 'stand' task (no policy) or a walking policy (task 'walk')")
+    elif walking_policy and task_name == "balance":
+        raise DeployError(f"this policy is for {WALK_ENV}: run it with --task walk (the default for it)")
+    if options.walk is not None and options.walk.moves and task_name != "walk" and options.controller != "walk":
+        raise DeployError("--vx/--vy/--yaw-rate/--step-in-place need --controller walk or a walking policy")
+    return task_name
+
+
+def _task_kwargs(metadata: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The policy's env_kwargs that configure its task (the simulated runtime's are dropped)."""
+    return {k: v for k, v in dict((metadata or {}).get("env_kwargs") or {}).items() if k not in _runtime_keys()}
+
+
+def _walk_task(description: RobotDescription, metadata: Mapping[str, Any] | None, walk: WalkCommand | None) -> WalkPolicyTask:
+    try:
+        return WalkPolicyTask(description, walk, **_task_kwargs(metadata))
+    except (TypeError, ValueError) as error:
+        raise DeployError(f"cannot build the walking policy's task: {error}") from error
+
+
 def _balance_task(description: RobotDescription, metadata: Mapping[str, Any] | None, controller: str) -> Any:
-    kwargs = {k: v for k, v in dict((metadata or {}).get("env_kwargs") or {}).items() if k not in _runtime_keys()}
+    kwargs = _task_kwargs(metadata)
     kwargs.setdefault("controller", controller)
     try:
         return G1Balance(description, **kwargs)
@@ -543,7 +593,8 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser = commands.add_parser("deploy", help="run on CAN actuators, or rehearse on the emulator (--emulate)")
     parser.add_argument("--robot", default="g1")
     parser.add_argument("--policy", default=None, help="policy .onnx (or its metadata .json); optional")
-    parser.add_argument("--task", choices=TASKS, default=None, help="default: balance with a policy, stand without")
+    parser.add_argument("--task", choices=TASKS, default=None,
+                        help="default: with a policy its own (walk for a G1Walk-v0 policy, else balance), stand without")
     parser.add_argument("--controller", choices=CONTROLLERS, default="wbc", help="whole-body QP, joint-PD hold, or the walking WBC")
     add_walk_arguments(parser)
     parser.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")

@@ -8,6 +8,12 @@ the leg's joint efforts, or a foot sensor's). It stands for ``walk_delay`` secon
 start-up ramp (the WBC takes the robot over from the ramp's joint PD and the estimate settles),
 then walks at the command; it outputs the WBC's impedance command (feed-forward torque, low gains)
 as :class:`giwbc.apps.deploy.WbcHold` does.
+
+``giwbc deploy --policy g1_walk_residual.onnx`` (task ``walk``): :class:`WalkPolicyTask`, the
+policy's :class:`~giwbc.tasks.walk.G1Walk` task (its residual blocks and scales from the ONNX
+metadata) whose walker is driven as :class:`WalkHold` drives it (the deployment walker
+configuration, estimated foot forces, the schedule's contacts to the estimator, the impedance
+output, the command after ``walk_delay``); the policy sets its residuals at its agent rate.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import ImpedanceCommand, Robot
+from giwbc.tasks.walk import G1Walk
 
 
 @dataclass(frozen=True)
@@ -54,6 +61,8 @@ class WalkCommand:
 # touch-down needs 0.35 of the weight (~120 N): a real landing gets there within a few ms.
 DEPLOY_TOUCHDOWN_FORCE = 0.35
 DEPLOY_SWING_KP = 250.0
+# The deployment walker's options (deploy_walker_config; over a walking policy's own walker options).
+DEPLOY_WALKER_OPTIONS: dict[str, Any] = {"touchdown_force": DEPLOY_TOUCHDOWN_FORCE, "step_adaptation": False, "swing_kp": DEPLOY_SWING_KP}
 
 
 def deploy_walker_config() -> WalkerConfig:
@@ -65,7 +74,7 @@ def deploy_walker_config() -> WalkerConfig:
     2-3 steps at 0.3 m/s; with the nominal footsteps it walks (tests/test_deploy_walk.py). A
     softer swing foot (kp 250 instead of 400): with the process emulator's one-cycle reply delay
     the stiffer one landed on a sole edge after ~9 steps."""
-    return replace(WalkerConfig(), touchdown_force=DEPLOY_TOUCHDOWN_FORCE, step_adaptation=False, swing_kp=DEPLOY_SWING_KP)
+    return replace(WalkerConfig(), **DEPLOY_WALKER_OPTIONS)
 
 
 class WalkHold:
@@ -74,9 +83,10 @@ class WalkHold:
 
     def __init__(
         self, description: RobotDescription, command: WalkCommand | None = None, config: WalkerConfig | None = None, *, foot_forces: bool = True,
-        contact_plan: bool = True, max_failed_ticks: int = 5,
+        contact_plan: bool = True, max_failed_ticks: int = 5, walker: WalkingController | None = None,
     ) -> None:
-        self.walker = WalkingController(description, config or deploy_walker_config())
+        """``walker``: drive this walker (a task's) instead of building one from ``config``."""
+        self.walker = walker or WalkingController(description, config or deploy_walker_config())
         self.foot_forces = foot_forces  # False: touch-downs on the schedule alone
         self.contact_plan = contact_plan  # pass the schedule's contacts to an estimating robot
         self.command = command or WalkCommand()
@@ -135,6 +145,12 @@ class WalkHold:
         """Touch-downs so far."""
         return self.walker.state.steps
 
+    @property
+    def active_command(self) -> np.ndarray:
+        """``(vx, vy, yaw_rate)`` the walker is walking at: zeros until the command started."""
+        c = self.command
+        return np.array([c.vx, c.vy, c.yaw_rate]) if self._commanded else np.zeros(3)
+
     def failure(self) -> str | None:
         """Why the controller fell back to its safe command for ``max_failed_ticks`` ticks in a row,
         or None (the runtime stops on it). A single infeasible tick at a contact switch is ridden
@@ -145,24 +161,52 @@ class WalkHold:
         return f"{self.walker.wbc.consecutive_failures} ticks in a row: walking {last.failure()}"
 
 
+class WalkPolicyTask(G1Walk):
+    """A walking policy's task on the deployment path: :class:`~giwbc.tasks.walk.G1Walk` (the
+    policy's observation, its residual blocks on the walker) with the walker driven by a
+    :class:`WalkHold` (module docstring) at the deploy command instead of the training's random
+    command schedule. ``task_kwargs``: the policy's env_kwargs for the task."""
+
+    def __init__(self, description: RobotDescription, command: WalkCommand | None = None, **task_kwargs: Any) -> None:
+        walker = {**dict(task_kwargs.pop("walker", None) or {}), **DEPLOY_WALKER_OPTIONS}
+        super().__init__(description, walker=walker, **task_kwargs)
+        self.hold = WalkHold(description, command, walker=self.walker)
+
+    def reset_task(self) -> None:
+        super().reset_task()
+        self.hold.reset()
+
+    def apply_command(self) -> None:
+        """One walker tick on the estimated state; the command observed is the one walked at."""
+        robot = self.robot
+        impedance = self.hold(robot)
+        self.result = self.hold.last
+        self.command = self.hold.active_command
+        robot.set_joint_impedance(impedance)
+
+    def controller_failure(self) -> str | None:
+        return self.hold.failure()
+
+
 def add_walk_arguments(parser: argparse.ArgumentParser) -> None:
     """``giwbc deploy``'s walking options."""
-    parser.add_argument("--vx", type=float, default=0.0, help="with --controller walk: forward speed, m/s (body frame)")
-    parser.add_argument("--vy", type=float, default=0.0, help="with --controller walk: lateral speed, m/s")
-    parser.add_argument("--yaw-rate", type=float, default=0.0, help="with --controller walk: turning rate, rad/s")
-    parser.add_argument("--step-in-place", action="store_true", help="with --controller walk: step with a zero command")
+    parser.add_argument("--vx", type=float, default=0.0, help="with --controller walk or a walking policy: forward speed, m/s (body frame)")
+    parser.add_argument("--vy", type=float, default=0.0, help="with --controller walk or a walking policy: lateral speed, m/s")
+    parser.add_argument("--yaw-rate", type=float, default=0.0, help="with --controller walk or a walking policy: turning rate, rad/s")
+    parser.add_argument("--step-in-place", action="store_true", help="with --controller walk or a walking policy: step with a zero command")
     parser.add_argument("--walk-delay", type=float, default=WalkCommand.walk_delay,
-                        help="with --controller walk: seconds of standing after the start-up ramp before the command")
+                        help="with --controller walk or a walking policy: seconds of standing after the start-up ramp before the command")
 
 
 def walk_command(args: argparse.Namespace) -> WalkCommand | None:
-    """The walk command of parsed ``giwbc deploy`` arguments (None without ``--controller walk``);
-    :class:`DeployError` for walking options given to another controller or a non-finite one."""
-    if args.controller != "walk":
-        if args.vx or args.vy or args.yaw_rate or args.step_in_place:
-            raise DeployError("--vx/--vy/--yaw-rate/--step-in-place need --controller walk")
+    """The walk command of parsed ``giwbc deploy`` arguments: None when no walking option was given
+    and the controller is not ``walk`` (whether the task walks is known once the policy is loaded:
+    :func:`giwbc.apps.deploy.deploy` refuses a command for a task that does not walk);
+    :class:`DeployError` for a non-finite one."""
+    given = bool(args.vx or args.vy or args.yaw_rate or args.step_in_place)
+    if args.controller != "walk" and not given:
         return None
     return WalkCommand(args.vx, args.vy, args.yaw_rate, args.step_in_place, args.walk_delay)
 
 
-__all__ = ["WalkCommand", "WalkHold", "add_walk_arguments", "walk_command"]
+__all__ = ["DEPLOY_WALKER_OPTIONS", "WalkCommand", "WalkHold", "WalkPolicyTask", "add_walk_arguments", "walk_command"]
