@@ -6,11 +6,18 @@ to one thread; the share of wall time in the physics engine, in the controller (
 G1Balance) and in everything else comes from the runtime's own timers. Every case runs on both
 engines (the ``*_pybullet`` entries: same task, same description, ``engine="pybullet"``).
 G1Balance-v0 runs as registered (random pushes) and without pushes (quiet standing: the WBC's
-warm-started best case). G1Walk-v0 runs as registered (random velocity commands, no pushes). Scaling: the same work (two identical jobs: same env, same seed, same
-number of steps) run by 1 worker process in turn, then by 2 worker processes at once (fork);
-identical jobs so that the two workers finish together and the ratio measures the machine, not
-the spread of episode lengths between seeds. Repeated ``--scaling-repeats`` times (interleaved:
-1, 2, 1, 2, ...); the median speed-up is reported with every repeat's.
+warm-started best case). G1Walk-v0 runs as registered (random velocity commands, no pushes).
+
+Scaling (``--scaling-cases``, default G1Balance with the WBC and G1Walk): the same work (two
+identical jobs: same env, same seed, same number of steps) run by 1 worker process in turn, then
+by 2 worker processes at once (fork); identical jobs so that the two workers finish together and
+the ratio measures the machine, not the spread of episode lengths between seeds. Each worker
+builds its own environments before a common start (a barrier) and shares nothing with the other
+while it steps (no lock, no pipe: one queue put at its end); the wall time runs from the common
+start to the last worker's end. Repeated ``--scaling-repeats`` times (interleaved: 1, 2, 1, 2,
+...); the median speed-up is reported with every repeat's, and with each worker's CPU time over
+its wall time (``cpu_per_wall``: 1.0 when a worker had a core to itself; below 1 the machine was
+busy with something else) and the load average before and after.
 """
 
 from __future__ import annotations
@@ -89,23 +96,25 @@ def measure(env_id: str, kwargs: dict[str, Any], steps: int) -> dict[str, Any]:
 
 
 def _worker(env_id: str, kwargs: dict[str, Any], jobs: list[tuple[int, int]], barrier: Any, results: Any) -> None:
-    """Run each ``(seed, steps)`` job on its own env, one after the other, after a common start."""
+    """Run each ``(seed, steps)`` job on its own env, one after the other, after a common start;
+    put ``(wall, cpu)`` seconds (this process's CPU time) on ``results``."""
     envs = []
     for seed, _ in jobs:
         env = gymnasium.make(env_id, **kwargs).unwrapped
         env.reset(seed=seed)
         envs.append(env)
     barrier.wait()
-    started = time.perf_counter()
+    started, cpu = time.perf_counter(), time.process_time()
     for env, (_, steps) in zip(envs, jobs):
         _run(env, steps)
-    results.put(time.perf_counter() - started)
+    results.put((time.perf_counter() - started, time.process_time() - cpu))
 
 
-def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int, jobs: int = 2) -> float:
-    """Throughput (steps/s) of ``workers`` processes sharing the same ``jobs`` seeded episodes' worth of steps.
+def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int, jobs: int = 2) -> tuple[float, float]:
+    """Throughput (steps/s) of ``workers`` processes sharing the same ``jobs`` jobs, and the workers'
+    mean CPU time over wall time.
 
-    The work is identical whatever the number of workers: job ``i`` is seed ``i`` for ``total_steps / jobs``
+    The work is identical whatever the number of workers: every job is seed 0 for ``total_steps / jobs``
     steps; one worker runs them in turn, two workers one each. Wall time from a common start (a barrier
     after every env is built) to the last worker's end.
     """
@@ -119,19 +128,18 @@ def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int,
         process.start()
     barrier.wait()
     started = time.perf_counter()
-    for _ in processes:
-        results.get()
+    times = [results.get() for _ in processes]
     wall = time.perf_counter() - started
     for process in processes:
         process.join()
-    return sum(steps for _, steps in work) / wall
+    return sum(steps for _, steps in work) / wall, float(np.mean([cpu / own_wall for own_wall, cpu in times]))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--steps", type=int, default=2000, help="agent steps per measurement")
     parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
-    parser.add_argument("--scaling-case", default="g1_balance_wbc", choices=list(CASES))
+    parser.add_argument("--scaling-cases", nargs="*", default=["g1_balance_wbc", "g1_walk"], choices=list(CASES))
     parser.add_argument("--scaling-steps", type=int, default=2000, help="total agent steps of the scaling test")
     parser.add_argument("--scaling-repeats", type=int, default=3, help="1-vs-2-process measurements (median reported)")
     args = parser.parse_args()
@@ -152,19 +160,26 @@ def main() -> None:
         for name in BASE_CASES
         if name in result and f"{name}_pybullet" in result
     }
-    env_id, kwargs = CASES[args.scaling_case]
-    pairs = [(scaling(env_id, kwargs, args.scaling_steps, 1), scaling(env_id, kwargs, args.scaling_steps, 2))
-             for _ in range(max(1, args.scaling_repeats))]
-    speedups = [two / one for one, two in pairs]
-    result["scaling"] = {
-        "case": args.scaling_case,
-        "total_steps": args.scaling_steps,
-        "steps_per_s_1_process": float(np.median([one for one, _ in pairs])),
-        "steps_per_s_2_processes": float(np.median([two for _, two in pairs])),
+    result["scaling"] = {name: measure_scaling(*CASES[name], args.scaling_steps, args.scaling_repeats) for name in args.scaling_cases}
+    print(json.dumps(result))
+
+
+def measure_scaling(env_id: str, kwargs: dict[str, Any], steps: int, repeats: int) -> dict[str, Any]:
+    """1 vs 2 processes on the same work, ``repeats`` times interleaved (module docstring)."""
+    load_before = os.getloadavg()[0]
+    pairs = [(scaling(env_id, kwargs, steps, 1), scaling(env_id, kwargs, steps, 2)) for _ in range(max(1, repeats))]
+    speedups = [two / one for (one, _), (two, _) in pairs]
+    return {
+        "env": env_id,
+        "total_steps": steps,
+        "steps_per_s_1_process": float(np.median([one for (one, _), _ in pairs])),
+        "steps_per_s_2_processes": float(np.median([two for _, (two, _) in pairs])),
         "speedup_2_over_1": float(np.median(speedups)),
         "speedups": speedups,
+        "cpu_per_wall_1_process": [cpu for (_, cpu), _ in pairs],
+        "cpu_per_wall_2_processes": [cpu for _, (_, cpu) in pairs],
+        "load_average_1min": {"before": load_before, "after": os.getloadavg()[0]},
     }
-    print(json.dumps(result))
 
 
 if __name__ == "__main__":
