@@ -166,7 +166,7 @@ def test_a_resumed_run_equals_the_uninterrupted_run_bit_for_bit(tmp_path) -> Non
     rollout), and the learner samples and shuffles after it: a resume that restarted the
     environments or the generators differently would differ."""
     pytest.importorskip("stable_baselines3")
-    from giwbc.apps.training import TrainConfig, train
+    from giwbc.apps.training import TrainConfig, resume_branch, train
 
     common = {"n_envs": 2, "seed": 5, "vectorization": "dummy", "progress_bar": False, "eval_episodes": 0, "net_arch": (8, 8),
               "checkpoint_every": 256, "ppo": {"n_steps": 64, "batch_size": 32, "n_epochs": 2}}
@@ -183,6 +183,11 @@ def test_a_resumed_run_equals_the_uninterrupted_run_bit_for_bit(tmp_path) -> Non
         a, b = getattr(normalizer, stats), getattr(normalizer_r, stats)
         assert np.array_equal(a.mean, b.mean) and np.array_equal(a.var, b.var) and a.count == b.count
     assert whole.policy.read_bytes() == resumed.policy.read_bytes()
+    resume = str(tmp_path / "half" / "checkpoints" / "step_256.zip")
+    assert resume_branch(TrainConfig(total_timesteps=512, resume=resume, **common)) == []
+    assert [r.split(":")[0] for r in resume_branch(TrainConfig(resume=resume, **{**common, "seed": 6, "checkpoint_every": 128}))] == [
+        "seed", "checkpoint_every"]
+    assert "not a checkpoint" in resume_branch(TrainConfig(resume=str(tmp_path / "half" / "policy.zip"), **common))[0]
     # The restart is seeded from the run: the same checkpoint resumed with another seed goes another way.
     other = train(TrainConfig(total_timesteps=512, out_dir=str(tmp_path / "other"),
                               resume=str(tmp_path / "whole" / "checkpoints" / "step_256.zip"), **{**common, "seed": 6}))

@@ -26,7 +26,8 @@ general, and after a boundary no state from before it is used. A checkpoint at `
 policy of the same command with ``--timesteps N`` (the same ``--checkpoint-every``: the
 boundaries are part of the run). Resuming from a file that is not a boundary of the run (the
 final ``policy.zip`` between checkpoints, another ``--checkpoint-every``, changed options) works
-but starts a new branch: not the uninterrupted run's continuation.
+but starts a new branch: not the uninterrupted run's continuation (``giwbc train --resume`` says
+which, from the run folder's ``config.json``: :func:`resume_branch`).
 """
 
 from __future__ import annotations
@@ -120,6 +121,27 @@ def _restart(model: "PPO", venv: Any, seed: int, steps: int) -> None:
     venv.seed(envs)
     model._last_obs = venv.reset()
     model._last_episode_starts = np.ones((venv.num_envs,), dtype=bool)
+
+
+# The TrainConfig fields that define a run (with the seed): a resume that changes one starts a new branch.
+RUN_FIELDS = ("env_id", "env_kwargs", "n_envs", "seed", "checkpoint_every", "normalize_observations", "normalize_rewards",
+              "net_arch", "activation", "log_std_init", "ppo")
+
+
+def resume_branch(config: TrainConfig) -> list[str]:
+    """Why resuming ``config.resume`` starts a new branch instead of continuing its run exactly
+    (compared with the ``config.json`` of the checkpoint's run folder); empty: it continues exactly."""
+    if config.resume is None:
+        return ["not a resume"]
+    resume = Path(config.resume)
+    reasons = []
+    if resume.parent.name != "checkpoints" or not resume.name.startswith("step_"):
+        reasons.append(f"{resume.name} is not a checkpoint (a restart boundary) of its run")
+    run_config = resume.parent.parent / "config.json"
+    if not run_config.is_file():
+        return [*reasons, f"its run's configuration is not at {run_config}"]
+    saved, mine = json.loads(run_config.read_text()), json.loads(json.dumps(asdict(config)))  # tuples as JSON lists
+    return reasons + [f"{key}: {saved.get(key)!r} in the run, {mine[key]!r} now" for key in RUN_FIELDS if saved.get(key) != mine[key]]
 
 
 def _activation(name: str) -> Any:
@@ -342,6 +364,10 @@ def run_train_command(args: Any) -> int:
                          ray_address=args.ray, envs_per_worker=args.envs_per_worker,
                          env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
                          net_arch=tuple(args.net_arch), log_std_init=args.log_std_init, resume=args.resume)
+    if config.resume is not None:
+        branch = resume_branch(config)
+        print(f"resuming {config.resume}: " + ("a new branch (" + "; ".join(branch) + ")" if branch else
+                                                 "continues its run exactly (same seed and options)"))
     result = train(config)
     print(f"policy: {result.policy}")
     if result.evaluation is not None:
