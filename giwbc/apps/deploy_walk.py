@@ -20,7 +20,9 @@ from __future__ import annotations
 
 import argparse
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -62,7 +64,8 @@ class WalkCommand:
 DEPLOY_TOUCHDOWN_FORCE = 0.35
 DEPLOY_SWING_KP = 250.0
 # The deployment walker's options (deploy_walker_config; over a walking policy's own walker options).
-DEPLOY_WALKER_OPTIONS: dict[str, Any] = {"touchdown_force": DEPLOY_TOUCHDOWN_FORCE, "step_adaptation": False, "swing_kp": DEPLOY_SWING_KP}
+DEPLOY_WALKER_OPTIONS: Mapping[str, Any] = MappingProxyType(
+    {"touchdown_force": DEPLOY_TOUCHDOWN_FORCE, "step_adaptation": False, "swing_kp": DEPLOY_SWING_KP})
 
 
 def deploy_walker_config() -> WalkerConfig:
@@ -203,7 +206,7 @@ def walk_command(args: argparse.Namespace) -> WalkCommand | None:
     and the controller is not ``walk`` (whether the task walks is known once the policy is loaded:
     :func:`giwbc.apps.deploy.deploy` refuses a command for a task that does not walk);
     :class:`DeployError` for a non-finite one."""
-    given = bool(args.vx or args.vy or args.yaw_rate or args.step_in_place)
+    given = bool(args.vx or args.vy or args.yaw_rate or args.step_in_place or args.walk_delay != WalkCommand.walk_delay)
     if args.controller != "walk" and not given:
         return None
     return WalkCommand(args.vx, args.vy, args.yaw_rate, args.step_in_place, args.walk_delay)
