@@ -17,7 +17,11 @@ while it steps (no lock, no pipe: one queue put at its end); the wall time runs 
 start to the last worker's end. Repeated ``--scaling-repeats`` times (interleaved: 1, 2, 1, 2,
 ...); the median speed-up is reported with every repeat's, and with each worker's CPU time over
 its wall time (``cpu_per_wall``: 1.0 when a worker had a core to itself; below 1 the machine was
-busy with something else) and the load average before and after.
+busy with something else) and the load average before and after. On a shared machine the wall-time
+ratio measures the share of the CPUs the benchmark got; ``cpu_efficiency_2_over_1`` (steps per
+CPU-second of all workers, 2 processes over 1, median) says whether two processes slow each other
+down (caches, memory bandwidth: < 1), and ``speedup_with_a_core_each`` = 2 x that is the ratio
+on a machine with two free cores (derived, not measured: say which one you quote).
 """
 
 from __future__ import annotations
@@ -110,9 +114,9 @@ def _worker(env_id: str, kwargs: dict[str, Any], jobs: list[tuple[int, int]], ba
     results.put((time.perf_counter() - started, time.process_time() - cpu))
 
 
-def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int, jobs: int = 2) -> tuple[float, float]:
-    """Throughput (steps/s) of ``workers`` processes sharing the same ``jobs`` jobs, and the workers'
-    mean CPU time over wall time.
+def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int, jobs: int = 2) -> tuple[float, float, float]:
+    """Throughput (steps/s) of ``workers`` processes sharing the same ``jobs`` jobs, the workers'
+    mean CPU time over wall time, and their steps per CPU-second.
 
     The work is identical whatever the number of workers: every job is seed 0 for ``total_steps / jobs``
     steps; one worker runs them in turn, two workers one each. Wall time from a common start (a barrier
@@ -132,7 +136,8 @@ def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int,
     wall = time.perf_counter() - started
     for process in processes:
         process.join()
-    return sum(steps for _, steps in work) / wall, float(np.mean([cpu / own_wall for own_wall, cpu in times]))
+    steps = sum(steps for _, steps in work)
+    return steps / wall, float(np.mean([cpu / own_wall for own_wall, cpu in times])), steps / sum(cpu for _, cpu in times)
 
 
 def main() -> None:
@@ -168,16 +173,21 @@ def measure_scaling(env_id: str, kwargs: dict[str, Any], steps: int, repeats: in
     """1 vs 2 processes on the same work, ``repeats`` times interleaved (module docstring)."""
     load_before = os.getloadavg()[0]
     pairs = [(scaling(env_id, kwargs, steps, 1), scaling(env_id, kwargs, steps, 2)) for _ in range(max(1, repeats))]
-    speedups = [two / one for (one, _), (two, _) in pairs]
+    speedups = [two[0] / one[0] for one, two in pairs]
+    efficiency = float(np.median([two[2] / one[2] for one, two in pairs]))
     return {
         "env": env_id,
         "total_steps": steps,
-        "steps_per_s_1_process": float(np.median([one for (one, _), _ in pairs])),
-        "steps_per_s_2_processes": float(np.median([two for _, (two, _) in pairs])),
+        "steps_per_s_1_process": float(np.median([one[0] for one, _ in pairs])),
+        "steps_per_s_2_processes": float(np.median([two[0] for _, two in pairs])),
         "speedup_2_over_1": float(np.median(speedups)),
         "speedups": speedups,
-        "cpu_per_wall_1_process": [cpu for (_, cpu), _ in pairs],
-        "cpu_per_wall_2_processes": [cpu for _, (_, cpu) in pairs],
+        "cpu_per_wall_1_process": [one[1] for one, _ in pairs],
+        "cpu_per_wall_2_processes": [two[1] for _, two in pairs],
+        "steps_per_cpu_s_1_process": [one[2] for one, _ in pairs],
+        "steps_per_cpu_s_2_processes": [two[2] for _, two in pairs],
+        "cpu_efficiency_2_over_1": efficiency,
+        "speedup_with_a_core_each": 2.0 * efficiency,
         "load_average_1min": {"before": load_before, "after": os.getloadavg()[0]},
     }
 
