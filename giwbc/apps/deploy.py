@@ -432,7 +432,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         )  # fmt: skip
         if metadata is not None:
             _check_layout(metadata, task)
-        say(f"running {task_name} ({options.controller}) for {options.seconds:g} s" + (" with the policy" if policy else ""))
+        say(f"running {task_name} ({'walker' if task_name == 'walk' else options.controller}) for {options.seconds:g} s"
+            + (" with the policy" if policy else ""))
         result = runtime.run(policy, options.seconds)
         counters = imu_counters(imu)
         if counters is not None:
