@@ -303,9 +303,14 @@ class TaskStack:
         tasks, versions, ref_versions = self.tasks, self._versions, self._ref_versions
         for i in range(len(tasks)):
             task = tasks[i]
-            if task.version != versions[i] or task.ref_version != ref_versions[i]:
+            if task.version != versions[i]:
                 self._refresh()
                 break
+            if task.ref_version != ref_versions[i]:  # (a swing foot's, every tick: its rates only)
+                rows = self.views[i][4]
+                self._acc_ref[rows] = task.acceleration_ref
+                self._vel_ref[rows] = task.velocity_ref
+                ref_versions[i] = task.ref_version
         if self._hessian_stale:
             self._refresh()
         if self._regrouped:  # new buffers: write every task again
