@@ -55,10 +55,10 @@ def signed_distance(point: np.ndarray, hull: np.ndarray) -> float:
     depth = -math.inf
     for x, y, ex, ey in _edges(hull):
         length = math.sqrt(ey * ey + ex * ex)  # the outward normal (e_y, −e_x), normalised
-        d = (px - x) * (ey / length) + (py - y) * (-ex / length)
-        if d > 0.0:
-            cx, cy = _nearest(px, py, hull)
-            dx, dy = px - cx, py - cy
+        d = (px - x) * (ey / length) + (py - y) * (-ex / length) if length > 0.0 else math.nan
+        if not d <= 0.0:  # outside (or a degenerate edge, whose normal is NaN): the distance to the boundary
+            nearest = clip_to_polygon((px, py), hull)
+            dx, dy = px - float(nearest[0]), py - float(nearest[1])
             return math.sqrt(dx * dx + dy * dy)
         depth = max(depth, d)
     return depth
