@@ -6,13 +6,16 @@ keep numpy's *bits*: element-wise ``+ − × ÷`` are IEEE operations either way
 product ``R @ x`` (C-ordered ``R``) runs through OpenBLAS's ``gemv`` kernel, which on this
 machine's CPUs rounds each row as ``fma(R[i,0], x[0], R[i,1]·x[1])`` — a fused multiply-add
 that Python 3.11 floats lack. :func:`fma` computes it exactly (Dekker's error-free product,
-then ``math.fsum``, correctly rounded), and :func:`dot2` uses it only where it can change the
-result. (``Rᵀ @ x`` and ``einsum`` rows round as plain ``a·b + c·d``.)
+then ``math.fsum``, correctly rounded). Which rounding numpy uses depends on the CPU and the BLAS
+build, so it is asked once at import (:func:`_rounding`) for ``R @ x`` and for ``Rᵀ @ x`` (a
+transposed view: plain ``a·b + c·d`` here, as ``einsum`` rows are).
 """
 
 from __future__ import annotations
 
 import math
+
+import numpy as np
 
 _SPLIT = 134217729.0  # 2^27 + 1: Veltkamp's splitting constant for float64
 _fsum = math.fsum
@@ -31,16 +34,40 @@ def fma(a: float, b: float, c: float) -> float:
     return _fsum((p, error, c))
 
 
+def _plain(a: float, b: float, c: float) -> float:
+    return a * b + c
+
+
+def _rounding(transposed: bool) -> object:
+    """How this machine's numpy rounds a row of a 2-column matrix-vector product: ``fma`` when it
+    fuses the first product (OpenBLAS's ``gemv`` kernels on FMA CPUs), ``_plain`` when it rounds
+    both products; asked once, at import, on a row where the two differ (``a² − 1``)."""
+    a = 1.0 + 2.0**-30
+    rows = np.array([[a, -1.0], [-1.0, a]])
+    product = float(((rows.T if transposed else rows) @ np.array([a, 1.0]))[0])
+    if product == fma(a, a, -1.0):
+        return fma
+    if product == a * a - 1.0:
+        return _plain
+    raise RuntimeError(f"numpy's 2 × 2 matrix-vector product rounds neither as a fused nor as a plain multiply-add ({product!r})")
+
+
+_ROW = _rounding(transposed=False)  # C-ordered (k, 2) @ (2,)
+_ROW_T = _rounding(transposed=True)  # a transposed view's rows
+
+
 def dot2(a0: float, a1: float, x0: float, x1: float) -> float:
-    """One row of a (C-ordered) numpy ``(k, 2) @ (2,)`` product: ``fma(a0, x0, a1·x1)``."""
-    return fma(a0, x0, a1 * x1)
+    """One row of a (C-ordered) numpy ``(k, 2) @ (2,)`` product (``fma(a0, x0, a1·x1)`` here)."""
+    return _ROW(a0, x0, a1 * x1)  # type: ignore[operator]
 
 
 def rotate(c: float, s: float, x: float, y: float) -> tuple[float, float]:
     """``[[c, −s], [s, c]] @ (x, y)`` with numpy's bits (a C-ordered rotation matrix times a vector)."""
-    return fma(c, x, -s * y), fma(s, x, c * y)
+    row = _ROW
+    return row(c, x, -s * y), row(s, x, c * y)  # type: ignore[operator]
 
 
 def rotate_back(c: float, s: float, x: float, y: float) -> tuple[float, float]:
-    """``[[c, −s], [s, c]]ᵀ @ (x, y)`` with numpy's bits (a transposed view: plain products)."""
-    return c * x + s * y, -s * x + c * y
+    """``[[c, −s], [s, c]]ᵀ @ (x, y)`` with numpy's bits (a transposed view: plain products here)."""
+    row = _ROW_T
+    return row(c, x, s * y), row(-s, x, c * y)  # type: ignore[operator]
