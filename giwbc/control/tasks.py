@@ -124,11 +124,16 @@ class WbcTask(abc.ABC):
         self.kd = _row_vector(critical_damping(self.kp) if kd is None else kd, self.dim, f"task {self.name!r} kd")
         self._changed()
 
-    def _set_rates(self, velocity: np.ndarray | None, acceleration: np.ndarray | None) -> None:
+    def _set_rates(self, velocity: np.ndarray | None, acceleration: np.ndarray | None, checked: bool = False) -> None:
+        """``checked``: both are already finite float arrays of ``dim`` entries that this task may keep."""
         if velocity is None and acceleration is None and self.velocity_ref is self._zeros and self.acceleration_ref is self._zeros:
             return  # no rates before, none now: nothing for the controller to gather again
-        self.velocity_ref = self._zeros if velocity is None else _vector(velocity, self.dim, "velocity reference")
-        self.acceleration_ref = self._zeros if acceleration is None else _vector(acceleration, self.dim, "acceleration reference")
+        if checked:
+            self.velocity_ref = self._zeros if velocity is None else velocity
+            self.acceleration_ref = self._zeros if acceleration is None else acceleration
+        else:
+            self.velocity_ref = self._zeros if velocity is None else _vector(velocity, self.dim, "velocity reference")
+            self.acceleration_ref = self._zeros if acceleration is None else _vector(acceleration, self.dim, "acceleration reference")
         self.ref_version += 1
 
     # --- evaluation ----------------------------------------------------------------------------
@@ -298,9 +303,14 @@ class TaskStack:
         tasks, versions, ref_versions = self.tasks, self._versions, self._ref_versions
         for i in range(len(tasks)):
             task = tasks[i]
-            if task.version != versions[i] or task.ref_version != ref_versions[i]:
+            if task.version != versions[i]:
                 self._refresh()
                 break
+            if task.ref_version != ref_versions[i]:  # (a swing foot's, every tick: its rates only)
+                rows = self.views[i][4]
+                self._acc_ref[rows] = task.acceleration_ref
+                self._vel_ref[rows] = task.velocity_ref
+                ref_versions[i] = task.ref_version
         if self._hessian_stale:
             self._refresh()
         if self._regrouped:  # new buffers: write every task again
@@ -414,9 +424,14 @@ class FramePoseTask(WbcTask):
         self.reference = pin.SE3(placement)
         self._reference_rotation = np.array(self.reference.rotation)
         self._reference_translation = np.array(self.reference.translation)
-        velocity = None if velocity is None else _vector(velocity, 6, "frame velocity reference")[self.rows]
-        acceleration = None if acceleration is None else _vector(acceleration, 6, "frame acceleration reference")[self.rows]
-        self._set_rates(velocity, acceleration)
+        # (_vector copies, so all six rows need no selection: the rates are checked copies.)
+        if velocity is not None:
+            velocity = _vector(velocity, 6, "frame velocity reference")
+            velocity = velocity if self._full else velocity[self.rows]
+        if acceleration is not None:
+            acceleration = _vector(acceleration, 6, "frame acceleration reference")
+            acceleration = acceleration if self._full else acceleration[self.rows]
+        self._set_rates(velocity, acceleration, checked=True)
 
     def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
         if self._root:

@@ -2,6 +2,7 @@
 
 One concept per module:
 
+* :mod:`~giwbc.locomotion.planar` — plain-float 2-D arithmetic with numpy's bits (the per-tick hot paths);
 * :mod:`~giwbc.locomotion.lipm` — LIPM / DCM closed forms (ω, ξ = c + ċ/ω, capture point);
 * :mod:`~giwbc.locomotion.support` — support polygons (hull, inside test, clipping);
 * :mod:`~giwbc.locomotion.dcm` — the DCM reference through a footstep plan, the DCM controller;

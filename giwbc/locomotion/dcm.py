@@ -58,20 +58,35 @@ class DcmReference:
             xi = dcm_before_linear_cop(s.duration, xi, np.asarray(s.start)[:2], np.asarray(s.end)[:2], self.omega)
             self.initial[i] = xi
         self._starts = self.starts.tolist()
+        # Per segment, as floats: (duration, start time, initial DCM, CoP start, CoP end).
+        self._floats = [
+            (float(seg.duration), start, tuple(self.initial[i].tolist()), tuple(np.asarray(seg.start, dtype=float)[:2].tolist()), tuple(np.asarray(seg.end, dtype=float)[:2].tolist()))
+            for i, (seg, start) in enumerate(zip(segments, self._starts))
+        ]
 
     def segment_index(self, t: float) -> int:
         return max(0, min(bisect.bisect_right(self._starts, t) - 1, len(self.segments) - 1))
 
     def evaluate(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(ξ_ref, ξ̇_ref, p_ref)`` at time ``t`` (before the start: the start; after the end: rest)."""
+        """``(ξ_ref, ξ̇_ref, p_ref)`` at time ``t`` (before the start: the start; after the end: rest).
+
+        :func:`~giwbc.locomotion.lipm.dcm_at_linear_cop` on plain floats (every tick: numpy's
+        per-call overhead on 2-vectors was most of its cost), the same operations in the same order."""
         if t >= self.end_time:
             return self.terminal.copy(), np.zeros(2), self.terminal.copy()
         i = self.segment_index(t)
-        s = self.segments[i]
-        tau = min(max(t - self.starts[i], 0.0), s.duration)
-        start, end = np.asarray(s.start)[:2], np.asarray(s.end)[:2]
-        xi, rate = dcm_at_linear_cop(tau, s.duration, self.initial[i], start, end, self.omega)
-        return xi, rate, start + (end - start) * (tau / s.duration)
+        duration, start_time, (x0, y0), (sx, sy), (ex, ey) = self._floats[i]
+        tau = min(max(t - start_time, 0.0), duration)
+        omega = self.omega
+        growth = math.exp(omega * tau)
+        out = []
+        for xi0, p0, p1 in ((x0, sx, ex), (y0, sy, ey)):
+            rate = (p1 - p0) / duration
+            p = p0 + rate * tau
+            xi = p + rate / omega + (xi0 - p0 - rate / omega) * growth
+            out.append((xi, omega * (xi - p), p0 + (p1 - p0) * (tau / duration)))
+        (xi_x, rate_x, cop_x), (xi_y, rate_y, cop_y) = out
+        return np.array([xi_x, xi_y]), np.array([rate_x, rate_y]), np.array([cop_x, cop_y])
 
     def dcm_at_segment_end(self, index: int) -> np.ndarray:
         """The reference DCM at the end of segment ``index`` (the start of the next, or the terminal)."""
@@ -95,13 +110,15 @@ class DcmController:
         """``p* = ξ − ξ̇_ref/ω + (k/ω)(ξ − ξ_ref)``, clipped into ``support`` (CCW hull) when given:
         along the ray from ``ξ`` when ``ξ`` is inside (the DCM keeps being pushed the way the
         controller wants), else to the nearest point."""
-        xi = np.asarray(xi, dtype=float)[:2]
-        cop = xi - np.asarray(xi_rate_ref)[:2] / self.omega + (self.gain / self.omega) * (xi - np.asarray(xi_ref)[:2])
-        return cop if support is None else clip_along_ray(xi, cop, support)
+        omega, k = self.omega, self.gain / self.omega
+        x, y = float(xi[0]), float(xi[1])
+        cop = np.array([x - float(xi_rate_ref[0]) / omega + k * (x - float(xi_ref[0])), y - float(xi_rate_ref[1]) / omega + k * (y - float(xi_ref[1]))])
+        return cop if support is None else clip_along_ray((x, y), cop, support)
 
     def com_acceleration(self, com: np.ndarray, cop: np.ndarray) -> np.ndarray:
         """``c̈ = ω² (c − p)`` (horizontal)."""
-        return self.omega**2 * (np.asarray(com, dtype=float)[:2] - np.asarray(cop, dtype=float)[:2])
+        w2 = self.omega**2
+        return np.array([w2 * (float(com[0]) - float(cop[0])), w2 * (float(com[1]) - float(cop[1]))])
 
 
 def walking_cop_plan(current: CopSegment, landings: list[np.ndarray], single_support: float, double_support: float, final_cop: np.ndarray | None = None) -> list[CopSegment]:

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from giwbc.locomotion.planar import rotate, rotate_back
+
 SIDES = ("left", "right")
 
 
@@ -53,16 +55,21 @@ class Footstep:
     def __post_init__(self) -> None:
         side_sign(self.side)
         position = np.asarray(self.position, dtype=float).reshape(-1)[:2]
-        if position.shape != (2,) or not np.all(np.isfinite(position)) or not math.isfinite(self.yaw):
+        if position.shape != (2,) or not (math.isfinite(position[0]) and math.isfinite(position[1]) and math.isfinite(self.yaw)):
             raise ValueError(f"footstep position and yaw must be finite, got {self.position}, {self.yaw}")
         object.__setattr__(self, "position", position)
 
+    # (Plain floats: the same bits as ``rotation2(yaw).T @ (p − s)`` and ``s + rotation2(yaw) @ x``,
+    # see giwbc.locomotion.planar, without numpy's per-call overhead on 2-vectors.)
     def to_local(self, point: np.ndarray) -> np.ndarray:
         """A world point (x, y) in this sole's frame."""
-        return rotation2(self.yaw).T @ (np.asarray(point, dtype=float)[:2] - self.position)
+        position = self.position
+        return np.array(rotate_back(math.cos(self.yaw), math.sin(self.yaw), float(point[0]) - float(position[0]), float(point[1]) - float(position[1])))
 
     def to_world(self, local: np.ndarray) -> np.ndarray:
-        return self.position + rotation2(self.yaw) @ np.asarray(local, dtype=float)[:2]
+        x, y = rotate(math.cos(self.yaw), math.sin(self.yaw), float(local[0]), float(local[1]))
+        position = self.position
+        return np.array([float(position[0]) + x, float(position[1]) + y])
 
     def relative(self, other: "Footstep") -> tuple[np.ndarray, float]:
         """``other``'s position in this sole's frame and its yaw relative to this one."""

@@ -25,7 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from giwbc.locomotion.footsteps import Footstep, rotation2
+from giwbc.locomotion.footsteps import Footstep
+from giwbc.locomotion.planar import rotate, rotate_back
 
 
 @dataclass(frozen=True)
@@ -95,9 +96,10 @@ def solve_step_qp(
     if s_lo > s_hi or lower[0] > upper[0] or lower[1] > upper[1]:
         raise ValueError("the step adapter's box is empty (lower bound above upper bound)")
     total = w_u + w_b
+    un, dd, kk = (float(u_nom[0]), float(u_nom[1])), (float(d[0]), float(d[1])), (float(k[0]), float(k[1]))
     # Unconstrained u(σ) = a + b σ, per coordinate.
-    a = [(w_u * float(u_nom[i]) + w_b * float(k[i])) / total for i in range(2)]
-    b = [w_b * float(d[i]) / total for i in range(2)]
+    a = [(w_u * un[i] + w_b * kk[i]) / total for i in range(2)]
+    b = [w_b * dd[i] / total for i in range(2)]
     breaks = {s_lo, s_hi}
     for i in range(2):
         if b[i] != 0.0:
@@ -122,19 +124,18 @@ def solve_step_qp(
         num = w_s * sigma_nom
         den = w_s
         for i in range(2):
-            e, m = alpha[i] - float(u_nom[i]), float(d[i]) - beta[i]
-            r = float(k[i]) - alpha[i]
+            e, m = alpha[i] - un[i], dd[i] - beta[i]
+            r = kk[i] - alpha[i]
             num -= w_u * beta[i] * e + w_b * m * r
             den += w_u * beta[i] * beta[i] + w_b * m * m
         sigma = min(max(num / den, left), right) if den > 0.0 else left
-        z = np.array([alpha[0] + beta[0] * sigma, alpha[1] + beta[1] * sigma, sigma])
-        z[0] = min(max(z[0], lower[0]), upper[0])
-        z[1] = min(max(z[1], lower[1]), upper[1])
-        cost = w_u * ((z[0] - u_nom[0]) ** 2 + (z[1] - u_nom[1]) ** 2) + w_s * (sigma - sigma_nom) ** 2
-        cost += w_b * ((d[0] * sigma + k[0] - z[0]) ** 2 + (d[1] * sigma + k[1] - z[1]) ** 2)
+        z0 = min(max(alpha[0] + beta[0] * sigma, lower[0]), upper[0])
+        z1 = min(max(alpha[1] + beta[1] * sigma, lower[1]), upper[1])
+        cost = w_u * ((z0 - un[0]) ** 2 + (z1 - un[1]) ** 2) + w_s * (sigma - sigma_nom) ** 2
+        cost += w_b * ((dd[0] * sigma + kk[0] - z0) ** 2 + (dd[1] * sigma + kk[1] - z1) ** 2)
         if cost < best_cost:
-            best, best_cost = z, cost
-    return best  # type: ignore[return-value]
+            best, best_cost = (z0, z1, sigma), cost
+    return np.array(best)
 
 
 class StepAdapter:
@@ -165,23 +166,31 @@ class StepAdapter:
         the stance sole's frame ``((x_lo, x_hi), (y_lo, y_hi))``; ``remaining_range`` the allowed
         remaining time ``(T_min, T_max)``, s.
         """
-        values = [cop, dcm, nominal_step, nominal_offset]
-        if not all(np.all(np.isfinite(np.asarray(x, dtype=float)[:2])) for x in values) or not math.isfinite(nominal_remaining):
+        (cx, cy), (xx, xy), (nx, ny), (bx, by) = ((float(v[0]), float(v[1])) for v in (cop, dcm, nominal_step, nominal_offset))
+        if not all(math.isfinite(v) for v in (cx, cy, xx, xy, nx, ny, bx, by, nominal_remaining)):
             raise ValueError("step adapter inputs must be finite")
         t_lo, t_hi = remaining_range
         if not (0.0 <= t_lo <= t_hi):
             raise ValueError(f"remaining time range must satisfy 0 <= T_min <= T_max, got {remaining_range}")
         w = self.weights
-        rotation = rotation2(stance.yaw)
-        p = stance.to_local(cop)
-        d = rotation.T @ (np.asarray(dcm, dtype=float)[:2] - np.asarray(cop, dtype=float)[:2])
-        u_nom = stance.to_local(nominal_step)
-        b_nom = rotation.T @ np.asarray(nominal_offset, dtype=float)[:2]
+        # Plain floats, the same bits as the 2 × 2 numpy products they replace (giwbc.locomotion.planar):
+        # Rᵀ (x − s) into the stance sole's frame, s + R x back to the world.
+        c, sn = math.cos(stance.yaw), math.sin(stance.yaw)
+        ox, oy = float(stance.position[0]), float(stance.position[1])
+        p = rotate_back(c, sn, cx - ox, cy - oy)
+        d = rotate_back(c, sn, xx - cx, xy - cy)
+        u_nom = rotate_back(c, sn, nx - ox, ny - oy)
+        b_nom = rotate_back(c, sn, bx, by)
         sigma_lo, sigma_hi = math.exp(self.omega * t_lo), math.exp(self.omega * t_hi)
         sigma_nom = math.exp(self.omega * min(max(nominal_remaining, t_lo), t_hi))
         (x_lo, x_hi), (y_lo, y_hi) = box
-        z = solve_step_qp(w.position, w.timing, w.offset, u_nom, sigma_nom, d, p - b_nom, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
-        u_local, sigma = z[:2], float(z[2])
-        xi_end_local = p + d * sigma
-        u_world = stance.to_world(u_local)
-        return StepAdjustment(u_world, math.log(sigma) / self.omega, stance.to_world(xi_end_local), rotation @ (xi_end_local - u_local))
+        k = (p[0] - b_nom[0], p[1] - b_nom[1])
+        z = solve_step_qp(w.position, w.timing, w.offset, u_nom, sigma_nom, d, k, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
+        ux, uy, sigma = float(z[0]), float(z[1]), float(z[2])
+        ex, ey = p[0] + d[0] * sigma, p[1] + d[1] * sigma  # ξ_end, stance frame
+        u_world = rotate(c, sn, ux, uy)
+        xi_world = rotate(c, sn, ex, ey)
+        offset = rotate(c, sn, ex - ux, ey - uy)
+        return StepAdjustment(
+            np.array([ox + u_world[0], oy + u_world[1]]), math.log(sigma) / self.omega, np.array([ox + xi_world[0], oy + xi_world[1]]), np.array(offset)
+        )

@@ -32,7 +32,7 @@ def quintic(t0: float, t1: float, start: tuple[float, float, float], end: tuple[
     return np.array([p0, v0, a0 / 2.0, c3, c4, c5])
 
 
-def _evaluate(coefficients: np.ndarray, s: float) -> tuple[float, float, float]:
+def _evaluate(coefficients: tuple[float, ...] | np.ndarray, s: float) -> tuple[float, float, float]:
     c = coefficients
     p = c[0] + s * (c[1] + s * (c[2] + s * (c[3] + s * (c[4] + s * c[5]))))
     v = c[1] + s * (2 * c[2] + s * (3 * c[3] + s * (4 * c[4] + s * 5 * c[5])))
@@ -45,15 +45,16 @@ class _Chain:
 
     def __init__(self, knots: list[float], pieces: list[np.ndarray]) -> None:
         self.knots, self.pieces = knots, pieces
+        self._floats = [tuple(piece.tolist()) for piece in pieces]  # (evaluated every tick: no numpy scalars)
 
     def __call__(self, t: float) -> tuple[float, float, float]:
-        knots = self.knots
+        knots, pieces = self.knots, self._floats
         if t < knots[0]:
-            return _evaluate(self.pieces[0], 0.0)[0], 0.0, 0.0
-        for i, piece in enumerate(self.pieces):
+            return _evaluate(pieces[0], 0.0)[0], 0.0, 0.0
+        for i, piece in enumerate(pieces):
             if t <= knots[i + 1]:
                 return _evaluate(piece, t - knots[i])
-        return _evaluate(self.pieces[-1], knots[-1] - knots[-2])[0], 0.0, 0.0
+        return _evaluate(pieces[-1], knots[-1] - knots[-2])[0], 0.0, 0.0
 
 
 class SwingTrajectory:
@@ -84,8 +85,7 @@ class SwingTrajectory:
         """(x, y, z, yaw) position, velocity and acceleration at ``t`` (held at rest outside the swing)."""
         x, y, yaw = (axis(t) for axis in self._axes)
         z = self._z(t)
-        rows = np.array([x, y, z, yaw])  # (4, 3)
-        return rows[:, 0].copy(), rows[:, 1].copy(), rows[:, 2].copy()
+        return np.array([x[0], y[0], z[0], yaw[0]]), np.array([x[1], y[1], z[1], yaw[1]]), np.array([x[2], y[2], z[2], yaw[2]])
 
     def retarget(self, t: float, target: np.ndarray | None = None, touchdown: float | None = None, min_remaining: float = 0.02) -> None:
         """From time ``t`` on, go to ``target`` (default: the current one) landing at

@@ -45,6 +45,12 @@ from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
 
 
+def _distance(a: np.ndarray, b: np.ndarray) -> float:
+    """``‖a − b‖`` of two (x, y) points, as ``np.linalg.norm`` computes it (``√(dx² + dy²)``), on floats."""
+    dx, dy = float(a[0]) - float(b[0]), float(a[1]) - float(b[1])
+    return math.sqrt(dx * dx + dy * dy)
+
+
 class Phase(enum.Enum):
     STAND = "stand"  # double support, no step planned
     DOUBLE = "double"  # double support between steps
@@ -276,14 +282,15 @@ class WalkingController:
         ``wbc.failures``); it never raises. Wrong shapes raise ``ValueError``."""
         q = np.asarray(q, dtype=float)
         v = np.asarray(v, dtype=float)
-        if not math.isfinite(float(np.sum(q) + np.sum(v))):
+        if not math.isfinite(float(q.sum() + v.sum())):
             return self.wbc.update(q, v, t)
         if not self._anchored:
             self.reset(q)
         self._time = t = float(t)
         self._measure(q, v)
         omega = self.omega
-        xi = self._com[:2] + self._com_velocity[:2] / omega
+        com, com_velocity = self._com, self._com_velocity
+        xi = np.array([com[0] + com_velocity[0] / omega, com[1] + com_velocity[1] / omega])
         self._estimate_disturbance(t, xi)
         self.state.dcm = xi
         self._advance(t, xi, foot_forces or {})
@@ -316,10 +323,17 @@ class WalkingController:
         self._xi_previous, self._last_tick = xi, t
         if previous is None or self._last_cop is None or not t > last:
             return
-        rate = (xi - previous) / (t - last)
-        alpha = (t - last) / (self.config.disturbance_time + (t - last))
-        self._xi_rate = rate if self._xi_rate is None else self._xi_rate + alpha * (rate - self._xi_rate)
-        self.state.disturbance = self._xi_rate - self.omega * (previous - self._last_cop)
+        # (Plain floats, element by element: the same operations as on the 2-vectors.)
+        dt = t - last
+        alpha = dt / (self.config.disturbance_time + dt)
+        smoothed = self._xi_rate
+        rates = []
+        for i in (0, 1):
+            rate = (float(xi[i]) - float(previous[i])) / dt
+            rates.append(rate if smoothed is None else float(smoothed[i]) + alpha * (rate - float(smoothed[i])))
+        self._xi_rate = np.array(rates)
+        omega, cop = self.omega, self._last_cop
+        self.state.disturbance = np.array([rates[i] - omega * (float(previous[i]) - float(cop[i])) for i in (0, 1)])
 
     def _disturbance_lead(self) -> np.ndarray:
         """The DCM shift a disturbance ``d`` held for ``disturbance_horizon`` more seconds adds to
@@ -472,7 +486,7 @@ class WalkingController:
         # (The adapter sees the measured DCM only: adding the disturbance lead here made
         # recoveries worse, 8/30 vs 15/30 at 150 N — the foot over-reached once the push ended.)
         task = self.swing_tasks[swing]
-        if task.weight[0] < cfg.recovery_swing_weight and np.linalg.norm(xi - self.state.dcm_ref) > cfg.stiff_swing_error:
+        if task.weight[0] < cfg.recovery_swing_weight and _distance(xi, self.state.dcm_ref) > cfg.stiff_swing_error:
             task.set_weight(cfg.recovery_swing_weight)  # pushed: the foot must get where the adapter sends it
         adjustment = self.adapter.adapt(  # type: ignore[union-attr]
             stance, stance.position, xi, self._nominal_target.position, self._phase_end - t, self._nominal_offset,
@@ -483,13 +497,13 @@ class WalkingController:
         target = self._apply_step_offset(stance, target)
         self.state.target = target.position
         touchdown = t + adjustment.remaining_time
-        moved = np.linalg.norm(target.position - self._target.position) > 2e-3 or abs(touchdown - self._swing.t1) > 4e-3  # type: ignore[union-attr]
+        moved = _distance(target.position, self._target.position) > 2e-3 or abs(touchdown - self._swing.t1) > 4e-3  # type: ignore[union-attr]
         if moved:
             full = np.array([*target.position, self._swing.target[2], self._swing.target[3]])
             self._swing.retarget(t, full, touchdown)
             self._target = target
             planned = self._planned_for
-            if planned is None or np.linalg.norm(target.position - planned[0]) > cfg.replan_distance or abs(self._swing.t1 - planned[1]) > cfg.replan_time:
+            if planned is None or _distance(target.position, planned[0]) > cfg.replan_distance or abs(self._swing.t1 - planned[1]) > cfg.replan_time:
                 self._reference = self._plan_single(t, target, self._swing.t1)
 
     def _touch_down(self, t: float) -> None:
@@ -617,17 +631,19 @@ class WalkingController:
             late = t - self._swing.t1
             position[2] -= self.config.descent_speed * late
             velocity[2] = -self.config.descent_speed
-        yaw = position[3]
+        yaw = float(position[3])
         c, s = math.cos(yaw), math.sin(yaw)
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         sole = pin.SE3(rotation, position[:3].copy())
         ankle = sole * self._sole_inverse[swing]
         # The ankle origin's velocity and acceleration (the sole turns about z only).
-        lx, ly = ankle.translation[0] - sole.translation[0], ankle.translation[1] - sole.translation[1]
-        wz, az = velocity[3], acceleration[3]
+        ankle_xy, sole_xy = ankle.translation[:2].tolist(), position[:2].tolist()
+        lx, ly = ankle_xy[0] - sole_xy[0], ankle_xy[1] - sole_xy[1]
+        vx, vy, vz, wz = velocity.tolist()
+        ax, ay, az_, az = acceleration.tolist()
         # ω × r and α × r + ω × (ω × r) for ω, α along z
-        twist = np.array([velocity[0] - wz * ly, velocity[1] + wz * lx, velocity[2], 0.0, 0.0, wz])
-        accel = np.array([acceleration[0] - az * ly - wz * wz * lx, acceleration[1] + az * lx - wz * wz * ly, acceleration[2], 0.0, 0.0, az])
+        twist = np.array([vx - wz * ly, vy + wz * lx, vz, 0.0, 0.0, wz])
+        accel = np.array([ax - az * ly - wz * wz * lx, ay + az * lx - wz * wz * ly, az_, 0.0, 0.0, az])
         self.swing_tasks[swing].set_reference(ankle, twist, accel)
 
     def _heading_reference(self) -> None:
