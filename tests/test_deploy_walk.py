@@ -11,8 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from giwbc.apps import deploy_walk
 from giwbc.apps.deploy import DeployOptions, add_deploy_command, deploy
 from giwbc.apps.deploy_walk import WalkCommand
+from giwbc.emulation.faults import FaultInjection
 from giwbc.errors import DeployError
 from giwbc.runtimes.phases import StartupConfig
 
@@ -24,14 +26,20 @@ def model(g1):
     return g1.build_mujoco()
 
 
-def _walk(g1, model, tmp_path, command: WalkCommand, seconds: float):
+def _walk(g1, model, tmp_path, command: WalkCommand, seconds: float, faults=(), clean=True):
     options = DeployOptions(
         emulate=True, controller="walk", seconds=seconds, realtime=False, startup=STARTUP, walk=command,
-        log=str(tmp_path / "walk.mcap"), scene_rate=0.0,
+        log=str(tmp_path / "walk.mcap"), scene_rate=0.0, faults=faults,
     )  # fmt: skip
     outcome = deploy(options, model=model, description=g1, out=None)
-    assert outcome.exit_code == 0, outcome.message
+    if clean:
+        assert outcome.exit_code == 0, outcome.message
     return outcome
+
+
+def test_the_deployed_walker_adjusts_its_steps_on_the_estimate():
+    config = deploy_walk.deploy_walker_config()
+    assert config.step_adaptation and config.adapt_deadband > 0 and config.max_adjustment < 0.2
 
 
 def test_walks_forward_over_the_emulated_buses_on_the_estimate(g1, model, tmp_path):
@@ -127,3 +135,17 @@ def test_a_balance_policy_is_not_a_walking_one(g1):
     assert outcome.exit_code == 2 and "need --controller walk or a walking policy" in outcome.message
     outcome = deploy(DeployOptions(emulate=True, task="walk"), description=g1, out=None)
     assert outcome.exit_code == 2 and "give --policy" in outcome.message
+
+
+@pytest.mark.slow
+def test_a_push_while_walking_is_absorbed_by_step_adjustment_on_the_estimate(g1, model, tmp_path, monkeypatch):
+    """80 N x 0.2 s backward on the pelvis at 0.3 m/s (emulator time 7.5 s: ~2.5 s into the walk),
+    estimator in the loop: with online step adjustment (deadband, bounded) the walk goes on; with
+    the nominal footsteps alone the same push ends in a safety stop (a joint at its soft limit)."""
+    push = (FaultInjection("push", start=7.5, stop=7.7, force=(-80.0, 0.0, 0.0), link=g1.base_link),)
+    adjusted = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 5.0, push)
+    assert adjusted.standing["stood"] and adjusted.walking["steps"] >= 6 and adjusted.standing["dx"] > 0.5
+    nominal = replace(deploy_walk.deploy_walker_config(), step_adaptation=False)
+    monkeypatch.setattr(deploy_walk, "deploy_walker_config", lambda: nominal)
+    fixed = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 5.0, push, clean=False)
+    assert fixed.exit_code != 0 and "limit" in fixed.message

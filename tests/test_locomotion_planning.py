@@ -11,7 +11,7 @@ import pytest
 
 from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, GaitConfig, VelocityCommand, side_sign
 from giwbc.locomotion.lipm import dcm_at, natural_frequency
-from giwbc.locomotion.step_adapter import StepAdapter, StepAdapterWeights, solve_box_qp, solve_step_qp, step_qp_matrices
+from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter, StepAdapterWeights, bounded_box, solve_box_qp, solve_step_qp, step_qp_matrices
 from giwbc.locomotion.swing import SwingTrajectory
 from giwbc.locomotion.walker import WalkerConfig
 
@@ -113,6 +113,47 @@ def test_a_big_push_steps_sooner_when_the_landing_box_is_exhausted():
     assert big.remaining_time < small.remaining_time  # and sooner
     assert big.remaining_time >= 0.1 - 1e-12
 
+
+
+def test_the_dcm_shaper_gives_the_adapter_the_nominal_step_inside_its_deadband():
+    """Estimated-DCM noise inside the deadband: the adapter sees the nominal DCM, so the plan is
+    kept exactly; a push beyond it still moves the foot, by the error beyond the deadband."""
+    adapter = StepAdapter(OMEGA)
+    stance = Footstep("right", [0.0, -0.12])
+    nominal, remaining, offset = np.array([0.2, 0.12]), 0.3, np.array([-0.03, -0.05])
+    on_plan = stance.position + (nominal + offset - stance.position) * math.exp(-OMEGA * remaining)
+    shaper = DcmErrorShaper(deadband=0.03)
+    for noise in ([0.02, 0.0], [-0.01, 0.02], [0.0, -0.029]):
+        seen = shaper(0.0, on_plan + np.array(noise), on_plan)
+        np.testing.assert_array_equal(seen, on_plan)
+        result = _adapt(adapter, seen, stance=stance, offset=offset, remaining=remaining, nominal=nominal)
+        np.testing.assert_allclose(result.position, nominal, atol=1e-9)
+    pushed = shaper(0.0, on_plan + np.array([0.08, 0.0]), on_plan)
+    np.testing.assert_allclose(pushed, on_plan + np.array([0.05, 0.0]), atol=1e-12)
+    moved = _adapt(adapter, pushed, stance=stance, offset=offset, remaining=remaining, nominal=nominal)
+    assert moved.position[0] > nominal[0] + 0.05  # forward, by the grown error
+
+
+def test_the_dcm_shaper_low_passes_the_error_and_forgets_it_at_reset():
+    shaper = DcmErrorShaper(time_constant=0.02)
+    nominal = np.zeros(2)
+    assert shaper(0.0, np.array([0.1, 0.0]), nominal)[0] == pytest.approx(0.1)  # the first sample passes
+    assert shaper(0.002, np.array([0.0, 0.0]), nominal)[0] == pytest.approx(0.1 * 0.02 / 0.022)  # one step of the filter
+    shaper.reset()
+    assert shaper(0.004, np.array([0.0, 0.0]), nominal)[0] == 0.0
+    assert not DcmErrorShaper().active and DcmErrorShaper(0.01).active
+    with pytest.raises(ValueError, match="deadband"):
+        DcmErrorShaper(deadband=math.nan)
+
+
+def test_bounded_box_keeps_the_landing_within_the_bound_of_the_plan_and_inside_the_box():
+    box = ((-0.3, 0.4), (0.15, 0.45))
+    np.testing.assert_allclose(bounded_box(box, np.array([0.2, 0.25]), 0.1), ((0.1, 0.3), (0.15, 0.35)))
+    assert bounded_box(box, np.array([0.2, 0.25]), math.inf) == box
+    np.testing.assert_allclose(bounded_box(box, np.array([0.6, 0.25]), 0.1), ((0.3, 0.4), (0.15, 0.35)))  # plan outside: from the box's edge
+    adapter = StepAdapter(OMEGA)
+    big = _adapt(adapter, (0.25, -0.08), box=bounded_box(box, np.array([0.2, 0.12]), 0.1))
+    assert big.position[0] == pytest.approx(0.3)  # the bound, not the box's front (0.4)
 
 def test_box_qp_matches_a_brute_force_grid():
     rng = np.random.default_rng(7)

@@ -194,3 +194,47 @@ class StepAdapter:
         return StepAdjustment(
             np.array([ox + u_world[0], oy + u_world[1]]), math.log(sigma) / self.omega, np.array([ox + xi_world[0], oy + xi_world[1]]), np.array(offset)
         )
+
+
+class DcmErrorShaper:
+    """What the step adapter sees of the DCM when the DCM is *estimated* (deployment): the step's
+    nominal reference ``ξ_nom(t)`` plus the error ``e = ξ − ξ_nom`` low-passed over
+    ``time_constant`` s and shrunk by ``deadband`` m (``e (1 − deadband/‖e‖)⁺``). An error inside
+    the deadband gives the adapter the nominal DCM, hence the nominal step and timing; a push still
+    moves the landing by all of the error beyond it. Both zero: the measured DCM unchanged."""
+
+    def __init__(self, deadband: float = 0.0, time_constant: float = 0.0) -> None:
+        if not (math.isfinite(deadband) and deadband >= 0.0 and math.isfinite(time_constant) and time_constant >= 0.0):
+            raise ValueError(f"deadband and time_constant must be finite and >= 0, got {deadband}, {time_constant}")
+        self.deadband, self.time_constant = float(deadband), float(time_constant)
+        self._last: tuple[float, np.ndarray] | None = None
+
+    @property
+    def active(self) -> bool:
+        return self.deadband > 0.0 or self.time_constant > 0.0
+
+    def reset(self) -> None:
+        """Forget the filtered error (a new step, a new nominal reference)."""
+        self._last = None
+
+    def __call__(self, t: float, measured: np.ndarray, nominal: np.ndarray) -> np.ndarray:
+        error = np.asarray(measured, dtype=float)[:2] - np.asarray(nominal, dtype=float)[:2]
+        if self.time_constant > 0.0 and self._last is not None:
+            last_t, previous = self._last
+            dt = max(t - last_t, 0.0)
+            error = previous + dt / (self.time_constant + dt) * (error - previous)
+        self._last = (float(t), error)
+        size = float(np.linalg.norm(error))
+        return np.asarray(nominal, dtype=float)[:2] + error * (max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0)
+
+
+def bounded_box(box: tuple[tuple[float, float], tuple[float, float]], centre: np.ndarray, bound: float) -> tuple[tuple[float, float], tuple[float, float]]:
+    """``box`` ((x_lo, x_hi), (y_lo, y_hi)) cut to within ``bound`` of ``centre`` (clipped into the
+    box first) on each axis: the step adapter moves a planned landing at most ``bound``."""
+    if not math.isfinite(bound):
+        return box
+    axes = []
+    for (lo, hi), u in zip(box, centre):
+        middle = min(max(float(u), lo), hi)
+        axes.append((max(lo, middle - bound), min(hi, middle + bound)))
+    return axes[0], axes[1]
