@@ -244,3 +244,99 @@ def test_osqp_with_a_variable_in_no_constraint_and_the_guess_answering_a_repeate
     again = backend.solve(problem)
     assert again.message == "active-set guess" and again.iterations == 0
     np.testing.assert_allclose(again.x, [0.0, 1.0, 3.0], atol=1e-9)
+
+
+# --- the backends' contract: failures, reports, warm starts, in-place updates --------------------
+def _box_problem(target: np.ndarray, upper: np.ndarray, structure: int = 51) -> QpProblem:
+    """``min ½‖x − target‖²  s.t.  x ≤ upper`` row by row (no equality): the optimum is
+    ``min(target, upper)``, the multiplier of row i ``max(target_i − upper_i, 0)``."""
+    n = len(target)
+    return QpProblem(H=np.eye(n), g=-np.asarray(target, dtype=float), A=np.zeros((0, n)), b=np.zeros(0), C=np.eye(n),
+                     l=np.full(n, -np.inf), u=np.asarray(upper, dtype=float), structure=structure)  # fmt: skip
+
+
+def _timed(backend, problem: QpProblem):
+    import time  # (the caller's own clock: a backend's solve_time is part of the time it took)
+
+    start = time.perf_counter()
+    solution = backend.solve(problem)
+    return solution, time.perf_counter() - start
+
+
+ALL_BACKENDS = [
+    ("proxsuite", {}),
+    ("proxsuite", {"active_set_guess": False, "polish": False, "deterministic": False}),
+    ("osqp", {}),
+    ("osqp", {"active_set_guess": False}),
+    ("qpsolvers:osqp", {"eps_abs": 1e-9, "eps_rel": 1e-9, "polishing": True}),
+    ("qpsolvers:proxqp", {"eps_abs": 1e-9}),
+]
+ALL_IDS = ["proxsuite", "proxsuite-plain", "osqp", "osqp-plain", "qpsolvers-osqp", "qpsolvers-proxqp"]
+
+
+@pytest.mark.parametrize("name, settings", ALL_BACKENDS, ids=ALL_IDS)
+def test_a_malformed_problem_is_a_failed_solve_that_names_the_backend(name: str, settings: dict) -> None:
+    """A gradient of the wrong length (the backend's own library rejects it), first on a cold
+    backend, then on one warm for that structure: a FAILED solution, NaN of the problem's size,
+    the backend's name and its error in the message, no iteration, a solve time within the
+    caller's; the next good problem is solved."""
+    import warnings
+
+    backend = make_solver(name, **settings)
+    good = _box_problem([2.0, -1.0, 0.5], [1.0, 1.0, 1.0])
+    for warm in (False, True):
+        if warm:
+            assert backend.solve(good).ok
+        bad = good.copy()
+        bad.g = np.zeros(5)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            solution, elapsed = _timed(backend, bad)
+        assert solution.status is QpStatus.FAILED and not solution.ok
+        assert solution.x.shape == (3,) and np.all(np.isnan(solution.x))
+        assert solution.solver == backend.name and solution.message.startswith(f"{backend.name} error: ") and len(solution.message) > len(backend.name) + 8
+        assert solution.iterations == 0 and 0.0 < solution.solve_time <= elapsed
+        again = backend.solve(good)
+        assert again.ok and again.solver == backend.name
+        np.testing.assert_allclose(again.x, [1.0, -1.0, 0.5], atol=1e-6)
+
+
+@pytest.mark.parametrize("name, settings", ALL_BACKENDS, ids=ALL_IDS)
+def test_a_solved_problem_reports_its_backend_and_a_solve_time_within_the_callers(name: str, settings: dict) -> None:
+    """Solved twice (the second time through each backend's warm path — the active-set guess
+    where there is one): the optimum, SOLVED, the backend's name, a message saying which path
+    answered, and a solve time in (0, the caller's elapsed time]."""
+    backend = make_solver(name, **settings)
+    problem = _box_problem([2.0, -1.0, 0.5], [1.0, 1.0, 1.0])
+    guessing = getattr(backend, "guess", None) is not None
+    for attempt in range(2):
+        solution, elapsed = _timed(backend, problem)
+        assert solution.status is QpStatus.SOLVED and solution.solver == backend.name
+        np.testing.assert_allclose(solution.x, [1.0, -1.0, 0.5], atol=1e-6)
+        assert 0.0 < solution.solve_time <= elapsed
+        by_guess = attempt == 1 and guessing
+        assert solution.message == ("active-set guess" if by_guess else "")
+        if by_guess:
+            assert solution.iterations == 0
+            np.testing.assert_array_equal(solution.rows, problem.C @ solution.x)  # [A; C] x, the torques' source
+        elif name.startswith("qpsolvers"):
+            assert solution.iterations == 0  # (the one-shot path reports none)
+        elif name == "osqp":
+            assert solution.iterations > 0  # (proxsuite may solve this one in its initial factorisation: 0)
+
+
+@pytest.mark.parametrize("name", ["proxsuite", "osqp"])
+def test_the_guess_starts_from_the_active_set_the_backend_found(name: str) -> None:
+    """The backend's answer teaches the guess its active set, bound sides included (x₀ at its
+    upper limit with multiplier 0.5, x₂ at a lower limit with multiplier 2): the same problem
+    again is answered by the guess in a single KKT solve, with no correction step."""
+    settings = {**BACKENDS["proxsuite"], "polish": False, "deterministic": False} if name == "proxsuite" else {}
+    backend = make_solver(name, **settings)
+    problem = _box_problem([1.5, 0.2, -3.0], [1.0, 1.0, 1.0])
+    problem.l[2] = -1.0
+    first = backend.solve(problem)
+    np.testing.assert_allclose(first.x, [1.0, 0.2, -1.0], atol=1e-5)
+    backend.guess.steps = 1  # no correction allowed: the learned set must be right as it is
+    again = backend.solve(problem)
+    assert again.message == "active-set guess", again.message
+    np.testing.assert_allclose(again.x, [1.0, 0.2, -1.0], atol=1e-12)
