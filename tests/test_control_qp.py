@@ -210,6 +210,15 @@ def test_solvers_by_name() -> None:
         ProxsuiteSolver(max_iter=0)
     with pytest.raises(ValueError, match=r"^max_iter and max_iter_in must be >= 1, got 10, 0$"):
         ProxsuiteSolver(max_iter_in=0)
+    with pytest.raises(ValueError, match=r"^unknown proxsuite settings \['eps_absolute', 'verbosity'\]$"):
+        ProxsuiteSolver(verbosity=True, eps_absolute=1e-3, check_duality_gap=True)
+    # One outer and one inner iteration is a valid (if tiny) budget; a setting by name is used.
+    tiny = ProxsuiteSolver(max_iter=1, max_iter_in=1, active_set_guess=False, polish=False, deterministic=False)
+    assert tiny.solve(_box_problem([0.5, 0.5], [1.0, 1.0])).iterations <= 1 * (1 + 1)
+    # a duality gap of 1e-300 cannot be met: proxsuite runs out of iterations (the setting is passed on)
+    strict = make_solver("proxsuite", eps_abs=1e-9, check_duality_gap=True, eps_duality_gap_abs=1e-300, eps_duality_gap_rel=0.0,
+                         active_set_guess=False, polish=False, deterministic=False)  # fmt: skip
+    assert strict.solve(random_qp(np.random.default_rng(3))).status is QpStatus.MAX_ITER
 
 
 @pytest.mark.parametrize("name", ["proxsuite", "osqp", "qpsolvers:osqp"])
@@ -330,6 +339,8 @@ def test_a_solved_problem_reports_its_backend_and_a_solve_time_within_the_caller
             assert solution.iterations == 0  # (the one-shot path reports none)
         elif name == "osqp":
             assert solution.iterations > 0  # (proxsuite may solve this one in its initial factorisation: 0)
+        if name == "proxsuite" and not settings:  # polished: [A; C] x computed on the way
+            np.testing.assert_allclose(solution.rows[: problem.n_in], problem.C @ solution.x, atol=1e-12)
 
 
 @pytest.mark.parametrize("name", ["proxsuite", "osqp"])
@@ -475,6 +486,10 @@ def test_the_qpsolvers_path_warm_starts_from_its_previous_answer_and_maps_infini
         free.ub[optimum < 0.999] = np.inf
         x = make_solver("qpsolvers:osqp", **BACKENDS["qpsolvers:osqp"]).solve(free).x
         np.testing.assert_allclose(x, optimum, atol=1e-5)
+        infeasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([1.0]), C=np.ones((1, 1)),
+                               l=np.array([2.0]), u=np.array([3.0]), structure=21)  # fmt: skip
+        failed = make_solver("qpsolvers:osqp").solve(infeasible)
+        assert failed.status is QpStatus.FAILED and failed.message == "osqp: no solution found" and np.all(np.isnan(failed.x))
         proxqp = make_solver("qpsolvers:proxqp", eps_abs=1e-9)
         for problem in shapes_of_qps(np.random.default_rng(8)):
             solution = proxqp.solve(problem)
@@ -537,3 +552,59 @@ def test_proxsuite_flags_on_a_qp_with_a_direction_of_zero_curvature() -> None:
     for settings in ({"polish": False}, {"deterministic": False}, {"polish": False, "deterministic": False}):
         solved = make_solver("proxsuite", **settings).solve(problem())
         assert solved.status is QpStatus.SOLVED and abs(solved.x[0] - 0.5) < 1e-5, settings
+        assert solved.rows is None or np.allclose(solved.rows[:1], solved.x[:1])
+    # Warm from a regular problem of the same structure: the warm solve's answer fails, the cold
+    # retry's too; the tick reports the iterations of both.
+    backend = make_solver("proxsuite")
+    regular = problem()
+    regular.H = np.eye(2)
+    assert backend.solve(regular).ok
+    cold = make_solver("proxsuite").solve(problem())
+    failed = backend.solve(problem())
+    assert failed.status is QpStatus.FAILED and failed.message == cold.message
+    assert failed.iterations >= cold.iterations > 0
+
+
+def test_the_backends_print_nothing(capfd) -> None:
+    for name, settings in ALL_BACKENDS[:4]:
+        assert make_solver(name, **settings).solve(random_qp(np.random.default_rng(14))).ok
+    captured = capfd.readouterr()
+    assert captured.out == "" and captured.err == ""
+
+
+def test_the_guess_counts_its_work_and_reads_equality_rows_given_as_two_sided_limits() -> None:
+    """``tries``/``hits`` count :meth:`try_solve` calls and answers, ``polished``/``polish_failures``
+    the polishes; a row with ``l = u`` (an equality written as an inequality) takes a multiplier
+    of either sign: with no correction step allowed, the guess accepts its polished set whether
+    the row holds x₀ up or down. The unregularised KKT solve is exact; a duplicated row is
+    solved regularised."""
+    inf = np.inf
+    for target in (0.0, 1.0):  # the row holds x₀ up, then down
+        # min ½‖x − (target, 1, 0)‖²  s.t.  x₁ + x₂ = 1 (an equality), 0.5 ≤ x₀ ≤ 0.5
+        p = QpProblem(H=np.eye(3), g=-np.array([target, 1.0, 0.0]), A=np.array([[0.0, 1.0, 1.0]]), b=np.ones(1),
+                      C=np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), l=np.array([0.5, -inf]), u=np.array([0.5, 2.0]), structure=91)  # fmt: skip
+        optimum = np.array([0.5, 1.0, 0.0])
+        guess = ActiveSetGuess(steps=1, polish_steps=1)
+        x = guess.polish(p, optimum)
+        assert x is not None, target
+        np.testing.assert_allclose(x, optimum, atol=1e-9)
+        again = guess.try_solve(p)
+        assert again is not None and np.abs(again - optimum).max() < 1e-14
+        assert (guess.tries, guess.hits, guess.polished, guess.polish_failures) == (1, 1, 1, 0)
+    singular = QpProblem(H=np.diag([1.0, 0.0]), g=np.array([-1.0, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0]]),
+                         l=np.array([-inf]), u=np.array([0.5]), structure=92)  # fmt: skip
+    guess = ActiveSetGuess()
+    assert guess.polish(singular, np.array([0.5, 0.0])) is None and guess.try_solve(singular) is None
+    assert (guess.tries, guess.hits, guess.polished, guess.polish_failures) == (1, 0, 0, 1)
+    # From an empty active set: x₀ ≤ 1 added, solved without regularisation (exact, with λ = 1e4 − 1).
+    far = QpProblem(H=np.eye(2), g=np.array([-1e4, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.eye(2),
+                    l=np.array([-inf, -inf]), u=np.array([1.0, 0.5]), structure=93)  # fmt: skip
+    x = ActiveSetGuess().try_solve(far)
+    assert x is not None and abs(x[0] - 1.0) < 1e-12 and abs(x[1]) < 1e-12
+    # The same row twice: singular, solved again regularised within the same step budget.
+    twice = QpProblem(H=np.eye(2), g=np.array([-1e4, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                      l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=94)  # fmt: skip
+    guess = ActiveSetGuess()
+    assert guess.polish(twice, np.array([1.0, 0.0])) is not None
+    x = guess.try_solve(twice)
+    assert x is not None and abs(x[0] - 1.0) < 1e-6 and twice.violation(x) < 1e-8
