@@ -601,6 +601,9 @@ def test_the_guess_counts_its_work_and_reads_equality_rows_given_as_two_sided_li
                     l=np.array([-inf, -inf]), u=np.array([1.0, 0.5]), structure=93)  # fmt: skip
     x = ActiveSetGuess().try_solve(far)
     assert x is not None and abs(x[0] - 1.0) < 1e-12 and abs(x[1]) < 1e-12
+    far.g, far.l = np.array([1e4, 0.0]), np.array([-1.0, -inf])  # and a lower limit, x₀ ≥ −1
+    x = ActiveSetGuess().try_solve(far)
+    assert x is not None and abs(x[0] + 1.0) < 1e-12 and abs(x[1]) < 1e-12
     # The same row twice: singular, solved again regularised within the same step budget.
     twice = QpProblem(H=np.eye(2), g=np.array([-1e4, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
                       l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=94)  # fmt: skip
