@@ -180,6 +180,13 @@ def test_one_backend_instance_solves_a_stream_of_qps_of_changing_shapes(name: st
             problem.b[...] += rng.normal(scale=0.01, size=problem.n_eq)
             problem.l[...] -= 0.05
             problem.u[...] += 0.05
+            # and the matrices and the variable bounds, in place, within their sparsity patterns
+            problem.H[...] += 0.1 * np.eye(problem.n)
+            problem.A[...] *= 1.01
+            problem.C[...] *= 0.99
+            if problem.lb is not None:
+                problem.lb[...] -= 0.02
+                problem.ub[...] -= 0.02
 
 
 def _with_infinite_bounds(p: QpProblem) -> QpProblem:
@@ -203,6 +210,15 @@ def test_solvers_by_name() -> None:
         ProxsuiteSolver(max_iter=0)
     with pytest.raises(ValueError, match=r"^max_iter and max_iter_in must be >= 1, got 10, 0$"):
         ProxsuiteSolver(max_iter_in=0)
+    with pytest.raises(ValueError, match=r"^unknown proxsuite settings \['eps_absolute', 'verbosity'\]$"):
+        ProxsuiteSolver(verbosity=True, eps_absolute=1e-3, check_duality_gap=True)
+    # One outer and one inner iteration is a valid (if tiny) budget; a setting by name is used.
+    tiny = ProxsuiteSolver(max_iter=1, max_iter_in=1, active_set_guess=False, polish=False, deterministic=False)
+    assert tiny.solve(_box_problem([0.5, 0.5], [1.0, 1.0])).iterations <= 1 * (1 + 1)
+    # a duality gap of 1e-300 cannot be met: proxsuite runs out of iterations (the setting is passed on)
+    strict = make_solver("proxsuite", eps_abs=1e-9, check_duality_gap=True, eps_duality_gap_abs=1e-300, eps_duality_gap_rel=0.0,
+                         active_set_guess=False, polish=False, deterministic=False)  # fmt: skip
+    assert strict.solve(random_qp(np.random.default_rng(3))).status is QpStatus.MAX_ITER
 
 
 @pytest.mark.parametrize("name", ["proxsuite", "osqp", "qpsolvers:osqp"])
@@ -244,3 +260,354 @@ def test_osqp_with_a_variable_in_no_constraint_and_the_guess_answering_a_repeate
     again = backend.solve(problem)
     assert again.message == "active-set guess" and again.iterations == 0
     np.testing.assert_allclose(again.x, [0.0, 1.0, 3.0], atol=1e-9)
+
+
+# --- the backends' contract: failures, reports, warm starts, in-place updates --------------------
+def _box_problem(target: np.ndarray, upper: np.ndarray, structure: int = 51) -> QpProblem:
+    """``min ½‖x − target‖²  s.t.  x ≤ upper`` row by row (no equality): the optimum is
+    ``min(target, upper)``, the multiplier of row i ``max(target_i − upper_i, 0)``."""
+    n = len(target)
+    return QpProblem(H=np.eye(n), g=-np.asarray(target, dtype=float), A=np.zeros((0, n)), b=np.zeros(0), C=np.eye(n),
+                     l=np.full(n, -np.inf), u=np.asarray(upper, dtype=float), structure=structure)  # fmt: skip
+
+
+def _timed(backend, problem: QpProblem):
+    import time  # (the caller's own clock: a backend's solve_time is part of the time it took)
+
+    start = time.perf_counter()
+    solution = backend.solve(problem)
+    return solution, time.perf_counter() - start
+
+
+ALL_BACKENDS = [
+    ("proxsuite", {}),
+    ("proxsuite", {"active_set_guess": False, "polish": False, "deterministic": False}),
+    ("osqp", {}),
+    ("osqp", {"active_set_guess": False}),
+    ("qpsolvers:osqp", {"eps_abs": 1e-9, "eps_rel": 1e-9, "polishing": True}),
+    ("qpsolvers:proxqp", {"eps_abs": 1e-9}),
+]
+ALL_IDS = ["proxsuite", "proxsuite-plain", "osqp", "osqp-plain", "qpsolvers-osqp", "qpsolvers-proxqp"]
+
+
+@pytest.mark.parametrize("name, settings", ALL_BACKENDS, ids=ALL_IDS)
+def test_a_malformed_problem_is_a_failed_solve_that_names_the_backend(name: str, settings: dict) -> None:
+    """A gradient of the wrong length (the backend's own library rejects it), first on a cold
+    backend, then on one warm for that structure: a FAILED solution, NaN of the problem's size,
+    the backend's name and its error in the message, no iteration, a solve time within the
+    caller's; the next good problem is solved."""
+    import warnings
+
+    backend = make_solver(name, **settings)
+    good = _box_problem([2.0, -1.0, 0.5], [1.0, 1.0, 1.0])
+    for warm in (False, True):
+        if warm:
+            assert backend.solve(good).ok
+        bad = good.copy()
+        bad.g = np.zeros(5)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            solution, elapsed = _timed(backend, bad)
+        assert solution.status is QpStatus.FAILED and not solution.ok
+        assert solution.x.shape == (3,) and np.all(np.isnan(solution.x))
+        assert solution.solver == backend.name and solution.message.startswith(f"{backend.name} error: ") and len(solution.message) > len(backend.name) + 8
+        assert solution.iterations == 0 and 0.0 < solution.solve_time <= elapsed
+        again = backend.solve(good)
+        assert again.ok and again.solver == backend.name
+        np.testing.assert_allclose(again.x, [1.0, -1.0, 0.5], atol=1e-6)
+
+
+@pytest.mark.parametrize("name, settings", ALL_BACKENDS, ids=ALL_IDS)
+def test_a_solved_problem_reports_its_backend_and_a_solve_time_within_the_callers(name: str, settings: dict) -> None:
+    """Solved twice (the second time through each backend's warm path — the active-set guess
+    where there is one): the optimum, SOLVED, the backend's name, a message saying which path
+    answered, and a solve time in (0, the caller's elapsed time]."""
+    backend = make_solver(name, **settings)
+    problem = _box_problem([2.0, -1.0, 0.5], [1.0, 1.0, 1.0])
+    guessing = getattr(backend, "guess", None) is not None
+    for attempt in range(2):
+        solution, elapsed = _timed(backend, problem)
+        assert solution.status is QpStatus.SOLVED and solution.solver == backend.name
+        np.testing.assert_allclose(solution.x, [1.0, -1.0, 0.5], atol=1e-6)
+        assert 0.0 < solution.solve_time <= elapsed
+        by_guess = attempt == 1 and guessing
+        assert solution.message == ("active-set guess" if by_guess else "")
+        if by_guess:
+            assert solution.iterations == 0
+            np.testing.assert_array_equal(solution.rows, problem.C @ solution.x)  # [A; C] x, the torques' source
+        elif name.startswith("qpsolvers"):
+            assert solution.iterations == 0  # (the one-shot path reports none)
+        elif name == "osqp":
+            assert solution.iterations > 0  # (proxsuite may solve this one in its initial factorisation: 0)
+        if name == "proxsuite" and not settings:  # polished: [A; C] x computed on the way
+            np.testing.assert_allclose(solution.rows[: problem.n_in], problem.C @ solution.x, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["proxsuite", "osqp"])
+def test_the_guess_starts_from_the_active_set_the_backend_found(name: str) -> None:
+    """The backend's answer teaches the guess its active set, bound sides included (x₀ at its
+    upper limit with multiplier 0.5, x₂ at a lower limit with multiplier 2): the same problem
+    again is answered by the guess in a single KKT solve, with no correction step."""
+    settings = {**BACKENDS["proxsuite"], "polish": False, "deterministic": False} if name == "proxsuite" else {}
+    backend = make_solver(name, **settings)
+    problem = _box_problem([1.5, 0.2, -3.0], [1.0, 1.0, 1.0])
+    problem.l[2] = -1.0
+    first = backend.solve(problem)
+    np.testing.assert_allclose(first.x, [1.0, 0.2, -1.0], atol=1e-5)
+    backend.guess.steps = 1  # no correction allowed: the learned set must be right as it is
+    again = backend.solve(problem)
+    assert again.message == "active-set guess", again.message
+    np.testing.assert_allclose(again.x, [1.0, 0.2, -1.0], atol=1e-12)
+
+
+def test_settle_returns_the_kkt_point_of_the_rows_tight_at_a_point_when_it_is_feasible() -> None:
+    """``settle``: the rows within ``slack`` (default 1e-5) of a bound at the given point become
+    equalities; their KKT point is returned when it satisfies every row to ``feasibility``
+    (default 1e-6), computed without regularisation when the rows are independent (exact) and
+    with it when they are not (a duplicated row)."""
+    inf = np.inf
+    # min ½‖x − (1e4, 0)‖², x₀ ≤ 1, x₁ ≤ 0.5; at (1 − 1e-7, 0) only x₀ ≤ 1 is tight: the answer
+    # is (1, 0), exactly (a regularised solve would be off by 1e-12 · λ = 1e-8).
+    p = QpProblem(H=np.eye(2), g=np.array([-1e4, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.eye(2),
+                  l=np.array([-inf, -inf]), u=np.array([1.0, 0.5]), structure=61)  # fmt: skip
+    x = ActiveSetGuess().settle(p, np.array([1.0 - 1e-7, 0.0]))
+    assert x is not None and abs(x[0] - 1.0) < 1e-12 and abs(x[1]) < 1e-12
+    # The same row twice: a singular KKT system, settled by the regularised solve.
+    twice = QpProblem(H=np.eye(2), g=np.array([-1e4, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                      l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=62)  # fmt: skip
+    x = ActiveSetGuess().settle(twice, np.array([1.0 - 1e-7, 0.0]))
+    assert x is not None and abs(x[0] - 1.0) < 1e-6 and twice.violation(x) <= 1e-6
+    # x₀ + x₁ ≤ 0.999 is not tight at (1 − 1e-7, −0.01) but the KKT point (1, 0) violates it by
+    # 1e-3: refused at the default feasibility, accepted at 1e-2.
+    p.C = np.array([[1.0, 0.0], [1.0, 1.0]])
+    p.u = np.array([1.0, 0.999])
+    point = np.array([1.0 - 1e-7, -0.01])
+    assert ActiveSetGuess().settle(p, point) is None
+    x = ActiveSetGuess().settle(p, point, feasibility=1e-2)
+    assert x is not None and abs(x[0] - 1.0) < 1e-12 and abs(x[1]) < 1e-12
+
+
+def _controller_layout(p: QpProblem) -> QpProblem:
+    """``p`` with ``A`` and ``C`` views of one buffer and ``l``, ``u`` views of another, as the
+    controller lays them out (the guess then reads them through views spanning both)."""
+    rows = np.vstack([p.A, p.C])
+    limits = np.concatenate([p.l, p.u])
+    ne, ni = p.n_eq, p.n_in
+    return QpProblem(H=p.H.copy(), g=p.g.copy(), A=rows[:ne], b=p.b.copy(), C=rows[ne:], l=limits[:ni], u=limits[ni:], structure=p.structure)
+
+
+@pytest.mark.parametrize("layout", ["controller", "separate", "bounded"])
+def test_the_guess_reads_each_problem_as_itself_whatever_its_layout_and_in_place_changes(layout: str) -> None:
+    """One guess, two problems of the same sizes and different data used in turn, each changed
+    in place between solves (limits, rows, gradient) the way the controller refills its buffers:
+    every answer the guess gives is the optimum of the problem as it is now (checked against an
+    accurate proxsuite solve), never one read from stale or foreign arrays."""
+    rng = np.random.default_rng(12)
+    reference = make_solver("proxsuite", **BACKENDS["proxsuite"], active_set_guess=False, polish=False, deterministic=False)
+
+    def made(seed_rng: np.random.Generator) -> QpProblem:
+        p = random_qp(seed_rng, n=6, n_eq=2, n_in=5, structure=71)
+        if layout == "bounded":
+            return p
+        p.lb = p.ub = None
+        p.l, p.u = p.l - 0.3, p.u + 0.3
+        return _controller_layout(p) if layout == "controller" else p
+
+    problems = [made(rng), made(rng)]
+    guess = ActiveSetGuess()
+    answered = 0
+    for round_ in range(3):
+        for p in problems:
+            optimum = reference.solve(p.copy()).x
+            polished = guess.polish(p, optimum)
+            assert polished is not None
+            np.testing.assert_allclose(polished, optimum, atol=1e-6)
+            again = guess.try_solve(p)  # the polished active set, the same problem: answered
+            assert again is not None
+            np.testing.assert_allclose(again, polished, atol=1e-10)
+            # in place, small: the same active set, a new optimum that the guess must find
+            p.g[...] += rng.normal(scale=1e-3, size=p.n)
+            p.b[...] += 1e-3
+            p.l[...] -= 1e-3 * (round_ + 1)
+            p.u[...] += 1e-3 * (round_ + 1)
+            p.A[...] *= 1.001
+            p.C[...] *= 0.999
+            moved = guess.try_solve(p)
+            assert moved is not None
+            np.testing.assert_allclose(moved, reference.solve(p.copy()).x, atol=1e-6)
+            assert p.violation(moved) < 1e-9 and kkt_residual(_with_infinite_bounds(p) if p.lb is None else p, moved) < 1e-7
+            answered += 1
+    assert answered == 6
+
+
+def test_a_qp_problem_copies_validates_and_measures_its_violations() -> None:
+    rng = np.random.default_rng(13)
+    p = shapes_of_qps(rng)[4]  # with patterns and bounds
+    copy = p.copy()
+    for name in ("H", "g", "A", "b", "C", "l", "u", "lb", "ub", "H_pattern", "AC_pattern"):
+        original, copied = getattr(p, name), getattr(copy, name)
+        np.testing.assert_array_equal(copied, original, err_msg=name)
+        assert copied is not original and not np.shares_memory(copied, original), name
+    assert copy.structure == p.structure
+    # Variable bounds alone: 0.3 below a lower bound, then 0.2 above an upper one.
+    box = QpProblem(H=np.eye(2), g=np.zeros(2), A=np.zeros((0, 2)), b=np.zeros(0), C=np.zeros((0, 2)), l=np.zeros(0), u=np.zeros(0),
+                    lb=np.array([-1.0, -1.0]), ub=np.array([1.0, 1.0]))  # fmt: skip
+    assert box.violation(np.array([-1.3, 0.0])) == pytest.approx(0.3)
+    assert box.violation(np.array([0.0, 1.2])) == pytest.approx(0.2)
+    assert box.violation(np.array([0.5, -0.5])) == 0.0
+    box.validate()
+    box.lb = np.zeros(3)
+    with pytest.raises(ValueError, match=r"^QP lb has shape \(3,\), expected \(2,\)$"):
+        box.validate()
+    box.lb, box.ub = np.zeros(2), None
+    with pytest.raises(ValueError, match=r"^QP ub has shape None, expected \(2,\)$"):
+        box.validate()
+
+
+def test_the_qpsolvers_path_warm_starts_from_its_previous_answer_and_maps_infinite_bounds() -> None:
+    """At a loose tolerance without polishing, OSQP's answer depends on where it starts: the same
+    problem solved again from the previous answer comes closer to the optimum (a cold start
+    would repeat the first answer bit for bit). Infinite variable bounds reach qpsolvers as
+    ±1e20 (no bound), and a backend that checks its start (proxqp) takes no start of another
+    size."""
+    import warnings
+
+    p = random_qp(np.random.default_rng(3))
+    optimum = make_solver("proxsuite", **BACKENDS["proxsuite"]).solve(p.copy()).x
+    loose = make_solver("qpsolvers:osqp", eps_abs=1e-3, eps_rel=1e-3, polishing=False, max_iter=50000)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first, second = loose.solve(p).x, loose.solve(p).x
+        assert not np.array_equal(first, second)
+        assert np.abs(second - optimum).max() < np.abs(first - optimum).max()
+        # lb = (−inf, …): free below, the optimum unchanged where those bounds were not active
+        free = p.copy()
+        free.lb[optimum > -0.999] = -np.inf
+        free.ub[optimum < 0.999] = np.inf
+        x = make_solver("qpsolvers:osqp", **BACKENDS["qpsolvers:osqp"]).solve(free).x
+        np.testing.assert_allclose(x, optimum, atol=1e-5)
+        infeasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([1.0]), C=np.ones((1, 1)),
+                               l=np.array([2.0]), u=np.array([3.0]), structure=21)  # fmt: skip
+        failed = make_solver("qpsolvers:osqp").solve(infeasible)
+        assert failed.status is QpStatus.FAILED and failed.message == "osqp: no solution found" and np.all(np.isnan(failed.x))
+        proxqp = make_solver("qpsolvers:proxqp", eps_abs=1e-9)
+        for problem in shapes_of_qps(np.random.default_rng(8)):
+            solution = proxqp.solve(problem)
+            assert solution.ok, solution.message
+            assert problem.violation(solution.x) < 1e-6
+
+
+def test_osqp_settings_silence_accuracy_and_warm_start(capfd) -> None:
+    """The OSQP backend prints nothing; its default answer is exact (polished: KKT to 1e-10);
+    unpolished it is still accurate to its default 1e-6 tolerances; without the guess the same
+    problem is re-solved warm (fewer iterations), never through the guess; a time limit it
+    cannot meet is a FAILED solve and an infeasible problem PRIMAL_INFEASIBLE, with the
+    iterations it ran."""
+    p = random_qp(np.random.default_rng(4))
+    exact = make_solver("osqp").solve(p)
+    assert exact.ok and p.violation(exact.x) < 1e-10 and kkt_residual(p, exact.x) < 1e-10
+    rough = make_solver("osqp", polishing=False).solve(p)
+    assert rough.ok and p.violation(rough.x) < 1e-5 and kkt_residual(p, rough.x) < 1e-4
+    plain = make_solver("osqp", active_set_guess=False)
+    runs = [plain.solve(p) for _ in range(3)]
+    assert all(run.message == "" for run in runs) and runs[1].iterations < runs[0].iterations
+    slow = make_solver("osqp", time_limit=1e-9, active_set_guess=False).solve(random_qp(np.random.default_rng(5), n=30, n_eq=3, n_in=40))
+    assert slow.status is QpStatus.FAILED and slow.message == "osqp: run time limit reached"
+    infeasible = QpProblem(H=np.eye(1), g=np.zeros(1), A=np.ones((1, 1)), b=np.array([1.0]), C=np.ones((1, 1)),
+                           l=np.array([2.0]), u=np.array([3.0]), structure=21)  # fmt: skip
+    for settings in ({}, {"active_set_guess": False}):
+        failed = make_solver("osqp", **settings).solve(infeasible)
+        assert failed.status is QpStatus.PRIMAL_INFEASIBLE and failed.message == "osqp: primal infeasible"
+        assert type(failed.iterations) is int and failed.iterations > 0
+    captured = capfd.readouterr()
+    assert captured.out == "" and captured.err == ""
+
+
+def test_osqp_with_a_sparsity_pattern_whose_last_variable_is_in_no_constraint() -> None:
+    """An empty last column in the constraint pattern (the last variable in no row, no bounds):
+    the optimum is still found, the free variable at its unconstrained optimum."""
+    problem = QpProblem(H=np.eye(3), g=-np.array([1.0, 2.0, 3.0]), A=np.array([[1.0, 1.0, 0.0]]), b=np.ones(1),
+                        C=np.array([[1.0, 0.0, 0.0]]), l=np.array([-np.inf]), u=np.array([0.3]), structure=42,
+                        AC_pattern=np.array([[True, True, False], [True, False, False]]), H_pattern=np.eye(3, dtype=bool))  # fmt: skip
+    solution = make_solver("osqp", **BACKENDS["osqp"]).solve(problem)
+    assert solution.ok, solution.message
+    np.testing.assert_allclose(solution.x, [0.0, 1.0, 3.0], atol=1e-6)
+
+
+def test_proxsuite_flags_on_a_qp_with_a_direction_of_zero_curvature() -> None:
+    """min ½x₀² − x₀ s.t. x₀ ≤ 0.5, with x₁ in no constraint and no cost: optimal for any x₁,
+    no KKT system is regular. By default (polish, deterministic) that is a FAILED solve, never
+    an arbitrary point: NaN, the reason in the message, the iterations proxsuite ran. With
+    ``polish=False`` or ``deterministic=False`` proxsuite's own solution is returned."""
+    def problem() -> QpProblem:
+        return QpProblem(H=np.diag([1.0, 0.0]), g=np.array([-1.0, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0]]),
+                         l=np.array([-np.inf]), u=np.array([0.5]), structure=81)  # fmt: skip
+
+    for settings in ({}, {"active_set_guess": False}):
+        backend = make_solver("proxsuite", **settings)
+        failed, elapsed = _timed(backend, problem())
+        assert failed.status is QpStatus.FAILED and np.all(np.isnan(failed.x)) and failed.x.shape == (2,)
+        assert failed.message == "proxsuite: solved, but no KKT point near its iterate is feasible"
+        assert type(failed.iterations) is int and failed.iterations > 0 and 0.0 < failed.solve_time <= elapsed
+    for settings in ({"polish": False}, {"deterministic": False}, {"polish": False, "deterministic": False}):
+        solved = make_solver("proxsuite", **settings).solve(problem())
+        assert solved.status is QpStatus.SOLVED and abs(solved.x[0] - 0.5) < 1e-5, settings
+        assert solved.rows is None or np.allclose(solved.rows[:1], solved.x[:1])
+    # Warm from a regular problem of the same structure: the warm solve's answer fails, the cold
+    # retry's too; the tick reports the iterations of both.
+    backend = make_solver("proxsuite")
+    regular = problem()
+    regular.H = np.eye(2)
+    assert backend.solve(regular).ok
+    cold = make_solver("proxsuite").solve(problem())
+    failed = backend.solve(problem())
+    assert failed.status is QpStatus.FAILED and failed.message == cold.message
+    assert failed.iterations >= cold.iterations > 0
+
+
+def test_the_backends_print_nothing(capfd) -> None:
+    for name, settings in ALL_BACKENDS[:4]:
+        assert make_solver(name, **settings).solve(random_qp(np.random.default_rng(14))).ok
+    captured = capfd.readouterr()
+    assert captured.out == "" and captured.err == ""
+
+
+def test_the_guess_counts_its_work_and_reads_equality_rows_given_as_two_sided_limits() -> None:
+    """``tries``/``hits`` count :meth:`try_solve` calls and answers, ``polished``/``polish_failures``
+    the polishes; a row with ``l = u`` (an equality written as an inequality) takes a multiplier
+    of either sign: with no correction step allowed, the guess accepts its polished set whether
+    the row holds x₀ up or down. The unregularised KKT solve is exact; a duplicated row is
+    solved regularised."""
+    inf = np.inf
+    for target in (0.0, 1.0):  # the row holds x₀ up, then down
+        # min ½‖x − (target, 1, 0)‖²  s.t.  x₁ + x₂ = 1 (an equality), 0.5 ≤ x₀ ≤ 0.5
+        p = QpProblem(H=np.eye(3), g=-np.array([target, 1.0, 0.0]), A=np.array([[0.0, 1.0, 1.0]]), b=np.ones(1),
+                      C=np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), l=np.array([0.5, -inf]), u=np.array([0.5, 2.0]), structure=91)  # fmt: skip
+        optimum = np.array([0.5, 1.0, 0.0])
+        guess = ActiveSetGuess(steps=1, polish_steps=1)
+        x = guess.polish(p, optimum)
+        assert x is not None, target
+        np.testing.assert_allclose(x, optimum, atol=1e-9)
+        again = guess.try_solve(p)
+        assert again is not None and np.abs(again - optimum).max() < 1e-14
+        assert (guess.tries, guess.hits, guess.polished, guess.polish_failures) == (1, 1, 1, 0)
+    singular = QpProblem(H=np.diag([1.0, 0.0]), g=np.array([-1.0, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0]]),
+                         l=np.array([-inf]), u=np.array([0.5]), structure=92)  # fmt: skip
+    guess = ActiveSetGuess()
+    assert guess.polish(singular, np.array([0.5, 0.0])) is None and guess.try_solve(singular) is None
+    assert (guess.tries, guess.hits, guess.polished, guess.polish_failures) == (1, 0, 0, 1)
+    # From an empty active set: x₀ ≤ 1 added, solved without regularisation (exact, with λ = 1e4 − 1).
+    far = QpProblem(H=np.eye(2), g=np.array([-1e4, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.eye(2),
+                    l=np.array([-inf, -inf]), u=np.array([1.0, 0.5]), structure=93)  # fmt: skip
+    x = ActiveSetGuess().try_solve(far)
+    assert x is not None and abs(x[0] - 1.0) < 1e-12 and abs(x[1]) < 1e-12
+    far.g, far.l = np.array([1e4, 0.0]), np.array([-1.0, -inf])  # and a lower limit, x₀ ≥ −1
+    x = ActiveSetGuess().try_solve(far)
+    assert x is not None and abs(x[0] + 1.0) < 1e-12 and abs(x[1]) < 1e-12
+    # The same row twice: singular, solved again regularised within the same step budget.
+    twice = QpProblem(H=np.eye(2), g=np.array([-1e4, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                      l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=94)  # fmt: skip
+    guess = ActiveSetGuess()
+    assert guess.polish(twice, np.array([1.0, 0.0])) is not None
+    x = guess.try_solve(twice)
+    assert x is not None and abs(x[0] - 1.0) < 1e-6 and twice.violation(x) < 1e-8

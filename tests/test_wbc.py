@@ -138,6 +138,35 @@ def test_standing_still_carries_exactly_the_weight(g1, g1_model, solver):
     assert np.max(np.abs(result.qdd)) < 1e-3
 
 
+def test_the_contact_force_regularisation_is_on_by_default_and_its_absence_is_named(g1, g1_model, rng):
+    """Without a force regularisation the two feet's forces are not unique (a singular Hessian)
+    and proxsuite finds no KKT point on the G1: the controller therefore has one from
+    construction — no ``add_task`` needed — and every tick solves with the weight shared by the
+    feet; removed, every tick fails and the message names the missing regularisation."""
+    wbc = WholeBodyController(g1_model, torque_limits=g1.effort_limits)
+    for contact in foot_contacts(g1, mu=0.8):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask(weight=10.0, kp=100.0))
+    wbc.add_task(FrameOrientationTask("pelvis", kp=100.0))
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+    weight = wbc.kin.mass * 9.81
+    for tick in range(4):
+        q, v = random_state(g1, g1_model, rng, scale=0.02, speed=0.1) if tick else (g1.default_configuration(), np.zeros(g1_model.nv))
+        result = wbc.update(q, v)
+        assert result.ok, result.failure()
+        assert np.max(np.abs(eom_residual(wbc, result))) < 1e-5 * weight
+    standing = wbc.update(g1.default_configuration(), np.zeros(g1_model.nv))
+    normals = [wbc.contact_wrench_world(name, standing)[2] for name in ("left_foot", "right_foot")]
+    assert normals[0] == pytest.approx(weight / 2, rel=0.05) and normals[1] == pytest.approx(weight / 2, rel=0.05)
+    wbc.remove_task("contact_forces")
+    wbc.reset()
+    for _ in range(2):
+        failed = wbc.update(g1.default_configuration(), np.zeros(g1_model.nv))
+        assert not failed.ok and "no contact-force regularisation" in failed.message
+    wbc.add_task(ContactForceRegularization(weight=1e-5))
+    assert wbc.update(g1.default_configuration(), np.zeros(g1_model.nv)).ok
+
+
 # --- computed torque on closed-form fixed-base models -------------------------------------------
 @pytest.mark.parametrize("solver", SOLVERS)
 @pytest.mark.parametrize("params", [SimplePendulum.uniform_rod(), DoublePendulum(), CartPole()], ids=lambda p: type(p).__name__)

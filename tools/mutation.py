@@ -40,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRATCH = ROOT / ".mutation"
 EQUIVALENTS = ROOT / "tests" / "mutation_equivalents.md"
 COPIED = ("giwbc", "tests", "robots", "policies")
-KILLED = {"killed", "timeout", "caught by type check"}
+KILLED = {"killed", "timeout", "caught by type check", "segfault"}  # a crashed test run detected the mutant too
 
 
 @dataclass(frozen=True)

@@ -163,6 +163,12 @@ class WholeBodyController:
     impedance_kp, impedance_kd, impedance_lookahead: the impedance output (module docstring).
     fallback_decay: factor applied to the last good torques per failed tick.
     fallback_kd: damping of the fallback impedance command (default: ``impedance_kd``).
+
+    A :class:`ContactForceRegularization` (weight 1e-5, the weight shared by the contacts) is on
+    from construction: with two or more contacts the forces are otherwise not unique (the QP's
+    Hessian is singular in the internal forces) and proxsuite finds no KKT point on the G1 at any
+    tick. :meth:`add_task` with another one replaces it; after :meth:`remove_task` of it, a failed
+    tick's message says that it is missing.
     """
 
     def __init__(
@@ -220,7 +226,7 @@ class WholeBodyController:
         self.fallback_kd = self.impedance_kd.copy() if fallback_kd is None else _as_joint_array(fallback_kd, nj, "fallback_kd")
 
         self.tasks: list[WbcTask] = []
-        self.force_regularization: ContactForceRegularization | None = None
+        self.force_regularization: ContactForceRegularization | None = ContactForceRegularization()
         self.contact_set = ContactSet(self.kin)
         self._structure = 0
         self._layout_dirty = True
@@ -535,7 +541,7 @@ class WholeBodyController:
         solution = self.solver.solve(self.problem)  # type: ignore[arg-type]
         t_solve = clock()
         if not solution.ok:
-            return self._fallback(q, v, t, WbcStatus.QP_FAILED, solution, solution.message, start, timings=(t_pin, t_build, t_solve))
+            return self._fallback(q, v, t, WbcStatus.QP_FAILED, solution, self._failure_message(solution), start, timings=(t_pin, t_build, t_solve))
         x = solution.x
         nv = self.nv
         rows = solution.rows
@@ -555,6 +561,15 @@ class WholeBodyController:
             WbcTimings(t_pin - start, t_build - t_pin, t_solve - t_build, end - start),
             q[kin.joint_q].copy(), v[kin.joint_v].copy(), self._gains,
         )
+
+    def _failure_message(self, solution: QpSolution) -> str:
+        """The backend's message; with contact forces but no (or a zero-weight) force
+        regularisation, also the likely cause: forces that are not unique."""
+        reg = self.force_regularization
+        if self.problem is not None and self.problem.n > self.nv and (reg is None or reg.weight == 0.0):
+            return (f"{solution.message} (no contact-force regularisation: with several contacts the forces are not unique;"
+                    " add a ContactForceRegularization)")
+        return solution.message
 
     def _fallback(
         self,

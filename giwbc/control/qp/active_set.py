@@ -78,7 +78,9 @@ class ActiveSetGuess:
 
     def learn(self, problem: QpProblem, x: np.ndarray, z: np.ndarray) -> None:
         """Active set of a solution from its inequality multipliers ``z`` (rows of ``C``, then
-        the variable bounds; positive: upper bound)."""
+        the variable bounds; positive: upper bound). The problem's layout is prepared first: a
+        new layout would otherwise discard the set at the next :meth:`try_solve`."""
+        self._prepare(problem)
         active = np.flatnonzero(np.abs(z) > self.threshold)
         self._set_active(active, z[active] > 0)
 

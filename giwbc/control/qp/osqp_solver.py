@@ -113,11 +113,11 @@ class OsqpSolver(QpSolver):
         p = problem
         key = (p.structure, p.n, p.n_eq, p.n_in, p.has_bounds)
         guess = self.guess
-        if guess is not None and self._solver is not None and key == self._structure:
-            x = guess.try_solve(p)
-            if x is not None:
-                return QpSolution(x, QpStatus.SOLVED, 0, self.name, "active-set guess", time.perf_counter() - start, guess.rows)
-        try:
+        try:  # (malformed input raises in the guess's KKT solve or in OSQP: a failed solve either way)
+            if guess is not None and self._solver is not None and key == self._structure:
+                x = guess.try_solve(p)
+                if x is not None:
+                    return QpSolution(x, QpStatus.SOLVED, 0, self.name, "active-set guess", time.perf_counter() - start, guess.rows)
             if self._solver is None or key != self._structure:
                 self._setup(p)
                 self._structure = key

@@ -70,6 +70,9 @@ class ProxsuiteSolver(QpSolver):
 
         if int(max_iter) < 1 or int(max_iter_in) < 1:
             raise ValueError(f"max_iter and max_iter_in must be >= 1, got {max_iter}, {max_iter_in}")
+        unknown = sorted(key for key in settings if not hasattr(proxsuite.proxqp.Settings(), key))
+        if unknown:  # (else the first solve would fail, tick after tick)
+            raise ValueError(f"unknown proxsuite settings {unknown}")
         self.retry_cold = retry_cold
         self.max_iter = int(max_iter)
         self.max_iter_in = int(max_iter_in)
