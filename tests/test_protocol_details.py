@@ -283,3 +283,42 @@ def test_reply_bytes_saturate_and_batches_keep_the_extended_flag() -> None:
 
     with pytest.raises(ValueError, match=r"^special frames are \('enter', 'exit', 'zero'\), got 'boot'$"):
         MultiBusCodec([MitProtocol([motor(1)])]).special_frames("boot")
+
+
+def test_a_frame_that_is_not_from_here_names_no_motor() -> None:
+    """A frame that no motor of this bus sends decodes as UNKNOWN with motor id -1 (not some
+    motor's id)."""
+    p = MitProtocol([motor(1), motor(2)])
+    decoded = decode_rows(p, [(0, bytes([0x09, 0, 0, 0, 0, 0])), (0, p.encode_reply(2, 0.0, 0.0, 0.0).data)])
+    assert decoded.verdict.tolist() == [UNKNOWN, REPLY]
+    assert decoded.motor_id.tolist() == [-1, 2] and decoded.index.tolist() == [-1, 1]
+
+
+def test_a_reply_on_another_motors_command_id_is_traffic_for_that_motor() -> None:
+    """Motor 1's reply bytes on arbitration id 2 (motor 2's command id) are not motor 1's reply;
+    on its own id, or the host id 0, they are."""
+    p = MitProtocol([motor(1), motor(2)])
+    data = p.encode_reply(1, 0.5, 0.0, 0.0).data
+    with pytest.raises(UnknownMotorError, match=r"^frame id 0x2 commands motor 2: not a reply of motor 1$"):
+        p.decode(2, data)
+    assert p.decode(1, data).motor_id == 1 and p.decode(0, data).position == pytest.approx(0.5, abs=1e-3)
+    assert decode_rows(p, [(2, data), (1, data), (0, data)]).verdict.tolist() == [UNKNOWN, REPLY, REPLY]
+
+
+def test_a_command_field_that_is_not_a_number_is_named() -> None:
+    p = MitProtocol([motor(1)])
+    with pytest.raises(CommandValueError, match=r"^command field kd must be a real number, got str '2'$"):
+        p.encode_command(1, 0.0, 0.0, 10.0, "2", 0.0)
+    with pytest.raises(CommandValueError, match=r"^command field position must be a real number, got bool True$"):
+        p.encode_command(1, True, 0.0, 10.0, 1.0, 0.0)
+
+
+def test_an_object_array_of_numbers_encodes_like_the_floats() -> None:
+    """Numbers gathered in an object array (e.g. from a list of mixed Python and numpy numbers)
+    are still numbers; a bool among them is not."""
+    p = MitProtocol([motor(1), motor(2)])
+    mixed = np.array([0.5, np.int64(-1)], dtype=object)
+    expected = p.encode_commands([0.5, -1.0], 0.0, 10.0, 1.0, 0.0)
+    assert p.encode_commands(mixed, 0.0, 10.0, 1.0, 0.0).data.tolist() == expected.data.tolist()
+    with pytest.raises(CommandValueError, match=r"^command field position must be real numbers"):
+        p.encode_commands(np.array([0.5, True], dtype=object), 0.0, 10.0, 1.0, 0.0)
