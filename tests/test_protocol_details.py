@@ -322,3 +322,33 @@ def test_an_object_array_of_numbers_encodes_like_the_floats() -> None:
     assert p.encode_commands(mixed, 0.0, 10.0, 1.0, 0.0).data.tolist() == expected.data.tolist()
     with pytest.raises(CommandValueError, match=r"^command field position must be real numbers"):
         p.encode_commands(np.array([0.5, True], dtype=object), 0.0, 10.0, 1.0, 0.0)
+
+
+def test_numbers_beyond_any_float_and_ragged_arrays_are_named() -> None:
+    p = MitProtocol([motor(1), motor(2)])
+    with pytest.raises(CommandValueError, match=r"^command field velocity = 10{400} is beyond any float \(clamping needs a number\)$"):
+        p.encode_command(1, 0.0, 10**400, 10.0, 1.0, 0.0)
+    with pytest.raises(CommandValueError, match=r"^command field torque: a value is beyond any float$"):
+        p.encode_commands(0.0, 0.0, 10.0, 1.0, np.array([1, 10**400], dtype=object))
+    with pytest.raises(CommandValueError, match=r"^command field kp: not an array of real numbers \("):
+        p.encode_commands(0.0, 0.0, [[1.0, 2.0], [3.0]], 1.0, 0.0)
+
+
+def test_a_command_frame_is_special_only_with_seven_ff_bytes_and_a_special_code() -> None:
+    """What a motor does with a frame: FF x 7 then FB..FE is a special command; the same code after
+    other bytes, or FF x 7 then another code, is an ordinary command (its fields decoded)."""
+    p = MitProtocol([motor(1)])
+    assert p.decode_command(1, bytes([0xFF] * 7 + [0xFC])).special == "enter"
+    for data in (bytes([0x00] * 7 + [0xFC]), bytes([0xFF] * 7 + [0x05])):
+        command = p.decode_command(1, data)
+        assert command.special is None and math.isfinite(command.position)
+    with pytest.raises(UnknownMotorError, match=r"^no motor with id 1\.0 on this bus$"):
+        p.decode_command(1.0, bytes([0xFF] * 7 + [0xFC]))  # an arbitration id is an integer
+
+
+def test_reply_temperatures_saturate_at_zero_and_keep_zero() -> None:
+    """An emulated Damiao reply carries 0 °C as 0 and a sub-zero temperature saturated to 0 (a byte)."""
+    p = MitProtocol([motor(1, "damiao")])
+    for temperature, expected in ((0.0, 0.0), (-5.0, 0.0), (1.0, 1.0)):
+        reply = p.decode(0, p.encode_reply(1, 0.0, 0.0, 0.0, temperature=temperature, rotor_temperature=temperature).data)
+        assert reply.temperature == expected and reply.rotor_temperature == expected
