@@ -9,11 +9,13 @@ import math
 import numpy as np
 import pytest
 
+from giwbc.hal.frames import frames
 from giwbc.hal.motor import MotorConfig, MotorModel, Range
 from giwbc.hal.protocols import (
     CORRUPT,
     REPLY,
     UNKNOWN,
+    CanProtocolError,
     CommandValueError,
     CorruptFrameError,
     FrameLengthError,
@@ -24,6 +26,7 @@ from giwbc.hal.protocols import (
     pack_command,
 )
 from giwbc.hal.protocols.base import CommandBatch, DecodedReplies
+from giwbc.hal.protocols.multibus import MultiBusCodec
 
 REF = MotorModel("ref", Range(-12.5, 12.5), Range(-65.0, 65.0), Range(0.0, 500.0), Range(0.0, 5.0), Range(-18.0, 18.0))
 
@@ -218,8 +221,6 @@ def test_command_decoding_errors_and_specials() -> None:
 
 # --- the vectorized decoder on the rows the random tests rarely draw ----------------------------
 def decode_rows(p: MitProtocol, rows: list[tuple[int, bytes]]):
-    from giwbc.hal.frames import frames
-
     data = np.zeros((len(rows), 8), np.uint8)
     for k, (_, payload) in enumerate(rows):
         data[k, : len(payload)] = list(payload)
@@ -303,6 +304,38 @@ def test_a_reply_on_another_motors_command_id_is_traffic_for_that_motor() -> Non
         p.decode(2, data)
     assert p.decode(1, data).motor_id == 1 and p.decode(0, data).position == pytest.approx(0.5, abs=1e-3)
     assert decode_rows(p, [(2, data), (1, data), (0, data)]).verdict.tolist() == [UNKNOWN, REPLY, REPLY]
+    second = p.encode_reply(2, 0.5, 0.0, 0.0).data  # the first motor's command id is a clash too
+    assert decode_rows(p, [(1, second), (2, second)]).verdict.tolist() == [UNKNOWN, REPLY]
+
+
+def test_command_id_clashes_are_per_bus() -> None:
+    """Two buses with motors 1 and 2 each: on either bus, motor 1's reply on id 2 is traffic for
+    motor 2 of that bus; on its own id it is motor 1's reply of that bus (index across buses)."""
+    codec = MultiBusCodec([MitProtocol([motor(1, joint="a1"), motor(2, joint="a2")]),
+                           MitProtocol([motor(1, joint="b1"), motor(2, joint="b2")])])  # fmt: skip
+    data = MitProtocol([motor(1)]).encode_reply(1, 0.5, 0.0, 0.0).data
+    rows = [(2, 1), (1, 1), (2, 0), (1, 0), (0, 1)]  # (arbitration id, bus)
+    payload = np.zeros(8, np.uint8)
+    payload[: len(data)] = list(data)
+    batch = frames([a for a, _ in rows], np.tile(payload, (len(rows), 1)), lengths=len(data))
+    decoded = codec.decode_replies([b for _, b in rows], batch)
+    assert decoded.verdict.tolist() == [UNKNOWN, REPLY, UNKNOWN, REPLY, REPLY]
+    assert decoded.index.tolist() == [-1, 2, -1, 0, 2]
+
+
+def test_junk_id_bits_short_frames_and_damiao_error_states() -> None:
+    """A standard frame with id bits above 0x7FF is corrupt, as the scalar decoder says; so is a
+    1-byte frame that starts with a motor's id; a Damiao state of 8 or more is its error code."""
+    p = MitProtocol([motor(1), motor(2, "damiao")])
+    data = p.encode_reply(1, 0.5, 0.0, 0.0).data
+    with pytest.raises(CorruptFrameError):
+        p.decode(0x801, data)
+    with pytest.raises(CanProtocolError):
+        p.decode(0, data[:1])
+    errors = [p.encode_reply(2, 0.0, 0.0, 0.0, status=state).data for state in (1, 8, 9)]
+    decoded = decode_rows(p, [(0x801, data), (0, data[:1])] + [(0, e) for e in errors])
+    assert decoded.verdict.tolist() == [CORRUPT, CORRUPT, REPLY, REPLY, REPLY]
+    assert decoded.error_code.tolist()[2:] == [0, 8, 9] and decoded.status.tolist()[2:] == [1, 8, 9]
 
 
 def test_a_command_field_that_is_not_a_number_is_named() -> None:
