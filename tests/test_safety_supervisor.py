@@ -464,6 +464,7 @@ def test_bus_off_needs_consecutive_cycles_of_every_frame_refused(g1) -> None:
     check = Checker(g1, bus_names=("can0", "can1", "can2"))
     quiet = dict(bus_sent=np.array([4, 4, 4]), bus_errors=np.zeros(3, np.int64), driver_errors=(None, None, None))
     one_refused = dict(bus_sent=np.array([4, 0, 4]), bus_errors=np.array([0, 1, 0]), driver_errors=())
+    assert check(**quiet) == []
     for _ in range(3):  # can0 idle, can1 raising but taking frames, can2 fine
         assert check(bus_sent=np.array([0, 3, 4]), bus_errors=np.array([0, 2, 0]), driver_errors=(None, OSError("busy"))) == []
     assert check(**one_refused) == []
