@@ -180,6 +180,11 @@ def test_estimator_config_is_validated_at_its_edges() -> None:
         with pytest.raises(ValueError) as raised:
             EstimatorConfig(**bad)
         assert str(raised.value) == "zero_velocity_gain must be in [0, 1] and flat_cop_margin in (0, 1]"
+    EstimatorConfig(accel_compensation_time=0.5, orientation_offset_time=0.5)  # sub-second time constants are fine
+    for bad in ({"accel_compensation_time": 0.0}, {"orientation_offset_time": 0.0}):
+        with pytest.raises(ValueError) as raised:
+            EstimatorConfig(**bad)
+        assert str(raised.value) == "accel_compensation_time and orientation_offset_time must be > 0"
 
 
 def test_contact_thresholds_are_fractions_of_the_weight(g1: RobotDescription, g1_models, standing) -> None:

@@ -51,3 +51,30 @@ def test_without_a_reference_only_the_gyro_turns_the_orientation() -> None:
     for _ in range(100):
         f.update((0.0, 0.0, 0.5), 0.01, None, None)
     np.testing.assert_allclose(f.rotation, so3.exp(np.array([0.0, 0.0, 0.5])), atol=1e-9)
+
+
+def test_gravity_error_is_zero_when_the_accelerometer_agrees_with_the_orientation(rng) -> None:
+    """At rest the accelerometer reads gravity's reaction, R^T (0, 0, g) in the IMU frame: an
+    orientation that explains it has no tilt error; one tilted by a small r about a horizontal body
+    axis has an error of -r about it (to first order)."""
+    from giwbc.estimation.orientation import gravity_error
+
+    for _ in range(20):
+        rotation = so3.exp(rng.uniform(-1.0, 1.0, 3))
+        q = so3.matrix_to_quat(rotation)
+        accel = rotation.T @ np.array([0.0, 0.0, 9.81])
+        np.testing.assert_allclose(gravity_error(q, accel), 0.0, atol=1e-9)
+
+
+def test_one_large_gyro_step_turns_by_its_whole_angle() -> None:
+    """A single propagation over 0.5 s at 1.2 rad/s turns 0.6 rad (no small-angle series)."""
+    f = OrientationFilter(orientation_gain=0.0, accel_gain=0.0)
+    f.reset_to((0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0))
+    f.propagate((1.2, 0.0, 0.0), 0.5)
+    np.testing.assert_allclose(f.rotation, so3.exp(np.array([0.6, 0.0, 0.0])), atol=1e-12)
+
+
+def test_a_quaternion_that_is_not_unit_is_normalized_on_reset() -> None:
+    f = OrientationFilter()
+    f.reset_to((0.0, 0.0, 2.0, 2.0), (0.0, 0.0, 0.0))
+    np.testing.assert_allclose(f.quaternion, [0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)], atol=1e-15)
