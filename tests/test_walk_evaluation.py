@@ -138,3 +138,6 @@ def test_paired_tracking_intervals_belong_to_their_arm_and_a_zero_mean_differenc
     assert summary["tracking_episodes"] == 40 and summary["mean_tracking_rms"] == pytest.approx(base.mean())
     low, high = summary["mean_tracking_rms_95ci"]
     assert low < base.mean() < high
+    assert tracking_summary(wbc) == summary  # a seeded bootstrap: the same interval every time
+    fallen = ArmResult("wbc", SHORT, wbc.episodes + (_episode(40, False, 5.0),))  # fell, though its tracking is finite
+    assert tracking_summary(fallen) == summary
