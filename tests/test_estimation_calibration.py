@@ -191,3 +191,18 @@ def test_randomization_config_draws_an_imu_profile_per_episode(g1: RobotDescript
     assert np.std([d.accel_bias for d in draws]) == pytest.approx(0.060 * 9.80665, rel=0.15)
     assert np.std([d.mounting for d in draws]) > 0 and all(d.imu_latency == 2 and d.imu_dropout == 0.02 for d in draws)
     assert draws[0].encoder_resolution == pytest.approx(MIT_ENCODER_RESOLUTION)
+
+
+@pytest.mark.parametrize("use_flat_feet", [True, False], ids=["feet", "gravity"])
+def test_without_an_orientation_output_the_calibration_keeps_the_configured_heading(g1, snapshot, use_flat_feet) -> None:
+    """Nothing observes yaw without an orientation output: the calibrated base heads where the
+    config says (``initial_yaw``), with the tilt from the feet or from gravity, and its tilt is the
+    true one."""
+    estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, use_flat_feet=use_flat_feet, initial_yaw=0.8))
+    for measurement in _stream(g1, snapshot, np.random.default_rng(3), gyro_bias=np.zeros(3), seconds=1.0):
+        estimate = estimator.update(measurement)
+    assert estimate.ready and estimator.calibration.tilt_source == ("feet" if use_flat_feet else "gravity")
+    rotation = estimate.base.rotation
+    assert math.atan2(rotation[1, 0], rotation[0, 0]) == pytest.approx(0.8, abs=0.02)
+    truth = snapshot[0]
+    assert math.acos(np.clip(rotation[2] @ truth[2], -1.0, 1.0)) < math.radians(0.5)  # the vertical in the base frame: the tilt

@@ -175,6 +175,16 @@ def test_estimator_config_is_validated_at_its_edges() -> None:
         with pytest.raises(ValueError) as raised:
             EstimatorConfig(**bad)
         assert str(raised.value) == "gains must be >= 0 and max_dt > 0"
+    EstimatorConfig(zero_velocity_gain=1.0, flat_cop_margin=1.0)  # a standstill may replace the bias outright
+    for bad in ({"zero_velocity_gain": 1.5}, {"zero_velocity_gain": -0.1}, {"flat_cop_margin": 0.0}, {"flat_cop_margin": 1.1}):
+        with pytest.raises(ValueError) as raised:
+            EstimatorConfig(**bad)
+        assert str(raised.value) == "zero_velocity_gain must be in [0, 1] and flat_cop_margin in (0, 1]"
+    EstimatorConfig(accel_compensation_time=0.5, orientation_offset_time=0.5)  # sub-second time constants are fine
+    for bad in ({"accel_compensation_time": 0.0}, {"orientation_offset_time": 0.0}):
+        with pytest.raises(ValueError) as raised:
+            EstimatorConfig(**bad)
+        assert str(raised.value) == "accel_compensation_time and orientation_offset_time must be > 0"
 
 
 def test_contact_thresholds_are_fractions_of_the_weight(g1: RobotDescription, g1_models, standing) -> None:
@@ -341,7 +351,7 @@ def test_exact_sensors_give_the_base_velocity_to_a_millimetre_per_second(g1: Rob
 def test_before_any_measurement_the_estimate_is_the_default_pose(g1: RobotDescription, g1_models) -> None:
     _, pin_model = g1_models
     estimate = StateEstimator(g1, model=pin_model).estimate
-    assert estimate.initialized is False and np.isnan(estimate.time) and estimate.faults.ok
+    assert estimate.initialized is False and estimate.ready is False and np.isnan(estimate.time) and estimate.faults.ok
     q = g1.default_configuration()
     np.testing.assert_array_equal(estimate.q, q)
     np.testing.assert_array_equal(estimate.v, np.zeros(pin_model.nv))

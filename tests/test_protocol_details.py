@@ -9,11 +9,13 @@ import math
 import numpy as np
 import pytest
 
+from giwbc.hal.frames import frames
 from giwbc.hal.motor import MotorConfig, MotorModel, Range
 from giwbc.hal.protocols import (
     CORRUPT,
     REPLY,
     UNKNOWN,
+    CanProtocolError,
     CommandValueError,
     CorruptFrameError,
     FrameLengthError,
@@ -24,6 +26,7 @@ from giwbc.hal.protocols import (
     pack_command,
 )
 from giwbc.hal.protocols.base import CommandBatch, DecodedReplies
+from giwbc.hal.protocols.multibus import MultiBusCodec
 
 REF = MotorModel("ref", Range(-12.5, 12.5), Range(-65.0, 65.0), Range(0.0, 500.0), Range(0.0, 5.0), Range(-18.0, 18.0))
 
@@ -218,8 +221,6 @@ def test_command_decoding_errors_and_specials() -> None:
 
 # --- the vectorized decoder on the rows the random tests rarely draw ----------------------------
 def decode_rows(p: MitProtocol, rows: list[tuple[int, bytes]]):
-    from giwbc.hal.frames import frames
-
     data = np.zeros((len(rows), 8), np.uint8)
     for k, (_, payload) in enumerate(rows):
         data[k, : len(payload)] = list(payload)
@@ -283,3 +284,104 @@ def test_reply_bytes_saturate_and_batches_keep_the_extended_flag() -> None:
 
     with pytest.raises(ValueError, match=r"^special frames are \('enter', 'exit', 'zero'\), got 'boot'$"):
         MultiBusCodec([MitProtocol([motor(1)])]).special_frames("boot")
+
+
+def test_a_frame_that_is_not_from_here_names_no_motor() -> None:
+    """A frame that no motor of this bus sends decodes as UNKNOWN with motor id -1 (not some
+    motor's id)."""
+    p = MitProtocol([motor(1), motor(2)])
+    decoded = decode_rows(p, [(0, bytes([0x09, 0, 0, 0, 0, 0])), (0, p.encode_reply(2, 0.0, 0.0, 0.0).data)])
+    assert decoded.verdict.tolist() == [UNKNOWN, REPLY]
+    assert decoded.motor_id.tolist() == [-1, 2] and decoded.index.tolist() == [-1, 1]
+
+
+def test_a_reply_on_another_motors_command_id_is_traffic_for_that_motor() -> None:
+    """Motor 1's reply bytes on arbitration id 2 (motor 2's command id) are not motor 1's reply;
+    on its own id, or the host id 0, they are."""
+    p = MitProtocol([motor(1), motor(2)])
+    data = p.encode_reply(1, 0.5, 0.0, 0.0).data
+    with pytest.raises(UnknownMotorError, match=r"^frame id 0x2 commands motor 2: not a reply of motor 1$"):
+        p.decode(2, data)
+    assert p.decode(1, data).motor_id == 1 and p.decode(0, data).position == pytest.approx(0.5, abs=1e-3)
+    assert decode_rows(p, [(2, data), (1, data), (0, data)]).verdict.tolist() == [UNKNOWN, REPLY, REPLY]
+    second = p.encode_reply(2, 0.5, 0.0, 0.0).data  # the first motor's command id is a clash too
+    assert decode_rows(p, [(1, second), (2, second)]).verdict.tolist() == [UNKNOWN, REPLY]
+
+
+def test_command_id_clashes_are_per_bus() -> None:
+    """Two buses with motors 1 and 2 each: on either bus, motor 1's reply on id 2 is traffic for
+    motor 2 of that bus; on its own id it is motor 1's reply of that bus (index across buses)."""
+    codec = MultiBusCodec([MitProtocol([motor(1, joint="a1"), motor(2, joint="a2")]),
+                           MitProtocol([motor(1, joint="b1"), motor(2, joint="b2")])])  # fmt: skip
+    data = MitProtocol([motor(1)]).encode_reply(1, 0.5, 0.0, 0.0).data
+    rows = [(2, 1), (1, 1), (2, 0), (1, 0), (0, 1)]  # (arbitration id, bus)
+    payload = np.zeros(8, np.uint8)
+    payload[: len(data)] = list(data)
+    batch = frames([a for a, _ in rows], np.tile(payload, (len(rows), 1)), lengths=len(data))
+    decoded = codec.decode_replies([b for _, b in rows], batch)
+    assert decoded.verdict.tolist() == [UNKNOWN, REPLY, UNKNOWN, REPLY, REPLY]
+    assert decoded.index.tolist() == [-1, 2, -1, 0, 2]
+
+
+def test_junk_id_bits_short_frames_and_damiao_error_states() -> None:
+    """A standard frame with id bits above 0x7FF is corrupt, as the scalar decoder says; so is a
+    1-byte frame that starts with a motor's id; a Damiao state of 8 or more is its error code."""
+    p = MitProtocol([motor(1), motor(2, "damiao")])
+    data = p.encode_reply(1, 0.5, 0.0, 0.0).data
+    with pytest.raises(CorruptFrameError):
+        p.decode(0x801, data)
+    with pytest.raises(CanProtocolError):
+        p.decode(0, data[:1])
+    errors = [p.encode_reply(2, 0.0, 0.0, 0.0, status=state).data for state in (1, 8, 9)]
+    decoded = decode_rows(p, [(0x801, data), (0, data[:1])] + [(0, e) for e in errors])
+    assert decoded.verdict.tolist() == [CORRUPT, CORRUPT, REPLY, REPLY, REPLY]
+    assert decoded.error_code.tolist()[2:] == [0, 8, 9] and decoded.status.tolist()[2:] == [1, 8, 9]
+
+
+def test_a_command_field_that_is_not_a_number_is_named() -> None:
+    p = MitProtocol([motor(1)])
+    with pytest.raises(CommandValueError, match=r"^command field kd must be a real number, got str '2'$"):
+        p.encode_command(1, 0.0, 0.0, 10.0, "2", 0.0)
+    with pytest.raises(CommandValueError, match=r"^command field position must be a real number, got bool True$"):
+        p.encode_command(1, True, 0.0, 10.0, 1.0, 0.0)
+
+
+def test_an_object_array_of_numbers_encodes_like_the_floats() -> None:
+    """Numbers gathered in an object array (e.g. from a list of mixed Python and numpy numbers)
+    are still numbers; a bool among them is not."""
+    p = MitProtocol([motor(1), motor(2)])
+    mixed = np.array([0.5, np.int64(-1)], dtype=object)
+    expected = p.encode_commands([0.5, -1.0], 0.0, 10.0, 1.0, 0.0)
+    assert p.encode_commands(mixed, 0.0, 10.0, 1.0, 0.0).data.tolist() == expected.data.tolist()
+    with pytest.raises(CommandValueError, match=r"^command field position must be real numbers"):
+        p.encode_commands(np.array([0.5, True], dtype=object), 0.0, 10.0, 1.0, 0.0)
+
+
+def test_numbers_beyond_any_float_and_ragged_arrays_are_named() -> None:
+    p = MitProtocol([motor(1), motor(2)])
+    with pytest.raises(CommandValueError, match=r"^command field velocity = 10{400} is beyond any float \(clamping needs a number\)$"):
+        p.encode_command(1, 0.0, 10**400, 10.0, 1.0, 0.0)
+    with pytest.raises(CommandValueError, match=r"^command field torque: a value is beyond any float$"):
+        p.encode_commands(0.0, 0.0, 10.0, 1.0, np.array([1, 10**400], dtype=object))
+    with pytest.raises(CommandValueError, match=r"^command field kp: not an array of real numbers \("):
+        p.encode_commands(0.0, 0.0, [[1.0, 2.0], [3.0]], 1.0, 0.0)
+
+
+def test_a_command_frame_is_special_only_with_seven_ff_bytes_and_a_special_code() -> None:
+    """What a motor does with a frame: FF x 7 then FB..FE is a special command; the same code after
+    other bytes, or FF x 7 then another code, is an ordinary command (its fields decoded)."""
+    p = MitProtocol([motor(1)])
+    assert p.decode_command(1, bytes([0xFF] * 7 + [0xFC])).special == "enter"
+    for data in (bytes([0x00] * 7 + [0xFC]), bytes([0xFF] * 7 + [0x05])):
+        command = p.decode_command(1, data)
+        assert command.special is None and math.isfinite(command.position)
+    with pytest.raises(UnknownMotorError, match=r"^no motor with id 1\.0 on this bus$"):
+        p.decode_command(1.0, bytes([0xFF] * 7 + [0xFC]))  # an arbitration id is an integer
+
+
+def test_reply_temperatures_saturate_at_zero_and_keep_zero() -> None:
+    """An emulated Damiao reply carries 0 °C as 0 and a sub-zero temperature saturated to 0 (a byte)."""
+    p = MitProtocol([motor(1, "damiao")])
+    for temperature, expected in ((0.0, 0.0), (-5.0, 0.0), (1.0, 1.0)):
+        reply = p.decode(0, p.encode_reply(1, 0.0, 0.0, 0.0, temperature=temperature, rotor_temperature=temperature).data)
+        assert reply.temperature == expected and reply.rotor_temperature == expected

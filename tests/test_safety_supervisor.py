@@ -4,9 +4,13 @@ the value and the limit), the config's validation, the reset, and the signal wat
 
 from __future__ import annotations
 
+import gc
 import json
 import math
+import os
 import signal
+import threading
+import warnings
 
 import numpy as np
 import pytest
@@ -65,6 +69,16 @@ def test_tilt_and_damping_settings_are_validated() -> None:
         assert str(raised.value) == message
     config = SafetyConfig(max_tilt=0.3, damping_time=0.0, damping_kd_scale=0.0)  # edges that are allowed
     assert (config.max_tilt, config.damping_time, config.damping_kd_scale) == (0.3, 0.0, 0.0)
+
+
+def test_the_stop_margin_must_be_positive() -> None:
+    """The watchdog's allowance past a safe stop's nominal length: zero would stop a stop that is
+    exactly on time."""
+    for bad in (0.0, -1.0):
+        with pytest.raises(ValueError) as raised:
+            SafetyConfig(stop_margin=bad)
+        assert str(raised.value) == f"safety stop_margin must be > 0, got {bad}"
+    assert SafetyConfig(stop_margin=1e-3).stop_margin == 1e-3
 
 
 def test_damping_command_is_pure_damping(g1) -> None:
@@ -161,6 +175,16 @@ def test_non_finite_imu_is_a_fault_with_the_sample(g1) -> None:
     assert fault.kind is FaultKind.IMU and fault.message.startswith("IMU sample is not finite")
 
 
+def test_an_orientation_output_with_one_nan_entry_is_a_fault_not_an_imu_without_one(g1) -> None:
+    """Only an all-NaN quaternion means "this IMU has no orientation output"; one NaN entry is a
+    broken sample, whatever the gyro and accelerometer say."""
+    for entry in range(4):
+        quaternion = np.array([0.0, 0.0, 0.0, 1.0])
+        quaternion[entry] = np.nan
+        (fault,) = Checker(g1)(imu=ImuReading(quaternion, np.zeros(3), np.array([0.0, 0.0, 9.81])))
+        assert fault.kind is FaultKind.IMU and fault.message.startswith("IMU sample is not finite")
+
+
 def tilted(angle: float, axis=(1.0, 0.0, 0.0)) -> ImuReading:
     axis = np.asarray(axis, float) / np.linalg.norm(axis)
     quaternion = np.concatenate([math.sin(angle / 2) * axis, [math.cos(angle / 2)]])
@@ -236,6 +260,55 @@ def test_without_orientation_output_a_fall_the_accelerometer_cannot_see_is_caugh
             break
     assert [f.kind for f in faults] == [FaultKind.FALL]
     assert CONFIG.max_tilt < angle < CONFIG.max_tilt + 0.05, angle  # caught 0.024 rad past the limit
+
+
+@pytest.mark.parametrize("broken", ["gyro", "accel", "time"])
+def test_without_orientation_output_one_broken_sample_is_one_fault_and_the_tilt_comes_back(g1, broken: str) -> None:
+    """A non-finite gyro, accelerometer or timestamp is an IMU fault for that sample only: it is
+    not taken into the tilt, so the next good samples read the robot level again."""
+    checker = Checker(g1)
+    level = np.array([0.0, 0.0, 9.81])
+    for k in range(50):
+        assert checker(imu=ImuReading(NO_ORIENTATION, np.zeros(3), level, k * DT)) == []
+    gyro, accel, t = np.zeros(3), level.copy(), 50 * DT
+    if broken == "gyro":
+        gyro[1] = np.nan
+    elif broken == "accel":
+        accel[0] = np.nan
+    else:
+        t = math.nan
+    assert [f.kind for f in checker(imu=ImuReading(NO_ORIENTATION, gyro, accel, t))] == [FaultKind.IMU]
+    for k in range(51, 60):
+        imu = ImuReading(NO_ORIENTATION, np.zeros(3), level, k * DT)
+        assert checker(imu=imu) == []
+        assert checker.sup.imu_tilt(imu) < 1e-6
+
+
+def test_without_orientation_output_a_gap_in_the_samples_is_not_read_as_a_long_turn(g1) -> None:
+    """After 2 s without an IMU sample, a sample turning at 1 rad/s is integrated over at most
+    0.1 s (5.7 deg), not over the gap or a second: a dropped stream does not fake a fall."""
+    checker = Checker(g1)
+    level = np.array([0.0, 0.0, 9.81])
+    for k in range(50):
+        assert checker(imu=ImuReading(NO_ORIENTATION, np.zeros(3), level, k * DT)) == []
+    imu = ImuReading(NO_ORIENTATION, np.array([1.0, 0.0, 0.0]), level, 50 * DT + 2.0)
+    assert checker(imu=imu) == []
+    assert checker.sup.imu_tilt(imu) == pytest.approx(0.1, abs=0.01)
+
+
+def test_without_orientation_output_the_configured_gain_pulls_the_tilt_to_gravity(g1) -> None:
+    """Held still at 0.3 rad (the accelerometer shows it, the gyro reads nothing), the tilt read
+    from a level start follows gravity at ``gravity_tilt_gain``: after 1 s at 4 /s within 0.03 rad of
+    it (the bias integral overshoots a little), at 0.5 /s near 0.3 (1 - e^-0.5) = 0.12 rad."""
+    tilt = 0.3
+    gravity = 9.81 * np.array([0.0, math.sin(tilt), math.cos(tilt)])  # the base turned about x by 0.3 rad
+    for gain, low, high in ((4.0, 0.27, 0.33), (0.5, 0.09, 0.15)):
+        checker = Checker(g1, SafetyConfig(gravity_tilt_gain=gain))
+        checker(imu=ImuReading(NO_ORIENTATION, np.zeros(3), np.array([0.0, 0.0, 9.81]), 0.0))
+        for k in range(1, 501):
+            imu = ImuReading(NO_ORIENTATION, np.zeros(3), gravity, k * DT)
+            checker(imu=imu)
+        assert low < checker.sup.imu_tilt(imu) < high, gain
 
 
 def test_a_rotated_imu_mount_measures_the_base_tilt(g1, monkeypatch, rng) -> None:
@@ -371,6 +444,67 @@ def test_after_a_reset_every_count_starts_from_zero(g1) -> None:
     assert kinds == [FaultKind.CORRUPT_FRAMES, FaultKind.TORQUE_LIMIT]
 
 
+def test_after_a_reset_a_bus_needs_every_bus_off_cycle_again(g1) -> None:
+    """Bus-off needs ``bus_off_cycles`` (2) consecutive cycles in which the driver refused every
+    frame; a reset forgets the cycles counted before it."""
+    check = Checker(g1, bus_names=("can0", "can1"))
+    sent, errors = np.array([5, 0]), np.array([0, 5])
+    refused = dict(bus_sent=sent, bus_errors=errors, driver_errors=(None, OSError("No buffer space available")))
+    assert check(**refused) == []
+    check.sup.reset()
+    assert check(**refused) == []  # the first cycle again
+    (fault,) = check(**refused)
+    assert fault.kind is FaultKind.BUS_OFF and "for 2 cycles on can1 (OSError: No buffer space available)" in fault.message
+
+
+def test_bus_off_needs_consecutive_cycles_of_every_frame_refused(g1) -> None:
+    """A bus is refused when its driver raised and took no frame; an idle bus (nothing sent, no
+    error) or one that still took frames is not. One good cycle, even a quiet one, restarts the
+    count; the cause is optional and the message names each bus-off bus."""
+    check = Checker(g1, bus_names=("can0", "can1", "can2"))
+    quiet = dict(bus_sent=np.array([4, 4, 4]), bus_errors=np.zeros(3, np.int64), driver_errors=(None, None, None))
+    one_refused = dict(bus_sent=np.array([4, 0, 4]), bus_errors=np.array([0, 1, 0]), driver_errors=())
+    assert check(**quiet) == []
+    for _ in range(3):  # can0 idle, can1 raising but taking frames, can2 fine
+        assert check(bus_sent=np.array([0, 3, 4]), bus_errors=np.array([0, 2, 0]), driver_errors=(None, OSError("busy"))) == []
+    assert check(**one_refused) == []
+    assert check(**quiet) == []  # a clean cycle in between: the count starts again
+    assert check(**one_refused) == []
+    assert check(bus_sent=np.array([4, 4, 4]), bus_errors=np.array([0, 0, 1]), driver_errors=()) == []  # can1 took frames
+    assert check(**one_refused) == []
+    (fault,) = check(**one_refused)  # the second consecutive refused cycle, no cause recorded
+    assert fault.kind is FaultKind.BUS_OFF
+    assert fault.message == "bus-off: the driver refused every frame for 2 cycles on can1"
+    both = dict(bus_sent=np.array([4, 0, 0]), bus_errors=np.array([0, 3, 3]), driver_errors=(None, OSError("down")))
+    check2 = Checker(g1, bus_names=("can0", "can1", "can2"))
+    assert check2(**both) == []
+    (fault,) = check2(**both)
+    assert fault.message == "bus-off: the driver refused every frame for 2 cycles on can1 (OSError: down); can2"
+    assert check2(**quiet) == [] and check2(**both) == []  # recovered: counting from one again
+
+
+def test_driver_bugs_are_named_per_bus_at_once(g1) -> None:
+    """A driver raising what no CAN driver should (not a CanError or an OSError) is a fault in
+    the same cycle, naming each such bus; those buses are not reported bus-off as well."""
+    check = Checker(g1, bus_names=("can0", "can1", "can2"))
+    bugs = (RuntimeError("oops"), OSError("down"), KeyError("frame"))
+    refused = dict(bus_sent=np.zeros(3, np.int64), bus_errors=np.ones(3, np.int64), driver_errors=bugs)
+    (fault,) = check(**refused)
+    assert fault.kind is FaultKind.DRIVER_ERROR
+    assert fault.message == "bus driver raised: can0: RuntimeError: oops; can2: KeyError: 'frame'"
+    kinds = [(f.kind, f.message) for f in check(**refused)]
+    assert kinds[1] == (FaultKind.BUS_OFF, "bus-off: the driver refused every frame for 2 cycles on can1 (OSError: down)")
+
+
+def test_motors_out_of_motor_mode_are_each_named(g1) -> None:
+    status = np.ones(g1.dofs, np.int64)
+    left, right = joint(g1, "left_knee_joint"), joint(g1, "right_knee_joint")
+    status[[left, right]] = 0
+    (fault,) = Checker(g1)(status=status)
+    assert fault.kind is FaultKind.MOTOR_DISABLED and fault.joints == ("left_knee_joint", "right_knee_joint")
+    assert fault.message == "motor(s) left motor mode (reply state 'disabled'): left_knee_joint, right_knee_joint"
+
+
 def test_messages_list_every_offender(g1) -> None:
     names = g1.joint_names
     a, b = joint(g1, "left_knee_joint"), joint(g1, "right_knee_joint")
@@ -411,3 +545,73 @@ def test_installing_twice_still_restores_the_original_handler() -> None:
     assert signal.getsignal(signal.SIGINT) is original and watch.installed is False
     watch.restore()  # a second restore changes nothing
     assert signal.getsignal(signal.SIGINT) is original
+
+
+def _open_fds() -> set[str]:
+    return set(os.listdir("/proc/self/fd"))
+
+
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs /proc to list open files")
+def test_the_signal_watch_polls_without_blocking_and_restore_gives_everything_back() -> None:
+    """``poll`` never waits (the control loop calls it every cycle); ``restore`` gives the
+    interpreter its wake-up fd back and leaves no file open; a signal seen stays seen."""
+    before_fd = signal.set_wakeup_fd(-1)
+    signal.set_wakeup_fd(before_fd)
+    files = _open_fds()
+    watch = SignalWatch().install()
+    try:
+        assert watch.poll() is None and watch.poll() is None  # nothing delivered: returns at once
+        os.kill(os.getpid(), signal.SIGHUP)
+        assert watch.poll() == signal.SIGHUP
+    finally:
+        watch.restore()
+    after_fd = signal.set_wakeup_fd(-1)
+    signal.set_wakeup_fd(after_fd)
+    assert after_fd == before_fd and _open_fds() == files
+    assert watch.poll() == signal.SIGHUP and watch.name == "SIGHUP"
+
+    fresh = SignalWatch()
+    assert fresh.poll() is None  # never installed: nothing to read
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ResourceWarning)
+        fresh.install()
+        fresh.restore()
+        gc.collect()
+    assert fresh.poll() is None and not [w for w in caught if issubclass(w.category, ResourceWarning)]
+
+
+def test_poll_sees_a_signal_whose_python_handler_has_not_run() -> None:
+    """The C-level handler writes the signal number to the wake-up fd at delivery; a control loop
+    polling it sees the signal even if the main thread never ran the watch's Python handler (here
+    replaced by one that does nothing)."""
+    watch = SignalWatch().install()
+    try:
+        signal.signal(signal.SIGTERM, lambda signum, frame: None)
+        os.kill(os.getpid(), signal.SIGTERM)
+        assert watch.received is None
+        assert watch.poll() == signal.SIGTERM and watch.name == "SIGTERM"
+    finally:
+        watch.restore()
+
+
+def test_restoring_from_another_thread_leaves_the_watch_installed() -> None:
+    """Handlers can only be changed from the main thread: a restore from the control loop's
+    thread does nothing (no exception), and the main thread's restore still works."""
+    original = signal.getsignal(signal.SIGTERM)
+    watch = SignalWatch().install()
+    errors = []
+
+    def restore() -> None:
+        try:
+            watch.restore()
+        except Exception as error:  # noqa: BLE001 - the test reports any
+            errors.append(error)
+
+    try:
+        worker = threading.Thread(target=restore)
+        worker.start()
+        worker.join()
+        assert errors == [] and watch.installed and signal.getsignal(signal.SIGTERM) is not original
+    finally:
+        watch.restore()
+    assert not watch.installed and signal.getsignal(signal.SIGTERM) is original

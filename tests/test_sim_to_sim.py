@@ -48,23 +48,24 @@ def test_both_controllers_on_every_condition(residual_policy, g1_model) -> None:
 
 
 def test_command_without_a_policy_reports_the_missing_column(capsys) -> None:
-    assert main(["--episodes", "1", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet",
-                 "--policy", "no/such/policy.onnx", "--push-force", "50"]) == 0
+    """The ``giwbc sim-to-sim`` subcommand runs the evaluation it was given (episodes, pushes,
+    conditions); without the policy file, the policy row is reported missing."""
+    import argparse
+
+    from giwbc.apps.sim_to_sim import add_sim_to_sim_command
+
+    parser = argparse.ArgumentParser(prog="giwbc")
+    add_sim_to_sim_command(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["sim-to-sim", "--episodes", "2", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet",
+                              "--policy", "no/such/policy.onnx", "--push-force", "50", "--push-interval", "0.02", "0.05"])
+    assert args.run(args) == 0
     captured = capsys.readouterr()
     assert "the policy row is missing" in captured.err
     assert "| residual_policy | missing |" in captured.out
     result = json.loads(captured.out.strip().splitlines()[-1])
-    assert result["policy_missing"] and result["pushes"]["force"] == 50.0
-    assert result["results"]["wbc_only"]["pybullet"]["success_rate"] == 1.0
-
-
-def test_subcommand_for_the_giwbc_cli() -> None:
-    import argparse
-
-    from giwbc.apps.sim_to_sim import add_sim_to_sim_command, run_sim_to_sim_command
-
-    parser = argparse.ArgumentParser(prog="giwbc")
-    add_sim_to_sim_command(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["sim-to-sim", "--episodes", "3", "--push-interval", "0.5", "1.5", "--conditions", "pybullet"])
-    assert args.run is run_sim_to_sim_command and args.episodes == 3 and args.push_interval == [0.5, 1.5]
-    assert args.conditions == ["pybullet"] and args.push_force == PushSetting.force
+    assert result["policy_missing"] and result["pushes"]["force"] == 50.0 and result["pushes"]["interval"] == [0.02, 0.05]
+    assert list(result["results"]["wbc_only"]) == ["pybullet"]
+    cell = result["results"]["wbc_only"]["pybullet"]
+    assert cell["episodes"] == 2 and cell["success_rate"] == 1.0
+    assert main(["--episodes", "1", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet", "--policy", "no/such.onnx"]) == 0
+    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["pushes"]["force"] == PushSetting.force

@@ -14,7 +14,7 @@ pytest.importorskip("onnxruntime")
 pytest.importorskip("onnx")
 
 from giwbc.apps.evaluation import ArmResult, Comparison, EpisodeResult, compare, velocity_tracking_rms  # noqa: E402
-from giwbc.apps.walk_evaluation import WalkProtocol, add_evaluate_command, paired_tracking  # noqa: E402
+from giwbc.apps.walk_evaluation import WalkProtocol, add_evaluate_command, paired_tracking, tracking_summary  # noqa: E402
 from giwbc.policy import MlpWeights, export_onnx  # noqa: E402
 
 # 0.1 s push in [1.2, 1.3] s of a 2.5 s walking episode, forward commands only.
@@ -102,3 +102,42 @@ def test_cached_arms_give_the_same_comparison(tmp_path) -> None:
     assert first.wbc.episodes == first.residual.episodes  # the zero policy is the walker alone
     other = compare_cached(policy, cache, protocol=replace(protocol, force=35.0), episodes=1, seed=9, workers=1)
     assert len(list(cache.glob("arm_*.json"))) == 4 and other.wbc.protocol.force == 35.0
+
+
+def test_tracking_rms_divides_by_the_window_actually_spanned() -> None:
+    """Samples every 0.03 s: a 1-s window spans 1.02 s; the window average is still the speed."""
+    times = np.arange(0, 5.0001, 0.03)
+    xy = np.stack([0.25 * times, np.zeros(len(times))], axis=1)
+    commands = np.tile([0.3, 0.0, 0.0], (len(times), 1))
+    assert velocity_tracking_rms(times, xy, np.zeros(len(times)), commands) == pytest.approx(0.05, abs=1e-12)
+
+
+def test_walk_protocol_commands_are_what_the_walk_task_reads() -> None:
+    """The overrides build the walk task's command ranges (a fixed command is a range of one
+    value), held past the episode's end; a malformed range is refused with what was given."""
+    from giwbc.tasks.walk import CommandRanges
+
+    fixed = WalkProtocol(commands=((0.3, 0.3), (-0.1, 0.1), (0.2, 0.2)))
+    ranges = CommandRanges(**fixed.env_overrides({}, 50.0)["commands"])
+    assert (ranges.vx, ranges.vy, ranges.yaw_rate, ranges.standing) == ((0.3, 0.3), (-0.1, 0.1), (0.2, 0.2), 0.0)
+    assert ranges.interval[0] > fixed.episode_seconds and ranges.horizon > fixed.episode_seconds
+    with pytest.raises(ValueError, match=r"^commands must be three \(low, high\) ranges \(vx, vy, yaw_rate\), got \(\(0\.3, 0\.1\),\)$"):
+        WalkProtocol(commands=((0.3, 0.1),))
+
+
+def test_paired_tracking_intervals_belong_to_their_arm_and_a_zero_mean_difference_is_not_significant() -> None:
+    rng = np.random.default_rng(1)
+    base = rng.uniform(0.05, 0.1, 40)
+    wbc = ArmResult("wbc", SHORT, tuple(_episode(i, True, b) for i, b in enumerate(base)))
+    worse = ArmResult("p", SHORT, tuple(_episode(i, True, b + 0.2) for i, b in enumerate(base)))
+    t = paired_tracking(Comparison(wbc, worse, "giwbc/G1Walk-v0"))
+    assert t.wbc_ci[0] < t.wbc_mean < t.wbc_ci[1] < t.residual_ci[0] < t.residual_mean < t.residual_ci[1]
+    noisy = ArmResult("p", SHORT, tuple(_episode(i, True, b + 0.01 * (-1) ** i) for i, b in enumerate(base)))
+    assert paired_tracking(Comparison(wbc, noisy, "giwbc/G1Walk-v0")).wilcoxon_p > 0.05  # +-0.01 alternately: no shift
+    summary = tracking_summary(wbc)
+    assert summary["tracking_episodes"] == 40 and summary["mean_tracking_rms"] == pytest.approx(base.mean())
+    low, high = summary["mean_tracking_rms_95ci"]
+    assert low < base.mean() < high
+    assert tracking_summary(wbc) == summary  # a seeded bootstrap: the same interval every time
+    fallen = ArmResult("wbc", SHORT, wbc.episodes + (_episode(40, False, 5.0),))  # fell, though its tracking is finite
+    assert tracking_summary(fallen) == summary

@@ -205,6 +205,8 @@ class SafetySupervisor:
         r = self._base_z_in_imu  # the base z axis in IMU coordinates
         # Last row of the IMU's rotation matrix (world z in IMU coordinates) dotted with it.
         cos_tilt = 2 * (x * z - y * w) * r[0] + 2 * (y * z + x * w) * r[1] + (1 - 2 * (x * x + y * y)) * r[2]
+        if cos_tilt != cos_tilt:  # NaN (a broken orientation output): min/max below would clamp it to level
+            return math.nan
         return math.acos(max(-1.0, min(1.0, cos_tilt)))
 
     def check(
