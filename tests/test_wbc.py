@@ -707,3 +707,31 @@ def test_qp_problem_violation_copy_and_validation():
     bad.ub = None
     with pytest.raises(ValueError, match=r"^QP ub has shape None, expected \(2,\)$"):
         bad.validate()
+
+
+def test_constructor_defaults_pass_through_and_clear_errors():
+    """The internal clock advances by the default 2 ms per tick; the impedance gains default
+    to zero and are passed through when given; ``fallback_decay`` accepts both ends of [0, 1];
+    bad settings name themselves; a failed tick still reports its phase timings."""
+    model = build_pinocchio_model(DoublePendulum())
+    q, v = np.array([0.3, -0.2]), np.zeros(2)
+    plain = WholeBodyController(model)
+    first, second = plain.update(q, v), plain.update(q, v)
+    assert first.ok and first.t == pytest.approx(0.002) and second.t == pytest.approx(0.004)
+    command = first.impedance
+    assert np.all(command.kp == 0.0) and np.all(command.kd == 0.0)
+    given = WholeBodyController(model, impedance_kp=3.0, impedance_kd=np.array([0.5, 0.25])).update(q, v).impedance
+    np.testing.assert_array_equal(given.kp, [3.0, 3.0])
+    np.testing.assert_array_equal(given.kd, [0.5, 0.25])
+    for decay in (0.0, 1.0):
+        assert WholeBodyController(model, fallback_decay=decay).fallback_decay == decay
+    with pytest.raises(ValueError, match=r"^torque limits must be >= 0$"):
+        WholeBodyController(model, torque_limits=np.array([-1.0, 1.0]))
+    with pytest.raises(ValueError, match=r"^fallback_kd must be finite and >= 0"):
+        WholeBodyController(model, fallback_kd=-1.0)
+    with pytest.raises(TypeError, match=r"^expected a WbcTask, got str$"):
+        plain.add_task("posture")
+    infeasible = WholeBodyController(model, torque_limits=np.array([1e-3, 1e-3]))
+    infeasible.add_contact(SurfaceContact("tip", "tip", 0.01, 0.01, min_normal_force=1000.0, max_normal_force=2000.0))
+    failed = infeasible.update(q, v)
+    assert not failed.ok and failed.timings.solve > 0.0 and failed.timings.build > 0.0 and failed.timings.pinocchio > 0.0
