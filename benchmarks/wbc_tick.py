@@ -18,7 +18,11 @@ same decisions bit for bit; each WBC tick is classified as single support, doubl
 a contact switch (a tick whose contact activations differ from the previous tick's: the force
 ramps of lift-off and touch-down, and the first tick of each phase). Its single-support median
 is compared with the standing double-support median above (``single_over_standing``), all
-measured in this one process, interleaved replays (``--repeat``).
+measured in this one process, interleaved replays (``--repeat``). The same ticks split by who
+answered (``guess_answered_us`` / ``backend_us``, ``backend_share``, the p99 with and without
+the backend ticks), and ``backend_tick_parts_cpu_us``: the CPU time of each part of a backend
+tick (the guess's failed KKT solves, proxsuite, the polish, the settle fallback), from one more
+replay with those parts wrapped.
 """
 
 from __future__ import annotations
@@ -130,13 +134,14 @@ def record_walk(description, seconds: float, speed: float = 0.3, seed: int = 0) 
 
 
 def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str, list[float]], int]:
-    """Replay the recorded inputs through a fresh walking controller; tick times by kind."""
+    """Replay the recorded inputs through a fresh walking controller; tick times by kind (and,
+    across kinds, ``guess``/``backend``: the ticks the active-set guess answered, the others)."""
     from giwbc.locomotion.walker import Phase, WalkingController
 
     walker = WalkingController(description)
     walker.reset(inputs[0][0])
     names = [contact.name for contact in walker.contacts.values()]
-    kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": []}
+    kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": [], "guess": [], "backend": []}
     previous = None
     failures = 0
     for i, (q, v, t, forces, start) in enumerate(inputs):
@@ -147,6 +152,7 @@ def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str
         activations = tuple(walker.wbc.contact_activation(name) for name in names)
         phase = walker.state.phase
         if i >= 50:  # (the first ticks include the solver's initialisation)
+            kinds["guess" if result.message == "active-set guess" else "backend"].append(result.timings.total)
             if activations != previous or (0.0 < min(activations) < 1.0):
                 kinds["switch"].append(result.timings.total)
             elif phase is Phase.SINGLE:
@@ -155,6 +161,64 @@ def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str
                 kinds["double"].append(result.timings.total)
         previous = activations
     return kinds, failures
+
+
+def profile_backend_ticks(description, inputs: list, speed: float = 0.3) -> dict:
+    """CPU time (``time.thread_time``) of each part of the ticks the guess did not answer, in a
+    separate replay with the parts wrapped (the wrappers' own cost is in the figures): the
+    guess's failed KKT solves, proxsuite's update and solve (with its cold retry when one
+    happens), the polish into the exact optimum, the settle fallback, and the whole walker tick.
+    Medians and p90 over those ticks, µs."""
+    from giwbc.locomotion.walker import WalkingController
+
+    walker = WalkingController(description)
+    walker.reset(inputs[0][0])
+    solver = walker.wbc.solver
+    kkt = getattr(solver, "_kkt", None)
+    if kkt is None or getattr(solver, "guess", None) is None:
+        return {}
+    clock = time.thread_time
+    parts: dict[str, float] = {}
+
+    def wrap(owner, name: str, key: str) -> None:
+        method = getattr(owner, name)
+
+        def timed(*args, **kwargs):
+            start = clock()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                parts[key] = parts.get(key, 0.0) + clock() - start
+
+        setattr(owner, name, timed)
+
+    wrap(kkt, "try_solve", "guess")
+    wrap(kkt, "polish", "polish")
+    wrap(kkt, "settle", "settle")
+    wrap(solver, "solve", "solver")
+    rows: dict[str, list[float]] = {key: [] for key in ("guess", "proxsuite", "polish", "settle", "solver", "walker_tick")}
+    inner: list[int] = []
+    for i, (q, v, t, forces, start) in enumerate(inputs):
+        if start:
+            walker.set_command(speed, 0.0, 0.0)
+        parts.clear()
+        begin = clock()
+        result = walker.update(q, v, t, forces)
+        tick = clock() - begin
+        if i < 50 or result.message == "active-set guess":
+            continue
+        for key in ("guess", "polish", "settle", "solver"):
+            rows[key].append(parts.get(key, 0.0))
+        rows["proxsuite"].append(parts.get("solver", 0.0) - sum(parts.get(key, 0.0) for key in ("guess", "polish", "settle")))
+        rows["walker_tick"].append(tick)
+        inner.append(result.iterations)
+    if not inner:
+        return {}
+    report: dict = {key: {"median": round(float(np.median(values)) * 1e6, 1), "p90": round(float(np.percentile(values, 90)) * 1e6, 1)} for key, values in rows.items()}
+    report["proxsuite_inner_iterations"] = {"median": float(np.median(inner)), "p90": float(np.percentile(inner, 90)), "max": int(max(inner))}
+    report["ticks"] = len(inner)
+    report["clock"] = "time.thread_time (CPU), parts wrapped"
+    return report
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -183,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
     states, in_loop = record(description, args.solver, args.seconds, settings)
 
     walk_inputs = record_walk(description, args.walk_seconds) if args.walk else []
-    walk_kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": []}
+    walk_kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": [], "guess": [], "backend": []}
     walk_failures = 0
 
     controller = make_balance_controller(description, solver=args.solver, solver_settings=settings)
@@ -229,7 +293,15 @@ def main(argv: list[str] | None = None) -> int:
             "single_support_us": _stats(walk_kinds["single"]),
             "double_support_us": _stats(walk_kinds["double"]),
             "contact_switch_us": _stats(walk_kinds["switch"]),
-            "ticks": {key: len(values) for key, values in walk_kinds.items()},
+            # The ticks the guess answered and those that ran proxsuite + polish: the latter set
+            # the walking tick's p99 (``p99_guess_only_us``: what it would be without them).
+            "guess_answered_us": _stats(walk_kinds["guess"]),
+            "backend_us": _stats(walk_kinds["backend"]),
+            "backend_share": round(len(walk_kinds["backend"]) / max(1, len(walk_kinds["guess"]) + len(walk_kinds["backend"])), 4),
+            "p99_all_us": round(float(np.percentile(walk_kinds["guess"] + walk_kinds["backend"], 99)) * 1e6, 1),
+            "p99_guess_only_us": round(float(np.percentile(walk_kinds["guess"], 99)) * 1e6, 1),
+            "backend_tick_parts_cpu_us": profile_backend_ticks(description, walk_inputs),
+            "ticks": {key: len(values) for key, values in walk_kinds.items() if key in ("single", "double", "switch")},
             "single_over_standing": round(float(np.median(walk_kinds["single"]) / np.median([t.total for t in timings])), 3),
             "failures": walk_failures,
             "scenario": f"replay of a recorded closed-loop MuJoCo walk at 0.3 m/s from 0.5 s, {args.walk_seconds:g} s, seed 0; switch = activations changed or ramping",
