@@ -16,6 +16,7 @@ from giwbc.control import (
     AngularMomentumTask,
     ComTask,
     ContactForceRegularization,
+    CornerContact,
     FrameOrientationTask,
     FramePoseTask,
     Kinodynamics,
@@ -946,6 +947,9 @@ def test_contact_settings_are_checked_and_feet_are_built_from_the_description(g1
         SurfaceContact("foot", "pelvis", 0.1, 0.05, kd=-1.0)
     with pytest.raises(ValueError, match=r"^contact 'foot': half_length and half_width must be > 0$"):
         SurfaceContact("foot", "pelvis", 0.0, 0.05)
+    for half_length, half_width in ((0.1, 0.0), (0.1, -0.05), (-0.1, 0.05)):  # a zero-width sole has no cone
+        with pytest.raises(ValueError, match=r"^contact 'foot': half_length and half_width must be > 0$"):
+            CornerContact("foot", "pelvis", half_length, half_width)
     shifted = SurfaceContact("foot", "pelvis", 0.1, 0.05, offset=[0.01, -0.02, 0.03])
     np.testing.assert_array_equal(shifted.offset.translation, [0.01, -0.02, 0.03])
     np.testing.assert_array_equal(shifted.offset.rotation, np.eye(3))

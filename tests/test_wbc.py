@@ -452,6 +452,52 @@ def test_contact_removal_ramps_the_force_down_and_keeps_torques_continuous(g1, g
     assert result.contact_wrenches["right_foot"][2] > 100.0
 
 
+def test_a_re_made_contact_carries_no_force_before_its_ramp_allows_it(g1, g1_model):
+    """A foot lifted off (ramped to zero) and put down again with a ramp: at the tick it is made
+    again its activation is 0, so it carries no force (the whole weight on the other foot), and
+    on the following ticks its normal force follows the cap activation × weight."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    dt = 0.002
+    wbc.update(q, v, 0.0)
+    wbc.remove_contact("right_foot", ramp_time=0.02)
+    for i in range(1, 20):
+        assert wbc.update(q, v, i * dt).ok
+    assert wbc.contact_activation("right_foot") == 0.0 and "right_foot" not in wbc.active_contacts
+    weight = g1.total_mass * 9.81
+    wbc.add_contact(wbc.contact("right_foot"), ramp_time=0.1)
+    for i in range(20, 26):
+        result = wbc.update(q, v, i * dt)
+        assert result.ok, result.failure()
+        activation = wbc.contact_activation("right_foot")
+        assert activation == pytest.approx((i - 20) * dt / 0.1)
+        right = wbc.contact_forces("right_foot", result)  # the force variables, reported or not
+        assert right[2] <= activation * weight + 1e-6
+        np.testing.assert_allclose(right, 0.0, atol=1e-6 + activation * weight)
+        # Statics at rest: the two feet together still carry the weight.
+        total = wbc.contact_wrench_world("left_foot", result)[2] + wbc.contact_wrench_world("right_foot", result)[2]
+        assert total == pytest.approx(weight, rel=0.05)
+
+
+def test_a_contact_not_made_yet_is_placed_where_its_sole_is_now(g1, g1_model):
+    """Before a contact takes its reference pose (after a reset), its ground position is the
+    sole's current position: forward kinematics of the sole frame, with the base moved off the
+    origin so that x and y differ."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    q[:2] += (0.7, -0.3)
+    assert wbc.update(q, v, 0.0).ok
+    wbc.reset()
+    data = g1_model.createData()
+    pin.framesForwardKinematics(g1_model, data, q)
+    for contact in wbc.contacts:
+        assert contact.reference is None
+        sole = data.oMf[g1_model.getFrameId(contact.link)] * contact.offset
+        xy = wbc.contact_set.contact_xy(wbc.contact_set.slot(contact.name))
+        np.testing.assert_allclose(xy, sole.translation[:2], atol=1e-9)
+    assert abs(xy[0] - xy[1]) > 0.1
+
+
 def test_a_new_contact_grows_the_problem(g1, g1_model):
     wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
     q, v = g1.default_configuration(), np.zeros(g1_model.nv)
@@ -480,6 +526,7 @@ def test_non_finite_state_returns_a_fallback(g1, g1_model, solver):
     np.testing.assert_allclose(result.tau, good.tau * wbc.fallback_decay)
     assert result.failures == 1 and wbc.failures == 1 and wbc.consecutive_failures == 1
     assert np.all(np.isfinite(result.impedance.tau_ff)) and np.all(result.impedance.kp == 0)
+    assert result.failure() == "whole-body controller invalid_state (no QP): state (q, v) is not finite"
     result = wbc.update(q, np.full(g1_model.nv, np.inf), 0.004)
     assert result.status is WbcStatus.INVALID_STATE and wbc.consecutive_failures == 2
     np.testing.assert_allclose(result.tau, good.tau * wbc.fallback_decay**2)
