@@ -514,6 +514,17 @@ def test_a_new_contact_grows_the_problem(g1, g1_model):
 
 
 # --- failures never raise inside the loop --------------------------------------------------------
+def test_a_fallback_before_any_qp_says_so(g1, g1_model):
+    """A non-finite state falls back before any QP is built: the failure names no QP status."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    assert wbc.update(q, v, 0.0).failure() is None
+    q[10] = np.nan
+    result = wbc.update(q, v, 0.002)
+    assert result.qp_status is None
+    assert result.failure() == "whole-body controller invalid_state (no QP): state (q, v) is not finite"
+
+
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_non_finite_state_returns_a_fallback(g1, g1_model, solver):
     wbc = g1_controller(g1, g1_model, solver, accurate=False)
@@ -526,7 +537,6 @@ def test_non_finite_state_returns_a_fallback(g1, g1_model, solver):
     np.testing.assert_allclose(result.tau, good.tau * wbc.fallback_decay)
     assert result.failures == 1 and wbc.failures == 1 and wbc.consecutive_failures == 1
     assert np.all(np.isfinite(result.impedance.tau_ff)) and np.all(result.impedance.kp == 0)
-    assert result.failure() == "whole-body controller invalid_state (no QP): state (q, v) is not finite"
     result = wbc.update(q, np.full(g1_model.nv, np.inf), 0.004)
     assert result.status is WbcStatus.INVALID_STATE and wbc.consecutive_failures == 2
     np.testing.assert_allclose(result.tau, good.tau * wbc.fallback_decay**2)
