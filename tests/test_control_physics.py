@@ -755,6 +755,26 @@ def test_joint_limit_bounds_hold_a_joint_from_both_sides_and_never_cross(g1: Rob
     assert np.all(problem.lb <= problem.ub)
 
 
+def test_joint_velocity_limits_hold_a_joint_driven_upwards(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """A posture task pulls every joint above its upper limit: a joint already at its velocity limit
+    (far from the stop) may not speed up (q̈ = 0), and one at half of it speeds up only to the limit
+    within the horizon (``v + q̈ T = v_max``)."""
+    T = 0.01
+    wbc = WholeBodyController(g1_model, torque_limits=np.full(29, np.inf), joint_limits=True, joint_limit_horizon=T)
+    lower, upper = g1.position_limits
+    velocity_limit = g1_model.velocityLimit[6:]
+    wbc.add_task(PostureTask(reference=upper + 1.0, weight=1.0, kp=1000.0, kd=0.0))
+    q, v = g1.default_configuration(), np.zeros(35)
+    hip, knee = 0, 3
+    q[7 + hip], v[6 + hip] = upper[hip] - 1.0, velocity_limit[hip]
+    q[7 + knee], v[6 + knee] = 0.5 * (lower[knee] + upper[knee]), 0.5 * velocity_limit[knee]
+    assert upper[knee] - q[7 + knee] > velocity_limit[knee] * T  # far enough: the velocity bound is the tighter one
+    result = wbc.update(q, v, 0.0)
+    assert result.ok, result.message
+    assert result.qdd[6 + hip] == pytest.approx(0.0, abs=1e-4)
+    assert v[6 + knee] + result.qdd[6 + knee] * T == pytest.approx(velocity_limit[knee], rel=1e-4)
+
+
 def test_a_corner_cap_below_one_newton_holds(g1: RobotDescription, g1_model: pin.Model) -> None:
     """A foot that carried almost nothing when its removal started (the lever rule put the load on
     the other foot) may carry no more than that times its activation — even far below 1 N."""
