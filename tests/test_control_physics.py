@@ -591,6 +591,27 @@ def test_the_weight_is_shared_by_activation_or_by_the_lever_rule_about_the_suppo
     np.testing.assert_allclose(normal_shares(wbc, result), [share, 1.0 - share], atol=1e-3)
 
 
+def test_a_surface_foot_and_a_corner_foot_share_the_weight_by_the_lever_rule(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """One foot a 6D surface contact, the other four corner forces: as the support point moves
+    from tick to tick, the feet's normal forces still follow the lever rule, the corner foot's
+    load spread evenly over its corners."""
+    wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits, dt=g1.timestep)
+    wbc.add_contact(foot_contacts(g1, "surface", mu=0.8)[0])
+    wbc.add_contact(foot_contacts(g1, "corners", mu=0.8)[1])
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=1e-3, kp=10.0))
+    regularization = wbc.add_task(ContactForceRegularization(weight=1.0))
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    wbc.update(q, v)
+    left, right = (wbc.contact(contact.name).placement_in_world(wbc.kin).translation for contact in wbc.contacts)
+    for expected in (0.5, 0.3, 0.8, 0.6):
+        regularization.set_support_point(expected * left + (1.0 - expected) * right)
+        result = wbc.update(q, v)
+        assert result.ok, result.message
+        np.testing.assert_allclose(normal_shares(wbc, result), [expected, 1.0 - expected], atol=1e-3)
+        corners = wbc.contact_forces(wbc.contacts[1].name, result)[2::3]
+        np.testing.assert_allclose(corners, corners.mean(), rtol=1e-3, atol=0.05)
+
+
 @pytest.mark.parametrize("contact_model", ["surface", "corners"])
 def test_each_foot_accelerates_as_its_motion_rows_ask(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator, contact_model: str) -> None:
     """A made foot's spatial acceleration (from the returned q̈ by Pinocchio's forward
