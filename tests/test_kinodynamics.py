@@ -145,3 +145,29 @@ def test_local_point_jacobian_and_drift(g1, g1_model, rng):
     pose = kin.joint_placement(frame.parentJoint) * placement
     expected = np.concatenate([pose.rotation.T @ world_rate, pose.rotation.T @ angular_rate])
     np.testing.assert_allclose(jacobian @ a + drift, expected, atol=2e-5)
+
+
+def test_world_aligned_point_jacobian_and_drift(g1, g1_model, rng):
+    """With world-aligned axes, ``J a + J̇ v`` of a sole point is the time derivative of its world
+    velocity (linear: the point's, angular: the foot's), by central finite differences along (v, a)."""
+    kin = Kinodynamics(g1_model)
+    contact = g1.contacts[1]
+    frame = g1_model.frames[kin.frame_id(contact.link)]
+    placement = frame.placement * pin.SE3(np.eye(3), np.asarray(contact.center))
+    q, v = random_state(g1_model, g1, rng)
+    a = rng.uniform(-1, 1, g1_model.nv)
+    kin.update(q, v)
+    jacobian = kin.point_jacobian(frame.parentJoint, placement, LWA).copy()
+    drift = kin.point_drift(frame.parentJoint, placement, LWA).copy()
+
+    def world_twist(qq, vv):
+        other = Kinodynamics(g1_model)
+        other.update(qq, vv)
+        local = other.point_jacobian(frame.parentJoint, placement, LOCAL) @ vv
+        rotation = (other.joint_placement(frame.parentJoint) * placement).rotation
+        return np.concatenate([rotation @ local[:3], rotation @ local[3:]])
+
+    h = 1e-6
+    expected = (world_twist(pin.integrate(g1_model, q, v * h), v + a * h) - world_twist(pin.integrate(g1_model, q, -v * h), v - a * h)) / (2 * h)
+    np.testing.assert_allclose(jacobian @ a + drift, expected, atol=2e-5)
+    assert np.max(np.abs(drift)) > 1e-2  # the drift matters at this state
