@@ -163,6 +163,7 @@ def test_the_contact_force_regularisation_is_on_by_default_and_its_absence_is_na
     for _ in range(2):
         failed = wbc.update(g1.default_configuration(), np.zeros(g1_model.nv))
         assert not failed.ok and "no contact-force regularisation" in failed.message
+        assert failed.message.endswith("add a ContactForceRegularization)")  # names the class to add
     wbc.add_task(ContactForceRegularization(weight=1e-5))
     assert wbc.update(g1.default_configuration(), np.zeros(g1_model.nv)).ok
 
@@ -496,6 +497,29 @@ def test_a_contact_not_made_yet_is_placed_where_its_sole_is_now(g1, g1_model):
         xy = wbc.contact_set.contact_xy(wbc.contact_set.slot(contact.name))
         np.testing.assert_allclose(xy, sole.translation[:2], atol=1e-9)
     assert abs(xy[0] - xy[1]) > 0.1
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_contact_swapped_for_one_of_the_same_size_solves_as_a_fresh_controller(g1, g1_model, solver):
+    """The right foot forgotten and a hand contact of the same size added: the problem keeps its
+    dimensions but not its sparsity pattern, and the next tick must solve as a controller built
+    with those contacts from the start (same torques, a hand force that supports the robot)."""
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    swapped = g1_controller(g1, g1_model, solver)
+    assert swapped.update(q, v, 0.0).ok
+    n = swapped.problem.n
+    swapped.forget_contact("right_foot")
+    swapped.add_contact(SurfaceContact("right_hand", "right_wrist_yaw_link", 0.02, 0.02, mu=0.8))
+    fresh = g1_controller(g1, g1_model, solver)
+    fresh.forget_contact("right_foot")
+    fresh.add_contact(SurfaceContact("right_hand", "right_wrist_yaw_link", 0.02, 0.02, mu=0.8))
+    assert fresh.update(q, v, 0.0).ok
+    a, b = swapped.update(q, v, 0.002), fresh.update(q, v, 0.002)
+    assert a.ok and b.ok, (a.message, b.message)
+    assert swapped.problem.n == n
+    weight = g1.total_mass * 9.81
+    np.testing.assert_allclose(a.tau, b.tau, atol=1e-3 * weight)
+    np.testing.assert_allclose(a.qdd, b.qdd, atol=1e-3)
 
 
 def test_a_new_contact_grows_the_problem(g1, g1_model):
