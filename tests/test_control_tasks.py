@@ -204,6 +204,15 @@ def test_the_com_task_residual_is_the_com_acceleration_less_the_wish(g1, rng) ->
     np.testing.assert_allclose(task.residual(qdd), data.acom[0] - wish, atol=1e-9)
 
 
+def test_a_frame_task_refuses_rates_of_the_wrong_size_and_names_them() -> None:
+    """Frame velocity and acceleration references are 6D whatever rows the task keeps."""
+    task = FramePositionTask("pelvis")
+    with pytest.raises(ValueError, match=r"^frame velocity reference must have 6 entries, got shape \(3,\)$"):
+        task.set_reference(pin.SE3.Identity(), velocity=np.zeros(3))
+    with pytest.raises(ValueError, match=r"^frame acceleration reference must have 6 entries, got shape \(2,\)$"):
+        task.set_reference(pin.SE3.Identity(), acceleration=np.zeros(2))
+
+
 def test_task_defaults_and_given_gains() -> None:
     """The documented defaults (weight 1; frame tasks kp 100, posture kp 0; critical damping) and
     gains given to every task class reach it."""

@@ -522,6 +522,35 @@ def test_a_contact_swapped_for_one_of_the_same_size_solves_as_a_fresh_controller
     np.testing.assert_allclose(a.qdd, b.qdd, atol=1e-3)
 
 
+def test_the_answer_at_a_state_does_not_depend_on_the_states_before(g1, g1_model, rng):
+    """A controller that ran at another base orientation with another pelvis-orientation weight,
+    then had that weight changed and ran there once more, answers at a new state as a fresh
+    controller built with the new weight: the same torques and accelerations (the base-orientation
+    rows follow the base, and a weight change reaches the Hessian)."""
+    q1, v1 = random_state(g1, g1_model, rng, scale=0.1, speed=0.5)
+    q2, v2 = random_state(g1, g1_model, rng, scale=0.1, speed=0.5)
+
+    def controller():  # the same references, whatever the first tick's state
+        wbc = g1_controller(g1, g1_model, "proxsuite")
+        wbc.task("com").set_reference(np.array([0.0, 0.0, 0.6]))
+        wbc.task("pelvis_orientation").set_reference(pin.SE3(pin.rpy.rpyToMatrix(0.05, -0.1, 0.2), np.zeros(3)))
+        return wbc
+
+    used = controller()
+    for i in range(3):
+        assert used.update(q1, v1, i * 0.002).ok
+    used.task("pelvis_orientation").set_weight(30.0)
+    assert used.update(q1, v1, 0.006).ok
+    fresh = controller()
+    fresh.task("pelvis_orientation").set_weight(30.0)
+    a, b = used.update(q2, v2, 0.008), fresh.update(q2, v2, 0.008)
+    assert a.ok and b.ok, (a.message, b.message)
+    np.testing.assert_allclose(a.qdd, b.qdd, atol=1e-5)
+    np.testing.assert_allclose(a.tau, b.tau, atol=1e-4)
+    unweighted = controller().update(q2, v2, 0.008)
+    assert np.max(np.abs(unweighted.qdd - b.qdd)) > 1e-2  # the weight matters at this state
+
+
 def test_a_new_contact_grows_the_problem(g1, g1_model):
     wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
     q, v = g1.default_configuration(), np.zeros(g1_model.nv)
