@@ -480,6 +480,22 @@ def test_a_re_made_contact_carries_no_force_before_its_ramp_allows_it(g1, g1_mod
         assert total == pytest.approx(weight, rel=0.05)
 
 
+def test_a_broken_foot_carries_no_force_with_a_sparse_solver(g1, g1_model):
+    """OSQP (fixed sparsity pattern): once a foot's force has ramped to zero, its six force
+    variables stay zero (a broken 6D contact's ``f = 0`` rows are in the pattern) and the other
+    foot carries the whole weight."""
+    wbc = g1_controller(g1, g1_model, "osqp")
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    wbc.update(q, v, 0.0)
+    wbc.remove_contact("right_foot", ramp_time=0.01)
+    for i in range(1, 12):
+        result = wbc.update(q, v, i * 0.002)
+        assert result.ok, result.failure()
+    assert "right_foot" not in wbc.active_contacts
+    np.testing.assert_allclose(wbc.contact_forces("right_foot", result), 0.0, atol=1e-6)
+    assert wbc.contact_wrench_world("left_foot", result)[2] == pytest.approx(g1.total_mass * 9.81, rel=0.02)
+
+
 def test_a_contact_not_made_yet_is_placed_where_its_sole_is_now(g1, g1_model):
     """Before a contact takes its reference pose (after a reset), its ground position is the
     sole's current position: forward kinematics of the sole frame, with the base moved off the
@@ -612,6 +628,70 @@ def test_infeasible_problem_returns_a_fallback(g1, g1_model, solver):
     assert result.qp_status in (QpStatus.PRIMAL_INFEASIBLE, QpStatus.MAX_ITER, QpStatus.FAILED, QpStatus.DUAL_INFEASIBLE)
     assert np.all(result.tau == 0.0) and np.all(np.isnan(result.qdd))  # no previous torque: zero on a floating base
     assert wbc.failures == 1 and result.message
+
+
+def test_a_failed_qp_tick_keeps_its_time_and_blames_no_missing_regularisation(g1, g1_model):
+    """The infeasible stance above, regularised as by default: the failed tick reports the time it
+    was asked for, and its message does not blame a missing force regularisation."""
+    wbc = WholeBodyController(g1_model, torque_limits=np.full(29, 1e-3), solver_settings={"max_iter": 200})
+    weight = g1.total_mass * 9.81
+    for contact in foot_contacts(g1, min_normal_force=2 * weight, max_normal_force=3 * weight):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask())
+    assert wbc.force_regularization is not None and wbc.force_regularization.weight > 0
+    result = wbc.update(g1.default_configuration(), np.zeros(35), 0.5)
+    assert result.status is WbcStatus.QP_FAILED and result.t == 0.5
+    assert result.message and "regularisation" not in result.message
+
+
+def test_bad_settings_are_refused_with_their_names(g1_model):
+    for bad in (np.inf, np.nan, -1.0):
+        with pytest.raises(ValueError, match=r"^acceleration_regularization must be finite and >= 0$"):
+            WholeBodyController(g1_model, acceleration_regularization=bad)
+    with pytest.raises(ValueError, match=r"^joint_limit_horizon must be > 0$"):
+        WholeBodyController(g1_model, joint_limit_horizon=0.0)
+    with pytest.raises(ValueError, match=r"^torque_limits must have 29 entries, got shape \(28,\)$"):
+        WholeBodyController(g1_model, torque_limits=np.ones(28))
+
+
+def test_states_in_other_dtypes_give_the_same_answer(g1, g1_model, rng):
+    """A state given as float32 arrays (as a sensor driver may deliver it) or as integer
+    velocities is read as float64: the same answer as the float64 state it rounds to."""
+    q, v = random_state(g1, g1_model, rng)
+    q32, v32 = q.astype(np.float32), v.astype(np.float32)
+    a = g1_controller(g1, g1_model, "proxsuite").update(q32, v32, 0.0)
+    b = g1_controller(g1, g1_model, "proxsuite").update(q32.astype(float), v32.astype(float), 0.0)
+    assert a.ok and b.ok
+    np.testing.assert_array_equal(a.tau, b.tau)
+    still = np.zeros(g1_model.nv, dtype=int)
+    c = g1_controller(g1, g1_model, "proxsuite").update(g1.default_configuration(), still, 0.0)
+    d = g1_controller(g1, g1_model, "proxsuite").update(g1.default_configuration(), np.zeros(g1_model.nv), 0.0)
+    assert c.ok and d.ok
+    np.testing.assert_array_equal(c.tau, d.tau)
+
+
+def test_a_robot_with_some_joints_unlimited_stands_as_with_loose_limits(g1, g1_model):
+    """Torque limits on the legs only (the waist and arms unlimited), standing on both feet: the
+    same torques as with huge finite limits on every joint, the legs within their limits and the
+    feet carrying the weight."""
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    limits = np.array(g1.effort_limits, dtype=float)
+    partial, loose = limits.copy(), limits.copy()
+    partial[12:], loose[12:] = np.inf, 1e6
+    results = []
+    for torque_limits in (partial, loose):
+        wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=torque_limits)
+        for contact in foot_contacts(g1, mu=0.8):
+            wbc.add_contact(contact)
+        wbc.add_task(ComTask(weight=10.0, kp=100.0))
+        wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+        result = wbc.update(q, v, 0.0)
+        assert result.ok, result.message
+        normals = sum(wbc.contact_wrench_world(c.name, result)[2] for c in wbc.contacts)
+        assert normals == pytest.approx(g1.total_mass * 9.81, rel=1e-3)
+        results.append(result)
+    np.testing.assert_allclose(results[0].tau, results[1].tau, atol=1e-4)
+    assert np.all(np.abs(results[0].tau[:12]) <= limits[:12] + 1e-6)
 
 
 # --- the output for a Robot ------------------------------------------------------------------------
