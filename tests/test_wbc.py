@@ -496,6 +496,54 @@ def test_a_broken_foot_carries_no_force_with_a_sparse_solver(g1, g1_model):
     assert wbc.contact_wrench_world("left_foot", result)[2] == pytest.approx(g1.total_mass * 9.81, rel=0.02)
 
 
+def test_a_foot_put_down_again_anchors_anew_and_lifts_off_from_its_load(g1, g1_model):
+    """A foot lifted off and put down again takes its new ground position (the lever rule with a
+    support point on it puts the weight there), and lifted again mid-ramp its force falls from the
+    load it carries then (no jump down)."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    dt, t = 0.002, 0.0
+    wbc.update(q, v, t)
+    wbc.remove_contact("right_foot", ramp_time=0.01)
+    for _ in range(8):
+        t += dt
+        wbc.update(q, v, t)
+    assert "right_foot" not in wbc.active_contacts
+    wbc.add_contact(wbc.contact("right_foot"), ramp_time=0.01)
+    for _ in range(8):
+        t += dt
+        result = wbc.update(q, v, t)
+    assert wbc.contact_activation("right_foot") == 1.0
+    right = wbc.contact("right_foot").placement_in_world(wbc.kin).translation
+    wbc.force_regularization.set_support_point(right)
+    t += dt
+    result = wbc.update(q, v, t)
+    assert result.ok, result.failure()
+    weight = g1.total_mass * 9.81
+    assert wbc.contact_wrench_world("right_foot", result)[2] > 0.6 * weight  # more than its even share
+    # Lifted again while its force ramps back up: the cap starts from the load at that moment.
+    wbc.force_regularization.set_support_point(None)
+    wbc.remove_contact("right_foot", ramp_time=0.01)
+    for _ in range(8):
+        t += dt
+        wbc.update(q, v, t)
+    wbc.add_contact(wbc.contact("right_foot"), ramp_time=0.1)
+    for _ in range(26):
+        t += dt
+        result = wbc.update(q, v, t)
+    activation = wbc.contact_activation("right_foot")
+    load = wbc.contact_wrench_world("right_foot", result)[2]
+    assert 0.3 < activation < 0.7 and load > 0.1 * weight
+    wbc.remove_contact("right_foot", ramp_time=0.1)
+    for _ in range(5):
+        t += dt
+        result = wbc.update(q, v, t)
+        assert result.ok, result.failure()
+        cap = load * wbc.contact_activation("right_foot") / activation
+        assert 0.9 * cap < wbc.contact_wrench_world("right_foot", result)[2] <= cap + 1e-6
+    assert wbc.contact_activation("right_foot") < activation
+
+
 def test_a_contact_not_made_yet_is_placed_where_its_sole_is_now(g1, g1_model):
     """Before a contact takes its reference pose (after a reset), its ground position is the
     sole's current position: forward kinematics of the sole frame, with the base moved off the
