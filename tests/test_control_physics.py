@@ -16,6 +16,7 @@ from giwbc.control import (
     AngularMomentumTask,
     ComTask,
     ContactForceRegularization,
+    CornerContact,
     FrameOrientationTask,
     FramePoseTask,
     Kinodynamics,
@@ -590,6 +591,27 @@ def test_the_weight_is_shared_by_activation_or_by_the_lever_rule_about_the_suppo
     np.testing.assert_allclose(normal_shares(wbc, result), [share, 1.0 - share], atol=1e-3)
 
 
+def test_a_surface_foot_and_a_corner_foot_share_the_weight_by_the_lever_rule(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """One foot a 6D surface contact, the other four corner forces: as the support point moves
+    from tick to tick, the feet's normal forces still follow the lever rule, the corner foot's
+    load spread evenly over its corners."""
+    wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=g1.effort_limits, dt=g1.timestep)
+    wbc.add_contact(foot_contacts(g1, "surface", mu=0.8)[0])
+    wbc.add_contact(foot_contacts(g1, "corners", mu=0.8)[1])
+    wbc.add_task(PostureTask(reference=g1.default_positions, weight=1e-3, kp=10.0))
+    regularization = wbc.add_task(ContactForceRegularization(weight=1.0))
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    wbc.update(q, v)
+    left, right = (wbc.contact(contact.name).placement_in_world(wbc.kin).translation for contact in wbc.contacts)
+    for expected in (0.5, 0.3, 0.8, 0.6):
+        regularization.set_support_point(expected * left + (1.0 - expected) * right)
+        result = wbc.update(q, v)
+        assert result.ok, result.message
+        np.testing.assert_allclose(normal_shares(wbc, result), [expected, 1.0 - expected], atol=1e-3)
+        corners = wbc.contact_forces(wbc.contacts[1].name, result)[2::3]
+        np.testing.assert_allclose(corners, corners.mean(), rtol=1e-3, atol=0.05)
+
+
 @pytest.mark.parametrize("contact_model", ["surface", "corners"])
 def test_each_foot_accelerates_as_its_motion_rows_ask(g1: RobotDescription, g1_model: pin.Model, rng: np.random.Generator, contact_model: str) -> None:
     """A made foot's spatial acceleration (from the returned q̈ by Pinocchio's forward
@@ -752,6 +774,26 @@ def test_joint_limit_bounds_hold_a_joint_from_both_sides_and_never_cross(g1: Rob
     problem = wbc.build(q, v, 0.004)
     assert problem.lb[6 + knee] == problem.ub[6 + knee] < 0.0
     assert np.all(problem.lb <= problem.ub)
+
+
+def test_joint_velocity_limits_hold_a_joint_driven_upwards(g1: RobotDescription, g1_model: pin.Model) -> None:
+    """A posture task pulls every joint above its upper limit: a joint already at its velocity limit
+    (far from the stop) may not speed up (q̈ = 0), and one at half of it speeds up only to the limit
+    within the horizon (``v + q̈ T = v_max``)."""
+    T = 0.01
+    wbc = WholeBodyController(g1_model, torque_limits=np.full(29, np.inf), joint_limits=True, joint_limit_horizon=T)
+    lower, upper = g1.position_limits
+    velocity_limit = g1_model.velocityLimit[6:]
+    wbc.add_task(PostureTask(reference=upper + 1.0, weight=1.0, kp=1000.0, kd=0.0))
+    q, v = g1.default_configuration(), np.zeros(35)
+    hip, knee = 0, 3
+    q[7 + hip], v[6 + hip] = upper[hip] - 1.0, velocity_limit[hip]
+    q[7 + knee], v[6 + knee] = 0.5 * (lower[knee] + upper[knee]), 0.5 * velocity_limit[knee]
+    assert upper[knee] - q[7 + knee] > velocity_limit[knee] * T  # far enough: the velocity bound is the tighter one
+    result = wbc.update(q, v, 0.0)
+    assert result.ok, result.message
+    assert result.qdd[6 + hip] == pytest.approx(0.0, abs=1e-4)
+    assert v[6 + knee] + result.qdd[6 + knee] * T == pytest.approx(velocity_limit[knee], rel=1e-4)
 
 
 def test_a_corner_cap_below_one_newton_holds(g1: RobotDescription, g1_model: pin.Model) -> None:
@@ -946,6 +988,9 @@ def test_contact_settings_are_checked_and_feet_are_built_from_the_description(g1
         SurfaceContact("foot", "pelvis", 0.1, 0.05, kd=-1.0)
     with pytest.raises(ValueError, match=r"^contact 'foot': half_length and half_width must be > 0$"):
         SurfaceContact("foot", "pelvis", 0.0, 0.05)
+    for half_length, half_width in ((0.1, 0.0), (0.1, -0.05), (-0.1, 0.05)):  # a zero-width sole has no cone
+        with pytest.raises(ValueError, match=r"^contact 'foot': half_length and half_width must be > 0$"):
+            CornerContact("foot", "pelvis", half_length, half_width)
     shifted = SurfaceContact("foot", "pelvis", 0.1, 0.05, offset=[0.01, -0.02, 0.03])
     np.testing.assert_array_equal(shifted.offset.translation, [0.01, -0.02, 0.03])
     np.testing.assert_array_equal(shifted.offset.rotation, np.eye(3))

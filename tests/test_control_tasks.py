@@ -184,6 +184,35 @@ def test_a_frame_pose_task_error_is_the_position_and_rotation_to_its_reference(g
     np.testing.assert_allclose(task.error, full[rows], atol=1e-12)
 
 
+def test_the_com_task_residual_is_the_com_acceleration_less_the_wish(g1, rng) -> None:
+    """``residual(q̈)`` of a CoM task is the CoM acceleration that q̈ gives (Pinocchio's
+    ``centerOfMass`` at acceleration level) less the PD wish ``kp (c_ref − c) − kd ċ``."""
+    model = g1.build_pinocchio()
+    data = model.createData()
+    kin = Kinodynamics(model)
+    task = ComTask(kp=50.0, kd=5.0)
+    task.bind(kin)
+    q = g1.default_configuration()
+    q[7:] += rng.uniform(-0.2, 0.2, model.nv - 6)
+    v, qdd = rng.uniform(-1.0, 1.0, model.nv), rng.uniform(-1.0, 1.0, model.nv)
+    kin.update(q, v)
+    target = np.array([0.1, -0.05, 0.6])
+    task.set_reference(target)
+    task.compute(kin)
+    pin.centerOfMass(model, data, q, v, qdd)
+    wish = 50.0 * (target - data.com[0]) - 5.0 * data.vcom[0]
+    np.testing.assert_allclose(task.residual(qdd), data.acom[0] - wish, atol=1e-9)
+
+
+def test_a_frame_task_refuses_rates_of_the_wrong_size_and_names_them() -> None:
+    """Frame velocity and acceleration references are 6D whatever rows the task keeps."""
+    task = FramePositionTask("pelvis")
+    with pytest.raises(ValueError, match=r"^frame velocity reference must have 6 entries, got shape \(3,\)$"):
+        task.set_reference(pin.SE3.Identity(), velocity=np.zeros(3))
+    with pytest.raises(ValueError, match=r"^frame acceleration reference must have 6 entries, got shape \(2,\)$"):
+        task.set_reference(pin.SE3.Identity(), acceleration=np.zeros(2))
+
+
 def test_task_defaults_and_given_gains() -> None:
     """The documented defaults (weight 1; frame tasks kp 100, posture kp 0; critical damping) and
     gains given to every task class reach it."""

@@ -145,3 +145,52 @@ def test_local_point_jacobian_and_drift(g1, g1_model, rng):
     pose = kin.joint_placement(frame.parentJoint) * placement
     expected = np.concatenate([pose.rotation.T @ world_rate, pose.rotation.T @ angular_rate])
     np.testing.assert_allclose(jacobian @ a + drift, expected, atol=2e-5)
+
+
+def test_world_aligned_point_jacobian_and_drift(g1, g1_model, rng):
+    """With world-aligned axes, ``J a + J̇ v`` of a sole point is the time derivative of its world
+    velocity (linear: the point's, angular: the foot's), by central finite differences along (v, a)."""
+    kin = Kinodynamics(g1_model)
+    contact = g1.contacts[1]
+    frame = g1_model.frames[kin.frame_id(contact.link)]
+    placement = frame.placement * pin.SE3(np.eye(3), np.asarray(contact.center))
+    q, v = random_state(g1_model, g1, rng)
+    a = rng.uniform(-1, 1, g1_model.nv)
+    kin.update(q, v)
+    jacobian = kin.point_jacobian(frame.parentJoint, placement, LWA).copy()
+    drift = kin.point_drift(frame.parentJoint, placement, LWA).copy()
+
+    def world_twist(qq, vv):
+        other = Kinodynamics(g1_model)
+        other.update(qq, vv)
+        local = other.point_jacobian(frame.parentJoint, placement, LOCAL) @ vv
+        rotation = (other.joint_placement(frame.parentJoint) * placement).rotation
+        return np.concatenate([rotation @ local[:3], rotation @ local[3:]])
+
+    h = 1e-6
+    expected = (world_twist(pin.integrate(g1_model, q, v * h), v + a * h) - world_twist(pin.integrate(g1_model, q, -v * h), v - a * h)) / (2 * h)
+    np.testing.assert_allclose(jacobian @ a + drift, expected, atol=2e-5)
+    assert np.max(np.abs(drift)) > 1e-2  # the drift matters at this state
+
+
+def test_a_light_free_flyer_has_the_com_acceleration_of_pinocchio(rng):
+    """A free-flying body of 0.4 kg with a 0.3 kg arm (0.7 kg in all, under 1 kg): the CoM
+    acceleration at ``q̈ = 0`` from the base rows of ``h`` equals Pinocchio's ``centerOfMass``."""
+    model = pin.Model()
+    base = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "base")
+    model.appendBodyToJoint(base, pin.Inertia(0.4, np.array([0.0, 0.0, 0.05]), np.diag([1e-3, 2e-3, 3e-3])), pin.SE3.Identity())
+    arm = model.addJoint(base, pin.JointModelRY(), pin.SE3(np.eye(3), np.array([0.1, 0.0, 0.0])), "arm")
+    model.appendBodyToJoint(arm, pin.Inertia(0.3, np.array([0.2, 0.0, 0.0]), np.diag([1e-4, 4e-3, 4e-3])), pin.SE3.Identity())
+    kin = Kinodynamics(model)
+    assert kin.free_flyer and kin.n_base == 6 and kin.mass == pytest.approx(0.7)
+    data = model.createData()
+    for _ in range(3):
+        quaternion = rng.normal(size=4)
+        q = np.concatenate([rng.uniform(-1.0, 1.0, 3), quaternion / np.linalg.norm(quaternion), rng.uniform(-1.0, 1.0, 1)])
+        v = rng.uniform(-2.0, 2.0, model.nv)
+        kin.update(q, v)
+        pin.centerOfMass(model, data, q, v, np.zeros(model.nv))
+        np.testing.assert_allclose(kin.com_drift, data.acom[0], atol=1e-10)
+        out = np.zeros(3)
+        kin.com_drift_into(out)
+        np.testing.assert_allclose(out, data.acom[0], atol=1e-10)

@@ -163,6 +163,7 @@ def test_the_contact_force_regularisation_is_on_by_default_and_its_absence_is_na
     for _ in range(2):
         failed = wbc.update(g1.default_configuration(), np.zeros(g1_model.nv))
         assert not failed.ok and "no contact-force regularisation" in failed.message
+        assert failed.message.endswith("add a ContactForceRegularization)")  # names the class to add
     wbc.add_task(ContactForceRegularization(weight=1e-5))
     assert wbc.update(g1.default_configuration(), np.zeros(g1_model.nv)).ok
 
@@ -452,6 +453,168 @@ def test_contact_removal_ramps_the_force_down_and_keeps_torques_continuous(g1, g
     assert result.contact_wrenches["right_foot"][2] > 100.0
 
 
+def test_a_re_made_contact_carries_no_force_before_its_ramp_allows_it(g1, g1_model):
+    """A foot lifted off (ramped to zero) and put down again with a ramp: at the tick it is made
+    again its activation is 0, so it carries no force (the whole weight on the other foot), and
+    on the following ticks its normal force follows the cap activation × weight."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    dt = 0.002
+    wbc.update(q, v, 0.0)
+    wbc.remove_contact("right_foot", ramp_time=0.02)
+    for i in range(1, 20):
+        assert wbc.update(q, v, i * dt).ok
+    assert wbc.contact_activation("right_foot") == 0.0 and "right_foot" not in wbc.active_contacts
+    weight = g1.total_mass * 9.81
+    wbc.add_contact(wbc.contact("right_foot"), ramp_time=0.1)
+    for i in range(20, 26):
+        result = wbc.update(q, v, i * dt)
+        assert result.ok, result.failure()
+        activation = wbc.contact_activation("right_foot")
+        assert activation == pytest.approx((i - 20) * dt / 0.1)
+        right = wbc.contact_forces("right_foot", result)  # the force variables, reported or not
+        assert right[2] <= activation * weight + 1e-6
+        np.testing.assert_allclose(right, 0.0, atol=1e-6 + activation * weight)
+        # Statics at rest: the two feet together still carry the weight.
+        total = wbc.contact_wrench_world("left_foot", result)[2] + wbc.contact_wrench_world("right_foot", result)[2]
+        assert total == pytest.approx(weight, rel=0.05)
+
+
+def test_a_broken_foot_carries_no_force_with_a_sparse_solver(g1, g1_model):
+    """OSQP (fixed sparsity pattern): once a foot's force has ramped to zero, its six force
+    variables stay zero (a broken 6D contact's ``f = 0`` rows are in the pattern) and the other
+    foot carries the whole weight."""
+    wbc = g1_controller(g1, g1_model, "osqp")
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    wbc.update(q, v, 0.0)
+    wbc.remove_contact("right_foot", ramp_time=0.01)
+    for i in range(1, 12):
+        result = wbc.update(q, v, i * 0.002)
+        assert result.ok, result.failure()
+    assert "right_foot" not in wbc.active_contacts
+    np.testing.assert_allclose(wbc.contact_forces("right_foot", result), 0.0, atol=1e-6)
+    assert wbc.contact_wrench_world("left_foot", result)[2] == pytest.approx(g1.total_mass * 9.81, rel=0.02)
+
+
+def test_a_foot_put_down_again_anchors_anew_and_lifts_off_from_its_load(g1, g1_model):
+    """A foot lifted off and put down again takes its new ground position (the lever rule with a
+    support point on it puts the weight there), and lifted again mid-ramp its force falls from the
+    load it carries then (no jump down)."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    dt, t = 0.002, 0.0
+    wbc.update(q, v, t)
+    wbc.remove_contact("right_foot", ramp_time=0.01)
+    for _ in range(8):
+        t += dt
+        wbc.update(q, v, t)
+    assert "right_foot" not in wbc.active_contacts
+    wbc.add_contact(wbc.contact("right_foot"), ramp_time=0.01)
+    for _ in range(8):
+        t += dt
+        result = wbc.update(q, v, t)
+    assert wbc.contact_activation("right_foot") == 1.0
+    right = wbc.contact("right_foot").placement_in_world(wbc.kin).translation
+    wbc.force_regularization.set_support_point(right)
+    t += dt
+    result = wbc.update(q, v, t)
+    assert result.ok, result.failure()
+    weight = g1.total_mass * 9.81
+    assert wbc.contact_wrench_world("right_foot", result)[2] > 0.6 * weight  # more than its even share
+    # Lifted again while its force ramps back up: the cap starts from the load at that moment.
+    wbc.force_regularization.set_support_point(None)
+    wbc.remove_contact("right_foot", ramp_time=0.01)
+    for _ in range(8):
+        t += dt
+        wbc.update(q, v, t)
+    wbc.add_contact(wbc.contact("right_foot"), ramp_time=0.1)
+    for _ in range(26):
+        t += dt
+        result = wbc.update(q, v, t)
+    activation = wbc.contact_activation("right_foot")
+    load = wbc.contact_wrench_world("right_foot", result)[2]
+    assert 0.3 < activation < 0.7 and load > 0.1 * weight
+    wbc.remove_contact("right_foot", ramp_time=0.1)
+    for _ in range(5):
+        t += dt
+        result = wbc.update(q, v, t)
+        assert result.ok, result.failure()
+        cap = load * wbc.contact_activation("right_foot") / activation
+        assert 0.9 * cap < wbc.contact_wrench_world("right_foot", result)[2] <= cap + 1e-6
+    assert wbc.contact_activation("right_foot") < activation
+
+
+def test_a_contact_not_made_yet_is_placed_where_its_sole_is_now(g1, g1_model):
+    """Before a contact takes its reference pose (after a reset), its ground position is the
+    sole's current position: forward kinematics of the sole frame, with the base moved off the
+    origin so that x and y differ."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    q[:2] += (0.7, -0.3)
+    assert wbc.update(q, v, 0.0).ok
+    wbc.reset()
+    data = g1_model.createData()
+    pin.framesForwardKinematics(g1_model, data, q)
+    for contact in wbc.contacts:
+        assert contact.reference is None
+        sole = data.oMf[g1_model.getFrameId(contact.link)] * contact.offset
+        xy = wbc.contact_set.contact_xy(wbc.contact_set.slot(contact.name))
+        np.testing.assert_allclose(xy, sole.translation[:2], atol=1e-9)
+    assert abs(xy[0] - xy[1]) > 0.1
+
+
+@pytest.mark.parametrize("solver", SOLVERS)
+def test_a_contact_swapped_for_one_of_the_same_size_solves_as_a_fresh_controller(g1, g1_model, solver):
+    """The right foot forgotten and a hand contact of the same size added: the problem keeps its
+    dimensions but not its sparsity pattern, and the next tick must solve as a controller built
+    with those contacts from the start (same torques, a hand force that supports the robot)."""
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    swapped = g1_controller(g1, g1_model, solver)
+    assert swapped.update(q, v, 0.0).ok
+    n = swapped.problem.n
+    swapped.forget_contact("right_foot")
+    swapped.add_contact(SurfaceContact("right_hand", "right_wrist_yaw_link", 0.02, 0.02, mu=0.8))
+    fresh = g1_controller(g1, g1_model, solver)
+    fresh.forget_contact("right_foot")
+    fresh.add_contact(SurfaceContact("right_hand", "right_wrist_yaw_link", 0.02, 0.02, mu=0.8))
+    assert fresh.update(q, v, 0.0).ok
+    a, b = swapped.update(q, v, 0.002), fresh.update(q, v, 0.002)
+    assert a.ok and b.ok, (a.message, b.message)
+    assert swapped.problem.n == n
+    weight = g1.total_mass * 9.81
+    np.testing.assert_allclose(a.tau, b.tau, atol=1e-3 * weight)
+    np.testing.assert_allclose(a.qdd, b.qdd, atol=1e-3)
+
+
+def test_the_answer_at_a_state_does_not_depend_on_the_states_before(g1, g1_model, rng):
+    """A controller that ran at another base orientation with another pelvis-orientation weight,
+    then had that weight changed and ran there once more, answers at a new state as a fresh
+    controller built with the new weight: the same torques and accelerations (the base-orientation
+    rows follow the base, and a weight change reaches the Hessian)."""
+    q1, v1 = random_state(g1, g1_model, rng, scale=0.1, speed=0.5)
+    q2, v2 = random_state(g1, g1_model, rng, scale=0.1, speed=0.5)
+
+    def controller():  # the same references, whatever the first tick's state
+        wbc = g1_controller(g1, g1_model, "proxsuite")
+        wbc.task("com").set_reference(np.array([0.0, 0.0, 0.6]))
+        wbc.task("pelvis_orientation").set_reference(pin.SE3(pin.rpy.rpyToMatrix(0.05, -0.1, 0.2), np.zeros(3)))
+        return wbc
+
+    used = controller()
+    for i in range(3):
+        assert used.update(q1, v1, i * 0.002).ok
+    used.task("pelvis_orientation").set_weight(30.0)
+    assert used.update(q1, v1, 0.006).ok
+    fresh = controller()
+    fresh.task("pelvis_orientation").set_weight(30.0)
+    a, b = used.update(q2, v2, 0.008), fresh.update(q2, v2, 0.008)
+    assert a.ok and b.ok, (a.message, b.message)
+    np.testing.assert_allclose(a.qdd, b.qdd, atol=1e-5)
+    np.testing.assert_allclose(a.tau, b.tau, atol=1e-4)
+    unweighted = controller().update(q2, v2, 0.008)
+    assert np.max(np.abs(unweighted.qdd - b.qdd)) > 1e-2  # the weight matters at this state
+
+
 def test_a_new_contact_grows_the_problem(g1, g1_model):
     wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
     q, v = g1.default_configuration(), np.zeros(g1_model.nv)
@@ -468,6 +631,17 @@ def test_a_new_contact_grows_the_problem(g1, g1_model):
 
 
 # --- failures never raise inside the loop --------------------------------------------------------
+def test_a_fallback_before_any_qp_says_so(g1, g1_model):
+    """A non-finite state falls back before any QP is built: the failure names no QP status."""
+    wbc = g1_controller(g1, g1_model, "proxsuite", accurate=False)
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    assert wbc.update(q, v, 0.0).failure() is None
+    q[10] = np.nan
+    result = wbc.update(q, v, 0.002)
+    assert result.qp_status is None
+    assert result.failure() == "whole-body controller invalid_state (no QP): state (q, v) is not finite"
+
+
 @pytest.mark.parametrize("solver", SOLVERS)
 def test_non_finite_state_returns_a_fallback(g1, g1_model, solver):
     wbc = g1_controller(g1, g1_model, solver, accurate=False)
@@ -502,6 +676,70 @@ def test_infeasible_problem_returns_a_fallback(g1, g1_model, solver):
     assert result.qp_status in (QpStatus.PRIMAL_INFEASIBLE, QpStatus.MAX_ITER, QpStatus.FAILED, QpStatus.DUAL_INFEASIBLE)
     assert np.all(result.tau == 0.0) and np.all(np.isnan(result.qdd))  # no previous torque: zero on a floating base
     assert wbc.failures == 1 and result.message
+
+
+def test_a_failed_qp_tick_keeps_its_time_and_blames_no_missing_regularisation(g1, g1_model):
+    """The infeasible stance above, regularised as by default: the failed tick reports the time it
+    was asked for, and its message does not blame a missing force regularisation."""
+    wbc = WholeBodyController(g1_model, torque_limits=np.full(29, 1e-3), solver_settings={"max_iter": 200})
+    weight = g1.total_mass * 9.81
+    for contact in foot_contacts(g1, min_normal_force=2 * weight, max_normal_force=3 * weight):
+        wbc.add_contact(contact)
+    wbc.add_task(ComTask())
+    assert wbc.force_regularization is not None and wbc.force_regularization.weight > 0
+    result = wbc.update(g1.default_configuration(), np.zeros(35), 0.5)
+    assert result.status is WbcStatus.QP_FAILED and result.t == 0.5
+    assert result.message and "regularisation" not in result.message
+
+
+def test_bad_settings_are_refused_with_their_names(g1_model):
+    for bad in (np.inf, np.nan, -1.0):
+        with pytest.raises(ValueError, match=r"^acceleration_regularization must be finite and >= 0$"):
+            WholeBodyController(g1_model, acceleration_regularization=bad)
+    with pytest.raises(ValueError, match=r"^joint_limit_horizon must be > 0$"):
+        WholeBodyController(g1_model, joint_limit_horizon=0.0)
+    with pytest.raises(ValueError, match=r"^torque_limits must have 29 entries, got shape \(28,\)$"):
+        WholeBodyController(g1_model, torque_limits=np.ones(28))
+
+
+def test_states_in_other_dtypes_give_the_same_answer(g1, g1_model, rng):
+    """A state given as float32 arrays (as a sensor driver may deliver it) or as integer
+    velocities is read as float64: the same answer as the float64 state it rounds to."""
+    q, v = random_state(g1, g1_model, rng)
+    q32, v32 = q.astype(np.float32), v.astype(np.float32)
+    a = g1_controller(g1, g1_model, "proxsuite").update(q32, v32, 0.0)
+    b = g1_controller(g1, g1_model, "proxsuite").update(q32.astype(float), v32.astype(float), 0.0)
+    assert a.ok and b.ok
+    np.testing.assert_array_equal(a.tau, b.tau)
+    still = np.zeros(g1_model.nv, dtype=int)
+    c = g1_controller(g1, g1_model, "proxsuite").update(g1.default_configuration(), still, 0.0)
+    d = g1_controller(g1, g1_model, "proxsuite").update(g1.default_configuration(), np.zeros(g1_model.nv), 0.0)
+    assert c.ok and d.ok
+    np.testing.assert_array_equal(c.tau, d.tau)
+
+
+def test_a_robot_with_some_joints_unlimited_stands_as_with_loose_limits(g1, g1_model):
+    """Torque limits on the legs only (the waist and arms unlimited), standing on both feet: the
+    same torques as with huge finite limits on every joint, the legs within their limits and the
+    feet carrying the weight."""
+    q, v = g1.default_configuration(), np.zeros(g1_model.nv)
+    limits = np.array(g1.effort_limits, dtype=float)
+    partial, loose = limits.copy(), limits.copy()
+    partial[12:], loose[12:] = np.inf, 1e6
+    results = []
+    for torque_limits in (partial, loose):
+        wbc = WholeBodyController(g1_model, solver="proxsuite", solver_settings=ACCURATE["proxsuite"], torque_limits=torque_limits)
+        for contact in foot_contacts(g1, mu=0.8):
+            wbc.add_contact(contact)
+        wbc.add_task(ComTask(weight=10.0, kp=100.0))
+        wbc.add_task(PostureTask(reference=g1.default_positions, weight=0.05, kp=50.0))
+        result = wbc.update(q, v, 0.0)
+        assert result.ok, result.message
+        normals = sum(wbc.contact_wrench_world(c.name, result)[2] for c in wbc.contacts)
+        assert normals == pytest.approx(g1.total_mass * 9.81, rel=1e-3)
+        results.append(result)
+    np.testing.assert_allclose(results[0].tau, results[1].tau, atol=1e-4)
+    assert np.all(np.abs(results[0].tau[:12]) <= limits[:12] + 1e-6)
 
 
 # --- the output for a Robot ------------------------------------------------------------------------

@@ -89,3 +89,27 @@ def test_the_new_task_lowers_the_pelvis_in_closed_loop(g1) -> None:
     state = robot.base_state()
     assert state.position[2] == pytest.approx(start - 0.04, abs=0.01)
     assert state.rotation[2, 2] > np.cos(np.radians(5.0))  # upright
+
+
+class _PelvisHeight(FrameHeightTask):
+    """A custom task that leaves every gain at ``WbcTask``'s defaults."""
+
+    def __init__(self) -> None:
+        WbcTask.__init__(self, "pelvis_height", 1)
+        self.frame, self.height = "pelvis", 2.0
+
+
+def test_a_custom_task_without_gains_asks_for_no_feedback(g1, rng) -> None:
+    """``WbcTask``'s default gains are zero: a custom task built without gains asks for no
+    acceleration, however far from its target (1 m and more here) and however fast it moves."""
+    model = g1.build_pinocchio()
+    kin = Kinodynamics(model)
+    task = _PelvisHeight()
+    task.bind(kin)
+    np.testing.assert_array_equal(task.kp, 0.0)
+    np.testing.assert_array_equal(task.kd, 0.0)
+    v = rng.uniform(-1.0, 1.0, model.nv)
+    kin.update(g1.default_configuration(), v)
+    task.compute(kin)
+    assert task.error[0] > 1.0 and abs(task.jacobian @ v)[0] > 1e-3
+    np.testing.assert_array_equal(task.desired_acceleration(), 0.0)

@@ -96,7 +96,7 @@ GROUPS: tuple[Group, ...] = (
           ("tests/test_control_qp.py", "tests/test_wbc.py", "tests/test_wbc_bounded.py", "-m", "not slow"), 1500),
     Group("wbc", ("giwbc/control/*.py",),
           ("tests/test_wbc.py", "tests/test_wbc_mujoco_dynamics.py", "tests/test_wbc_reset.py", "tests/test_wbc_bounded.py",
-           "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "-m", "not slow"), 2400,
+           "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "tests/test_contact_set.py", "-m", "not slow"), 2400,
           excluded=CONTROL_PARTS),
     Group("tasks", ("giwbc/control/tasks.py",),
           ("tests/test_control_tasks.py", "tests/test_wbc.py", "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "-m", "not slow"), 1500),
