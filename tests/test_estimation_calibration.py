@@ -8,8 +8,10 @@ are exact; the closed-loop test runs the whole-body controller on the estimate o
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from giwbc.control.balance import BalanceOnEstimate
@@ -206,3 +208,130 @@ def test_without_an_orientation_output_the_calibration_keeps_the_configured_head
     assert math.atan2(rotation[1, 0], rotation[0, 0]) == pytest.approx(0.8, abs=0.02)
     truth = snapshot[0]
     assert math.acos(np.clip(rotation[2] @ truth[2], -1.0, 1.0)) < math.radians(0.5)  # the vertical in the base frame: the tilt
+
+
+# --- what the standstill detector watches, large biases, the orientation output's heading ------------
+def _heading(rotation: np.ndarray) -> float:
+    return math.atan2(rotation[1, 0], rotation[0, 0])
+
+
+def _moved(stream, change):
+    """``stream`` with each measurement passed through ``change(t, measurement)``."""
+    for measurement in stream:
+        yield change(measurement.time, measurement)
+
+
+@pytest.mark.parametrize("joint, watched", [("right_knee_joint", True), ("left_shoulder_pitch_joint", False)])
+def test_the_standstill_detector_watches_every_leg_joint_and_only_those(g1, snapshot, joint, watched) -> None:
+    """A knee waving by 0.02 rad keeps the estimator from calibrating (the legs are what tells a
+    standstill); an arm waving does not (the base stays still on the feet)."""
+    index = g1.joint_names.index(joint)
+    wave = np.zeros(g1.dofs)
+    wave[index] = 0.02
+
+    def waving(t, m):
+        return replace(m, joint_positions=m.joint_positions + wave * math.sin(2 * math.pi * t))
+
+    estimator = _estimator(g1)
+    for measurement in _moved(_stream(g1, snapshot, np.random.default_rng(4), gyro_bias=np.full(3, 0.01), seconds=2.0), waving):
+        estimator.update(measurement)
+    assert estimator.ready is not watched
+
+
+def test_a_gyro_bias_of_11_degrees_per_second_is_learnt_whole(g1, snapshot) -> None:
+    """Up to ``max_gyro_bias`` (20 deg/s) the calibrated bias is not clipped: a 0.2 rad/s turn-on
+    bias (a poor MEMS gyro after a shock) is removed from the angular velocity."""
+    bias = np.array([0.2, -0.15, 0.25])
+    estimator = _estimator(g1)
+    for measurement in _stream(g1, snapshot, np.random.default_rng(6), gyro_bias=bias, seconds=1.0):
+        estimate = estimator.update(measurement)
+    assert estimate.ready
+    np.testing.assert_allclose(estimate.gyro_bias, bias, atol=0.01)
+    np.testing.assert_allclose(estimate.base.angular_velocity, np.zeros(3), atol=0.05)  # the base is still
+
+
+def _with_output(g1, stream, imu_rotation: np.ndarray):
+    """``stream`` with an orientation output: the IMU's orientation ``imu_rotation`` (world)."""
+    quaternion = so3.matrix_to_quat(imu_rotation)
+    for m in stream:
+        yield replace(m, imu=replace(m.imu, quaternion=quaternion.copy()))
+
+
+def _turned_snapshot(g1, snapshot, heading: float, pitch: float):
+    """The snapshot with its base pitched by ``pitch`` (the robot on a slope) and heading exactly ``heading``."""
+    rotation, positions, efforts, imu = snapshot
+    tilted = so3.exp(np.array([0.0, pitch, 0.0])) @ rotation
+    turned = so3.exp(np.array([0.0, 0.0, heading - _heading(tilted)])) @ tilted
+    return (turned, positions, efforts, imu)
+
+
+@pytest.mark.parametrize("heading, pitch, output_pitch", [(math.pi, 0.0, math.radians(1.0)), (2.3, math.radians(20.0), 0.0)],
+                         ids=["half-turn", "on-a-20-degree-slope"])
+def test_the_calibrated_heading_is_the_orientation_outputs(g1, snapshot, heading, pitch, output_pitch) -> None:
+    """With an orientation output (and gravity for the tilt), the calibrated base heads where the
+    output says: also at exactly +-pi, and on a slope, where the base's x axis is far from
+    horizontal. An output pitched 1 degree off gravity is reported as a 1-degree offset."""
+    turned = _turned_snapshot(g1, snapshot, heading, pitch)
+    imu_in_base = StateEstimator(g1).kinematics.imu_rotation
+    output = so3.exp(np.array([0.0, output_pitch, 0.0])) @ turned[0] @ imu_in_base  # world-frame pitch: same heading
+    estimator = StateEstimator(g1, EstimatorConfig(use_flat_feet=False))
+    stream = _stream(g1, turned, np.random.default_rng(7), gyro_bias=np.zeros(3), seconds=1.0)
+    for measurement in _with_output(g1, stream, output):
+        estimate = estimator.update(measurement)
+    assert estimate.ready
+    error = math.remainder(_heading(estimate.base.rotation) - heading, 2 * math.pi)
+    assert abs(error) < 1e-3, error
+    assert estimator.calibration.orientation_output_offset == pytest.approx(output_pitch, abs=math.radians(0.1))
+
+
+def test_the_initial_height_puts_the_stance_sole_on_the_ground(g1, snapshot) -> None:
+    """Started with the left foot lifted (contact plan: right foot only), the estimated base puts
+    the right sole on the ground (height 0) and the left one above it."""
+    _, positions, _, _ = snapshot
+    lifted = positions.copy()
+    names = g1.joint_names
+    for joint, angle in (("left_hip_pitch_joint", -0.3), ("left_knee_joint", 0.6), ("left_ankle_pitch_joint", -0.3)):
+        lifted[names.index(joint)] += angle
+    measurement = next(_stream(g1, snapshot, np.random.default_rng(8), gyro_bias=np.zeros(3), quantize=False))
+    estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, calibrate=False))
+    estimate = estimator.update(replace(measurement, joint_positions=lifted), np.array([False, True]))
+    model = g1.build_pinocchio()
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, estimate.q)
+    heights = []
+    for contact in g1.contacts:
+        placement = data.oMf[model.getFrameId(contact.link)]
+        heights.append(float((placement.translation + placement.rotation @ np.asarray(contact.center, float))[2]))
+    assert heights[1] == pytest.approx(0.0, abs=1e-9) and heights[0] > 0.05, heights
+
+
+def test_gravity_alone_relevels_a_tilt_the_gyro_made_up_and_says_when_it_had_no_reference(g1, snapshot) -> None:
+    """Gravity-only (no orientation output, feet not used), with a 0.5 m/s^2 accelerometer bias
+    along the vertical: a gyro glitch after calibration (0.5 rad/s about x for 0.1 s that the base
+    never did) tilts the estimate by ~3 degrees; only gravity can bring it back, within 2 s. A
+    sample without a usable accelerometer has no reference ("none"), and the gyro alone carries it."""
+    estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, use_flat_feet=False, gravity_gain=4.0))
+    assert estimator.reference == "none"
+    truth = snapshot[0]
+
+    def glitch(t, m):
+        if 1.2 <= t < 1.3:
+            return replace(m, imu=replace(m.imu, angular_velocity=m.imu.angular_velocity + np.array([0.5, 0.0, 0.0])))
+        return m
+
+    def tilt_error() -> float:
+        return math.degrees(math.acos(np.clip(estimator.estimate.base.rotation[2] @ truth[2], -1.0, 1.0)))
+
+    errors = {}
+    stream = _stream(g1, snapshot, np.random.default_rng(9), gyro_bias=np.zeros(3), accel_bias=np.array([0.0, 0.0, 0.5]), seconds=3.3)
+    for measurement in _moved(stream, glitch):
+        estimator.update(measurement)
+        if measurement.time in (1.0, 1.3, 3.3 - DT):
+            errors[measurement.time] = tilt_error()
+    assert estimator.ready and estimator.reference == "gravity"
+    assert errors[1.0] < 0.5 and errors[1.3] > 2.0 and errors[3.3 - DT] < 0.5, errors
+    last = measurement
+    nan = replace(last, imu=replace(last.imu, linear_acceleration=np.full(3, np.nan), time=last.time + DT))
+    estimator.update(nan)
+    assert estimator.reference == "none"
+    assert tilt_error() < 0.5
