@@ -335,3 +335,25 @@ def test_gravity_alone_relevels_a_tilt_the_gyro_made_up_and_says_when_it_had_no_
     estimator.update(nan)
     assert estimator.reference == "none"
     assert tilt_error() < 0.5
+
+
+def test_the_soles_are_averaged_and_a_leg_with_a_bad_encoder_is_not_counted_flat(g1, snapshot) -> None:
+    """One ankle encoder reading 2 degrees off (the left foot seems pitched): the two flat soles
+    disagree and the estimated tilt is off by half of it, before and long after the calibration.
+    A non-finite encoder on the left leg: that foot is not counted flat, the right one still is."""
+    offset = np.zeros(g1.dofs)
+    offset[g1.joint_names.index("left_ankle_pitch_joint")] = math.radians(2.0)
+    estimator = _estimator(g1)
+    truth = snapshot[0]
+    stream = _stream(g1, snapshot, np.random.default_rng(10), gyro_bias=np.zeros(3), seconds=4.0)
+    errors = []
+    for measurement in _moved(stream, lambda t, m: replace(m, joint_positions=m.joint_positions + offset)):
+        estimate = estimator.update(measurement)
+        if measurement.time in (1.0, 4.0 - DT):
+            errors.append(math.degrees(math.acos(np.clip(estimate.base.rotation[2] @ truth[2], -1.0, 1.0))))
+    assert estimate.ready and estimator.flat_feet.tolist() == [True, True]
+    assert all(0.8 < e < 1.2 for e in errors), errors
+    bad = measurement.joint_positions.copy()
+    bad[g1.joint_names.index("left_knee_joint")] = np.nan
+    estimator.update(replace(measurement, joint_positions=bad, imu=replace(measurement.imu, time=measurement.time + DT)))
+    assert estimator.flat_feet.tolist() == [False, True]

@@ -163,6 +163,22 @@ def test_estimated_robot_wrapper_plan_links_and_commands(g1: RobotDescription, g
     np.testing.assert_allclose(sim.data.ctrl, (command.kp * command.q_ref)[g1.actuated])
 
 
+def test_estimated_robot_update_fuses_the_robots_sample_or_keeps_the_last(g1: RobotDescription, g1_models) -> None:
+    """``update()`` returns the estimate of the sample it fused (at the robot's time); with
+    ``fuse=False`` the last fused estimate stands, and reads at that time do not fuse again."""
+    mj_model, pin_model = g1_models
+    sim = MujocoRobot(g1, mj_model)
+    robot = EstimatedRobot(sim, StateEstimator(g1, model=pin_model))
+    assert robot.latest_estimate is None
+    first = robot.update()
+    assert first is not None and first.time == sim.time() and robot.latest_estimate is first
+    sim.step()
+    assert robot.update(fuse=False) is first
+    assert robot.base_state() is first.base  # read at the new time: nothing fused
+    second = robot.update()
+    assert second is not None and second.time == sim.time() > first.time
+
+
 # --- configuration, thresholds and what the faults say -------------------------------------------
 def test_estimator_config_is_validated_at_its_edges() -> None:
     EstimatorConfig(contact_off=0.0)  # no hysteresis floor is allowed
@@ -176,6 +192,7 @@ def test_estimator_config_is_validated_at_its_edges() -> None:
             EstimatorConfig(**bad)
         assert str(raised.value) == "gains must be >= 0 and max_dt > 0"
     EstimatorConfig(zero_velocity_gain=1.0, flat_cop_margin=1.0)  # a standstill may replace the bias outright
+    EstimatorConfig(zero_velocity_gain=0.0)  # ... or leave it alone (no zero-velocity updates)
     for bad in ({"zero_velocity_gain": 1.5}, {"zero_velocity_gain": -0.1}, {"flat_cop_margin": 0.0}, {"flat_cop_margin": 1.1}):
         with pytest.raises(ValueError) as raised:
             EstimatorConfig(**bad)
