@@ -383,3 +383,26 @@ def test_a_foot_loaded_on_its_toe_edge_is_not_counted_flat(g1, snapshot) -> None
         if k in (499, 599, 699):
             flat.append(estimator.flat_feet.tolist())
     assert flat == [[True, True], [False, True], [True, True]]
+
+
+def test_the_held_heading_splits_a_disagreement_between_the_soles(g1, snapshot) -> None:
+    """After calibration the left hip-yaw encoder drifts by 2 degrees over 2 s (slower than a foot
+    slip): the left sole seems to turn, the right one does not; the flat feet hold the heading
+    at their mean, so the estimated heading moves by half the drift."""
+    joint = g1.joint_names.index("left_hip_yaw_joint")
+
+    def drifting(t, m):
+        positions = m.joint_positions.copy()
+        positions[joint] += math.radians(2.0) * min(1.0, max(0.0, (t - 1.2) / 2.0))
+        return replace(m, joint_positions=positions)
+
+    estimator = _estimator(g1)
+    headings = []
+    stream = _stream(g1, snapshot, np.random.default_rng(12), gyro_bias=np.zeros(3), seconds=5.0)
+    for k, measurement in enumerate(_moved(stream, drifting)):
+        estimate = estimator.update(measurement)
+        if k in (600, 2499):  # 1.2 s (calibrated, before the drift) and 5 s
+            headings.append(_heading(estimate.base.rotation))
+    assert estimate.ready and estimator.foot_twists == 0
+    turned = abs(math.degrees(headings[1] - headings[0]))
+    assert 0.8 < turned < 1.2, turned
