@@ -359,10 +359,9 @@ def test_the_soles_are_averaged_and_a_leg_with_a_bad_encoder_is_not_counted_flat
     assert estimator.flat_feet.tolist() == [False, True]
 
 
-def test_a_foot_loaded_on_its_toe_edge_is_not_counted_flat(g1, snapshot) -> None:
-    """The left leg's efforts carry an extra pitch couple that puts the centre of pressure at the
-    sole's edge (a foot rolling on its toe or heel, whose tilt says nothing about the ground): it is
-    no longer counted flat; with the couple gone it is again."""
+def _edge_couple(g1, snapshot) -> np.ndarray:
+    """Joint efforts of a pure pitch couple on the left sole that moves its centre of pressure by
+    about one sole half length (to its toe or heel edge)."""
     rotation, positions, _, _ = snapshot
     model = g1.build_pinocchio()
     data = model.createData()
@@ -372,7 +371,14 @@ def test_a_foot_loaded_on_its_toe_edge_is_not_counted_flat(g1, snapshot) -> None
     foot = g1.contacts[0]
     jacobian = pin.getFrameJacobian(model, data, model.getFrameId(foot.link), pin.LOCAL_WORLD_ALIGNED)
     couple = np.array([0.0, 1.0, 0.0]) * foot.half_length * g1.total_mass * 9.81 / 2  # CoP ~ one half length off
-    extra = jacobian[3:, 6:].T @ couple  # joint efforts of a pure couple on the left sole
+    return jacobian[3:, 6:].T @ couple
+
+
+def test_a_foot_loaded_on_its_toe_edge_is_not_counted_flat(g1, snapshot) -> None:
+    """The left leg's efforts carry an extra pitch couple that puts the centre of pressure at the
+    sole's edge (a foot rolling on its toe or heel, whose tilt says nothing about the ground): it is
+    no longer counted flat; with the couple gone it is again."""
+    extra = _edge_couple(g1, snapshot)
     estimator = _estimator(g1)
     flat = []
     stream = _stream(g1, snapshot, np.random.default_rng(11), gyro_bias=np.zeros(3), seconds=1.4)
@@ -406,3 +412,19 @@ def test_the_held_heading_splits_a_disagreement_between_the_soles(g1, snapshot) 
     assert estimate.ready and estimator.foot_twists == 0
     turned = abs(math.degrees(headings[1] - headings[0]))
     assert 0.8 < turned < 1.2, turned
+
+
+def test_a_slow_creep_on_the_edge_of_a_sole_is_not_taken_for_gyro_bias(g1, snapshot) -> None:
+    """The slow-creep start-up (0.002 rad/s in pitch, no joint moving) with flat feet in use but the
+    left foot loaded on its edge: the soles cannot say how the base turned, the gravity direction
+    can, and the bias is found to 0.0005 rad/s."""
+    bias = np.array([0.004, -0.006, 0.008])
+    extra = _edge_couple(g1, snapshot)
+    config = EstimatorConfig(use_imu_orientation=False, standstill=StandstillConfig(startup_blocks=12))
+    estimator = StateEstimator(g1, config)
+    stream = _stream(g1, snapshot, np.random.default_rng(5), gyro_bias=bias, rate=np.array([0.0, 0.002, 0.0]), seconds=3.6)
+    for measurement in _moved(stream, lambda t, m: replace(m, joint_efforts=m.joint_efforts + extra)):
+        estimator.update(measurement)
+    report = estimator.calibration
+    assert report is not None and report.tilt_source == "gravity" and report.window_duration >= 3.0
+    assert np.abs(report.gyro_bias - bias).max() < 5e-4, report.gyro_bias
