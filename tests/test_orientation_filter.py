@@ -107,3 +107,26 @@ def test_a_new_filter_believes_no_gyro_bias_and_a_zero_gain_reference_changes_no
         off.propagate((0.0, 0.0, 0.0), 0.01)
     np.testing.assert_array_equal(off.gyro_bias, np.zeros(3))
     np.testing.assert_allclose(off.quaternion, [0.0, 0.0, 0.0, 1.0], atol=1e-15)
+
+
+def test_propagation_from_any_orientation_matches_the_rotation_matrices(rng) -> None:
+    """A constant body rate about a random axis, from a random orientation: after 1 s the filter's
+    orientation is R0 exp(w t), computed with rotation matrices."""
+    for _ in range(5):
+        start = so3.exp(rng.uniform(-math.pi, math.pi, 3))
+        rate = rng.normal(0.0, 0.5, 3)
+        filt = OrientationFilter()
+        filt.reset_to(so3.matrix_to_quat(start), (0.0, 0.0, 0.0))
+        for _ in range(100):
+            filt.propagate(rate, 0.01)
+        np.testing.assert_allclose(filt.rotation, start @ so3.exp(rate * 1.0), atol=1e-9)
+
+
+def test_initialize_from_gravity_alone_starts_level_and_refuses_free_fall() -> None:
+    """Without an orientation output, a specific force of 1 g (at rest) gives the tilt, heading 0;
+    one under half a g (falling) cannot."""
+    filt = OrientationFilter()
+    up = so3.exp(np.array([0.1, -0.2, 0.0])).T @ np.array([0.0, 0.0, 9.81])  # a base rolled and pitched, IMU frame
+    assert filt.initialize(None, up)
+    np.testing.assert_allclose(filt.rotation.T @ np.array([0.0, 0.0, 1.0]), up / 9.81, atol=1e-12)
+    assert not OrientationFilter().initialize(None, np.array([0.0, 0.0, 3.0]))
