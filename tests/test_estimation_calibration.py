@@ -428,3 +428,28 @@ def test_a_slow_creep_on_the_edge_of_a_sole_is_not_taken_for_gyro_bias(g1, snaps
     report = estimator.calibration
     assert report is not None and report.tilt_source == "gravity" and report.window_duration >= 3.0
     assert np.abs(report.gyro_bias - bias).max() < 5e-4, report.gyro_bias
+
+
+def test_the_config_for_an_imu_without_an_ahrs_starts_from_gravity_at_the_configured_heading(g1, snapshot) -> None:
+    """``EstimatorConfig.for_sensors``: an IMU without an orientation output is not asked for one;
+    the first sample then starts the estimate level on gravity, heading ``initial_yaw``."""
+    assert EstimatorConfig.for_sensors(SensorNoiseConfig()).use_imu_orientation
+    config = EstimatorConfig.for_sensors(SensorNoiseConfig(orientation_output=False), calibrate=False, initial_yaw=0.8)
+    assert not config.use_imu_orientation and not config.calibrate
+    first = next(_stream(g1, snapshot, np.random.default_rng(13), gyro_bias=np.zeros(3), quantize=False))
+    estimate = StateEstimator(g1, config).update(first)
+    assert _heading(estimate.base.rotation) == pytest.approx(0.8, abs=0.01)
+    assert math.acos(np.clip(estimate.base.rotation[2] @ snapshot[0][2], -1.0, 1.0)) < math.radians(1.0)
+
+
+def test_feet_measured_on_a_known_raised_ground_lift_the_estimate(g1, snapshot) -> None:
+    """Started with the ground guessed at 0 but told the feet stand on a 10 cm platform
+    (``ground_height``): within 2 s the estimated base is 10 cm higher than with the guess alone."""
+    heights = {}
+    for name, ground in (("guess", None), ("platform", 0.1)):
+        estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, calibrate=False, ground_height=ground))
+        for measurement in _stream(g1, snapshot, np.random.default_rng(14), gyro_bias=np.zeros(3), seconds=2.0):
+            estimate = estimator.update(measurement)
+        heights[name] = estimate.base.position[2]
+    assert heights["platform"] - heights["guess"] == pytest.approx(0.1, abs=0.005), heights
+
