@@ -453,3 +453,26 @@ def test_feet_measured_on_a_known_raised_ground_lift_the_estimate(g1, snapshot) 
         heights[name] = estimate.base.position[2]
     assert heights["platform"] - heights["guess"] == pytest.approx(0.1, abs=0.005), heights
 
+
+
+def test_later_standstills_relearn_an_accelerometer_bias_that_shifted(g1, snapshot) -> None:
+    """After calibration the accelerometer's bias shifts by 0.1 g along z (a temperature step) on a
+    still robot on flat feet: the zero-velocity updates of later standstills learn it, so the
+    estimated height does not creep (under 0.5 mm from 3 s to 6 s; kept, the shift makes it climb
+    ~0.5 mm/s) and the mean vertical velocity of the last second is under 1.5 mm/s."""
+    shift = np.array([0.0, 0.0, 0.1 * 9.81])
+
+    def shifted(t, m):
+        return replace(m, imu=replace(m.imu, linear_acceleration=m.imu.linear_acceleration + shift)) if t >= 1.2 else m
+
+    estimator = _estimator(g1)
+    heights, velocities = {}, []
+    for k, measurement in enumerate(_moved(_stream(g1, snapshot, np.random.default_rng(15), gyro_bias=np.zeros(3), seconds=6.0), shifted)):
+        estimate = estimator.update(measurement)
+        if k in (1500, 2999):
+            heights[k] = estimate.base.position[2]
+        if k >= 2500:
+            velocities.append(estimate.base.linear_velocity[2])
+    assert estimate.ready and estimator.zero_velocity_updates >= 5
+    assert abs(heights[2999] - heights[1500]) < 5e-4, heights
+    assert abs(np.mean(velocities)) < 1.5e-3, np.mean(velocities)
