@@ -281,7 +281,12 @@ def test_the_calibrated_heading_is_the_orientation_outputs(g1, snapshot, heading
     assert estimate.ready
     error = math.remainder(_heading(estimate.base.rotation) - heading, 2 * math.pi)
     assert abs(error) < 1e-3, error
-    assert estimator.calibration.orientation_output_offset == pytest.approx(output_pitch, abs=math.radians(0.1))
+    truth = turned[0]
+    assert math.acos(np.clip(estimate.base.rotation[2] @ truth[2], -1.0, 1.0)) < math.radians(0.2)  # the output's offset removed
+    report = estimator.calibration
+    assert report.orientation_output_offset == pytest.approx(output_pitch, abs=math.radians(0.1))
+    assert report.pitch == pytest.approx(-math.asin(truth[2, 0]), abs=math.radians(0.2))
+    assert report.roll == pytest.approx(math.atan2(truth[2, 1], truth[2, 2]), abs=math.radians(0.2))
 
 
 def test_the_initial_height_puts_the_stance_sole_on_the_ground(g1, snapshot) -> None:
