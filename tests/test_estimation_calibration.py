@@ -481,3 +481,23 @@ def test_later_standstills_relearn_an_accelerometer_bias_that_shifted(g1, snapsh
     assert estimate.ready and estimator.zero_velocity_updates >= 5
     assert abs(heights[2999] - heights[1500]) < 5e-4, heights
     assert abs(np.mean(velocities)) < 1.5e-3, np.mean(velocities)
+
+
+def test_flat_feet_pull_a_tilt_error_back_at_the_feet_gain(g1, snapshot) -> None:
+    """A gyro glitch after calibration (0.5 rad/s in pitch for 0.1 s, never done by the base)
+    tilts the estimate by ~2.6 degrees; the flat feet pull it back at ``feet_gain`` (2/s): over the
+    next 0.5 s the error shrinks by about e^-1 (between 0.25 and 0.42 of it), neither slower nor faster."""
+
+    def glitch(t, m):
+        if 1.2 <= t < 1.3:
+            return replace(m, imu=replace(m.imu, angular_velocity=m.imu.angular_velocity + np.array([0.0, 0.5, 0.0])))
+        return m
+
+    estimator = _estimator(g1)
+    errors = {}
+    for k, measurement in enumerate(_moved(_stream(g1, snapshot, np.random.default_rng(16), gyro_bias=np.zeros(3), seconds=1.8), glitch)):
+        estimate = estimator.update(measurement)
+        if k in (649, 899):  # the glitch's end (1.3 s) and 0.5 s later
+            errors[k] = math.degrees(math.acos(np.clip(estimate.base.rotation[2] @ snapshot[0][2], -1.0, 1.0)))
+    assert estimator.reference == "feet" and errors[649] > 2.0, errors
+    assert 0.25 < errors[899] / errors[649] < 0.42, errors
