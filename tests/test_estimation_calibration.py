@@ -334,6 +334,7 @@ def test_gravity_alone_relevels_a_tilt_the_gyro_made_up_and_says_when_it_had_no_
         if measurement.time in (1.0, 1.3, 3.3 - DT):
             errors[measurement.time] = tilt_error()
     assert estimator.ready and estimator.reference == "gravity"
+    assert not estimator.flat_feet.any()  # the feet are not used: none is counted flat
     assert errors[1.0] < 0.5 and errors[1.3] > 2.0 and errors[3.3 - DT] < 0.5, errors
     last = measurement
     nan = replace(last, imu=replace(last.imu, linear_acceleration=np.full(3, np.nan), time=last.time + DT))
