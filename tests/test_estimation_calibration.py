@@ -8,8 +8,10 @@ are exact; the closed-loop test runs the whole-body controller on the estimate o
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from giwbc.control.balance import BalanceOnEstimate
@@ -206,3 +208,297 @@ def test_without_an_orientation_output_the_calibration_keeps_the_configured_head
     assert math.atan2(rotation[1, 0], rotation[0, 0]) == pytest.approx(0.8, abs=0.02)
     truth = snapshot[0]
     assert math.acos(np.clip(rotation[2] @ truth[2], -1.0, 1.0)) < math.radians(0.5)  # the vertical in the base frame: the tilt
+
+
+# --- what the standstill detector watches, large biases, the orientation output's heading ------------
+def _heading(rotation: np.ndarray) -> float:
+    return math.atan2(rotation[1, 0], rotation[0, 0])
+
+
+def _moved(stream, change):
+    """``stream`` with each measurement passed through ``change(t, measurement)``."""
+    for measurement in stream:
+        yield change(measurement.time, measurement)
+
+
+@pytest.mark.parametrize("joint, watched", [("right_knee_joint", True), ("left_shoulder_pitch_joint", False)])
+def test_the_standstill_detector_watches_every_leg_joint_and_only_those(g1, snapshot, joint, watched) -> None:
+    """A knee waving by 0.02 rad keeps the estimator from calibrating (the legs are what tells a
+    standstill); an arm waving does not (the base stays still on the feet)."""
+    index = g1.joint_names.index(joint)
+    wave = np.zeros(g1.dofs)
+    wave[index] = 0.02
+
+    def waving(t, m):
+        return replace(m, joint_positions=m.joint_positions + wave * math.sin(2 * math.pi * t))
+
+    estimator = _estimator(g1)
+    for measurement in _moved(_stream(g1, snapshot, np.random.default_rng(4), gyro_bias=np.full(3, 0.01), seconds=2.0), waving):
+        estimator.update(measurement)
+    assert estimator.ready is not watched
+
+
+def test_a_gyro_bias_of_11_degrees_per_second_is_learnt_whole(g1, snapshot) -> None:
+    """Up to ``max_gyro_bias`` (20 deg/s) the calibrated bias is not clipped: a 0.2 rad/s turn-on
+    bias (a poor MEMS gyro after a shock) is removed from the angular velocity."""
+    bias = np.array([0.2, -0.15, 0.25])
+    estimator = _estimator(g1)
+    for measurement in _stream(g1, snapshot, np.random.default_rng(6), gyro_bias=bias, seconds=1.0):
+        estimate = estimator.update(measurement)
+    assert estimate.ready
+    np.testing.assert_allclose(estimate.gyro_bias, bias, atol=0.01)
+    np.testing.assert_allclose(estimate.base.angular_velocity, np.zeros(3), atol=0.05)  # the base is still
+
+
+def _with_output(g1, stream, imu_rotation: np.ndarray):
+    """``stream`` with an orientation output: the IMU's orientation ``imu_rotation`` (world)."""
+    quaternion = so3.matrix_to_quat(imu_rotation)
+    for m in stream:
+        yield replace(m, imu=replace(m.imu, quaternion=quaternion.copy()))
+
+
+def _turned_snapshot(g1, snapshot, heading: float, pitch: float):
+    """The snapshot with its base pitched by ``pitch`` (the robot on a slope) and heading exactly ``heading``."""
+    rotation, positions, efforts, imu = snapshot
+    tilted = so3.exp(np.array([0.0, pitch, 0.0])) @ rotation
+    turned = so3.exp(np.array([0.0, 0.0, heading - _heading(tilted)])) @ tilted
+    return (turned, positions, efforts, imu)
+
+
+@pytest.mark.parametrize("heading, pitch, output_pitch", [(math.pi, 0.0, math.radians(1.0)), (2.3, math.radians(20.0), 0.0)],
+                         ids=["half-turn", "on-a-20-degree-slope"])
+def test_the_calibrated_heading_is_the_orientation_outputs(g1, snapshot, heading, pitch, output_pitch) -> None:
+    """With an orientation output (and gravity for the tilt), the calibrated base heads where the
+    output says: also at exactly +-pi, and on a slope, where the base's x axis is far from
+    horizontal. An output pitched 1 degree off gravity is reported as a 1-degree offset."""
+    turned = _turned_snapshot(g1, snapshot, heading, pitch)
+    imu_in_base = StateEstimator(g1).kinematics.imu_rotation
+    output = so3.exp(np.array([0.0, output_pitch, 0.0])) @ turned[0] @ imu_in_base  # world-frame pitch: same heading
+    estimator = StateEstimator(g1, EstimatorConfig(use_flat_feet=False))
+    stream = _stream(g1, turned, np.random.default_rng(7), gyro_bias=np.zeros(3), seconds=1.0)
+    for measurement in _with_output(g1, stream, output):
+        estimate = estimator.update(measurement)
+    assert estimate.ready
+    error = math.remainder(_heading(estimate.base.rotation) - heading, 2 * math.pi)
+    assert abs(error) < 1e-3, error
+    truth = turned[0]
+    assert math.acos(np.clip(estimate.base.rotation[2] @ truth[2], -1.0, 1.0)) < math.radians(0.2)  # the output's offset removed
+    report = estimator.calibration
+    assert report.orientation_output_offset == pytest.approx(output_pitch, abs=math.radians(0.1))
+    assert report.pitch == pytest.approx(-math.asin(truth[2, 0]), abs=math.radians(0.2))
+    assert report.roll == pytest.approx(math.atan2(truth[2, 1], truth[2, 2]), abs=math.radians(0.2))
+
+
+def test_the_initial_height_puts_the_stance_sole_on_the_ground(g1, snapshot) -> None:
+    """Started with the left foot lifted (contact plan: right foot only), the estimated base puts
+    the right sole on the ground (height 0) and the left one above it."""
+    _, positions, _, _ = snapshot
+    lifted = positions.copy()
+    names = g1.joint_names
+    for joint, angle in (("left_hip_pitch_joint", -0.3), ("left_knee_joint", 0.6), ("left_ankle_pitch_joint", -0.3)):
+        lifted[names.index(joint)] += angle
+    measurement = next(_stream(g1, snapshot, np.random.default_rng(8), gyro_bias=np.zeros(3), quantize=False))
+    estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, calibrate=False))
+    estimate = estimator.update(replace(measurement, joint_positions=lifted), np.array([False, True]))
+    model = g1.build_pinocchio()
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, estimate.q)
+    heights = []
+    for contact in g1.contacts:
+        placement = data.oMf[model.getFrameId(contact.link)]
+        heights.append(float((placement.translation + placement.rotation @ np.asarray(contact.center, float))[2]))
+    assert heights[1] == pytest.approx(0.0, abs=1e-9) and heights[0] > 0.05, heights
+
+
+def test_gravity_alone_relevels_a_tilt_the_gyro_made_up_and_says_when_it_had_no_reference(g1, snapshot) -> None:
+    """Gravity-only (no orientation output, feet not used), with a 0.5 m/s^2 accelerometer bias
+    along the vertical: a gyro glitch after calibration (0.5 rad/s about x for 0.1 s that the base
+    never did) tilts the estimate by ~3 degrees; only gravity can bring it back, within 2 s. A
+    sample without a usable accelerometer has no reference ("none"), and the gyro alone carries it."""
+    estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, use_flat_feet=False, gravity_gain=4.0))
+    assert estimator.reference == "none"
+    truth = snapshot[0]
+
+    def glitch(t, m):
+        if 1.2 <= t < 1.3:
+            return replace(m, imu=replace(m.imu, angular_velocity=m.imu.angular_velocity + np.array([0.5, 0.0, 0.0])))
+        return m
+
+    def tilt_error() -> float:
+        return math.degrees(math.acos(np.clip(estimator.estimate.base.rotation[2] @ truth[2], -1.0, 1.0)))
+
+    errors = {}
+    stream = _stream(g1, snapshot, np.random.default_rng(9), gyro_bias=np.zeros(3), accel_bias=np.array([0.0, 0.0, 0.5]), seconds=3.3)
+    for measurement in _moved(stream, glitch):
+        estimator.update(measurement)
+        if measurement.time in (1.0, 1.3, 3.3 - DT):
+            errors[measurement.time] = tilt_error()
+    assert estimator.ready and estimator.reference == "gravity"
+    assert not estimator.flat_feet.any()  # the feet are not used: none is counted flat
+    assert errors[1.0] < 0.5 and errors[1.3] > 2.0 and errors[3.3 - DT] < 0.5, errors
+    last = measurement
+    nan = replace(last, imu=replace(last.imu, linear_acceleration=np.full(3, np.nan), time=last.time + DT))
+    estimator.update(nan)
+    assert estimator.reference == "none"
+    assert tilt_error() < 0.5
+
+
+def test_the_soles_are_averaged_and_a_leg_with_a_bad_encoder_is_not_counted_flat(g1, snapshot) -> None:
+    """One ankle encoder reading 2 degrees off (the left foot seems pitched): the two flat soles
+    disagree and the estimated tilt is off by half of it, before and long after the calibration.
+    A non-finite encoder on the left leg: that foot is not counted flat, the right one still is."""
+    offset = np.zeros(g1.dofs)
+    offset[g1.joint_names.index("left_ankle_pitch_joint")] = math.radians(2.0)
+    estimator = _estimator(g1)
+    truth = snapshot[0]
+    stream = _stream(g1, snapshot, np.random.default_rng(10), gyro_bias=np.zeros(3), seconds=4.0)
+    errors = []
+    for measurement in _moved(stream, lambda t, m: replace(m, joint_positions=m.joint_positions + offset)):
+        estimate = estimator.update(measurement)
+        if measurement.time in (1.0, 4.0 - DT):
+            errors.append(math.degrees(math.acos(np.clip(estimate.base.rotation[2] @ truth[2], -1.0, 1.0))))
+    assert estimate.ready and estimator.flat_feet.tolist() == [True, True]
+    assert len(errors) == 2 and all(0.8 < e < 1.2 for e in errors), errors
+    bad = measurement.joint_positions.copy()
+    bad[g1.joint_names.index("left_knee_joint")] = np.nan
+    estimator.update(replace(measurement, joint_positions=bad, imu=replace(measurement.imu, time=measurement.time + DT)))
+    assert estimator.flat_feet.tolist() == [False, True]
+
+
+def _edge_couple(g1, snapshot) -> np.ndarray:
+    """Joint efforts of a pure pitch couple on the left sole that moves its centre of pressure by
+    about one sole half length (to its toe or heel edge)."""
+    rotation, positions, _, _ = snapshot
+    model = g1.build_pinocchio()
+    data = model.createData()
+    q = np.concatenate([[0.0, 0.0, 0.8], so3.matrix_to_quat(rotation), positions])
+    pin.computeJointJacobians(model, data, q)
+    pin.framesForwardKinematics(model, data, q)
+    foot = g1.contacts[0]
+    jacobian = pin.getFrameJacobian(model, data, model.getFrameId(foot.link), pin.LOCAL_WORLD_ALIGNED)
+    couple = np.array([0.0, 1.0, 0.0]) * foot.half_length * g1.total_mass * 9.81 / 2  # CoP ~ one half length off
+    return jacobian[3:, 6:].T @ couple
+
+
+def test_a_foot_loaded_on_its_toe_edge_is_not_counted_flat(g1, snapshot) -> None:
+    """The left leg's efforts carry an extra pitch couple that puts the centre of pressure at the
+    sole's edge (a foot rolling on its toe or heel, whose tilt says nothing about the ground): it is
+    no longer counted flat; with the couple gone it is again."""
+    extra = _edge_couple(g1, snapshot)
+    estimator = _estimator(g1)
+    flat = []
+    stream = _stream(g1, snapshot, np.random.default_rng(11), gyro_bias=np.zeros(3), seconds=1.4)
+    for k, measurement in enumerate(stream):
+        if 500 <= k < 600:  # 1.0 s to 1.2 s
+            measurement = replace(measurement, joint_efforts=measurement.joint_efforts + extra)
+        estimator.update(measurement)
+        if k in (499, 599, 699):
+            flat.append(estimator.flat_feet.tolist())
+    assert flat == [[True, True], [False, True], [True, True]]
+
+
+def test_the_held_heading_splits_a_disagreement_between_the_soles(g1, snapshot) -> None:
+    """After calibration the left hip-yaw encoder drifts by 2 degrees over 2 s (slower than a foot
+    slip): the left sole seems to turn, the right one does not; the flat feet hold the heading
+    at their mean, so the estimated heading moves by half the drift."""
+    joint = g1.joint_names.index("left_hip_yaw_joint")
+
+    def drifting(t, m):
+        positions = m.joint_positions.copy()
+        positions[joint] += math.radians(2.0) * min(1.0, max(0.0, (t - 1.2) / 2.0))
+        return replace(m, joint_positions=positions)
+
+    estimator = _estimator(g1)
+    headings = []
+    stream = _stream(g1, snapshot, np.random.default_rng(12), gyro_bias=np.zeros(3), seconds=5.0)
+    for k, measurement in enumerate(_moved(stream, drifting)):
+        estimate = estimator.update(measurement)
+        if k in (600, 2499):  # 1.2 s (calibrated, before the drift) and 5 s
+            headings.append(_heading(estimate.base.rotation))
+    assert estimate.ready and estimator.foot_twists == 0
+    turned = abs(math.degrees(headings[1] - headings[0]))
+    assert 0.8 < turned < 1.2, turned
+
+
+def test_a_slow_creep_on_the_edge_of_a_sole_is_not_taken_for_gyro_bias(g1, snapshot) -> None:
+    """The slow-creep start-up (0.002 rad/s in pitch, no joint moving) with flat feet in use but the
+    left foot loaded on its edge: the soles cannot say how the base turned, the gravity direction
+    can, and the bias is found to 0.0005 rad/s."""
+    bias = np.array([0.004, -0.006, 0.008])
+    extra = _edge_couple(g1, snapshot)
+    config = EstimatorConfig(use_imu_orientation=False, standstill=StandstillConfig(startup_blocks=12))
+    estimator = StateEstimator(g1, config)
+    stream = _stream(g1, snapshot, np.random.default_rng(5), gyro_bias=bias, rate=np.array([0.0, 0.002, 0.0]), seconds=3.6)
+    for measurement in _moved(stream, lambda t, m: replace(m, joint_efforts=m.joint_efforts + extra)):
+        estimator.update(measurement)
+    report = estimator.calibration
+    assert report is not None and report.tilt_source == "gravity" and report.window_duration >= 3.0
+    assert np.abs(report.gyro_bias - bias).max() < 5e-4, report.gyro_bias
+
+
+def test_the_config_for_an_imu_without_an_ahrs_starts_from_gravity_at_the_configured_heading(g1, snapshot) -> None:
+    """``EstimatorConfig.for_sensors``: an IMU without an orientation output is not asked for one;
+    the first sample then starts the estimate level on gravity, heading ``initial_yaw``."""
+    assert EstimatorConfig.for_sensors(SensorNoiseConfig()).use_imu_orientation
+    config = EstimatorConfig.for_sensors(SensorNoiseConfig(orientation_output=False), calibrate=False, initial_yaw=0.8)
+    assert not config.use_imu_orientation and not config.calibrate
+    first = next(_stream(g1, snapshot, np.random.default_rng(13), gyro_bias=np.zeros(3), quantize=False))
+    estimate = StateEstimator(g1, config).update(first)
+    assert _heading(estimate.base.rotation) == pytest.approx(0.8, abs=0.01)
+    assert math.acos(np.clip(estimate.base.rotation[2] @ snapshot[0][2], -1.0, 1.0)) < math.radians(1.0)
+
+
+def test_feet_measured_on_a_known_raised_ground_lift_the_estimate(g1, snapshot) -> None:
+    """Started with the ground guessed at 0 but told the feet stand on a 10 cm platform
+    (``ground_height``): within 2 s the estimated base is 10 cm higher than with the guess alone."""
+    heights = {}
+    for name, ground in (("guess", None), ("platform", 0.1)):
+        estimator = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False, calibrate=False, ground_height=ground))
+        for measurement in _stream(g1, snapshot, np.random.default_rng(14), gyro_bias=np.zeros(3), seconds=2.0):
+            estimate = estimator.update(measurement)
+        heights[name] = estimate.base.position[2]
+    assert heights["platform"] - heights["guess"] == pytest.approx(0.1, abs=0.005), heights
+
+
+
+def test_later_standstills_relearn_an_accelerometer_bias_that_shifted(g1, snapshot) -> None:
+    """After calibration the accelerometer's bias shifts by 0.1 g along z (a temperature step) on a
+    still robot on flat feet: the zero-velocity updates of later standstills learn it, so the
+    estimated height does not creep (under 0.5 mm from 3 s to 6 s; kept, the shift makes it climb
+    ~0.5 mm/s) and the mean vertical velocity of the last second is under 1.5 mm/s."""
+    shift = np.array([0.0, 0.0, 0.1 * 9.81])
+
+    def shifted(t, m):
+        return replace(m, imu=replace(m.imu, linear_acceleration=m.imu.linear_acceleration + shift)) if t >= 1.2 else m
+
+    estimator = _estimator(g1)
+    heights, velocities = {}, []
+    for k, measurement in enumerate(_moved(_stream(g1, snapshot, np.random.default_rng(15), gyro_bias=np.zeros(3), seconds=6.0), shifted)):
+        estimate = estimator.update(measurement)
+        if k in (1500, 2999):
+            heights[k] = estimate.base.position[2]
+        if k >= 2500:
+            velocities.append(estimate.base.linear_velocity[2])
+    assert estimate.ready and estimator.zero_velocity_updates >= 5
+    assert abs(heights[2999] - heights[1500]) < 5e-4, heights
+    assert abs(np.mean(velocities)) < 1.5e-3, np.mean(velocities)
+
+
+def test_flat_feet_pull_a_tilt_error_back_at_the_feet_gain(g1, snapshot) -> None:
+    """A gyro glitch after calibration (0.5 rad/s in pitch for 0.1 s, never done by the base)
+    tilts the estimate by ~2.6 degrees; the flat feet pull it back at ``feet_gain`` (2/s): over the
+    next 0.5 s the error shrinks by about e^-1 (between 0.25 and 0.42 of it), neither slower nor faster."""
+
+    def glitch(t, m):
+        if 1.2 <= t < 1.3:
+            return replace(m, imu=replace(m.imu, angular_velocity=m.imu.angular_velocity + np.array([0.0, 0.5, 0.0])))
+        return m
+
+    estimator = _estimator(g1)
+    errors = {}
+    for k, measurement in enumerate(_moved(_stream(g1, snapshot, np.random.default_rng(16), gyro_bias=np.zeros(3), seconds=1.8), glitch)):
+        estimate = estimator.update(measurement)
+        if k in (649, 899):  # the glitch's end (1.3 s) and 0.5 s later
+            errors[k] = math.degrees(math.acos(np.clip(estimate.base.rotation[2] @ snapshot[0][2], -1.0, 1.0)))
+    assert estimator.reference == "feet" and errors[649] > 2.0, errors
+    assert 0.25 < errors[899] / errors[649] < 0.42, errors

@@ -78,3 +78,55 @@ def test_a_quaternion_that_is_not_unit_is_normalized_on_reset() -> None:
     f = OrientationFilter()
     f.reset_to((0.0, 0.0, 2.0, 2.0), (0.0, 0.0, 0.0))
     np.testing.assert_allclose(f.quaternion, [0.0, 0.0, math.sqrt(0.5), math.sqrt(0.5)], atol=1e-15)
+
+
+def test_quaternion_error_takes_the_short_way_across_half_a_turn() -> None:
+    """From a heading of +168 degrees to one of -168 degrees the turn is +24 degrees, not -336: the
+    error's sign follows the shorter rotation even where both quaternions' scalar parts are small."""
+    q = so3.matrix_to_quat(so3.exp(np.array([0.0, 0.0, math.radians(168.0)])))
+    measured = so3.matrix_to_quat(so3.exp(np.array([0.0, 0.0, math.radians(-168.0)])))
+    error = quaternion_error(q, measured)
+    np.testing.assert_allclose(error, [0.0, 0.0, 2.0 * math.sin(math.radians(12.0))], atol=1e-12)
+    half = so3.matrix_to_quat(so3.exp(np.array([0.0, 0.0, math.pi / 2])))  # a quarter turn from a half turn
+    turned = so3.matrix_to_quat(so3.exp(np.array([0.0, 0.0, math.pi])))  # scalar part 0
+    np.testing.assert_allclose(quaternion_error(half, turned), [0.0, 0.0, 2.0 * math.sin(math.pi / 4)], atol=1e-12)
+
+
+def test_a_new_filter_believes_no_gyro_bias_and_a_zero_gain_reference_changes_nothing() -> None:
+    """Before any calibration the gyro is taken as it reads (a still gyro keeps the orientation); a
+    reference given with gain 0 is switched off: it neither turns the estimate nor learns a bias."""
+    filt = OrientationFilter()
+    np.testing.assert_array_equal(filt.gyro_bias, np.zeros(3))
+    for _ in range(100):
+        filt.propagate((0.0, 0.0, 0.0), 0.01)
+    np.testing.assert_allclose(filt.quaternion, [0.0, 0.0, 0.0, 1.0], atol=1e-15)
+    off = OrientationFilter(bias_gain=0.2)
+    off.reset_to((0.0, 0.0, 0.0, 1.0), (0.0, 0.0, 0.0))
+    for _ in range(100):
+        off.correct((0.01, -0.01, 0.01), 0.0, 0.2, 0.01)  # a 1-degree error, integral gain 0.2, gain 0
+        off.propagate((0.0, 0.0, 0.0), 0.01)
+    np.testing.assert_array_equal(off.gyro_bias, np.zeros(3))
+    np.testing.assert_allclose(off.quaternion, [0.0, 0.0, 0.0, 1.0], atol=1e-15)
+
+
+def test_propagation_from_any_orientation_matches_the_rotation_matrices(rng) -> None:
+    """A constant body rate about a random axis, from a random orientation: after 1 s the filter's
+    orientation is R0 exp(w t), computed with rotation matrices."""
+    for _ in range(5):
+        start = so3.exp(rng.uniform(-math.pi, math.pi, 3))
+        rate = rng.normal(0.0, 0.5, 3)
+        filt = OrientationFilter()
+        filt.reset_to(so3.matrix_to_quat(start), (0.0, 0.0, 0.0))
+        for _ in range(100):
+            filt.propagate(rate, 0.01)
+        np.testing.assert_allclose(filt.rotation, start @ so3.exp(rate * 1.0), atol=1e-9)
+
+
+def test_initialize_from_gravity_alone_starts_level_and_refuses_free_fall() -> None:
+    """Without an orientation output, a specific force of 1 g (at rest) gives the tilt, heading 0;
+    one under half a g (falling) cannot."""
+    filt = OrientationFilter()
+    up = so3.exp(np.array([0.1, -0.2, 0.0])).T @ np.array([0.0, 0.0, 9.81])  # a base rolled and pitched, IMU frame
+    assert filt.initialize(None, up)
+    np.testing.assert_allclose(filt.rotation.T @ np.array([0.0, 0.0, 1.0]), up / 9.81, atol=1e-12)
+    assert not OrientationFilter().initialize(None, np.array([0.0, 0.0, 3.0]))
