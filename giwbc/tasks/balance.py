@@ -34,13 +34,11 @@ from gymnasium import spaces
 
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, ImpedanceCommand, Robot, quat_to_matrix
-from giwbc.tasks.floating_base import FloatingBaseTask
+from giwbc.tasks.floating_base import ANGULAR_VELOCITY_SCALE, JOINT_VELOCITY_SCALE, FloatingBaseTask
 from giwbc.tasks.task import ActionBlock, ResidualLayout
 from giwbc.control.balance import make_balance_controller
 from giwbc.randomization import Nominal, randomized_pinocchio_model
 
-ANGULAR_VELOCITY_SCALE = 0.25  # observation scalings: keep entries of order 1
-JOINT_VELOCITY_SCALE = 0.05
 
 
 @dataclass(frozen=True)
@@ -321,15 +319,4 @@ class G1Balance(FloatingBaseTask):
         return {"base_height": float(self.base_state().position[2]), "tilt": self.tilt()}
 
     def describe(self) -> dict[str, Any]:
-        d = self.description
-        return {
-            **super().describe(),
-            "controller": self.controller_name,
-            "action_layout": self.layout.describe(),
-            "action_scale": self.layout.scales.tolist(),
-            "default_joint_positions": d.default_positions.tolist(),
-            "kp": d.kp.tolist(),
-            "kd": d.kd.tolist(),
-            "effort_limits": d.effort_limits.tolist(),
-            "observation_scales": {"angular_velocity": ANGULAR_VELOCITY_SCALE, "joint_velocity": JOINT_VELOCITY_SCALE},
-        }
+        return self.residual_description(self.controller_name)

@@ -4,11 +4,16 @@ time, the pelvis tilt, and the fall test that reward, termination and info share
 from __future__ import annotations
 
 import math
+from typing import Any
 
+from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState
-from giwbc.tasks.task import Task
+from giwbc.tasks.task import ResidualLayout, Task
 
-__all__ = ["FloatingBaseTask"]
+__all__ = ["ANGULAR_VELOCITY_SCALE", "JOINT_VELOCITY_SCALE", "FloatingBaseTask"]
+
+ANGULAR_VELOCITY_SCALE = 0.25  # observation scalings of the residual tasks: keep entries of order 1
+JOINT_VELOCITY_SCALE = 0.05
 
 
 class FloatingBaseTask(Task):
@@ -17,6 +22,8 @@ class FloatingBaseTask(Task):
 
     min_height: float
     max_tilt: float
+    description: RobotDescription
+    layout: ResidualLayout
     _base: tuple[float, BaseState] | None = None
 
     def base_state(self) -> BaseState:
@@ -33,3 +40,20 @@ class FloatingBaseTask(Task):
 
     def is_terminated(self) -> bool:
         return bool(self.base_state().position[2] < self.min_height or self.tilt() > self.max_tilt)
+
+    def residual_description(self, controller: str) -> dict[str, Any]:
+        """What a deployed residual policy needs beside its weights (ONNX metadata): the
+        controller beneath it, the action layout and scales, the joints' defaults and gains, and
+        the observation scalings."""
+        d = self.description
+        return {
+            **super().describe(),
+            "controller": controller,
+            "action_layout": self.layout.describe(),
+            "action_scale": self.layout.scales.tolist(),
+            "default_joint_positions": d.default_positions.tolist(),
+            "kp": d.kp.tolist(),
+            "kd": d.kd.tolist(),
+            "effort_limits": d.effort_limits.tolist(),
+            "observation_scales": {"angular_velocity": ANGULAR_VELOCITY_SCALE, "joint_velocity": JOINT_VELOCITY_SCALE},
+        }

@@ -42,11 +42,9 @@ from gymnasium import spaces
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, quat_to_matrix
-from giwbc.tasks.floating_base import FloatingBaseTask
+from giwbc.tasks.floating_base import ANGULAR_VELOCITY_SCALE, JOINT_VELOCITY_SCALE, FloatingBaseTask
 from giwbc.tasks.task import ActionBlock, ResidualLayout
 
-ANGULAR_VELOCITY_SCALE = 0.25  # observation scalings: keep entries of order 1
-JOINT_VELOCITY_SCALE = 0.05
 BLOCKS = ("step", "com", "orientation")
 _PHASES = (Phase.STAND, Phase.DOUBLE, Phase.SINGLE)
 
@@ -318,18 +316,7 @@ class G1Walk(FloatingBaseTask):
         }
 
     def describe(self) -> dict[str, Any]:
-        d = self.description
-        return {
-            **super().describe(),
-            "controller": "walker",
-            "action_layout": self.layout.describe(),
-            "action_scale": self.layout.scales.tolist(),
-            "default_joint_positions": d.default_positions.tolist(),
-            "kp": d.kp.tolist(),
-            "kd": d.kd.tolist(),
-            "effort_limits": d.effort_limits.tolist(),
-            "observation_scales": {"angular_velocity": ANGULAR_VELOCITY_SCALE, "joint_velocity": JOINT_VELOCITY_SCALE},
-        }
+        return self.residual_description("walker")
 
 
 __all__ = ["CommandRanges", "G1Walk", "WalkRewards", "WalkScales"]
