@@ -237,9 +237,9 @@ def main(argv: list[str] | None = None) -> int:
     cpu = _pin_to_one_cpu() if args.pin_cpu else None
     import mujoco
     import pinocchio
-    import proxsuite
 
     from giwbc.control import make_balance_controller
+    from giwbc.control.qp.proxsuite_build import build_name, load_proxsuite
     from giwbc.robot import load
 
     description = load(args.robot)
@@ -317,7 +317,8 @@ def main(argv: list[str] | None = None) -> int:
             "python": platform.python_version(),
             "numpy": np.__version__,
             "pinocchio": pinocchio.__version__,
-            "proxsuite": proxsuite.__version__,
+            "proxsuite": load_proxsuite().__version__,
+            "proxsuite_build": build_name(load_proxsuite()),
             "mujoco": mujoco.__version__,
         },
         "clock": "time.perf_counter, wall clock",

@@ -215,3 +215,26 @@ def test_com_and_orientation_residuals_move_the_references_standing(make) -> Non
     assert moved[0] == pytest.approx(0.03, abs=0.006) and abs(moved[1]) < 0.006 and abs(pitch) < 0.03
     moved, pitch = hold([0.0, 0.0, 0.0, 0.0, 1.0, 0.0])
     assert pitch == pytest.approx(0.1, abs=0.03) and np.all(np.abs(moved[:2]) < 0.015)
+
+
+@pytest.mark.slow
+def test_a_used_env_equals_a_fresh_one_after_falls_under_training_pushes(make) -> None:
+    """The hard case of the test above (~15 s): the training run's 100–180 N pushes, episodes that
+    end in falls first, then an episode whose fall sends the WBC's QPs through proxsuite where the
+    polish fails (its answer then follows proxsuite's bits: they must not depend on the process's
+    history, :mod:`giwbc.control.qp.proxsuite_build`). A resumed training run relies on this."""
+    kwargs = {"residuals": ["step"], "sim2real": {"pushes": {"interval": [1.5, 3.0], "duration": 0.2, "force": [100.0, 180.0]}}}
+    actions = np.random.default_rng(1).uniform(-1, 1, (400, 3)).astype(np.float32)
+    used = make(**kwargs)
+    rollout(used, 5, 400, actions)
+    rollout(used, 6, 400, actions)
+    guess = used.unwrapped.task.walker.balance.wbc.solver._kkt
+    before = guess.polish_failures
+    a = rollout(used, 7, 400, actions)
+    assert guess.polish_failures > before  # the history-sensitive path was taken
+    fresh = make(**kwargs)
+    b = rollout(fresh, 7, 400, actions)
+    assert len(a[1]) < 400  # it fell
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    used.close()
+    fresh.close()

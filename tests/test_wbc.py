@@ -378,9 +378,9 @@ def test_build_returns_an_inspectable_problem(g1, g1_model, rng):
     assert solution.ok and problem.violation(solution.x) < 1e-6
     kept = problem.copy()
     # Any tick's QP goes to another solver in one line, with the same optimum.
-    import qpsolvers
+    from giwbc.control.qp.proxsuite_build import import_qpsolvers
 
-    other = qpsolvers.solve_problem(problem.to_qpsolvers(), solver="osqp", eps_abs=1e-9, eps_rel=1e-9, polish=True)
+    other = import_qpsolvers().solve_problem(problem.to_qpsolvers(), solver="osqp", eps_abs=1e-9, eps_rel=1e-9, polish=True)
     assert other.found
     np.testing.assert_allclose(other.x, solution.x, atol=1e-4)
     assert problem.violation(other.x) < 1e-6

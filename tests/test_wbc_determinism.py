@@ -1,12 +1,13 @@
 """Same inputs ⇒ same torques, bit for bit, whatever the memory layout of the process.
 
-proxsuite 0.8 is not bit-reproducible: the same sequence of QPs gives solutions that differ by
-~1e-14 depending on how the heap was used before (its Eigen kernels vectorise reductions
-differently with the alignment of their buffers), and a closed loop amplifies that. The
-controller's answers are therefore computed by a deterministic KKT solve (numpy / LAPACK) from
-an active set, proxsuite only supplying the active set when the guess misses; these tests run the
-same closed loop twice in one process with a different heap in between and compare torques with
-``np.array_equal``.
+proxsuite's AVX2 / AVX-512 builds are not bit-reproducible: the same sequence of QPs gives
+solutions that differ by ~1e-14 depending on how the heap was used before (their Eigen kernels
+vectorise reductions differently with the alignment of their buffers), and a closed loop amplifies
+that. Two defences: giwbc loads proxsuite's baseline (SSE2) build, whose bits do not depend on
+the heap (:mod:`giwbc.control.qp.proxsuite_build`), and the controller's answers are computed by
+a deterministic KKT solve (numpy / LAPACK) from an active set, proxsuite only supplying the
+active set when the guess misses. These tests run the same closed loop twice in one process with
+a different heap in between and compare torques with ``np.array_equal``.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 import pytest
 
 from giwbc.control import ActiveSetGuess, make_balance_controller
+from giwbc.control.qp.proxsuite_build import BASELINE, build_name, load_proxsuite
 from giwbc.robot import MujocoRobot
 
 pytestmark = pytest.mark.slow
@@ -27,8 +29,7 @@ def _disturb_the_heap(seed: int) -> list:
     some: the next allocations land at other addresses and alignments. (Whether proxsuite's
     buffers then change alignment is up to the allocator: about half of the disturbances change
     its results, hence several runs.)"""
-    import proxsuite
-
+    proxsuite = load_proxsuite()
     rng = np.random.default_rng(seed)
     if seed % 2:
         keep: list = [np.empty(int(size)) for size in rng.integers(1, 4000, 25)]
@@ -145,3 +146,56 @@ def test_a_one_ulp_difference_reaches_the_torques(g1):
     assert not np.array_equal(same, nudged)
     assert np.abs(same[0] - nudged[0]).max() < 1e-12  # at first as small as a solver's rounding ...
     assert np.abs(same[-1] - nudged[-1]).max() > 1e-6  # ... and the closed loop amplifies it
+
+
+def test_proxsuites_build_gives_the_same_bits_whatever_the_heap(g1, rng):
+    """The root cause, on proxsuite alone: one recorded G1 problem solved by fresh solvers, the
+    heap disturbed in between, gives the same iterate bit for bit with the build giwbc loads.
+    (Its AVX-512 build changed bits after about half of these disturbances.)"""
+    from giwbc.control import ProxsuiteSolver
+
+    assert build_name(load_proxsuite()) == BASELINE
+    controller = make_balance_controller(g1)
+    q = g1.default_configuration()
+    v = rng.uniform(-0.3, 0.3, 35)
+    controller.update(q, v, 0.0)
+    problem = controller.wbc.build(q, v, 0.002).copy()
+    raw = {"active_set_guess": False, "polish": False, "deterministic": False}
+    answers = set()
+    kept: list = []
+    for run in range(8):
+        if run:
+            kept += _disturb_the_heap(run)
+        solution = ProxsuiteSolver(**raw).solve(problem.copy())
+        assert solution.ok
+        answers.add(solution.x.tobytes())
+    assert len(answers) == 1
+
+
+IMPORT_ORDER = """
+import sys, warnings
+warnings.simplefilter("error")
+{first}
+from giwbc.control.qp import make_solver
+from giwbc.control.qp.proxsuite_build import ReproducibilityWarning, build_name
+try:
+    make_solver("proxsuite")
+    print(build_name(sys.modules["proxsuite"]))
+except ReproducibilityWarning as warning:
+    print("warned:", warning)
+"""
+
+
+@pytest.mark.parametrize("first, expected", [
+    ("", BASELINE),  # giwbc first: the baseline build
+    ("import qpsolvers", "warned: proxsuite was imported before giwbc"),  # qpsolvers imports proxsuite's widest build
+])
+def test_the_build_is_chosen_once_per_process_and_a_late_choice_is_reported(first, expected):
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-c", IMPORT_ORDER.format(first=first)], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    if first and out.stdout.strip() == BASELINE:  # a CPU without AVX2: proxsuite's own choice
+        pytest.skip("this CPU has no AVX2: proxsuite's own choice is its baseline build")
+    assert out.stdout.strip().startswith(expected), out.stdout

@@ -104,7 +104,9 @@ class QpProblem:
         """This problem as a ``qpsolvers.Problem``: ``l ≤ Cx ≤ u`` becomes ``G x ≤ h`` rows for the
         finite bounds, infinite variable bounds become ``±infinity``. Hand any tick's QP to any
         solver in one line: ``qpsolvers.solve_problem(problem.to_qpsolvers(), solver="clarabel")``."""
-        import qpsolvers  # not needed on the real-time path
+        from giwbc.control.qp.proxsuite_build import import_qpsolvers  # not needed on the real-time path
+
+        qpsolvers = import_qpsolvers()
 
         upper, lower = np.isfinite(self.u), np.isfinite(self.l)
         G = np.vstack([self.C[upper], -self.C[lower]])

@@ -9,6 +9,7 @@ import numpy as np
 
 from giwbc.control.qp.active_set import ActiveSetGuess
 from giwbc.control.qp.problem import USABLE, QpProblem, QpSolution, QpSolver, QpStatus
+from giwbc.control.qp.proxsuite_build import load_proxsuite
 
 
 class ProxsuiteSolver(QpSolver):
@@ -66,7 +67,7 @@ class ProxsuiteSolver(QpSolver):
         deterministic: bool = True,
         **settings: object,
     ) -> None:
-        import proxsuite
+        proxsuite = load_proxsuite()  # its baseline build: bit-reproducible (proxsuite_build)
 
         if int(max_iter) < 1 or int(max_iter_in) < 1:
             raise ValueError(f"max_iter and max_iter_in must be >= 1, got {max_iter}, {max_iter_in}")

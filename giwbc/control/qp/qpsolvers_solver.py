@@ -7,6 +7,7 @@ import time
 import numpy as np
 
 from giwbc.control.qp.problem import QpProblem, QpSolution, QpSolver, QpStatus
+from giwbc.control.qp.proxsuite_build import import_qpsolvers
 
 
 class QpsolversSolver(QpSolver):
@@ -17,7 +18,7 @@ class QpsolversSolver(QpSolver):
     """
 
     def __init__(self, solver: str, **settings: object) -> None:
-        import qpsolvers
+        qpsolvers = import_qpsolvers()
 
         if solver not in qpsolvers.available_solvers:
             raise ValueError(f"qpsolvers backend {solver!r} is not installed; available: {qpsolvers.available_solvers}")

@@ -5,12 +5,13 @@ from __future__ import annotations
 from giwbc.control.qp.osqp_solver import OsqpSolver
 from giwbc.control.qp.problem import DEFAULT_SOLVER, QpSolver
 from giwbc.control.qp.proxsuite_solver import ProxsuiteSolver
+from giwbc.control.qp.proxsuite_build import import_qpsolvers
 from giwbc.control.qp.qpsolvers_solver import QpsolversSolver
 
 
 def available_solvers() -> list[str]:
     """Names :func:`make_solver` accepts on this machine."""
-    import qpsolvers
+    qpsolvers = import_qpsolvers()
 
     names = ["proxsuite", "osqp"]
     return names + [name for name in qpsolvers.available_solvers if name not in ("proxqp", "osqp")]
@@ -25,7 +26,7 @@ def make_solver(name: str = DEFAULT_SOLVER, **settings: object) -> QpSolver:
         return OsqpSolver(**settings)
     if key.startswith("qpsolvers:"):
         return QpsolversSolver(key.split(":", 1)[1], **settings)
-    import qpsolvers
+    qpsolvers = import_qpsolvers()
 
     if key in qpsolvers.available_solvers:
         return QpsolversSolver(key, **settings)
