@@ -197,20 +197,24 @@ def test_a_resumed_run_equals_the_uninterrupted_run_bit_for_bit(tmp_path) -> Non
 @pytest.mark.slow
 def test_a_resumed_g1_walk_run_equals_the_uninterrupted_run(tmp_path) -> None:
     """The same on a tiny G1Walk run in worker processes (walker, WBC, pushes and commands restarted
-    at the boundary): 128 steps in one go == 64 steps, then ``--resume`` to 128 (~20 s)."""
+    at the boundary), under 200–260 N pushes every 0.3–0.6 s, so that episodes end in falls
+    (degenerate QPs) before the boundary: 256 steps in one go == 128 steps, then ``--resume`` to
+    256 (~20 s). (The used-env test in test_env_walk.py covers the solver build's part.)"""
     pytest.importorskip("stable_baselines3")
     from giwbc.apps.training import TrainConfig, train
 
     common = {"env_id": "giwbc/G1Walk-v0", "n_envs": 2, "seed": 0, "vectorization": "subproc", "progress_bar": False, "eval_episodes": 0,
-              "net_arch": (16, 16), "checkpoint_every": 64, "log_std_init": -1.0, "env_kwargs": {"residuals": ["step"], "max_episode_steps": 400},
+              "net_arch": (16, 16), "checkpoint_every": 128, "log_std_init": -1.0,
+              "env_kwargs": {"residuals": ["step"], "max_episode_steps": 400,
+                             "sim2real": {"pushes": {"interval": [0.3, 0.6], "duration": 0.2, "force": [200.0, 260.0]}}},
               "ppo": {"n_steps": 16, "batch_size": 16, "n_epochs": 2}}
-    whole = train(TrainConfig(total_timesteps=128, out_dir=str(tmp_path / "whole"), **common))
-    train(TrainConfig(total_timesteps=64, out_dir=str(tmp_path / "half"), **common))
-    resumed = train(TrainConfig(total_timesteps=128, out_dir=str(tmp_path / "resumed"),
-                                resume=str(tmp_path / "half" / "checkpoints" / "step_64.zip"), **common))
+    whole = train(TrainConfig(total_timesteps=256, out_dir=str(tmp_path / "whole"), **common))
+    train(TrainConfig(total_timesteps=128, out_dir=str(tmp_path / "half"), **common))
+    resumed = train(TrainConfig(total_timesteps=256, out_dir=str(tmp_path / "resumed"),
+                                resume=str(tmp_path / "half" / "checkpoints" / "step_128.zip"), **common))
     steps, tensors, normalizer = _state(tmp_path / "whole")
     steps_r, tensors_r, normalizer_r = _state(tmp_path / "resumed")
-    assert steps == steps_r == 128
+    assert steps == steps_r == 256
     assert all(bool((value == tensors_r[name]).all()) for name, value in tensors.items())
     assert np.array_equal(normalizer.obs_rms.mean, normalizer_r.obs_rms.mean) and normalizer.ret_rms.var == normalizer_r.ret_rms.var
     assert whole.policy.read_bytes() == resumed.policy.read_bytes()
