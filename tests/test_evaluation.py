@@ -183,6 +183,16 @@ def test_a_resumed_run_equals_the_uninterrupted_run_bit_for_bit(tmp_path) -> Non
         a, b = getattr(normalizer, stats), getattr(normalizer_r, stats)
         assert np.array_equal(a.mean, b.mean) and np.array_equal(a.var, b.var) and a.count == b.count
     assert whole.policy.read_bytes() == resumed.policy.read_bytes()
+    # The learning curve: one row per rollout (128 steps), the resumed run's rows are the whole run's after 256.
+    from giwbc.apps.training import read_learning_curve
+
+    curve, curve_r = read_learning_curve(tmp_path / "whole" / "progress.csv"), read_learning_curve(tmp_path / "resumed" / "progress.csv")
+    assert list(curve["timesteps"]) == [128, 256, 384, 512] and list(curve_r["timesteps"]) == [384, 512]
+    for name in ("episodes", "return_mean", "length_mean", "terminated"):
+        assert np.array_equal(curve[name][2:], curve_r[name], equal_nan=True), name
+    assert curve["episodes"].sum() > 0 and np.all(curve["terminated"] <= curve["episodes"])
+    ended = ~np.isnan(curve["return_mean"])
+    assert np.allclose(curve["return_mean"][ended], curve["length_mean"][ended])  # cart-pole: +1 per step survived
     resume = str(tmp_path / "half" / "checkpoints" / "step_256.zip")
     assert resume_branch(TrainConfig(total_timesteps=512, resume=resume, **common)) == []
     assert [r.split(":")[0] for r in resume_branch(TrainConfig(resume=resume, **{**common, "seed": 6, "checkpoint_every": 128}))] == [

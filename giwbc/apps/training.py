@@ -7,6 +7,7 @@ imports them lazily, so ``giwbc --help`` and the deploy path (:mod:`giwbc.policy
 Layout of a run folder::
 
     out/config.json                                     the TrainConfig
+    out/progress.csv                                    the learning curve: one row per rollout (LearningCurve)
     out/checkpoints/step_<N>.{zip,vecnormalize.pkl,onnx}  every checkpoint_every steps
     out/policy.{zip,vecnormalize.pkl,onnx}              the final policy (SB3 model, normalizer, ONNX)
 
@@ -33,7 +34,9 @@ which, from the run folder's ``config.json``: :func:`resume_branch`).
 from __future__ import annotations
 
 import json
+import math
 import os
+import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -121,6 +124,53 @@ def _restart(model: "PPO", venv: Any, seed: int, steps: int) -> None:
     venv.seed(envs)
     model._last_obs = venv.reset()
     model._last_episode_starts = np.ones((venv.num_envs,), dtype=bool)
+
+
+class LearningCurve:
+    """``progress.csv``: per rollout, the episodes that ended in it (count, mean return, mean
+    length, how many ended by termination rather than the time limit) and the wall time.
+
+    Reads what the vectorized environments report (SB3's ``Monitor`` info); draws nothing, so the
+    run's results do not depend on it. A resume from ``N`` steps keeps the rows up to ``N`` and
+    appends after them. Episodes cut at a restart boundary are not counted (they did not end)."""
+
+    COLUMNS = ("timesteps", "episodes", "return_mean", "length_mean", "terminated", "wall_s")
+
+    def __init__(self, path: Path, start: int) -> None:
+        self.path = path
+        rows = [line for line in path.read_text().splitlines()[1:] if int(line.split(",")[0]) <= start] if start and path.is_file() else []
+        path.write_text("\n".join([",".join(self.COLUMNS), *rows]) + "\n")
+        self._clock = time.monotonic()
+        self._returns: list[float] = []
+        self._lengths: list[int] = []
+        self._terminated = 0
+
+    def record(self, infos: Any) -> None:
+        """One vectorized step's infos: keep the episodes that ended."""
+        for info in infos:
+            episode = info.get("episode")
+            if episode is not None:
+                self._returns.append(float(episode["r"]))
+                self._lengths.append(int(episode["l"]))
+                self._terminated += not info.get("TimeLimit.truncated", False)
+
+    def write(self, timesteps: int) -> None:
+        """Append the rollout's row and start the next one."""
+        n = len(self._returns)
+        mean_return = f"{np.mean(self._returns):.4f}" if n else ""
+        mean_length = f"{np.mean(self._lengths):.4f}" if n else ""
+        with self.path.open("a") as file:
+            file.write(f"{timesteps},{n},{mean_return},{mean_length},{self._terminated},{time.monotonic() - self._clock:.1f}\n")
+        self._returns, self._lengths, self._terminated = [], [], 0
+
+
+def read_learning_curve(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+    """``progress.csv`` as columns (empty cells, rollouts where no episode ended: NaN)."""
+    lines = Path(path).read_text().splitlines()
+    header = lines[0].split(",")
+    values = [[float(cell) if cell else math.nan for cell in line.split(",")] for line in lines[1:] if line]
+    table = np.array(values, dtype=float).reshape(len(values), len(header))
+    return {name: table[:, i] for i, name in enumerate(header)}
 
 
 # The TrainConfig fields that define a run (with the seed): a resume that changes one starts a new branch.
@@ -278,6 +328,7 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
     training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
                      "n_envs": config.n_envs}
     checkpoints: list[Path] = []
+    curve = LearningCurve(out / "progress.csv", start)
 
     def save(folder: Path, name: str, steps: int) -> Path:
         """``name.zip`` (SB3), ``name.vecnormalize.pkl`` and ``name.onnx`` in ``folder``."""
@@ -290,7 +341,8 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
                                  extra={"training": {**training_info, "timesteps": steps}})
 
     class Checkpoints(BaseCallback):
-        """Model, normalizer and ONNX policy every ``checkpoint_every`` environment steps.
+        """Model, normalizer and ONNX policy every ``checkpoint_every`` environment steps (and
+        the learning curve's row after every rollout).
 
         Saved at the start of a rollout, after the previous update: a checkpoint at ``N`` steps is
         then exactly the final policy of the same run with ``total_timesteps=N`` (constant schedules).
@@ -311,6 +363,9 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
             checkpoints.append(save(out / "checkpoints", f"step_{self.num_timesteps}", self.num_timesteps))
             return True
 
+        def _on_rollout_end(self) -> None:
+            curve.write(self.num_timesteps)
+
         def _on_rollout_start(self) -> None:
             if self._checkpoint():
                 _restart(model, venv, config.seed, self.num_timesteps)
@@ -319,6 +374,7 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
             self._checkpoint()
 
         def _on_step(self) -> bool:
+            curve.record(self.locals["infos"])
             return True
 
     try:
