@@ -140,3 +140,22 @@ def test_on_a_g1_walk_the_search_answers_nearly_every_tick_with_the_backends_opt
         scale = max(1.0, float(np.abs(reference.x).max()))
         np.testing.assert_allclose(x, reference.x, rtol=0, atol=1e-11 * scale)
         assert p.violation(x) < 1e-8
+
+
+def test_rows_whose_active_limit_opened_to_infinity_leave_the_set() -> None:
+    """Last tick x₀ was held at l = u = 1 (an equality written as a row: a contact force bound
+    closed to zero before touch-down); now its limits are open (±inf, its ramp started). The set
+    from last tick has an infinite right-hand side: the search drops that row (after the
+    unregularised and regularised solves fail) and answers the unconstrained optimum — 3 solves,
+    not the backend."""
+    p = QpProblem(H=np.eye(2), g=np.array([-3.0, 0.5]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.eye(2),
+                  l=np.array([1.0, -INF]), u=np.array([1.0, INF]), structure=203)  # fmt: skip
+    guess = ActiveSetGuess()
+    x = guess.try_solve(p)
+    assert x is not None and np.array_equal(x, [1.0, -0.5])
+    np.testing.assert_array_equal(guess.active, [0])
+    p.l[0], p.u[0] = -INF, INF
+    before = guess.solves
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves - before == 3 and len(guess.active) == 0
+    np.testing.assert_allclose(x, [3.0, -0.5], atol=1e-12)

@@ -280,26 +280,44 @@ class ActiveSetGuess:
         optimum is usually a row or two away (a friction face toggled by a CoP at a sole's edge,
         a torque limit reached), and the all-at-once update of :meth:`_iterate` overshoots there:
         adding every violated row and dropping every wrong-sign one at once often lands on a
-        set that is singular or as wrong as the first. None when the budget is spent, a set
-        comes back (a cycle: the exchanges would repeat), or a regularised solve is singular."""
+        set that is singular or as wrong as the first. A singular set is solved again
+        regularised, and the search stays regularised from then on; a set that fails even so
+        loses, once, its rows whose active limit is infinite (:meth:`_drop_unbounded`). None
+        when the budget is spent, a set comes back (a cycle: the exchanges would repeat), or a
+        regularised solve fails."""
         seen: set[tuple[bytes, bytes]] = set()
-        regularize = False
+        regularize = again = unbounded = False
         for _ in range(steps):
-            if not regularize:  # (a singular set is solved again, regularised: not a cycle)
+            if not again:  # (a singular set solved again, regularised, is not a cycle)
                 key = (self.active.tobytes(), self.upper.tobytes())
                 if key in seen:
                     return None
                 seen.add(key)
+            again = False
             x = self._solve_active(p, regularize, single=True)
             if x is None:
-                if regularize:
+                if not regularize:
+                    regularize = again = True  # singular: once more, regularised, with the same active set
+                elif not unbounded and self._drop_unbounded(p.n_eq):
+                    unbounded = True  # (last tick's set held rows whose active limit is gone)
+                else:
                     return None
-                regularize = True  # singular: once more, regularised, with the same active set
-            elif x is False:
-                regularize = False
-            else:
+            elif x is not False:
                 return x
+            # (after a regularised solve the search stays regularised: the rows that made the
+            # set singular are usually still in it, and an unregularised solve would fail first)
         return None
+
+    def _drop_unbounded(self, ne: int) -> bool:
+        """Drop the active rows whose limit on their active side is infinite (a row at ``l = u``
+        last tick whose limits opened, e.g. a contact force bound at the start of its ramp):
+        their KKT system has an infinite right-hand side. True when some were dropped."""
+        active, upper = self.active, self.upper
+        finite = np.isfinite(np.where(upper, self._hi[ne + active], self._lo[ne + active]))
+        if finite.all():
+            return False
+        self._set_active(active[finite], upper[finite])
+        return True
 
     def _solve_active(self, p: QpProblem, regularize: bool = False, optimal: bool = True, tol: float | None = None, single: bool = False) -> np.ndarray | None | bool:
         """KKT solve with the current active set: the optimum, ``False`` after correcting the
