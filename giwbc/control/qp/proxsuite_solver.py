@@ -34,8 +34,10 @@ class ProxsuiteSolver(QpSolver):
     * ``retry_cold`` — when a warm-started solve fails, re-initialise and solve from scratch with
       the rest of the budget (warm starts far from the new solution occasionally end in a
       spurious infeasibility verdict).
-    * ``active_set_guess`` (default True) — first try last tick's active set with one KKT solve
-      (:class:`ActiveSetGuess`); proxsuite runs only when that is not provably optimal.
+    * ``active_set_guess`` (default True) — first try last tick's active set with one KKT solve,
+      then up to ``steps − 1`` (11) one-row exchanges (:meth:`ActiveSetGuess.try_solve`);
+      proxsuite runs only when no set reached so is provably optimal (0.3 % of the ticks of a
+      recorded G1 walk, 7.6 % with the former all-at-once corrections).
     * ``polish`` (default True) — after proxsuite, solve the KKT system of the rows tight at its
       iterate, corrected into a provably optimal active set (:meth:`ActiveSetGuess.polish`): the
       answer is then the exact optimum, computed deterministically. proxsuite alone is not

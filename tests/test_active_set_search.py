@@ -1,0 +1,161 @@
+"""The guess's search from last tick's active set (``ActiveSetGuess.try_solve``): one row in, one
+row out per KKT solve, bounded, with cycle detection — and its answers are the backend's optimum.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from giwbc.control import ProxsuiteSolver
+from giwbc.control.qp import ActiveSetGuess, QpProblem
+from giwbc.locomotion.simulation import simulate_walk
+
+INF = np.inf
+
+
+def _box(target: np.ndarray, limit: float = 1.0, structure: int = 201) -> QpProblem:
+    """min ½‖x − target‖² s.t. −limit ≤ x ≤ limit (rows of C): the optimum clips the target,
+    its active set is the coordinates beyond the limit (upper side where positive)."""
+    n = len(target)
+    return QpProblem(H=np.eye(n), g=-np.asarray(target, dtype=float), A=np.zeros((0, n)), b=np.zeros(0), C=np.eye(n),
+                     l=np.full(n, -limit), u=np.full(n, limit), structure=structure)  # fmt: skip
+
+
+def test_each_correction_exchanges_one_row_so_k_missing_rows_take_k_plus_one_solves() -> None:
+    """From an empty active set, an optimum with 4 rows active (two upper, two lower limits) is
+    reached by adding the most violated row at each solve: 5 KKT solves, the last one optimal and
+    exact; the active set found, with its sides, is the next guess (one solve for the same
+    problem again)."""
+    target = np.array([3.0, -2.5, 0.2, 2.0, -1.5, 0.0])
+    p = _box(target)
+    guess = ActiveSetGuess()
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves == 5 and guess.hits == 1
+    np.testing.assert_array_equal(x, np.clip(target, -1.0, 1.0))
+    np.testing.assert_array_equal(guess.active, [0, 1, 3, 4])
+    np.testing.assert_array_equal(guess.upper, [True, False, True, False])
+    again = guess.try_solve(p)
+    assert again is not None and guess.solves == 6
+    np.testing.assert_array_equal(again, x)
+
+
+def test_a_wrong_sign_row_leaves_while_a_violated_one_joins_in_the_same_solve() -> None:
+    """Last tick's set holds x₀ at its upper limit; now the target moved to the other side: the
+    multiplier of x₀'s row has the wrong sign and x₁ violates its lower limit. One correction
+    drops the first and adds the second: 2 solves."""
+    guess = ActiveSetGuess()
+    p = _box(np.array([3.0, 0.0, 0.0]))
+    assert guess.try_solve(p) is not None
+    np.testing.assert_array_equal(guess.active, [0])
+    p.g[...] = -np.array([0.5, -4.0, 0.0])
+    before = guess.solves
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves - before == 2
+    np.testing.assert_array_equal(x, [0.5, -1.0, 0.0])
+    np.testing.assert_array_equal(guess.active, [1])
+    np.testing.assert_array_equal(guess.upper, [False])
+
+
+@pytest.mark.parametrize("steps", [3, 4])
+def test_the_search_gives_up_at_its_step_bound_and_the_backend_answers(steps: int) -> None:
+    """Four rows to add from an empty set: 5 solves needed. Within a bound of 3 or 4 solves the
+    guess gives up (exactly ``steps`` solves spent) and proxsuite + polish answer the tick with
+    the same optimum; the active set the backend found answers the next tick (exactly: without
+    the polish's regularisation)."""
+    target = np.array([3.0, -2.5, 0.2, 2.0, -1.5, 0.0])
+    solver = ProxsuiteSolver()
+    solver.guess.steps = steps
+    p = _box(target)
+    first = solver.solve(p)  # (a cold start: the backend, which teaches the guess)
+    solver.guess.reset()  # forget it: the next tick's guess starts from nothing
+    before = solver.guess.solves
+    tries, hits = solver.guess.tries, solver.guess.hits
+    second = solver.solve(p)
+    assert second.ok and second.message != "active-set guess"
+    assert (solver.guess.tries, solver.guess.hits) == (tries + 1, hits)
+    assert solver.guess.solves - before >= steps  # the guess's, then the polish's
+    np.testing.assert_allclose(second.x, np.clip(target, -1.0, 1.0), atol=1e-10)  # (the polish: regularised)
+    np.testing.assert_allclose(first.x, second.x, atol=1e-10)
+    third = solver.solve(p)
+    assert third.message == "active-set guess"
+    np.testing.assert_array_equal(third.x, np.clip(target, -1.0, 1.0))  # unregularised: exact
+    # The bound counts solves: the search alone, from an empty set, spends exactly `steps`.
+    guess = ActiveSetGuess(steps=steps)
+    assert guess.try_solve(_box(target)) is None and guess.solves == steps and guess.hits == 0
+
+
+def test_a_set_that_comes_back_ends_the_search_before_its_bound() -> None:
+    """The same row twice, with a large multiplier: the KKT system is singular; regularised, the
+    two rows share a multiplier of ~5e5 and each is bent by δ|λ| = 5e-7, beyond the tolerance,
+    while no inactive row is violated and no sign is wrong — the exchange leaves the set as it
+    was. The search stops at the repeat (2 solves: singular, regularised), not after its 12."""
+    p = QpProblem(H=np.eye(2), g=np.array([-1e6, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                  l=np.array([-INF, -INF]), u=np.array([1.0, 1.0]), structure=202)  # fmt: skip
+    guess = ActiveSetGuess()
+    assert guess.steps == 12
+    guess.learn(p, np.array([1.0, 0.0]), np.array([1.0, 1.0]))  # both rows active at their upper limits
+    np.testing.assert_array_equal(guess.active, [0, 1])
+    assert guess.try_solve(p) is None
+    assert guess.solves == 2 and guess.hits == 0
+    # A smaller multiplier bends the rows within the tolerance: the regularised candidate is the answer.
+    p.g[0] = -1e4
+    x = guess.try_solve(p)
+    assert x is not None and abs(x[0] - 1.0) < 1e-8 and guess.solves == 4
+
+
+@pytest.mark.slow
+def test_on_a_g1_walk_the_search_answers_nearly_every_tick_with_the_backends_optimum(g1, monkeypatch) -> None:
+    """A 3 s closed-loop MuJoCo walk at 0.3 m/s (seed 0): every tick whose guess needed a
+    correction (a changed active set: friction rows at a sole's edge, contact switches) is
+    answered again by proxsuite + polish from scratch (no guess): the same optimum, to 1e-11 of
+    the answer's scale (the polish's regularisation bends its rows by ~1e-12 |λ|) — both are
+    exact KKT points of the same QP. The backend answers fewer than
+    2 % of the ticks (the all-at-once corrections left ~8 %), and the walk neither falls nor
+    fails."""
+    searched: list[tuple[QpProblem, np.ndarray]] = []
+    ticks = {"guess": 0, "all": 0}
+    original = ActiveSetGuess.try_solve
+
+    def recording(self: ActiveSetGuess, p: QpProblem) -> np.ndarray | None:
+        before = self.solves
+        x = original(self, p)
+        ticks["all"] += 1
+        if x is not None:
+            ticks["guess"] += 1
+            if self.solves - before > 1 and len(searched) < 40:
+                searched.append((p.copy(), x.copy()))
+        return x
+
+    monkeypatch.setattr(ActiveSetGuess, "try_solve", recording)
+    run = simulate_walk(g1, (0.3, 0.0, 0.0), 3.0, seed=0)
+    monkeypatch.undo()
+    assert not run.fell and run.wbc_failures == 0 and run.steps >= 4
+    assert ticks["all"] >= 1400
+    assert ticks["all"] - ticks["guess"] < 0.02 * ticks["all"], ticks
+    assert len(searched) >= 20  # the search worked on many ticks
+    for p, x in searched:
+        reference = ProxsuiteSolver(active_set_guess=False).solve(p.copy())
+        assert reference.ok
+        scale = max(1.0, float(np.abs(reference.x).max()))
+        np.testing.assert_allclose(x, reference.x, rtol=0, atol=1e-11 * scale)
+        assert p.violation(x) < 1e-8
+
+
+def test_rows_whose_active_limit_opened_to_infinity_leave_the_set() -> None:
+    """Last tick x₀ was held at l = u = 1 (an equality written as a row: a contact force bound
+    closed to zero before touch-down); now its limits are open (±inf, its ramp started). The set
+    from last tick has an infinite right-hand side: the search drops that row (after the
+    unregularised and regularised solves fail) and answers the unconstrained optimum — 3 solves,
+    not the backend."""
+    p = QpProblem(H=np.eye(2), g=np.array([-3.0, 0.5]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.eye(2),
+                  l=np.array([1.0, -INF]), u=np.array([1.0, INF]), structure=203)  # fmt: skip
+    guess = ActiveSetGuess()
+    x = guess.try_solve(p)
+    assert x is not None and np.array_equal(x, [1.0, -0.5])
+    np.testing.assert_array_equal(guess.active, [0])
+    p.l[0], p.u[0] = -INF, INF
+    before = guess.solves
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves - before == 3 and len(guess.active) == 0
+    np.testing.assert_allclose(x, [3.0, -0.5], atol=1e-12)
