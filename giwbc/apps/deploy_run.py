@@ -18,7 +18,8 @@ Procedure (:func:`deploy`):
 4. build the CAN robot (IMU from the plan's source) and, when the controller needs a base state,
    wrap it: ``EstimatedRobot(CanRobot(...))`` (the base from the state estimator); the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
-   run log, and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``
+   run log (with a walking controller, the walker's state at each tick: ``/walker``,
+   :mod:`giwbc.locomotion.walker_log`), and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``
    (with a state estimator, after the start-up ramp the robot holds still until the estimator's
    IMU calibration is done: phase ``calibrate``, :mod:`giwbc.runtimes.phases`);
 5. report (with the IMU calibration found, also in the run log's ``calibration`` event): exit
@@ -83,6 +84,7 @@ from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
 from giwbc.hal.can_robot import CanRobot
 from giwbc.hal.hardware import HardwareConfigError, load_hardware
 from giwbc.hal.imu import imu_source_for
+from giwbc.locomotion.walker_log import WalkerRecorder
 from giwbc.robot.description import RobotDescription, RobotDescriptionError, load
 from giwbc.robot.noise import SensorNoiseConfig
 from giwbc.runlog import RunLogWriter
@@ -231,6 +233,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         if not clock:
             clock.append(lambda: robot.time() + 1.0 / options.control_rate)
         task = build_task(task_name, description, metadata, options)
+        hold = walking_hold(task)
+        recorders = () if hold is None else (WalkerRecorder(hold.walker),)  # the walker's state in the log, each tick
         if host_faults:
             try:
                 host_faults.wrap_task(task, robot)
@@ -244,13 +248,14 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             "robot": description.name, "hardware": str(hardware), "emulate": options.emulate, "task": task_name,
             "controller": options.controller, "policy": options.policy, "control_rate": options.control_rate,
             "agent_rate": agent_rate, "seconds": options.seconds, "bus_loads": loads,
-        }, extension=scene_channels(description, names, options.scene_rate, options.foxglove_port))  # fmt: skip
+        }, extension=scene_channels(description, names, options.scene_rate, options.foxglove_port),
+           channels=[r.channel for r in recorders])  # fmt: skip
         if options.foxglove_port is not None:
             say(f"Foxglove: open a connection to ws://{LIVE_HOST}:{options.foxglove_port} (the scene at 30 Hz, from the logger's process)")
         runtime = RealtimeRuntime(
             task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=safety,
             startup=options.startup, log=log, log_every=options.log_every, realtime=options.realtime,
-            rt_priority=options.rt_priority,
+            rt_priority=options.rt_priority, recorders=recorders,
         )  # fmt: skip
         if metadata is not None:
             check_layout(metadata, task)
@@ -298,7 +303,6 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             f"base moved {standing['dx']:+.2f} m forward, {standing['dy']:+.2f} m sideways"
         )
     walking = None
-    hold = walking_hold(task)
     if hold is not None:
         walking = {"steps": hold.steps, "single_support_ticks": hold.single_support_ticks, "notes": list(hold.notes)}
         say(f"walking: {hold.steps} steps" + (f" (command: {'; '.join(hold.notes)})" if hold.notes else ""))
