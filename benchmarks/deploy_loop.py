@@ -64,7 +64,7 @@ from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig  # noqa: E402
 from giwbc.emulation.process import EmulatorProcess  # noqa: E402
 from giwbc.hal.hardware import load_hardware  # noqa: E402
-from giwbc.locomotion.walker_log import WalkerRecorder  # noqa: E402
+from giwbc.apps.deploy_walk_log import WalkerRecorder  # noqa: E402
 from giwbc.runlog import RunLogWriter  # noqa: E402
 from giwbc.hal.safety import SafetyConfig  # noqa: E402
 from giwbc.robot import load  # noqa: E402

@@ -19,8 +19,8 @@ Procedure (:func:`deploy`):
    wrap it: ``EstimatedRobot(CanRobot(...))`` (the base from the state estimator); the task
    (``stand``: a controller holds the robot, no action; with a policy: the policy's task), the
    run log (with a walking controller, the walker's state at each tick: ``/walker``,
-   :mod:`giwbc.locomotion.walker_log`), and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime` for ``--seconds``
-   (with a state estimator, after the start-up ramp the robot holds still until the estimator's
+   :mod:`giwbc.apps.deploy_walk_log`), and run the :class:`~giwbc.runtimes.realtime.RealtimeRuntime`
+   for ``--seconds`` (with a state estimator, after the start-up ramp the robot holds still until the estimator's
    IMU calibration is done: phase ``calibrate``, :mod:`giwbc.runtimes.phases`);
 5. report (with the IMU calibration found, also in the run log's ``calibration`` event): exit
    code 0 on a clean run, non-zero with the cause on a fault (128 + the signal's number for SIGINT, SIGTERM, SIGHUP, SIGQUIT: 130, 143, 129, 131; 130 for a ``KeyboardInterrupt``
@@ -84,7 +84,7 @@ from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
 from giwbc.hal.can_robot import CanRobot
 from giwbc.hal.hardware import HardwareConfigError, load_hardware
 from giwbc.hal.imu import imu_source_for
-from giwbc.locomotion.walker_log import WalkerRecorder
+from giwbc.apps.deploy_walk_log import WalkerRecorder
 from giwbc.robot.description import RobotDescription, RobotDescriptionError, load
 from giwbc.robot.noise import SensorNoiseConfig
 from giwbc.runlog import RunLogWriter

@@ -9,11 +9,9 @@ One concept per module:
 * :mod:`~giwbc.locomotion.footsteps` — footsteps from a velocity command, with limits;
 * :mod:`~giwbc.locomotion.step_adapter` — where and when the next foot lands, from the measured DCM;
 * :mod:`~giwbc.locomotion.swing` — swing-foot trajectories, re-targetable in flight;
-* :mod:`~giwbc.locomotion.walker` — the walking / push-recovery controller on the WBC;
-* :mod:`~giwbc.locomotion.walker_log` — the walker's state in the run log (``/walker``), each tick.
+* :mod:`~giwbc.locomotion.walker` — the walking / push-recovery controller on the WBC.
 
-It may import :mod:`giwbc.control`, :mod:`giwbc.robot` and :mod:`giwbc.runlog`, never the tasks,
-runtimes or apps.
+It may import :mod:`giwbc.control` and :mod:`giwbc.robot`, never the tasks, runtimes or apps.
 """
 
 from giwbc.locomotion.dcm import CopSegment, DcmController, DcmReference

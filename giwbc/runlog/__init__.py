@@ -15,7 +15,7 @@ Channels (``log_time`` = ``publish_time`` = robot time of the cycle in ns since 
 ``/walker``        with a walking controller, each control tick: its phase, stance side, steps,
                    time in phase, the swing foot's planned landing and target, the DCM and its
                    reference and error, the step adjustment, the WBC tick's outcome
-                   (:mod:`giwbc.locomotion.walker_log`)
+                   (:mod:`giwbc.apps.deploy_walk_log`)
 =================  ==========================================================================
 
 A run's own fixed-size numeric channels (:class:`NumericChannel`, e.g. ``/walker``) are declared

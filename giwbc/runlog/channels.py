@@ -6,7 +6,7 @@ vector of :attr:`NumericChannel.size` values (:meth:`RunLogWriter.channel
 <giwbc.runlog.writer.RunLogWriter.channel>`: one ``tobytes``, no dict or string built in the loop)
 and the logger process renders it as a JSON message with those names, under the channel's JSON
 schema. A :class:`CycleRecorder` fills that vector from whatever it watches (the walker:
-:mod:`giwbc.locomotion.walker_log`); the real-time runtime asks each of its recorders once per
+:mod:`giwbc.apps.deploy_walk_log`); the real-time runtime asks each of its recorders once per
 logged cycle.
 
 A channel's schema (its ``title`` and fields) is stored in the MCAP file with its messages, as the
@@ -24,7 +24,7 @@ import numpy as np
 
 from giwbc.runlog.schema import SCHEMAS, _schema, json_floats
 
-WALKER_TOPIC = "/walker"  # the walking controller's state (giwbc.locomotion.walker_log)
+WALKER_TOPIC = "/walker"  # the walking controller's state (giwbc.apps.deploy_walk_log)
 KINDS = ("number", "integer", "label")
 
 

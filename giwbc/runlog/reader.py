@@ -51,7 +51,7 @@ class RunLog:
     @property
     def walker(self) -> list[dict[str, Any]]:
         """The walking controller's state, one message per logged control tick (``/walker``,
-        :mod:`giwbc.locomotion.walker_log`; empty when no walker ran or the log predates it)."""
+        :mod:`giwbc.apps.deploy_walk_log`; empty when no walker ran or the log predates it)."""
         return self.topic(WALKER_TOPIC)
 
     def changes(self, topic: str, keys: Sequence[str]) -> list[dict[str, Any]]:

@@ -113,7 +113,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
 
     ``log``: a :class:`RunLogWriter` (owned by the caller) or None; ``log_every``: log commands,
     replies, IMU and estimate every this many cycles (faults, events: always); ``recorders``: the
-    controller's own channels (e.g. the walker's state, :mod:`giwbc.locomotion.walker_log`), each
+    controller's own channels (e.g. the walker's state, :mod:`giwbc.apps.deploy_walk_log`), each
     asked for its record on the same cycles after the cycle's tick (their channels declared in ``log``). ``realtime=False``
     runs cycles back to back (the emulator follows the robot's nominal time, so the run is the same).
     ``rt_priority``: run under ``SCHED_FIFO`` at this priority while the motors are on (Linux, needs

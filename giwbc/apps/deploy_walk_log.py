@@ -1,5 +1,6 @@
-"""The walking controller's state in the run log: the ``/walker`` channel (:data:`WALKER_CHANNEL`),
-one record per control tick, filled by :class:`WalkerRecorder` in the control loop.
+"""The deployed walking controller's state in the run log: the ``/walker`` channel
+(:data:`WALKER_CHANNEL`), one record per control tick, filled by :class:`WalkerRecorder` in the
+control loop (``giwbc deploy --controller walk`` and a walking policy: :mod:`giwbc.apps.deploy_run`).
 
 A record says what the walker did at that tick (:class:`~giwbc.locomotion.walker.WalkerState`
 and the tick's WBC result): ``phase`` (``stand``, ``double``, ``single``), ``stance`` (the
