@@ -56,6 +56,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from giwbc.apps.deploy import make_controller, scene_channels  # noqa: E402
+from giwbc.apps.deploy_setup import walking_hold  # noqa: E402
 from giwbc.apps.deploy_walk import WalkCommand  # noqa: E402
 from giwbc.estimation.estimated_robot import EstimatedRobot  # noqa: E402
 from giwbc.estimation.estimator import StateEstimator  # noqa: E402
@@ -63,6 +64,7 @@ from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig  # noqa: E402
 from giwbc.emulation.process import EmulatorProcess  # noqa: E402
 from giwbc.hal.hardware import load_hardware  # noqa: E402
+from giwbc.apps.deploy_walk_log import WalkerRecorder  # noqa: E402
 from giwbc.runlog import RunLogWriter  # noqa: E402
 from giwbc.hal.safety import SafetyConfig  # noqa: E402
 from giwbc.robot import load  # noqa: E402
@@ -166,15 +168,17 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     meter = _CpuMeter(emulator if mode == "lockstep" else None, can_robot, robot if robot is not can_robot else None)
     walk = WalkCommand(vx=vx) if controller == "walk" else None
     task = StandingTask(make_controller(controller, description, walk), description.default_positions)
+    hold = walking_hold(task)
+    recorders = () if hold is None else (WalkerRecorder(hold.walker),)  # as giwbc deploy: the walker's state in the log
     port = _free_port() if live else None
     scene = scene_channels(description, description.joint_names, scene_rate, port)
     writer = RunLogWriter(log_dir / f"deploy_loop_{int(rate)}.mcap", description.joint_names, {"benchmark": "deploy_loop"},
-                          cpus=cpus[1:] if split else None, extension=scene) if log else None  # off the loop's CPU  # fmt: skip
+                          cpus=cpus[1:] if split else None, extension=scene, channels=[r.channel for r in recorders]) if log else None  # off the loop's CPU  # fmt: skip
     viewer = None
     if live and writer is not None:  # a Foxglove viewer on loopback, in a process of its own (not this one's CPU time)
         viewer = subprocess.Popen([sys.executable, "-m", "giwbc.apps.live", str(port), str(seconds + 30.0)],
                                   stdout=subprocess.PIPE, text=True)  # fmt: skip
-    runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, safety=BENCHMARK_SAFETY,
+    runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, safety=BENCHMARK_SAFETY, recorders=recorders,
                               startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.1, off_delay=0.05))  # fmt: skip
     marks: dict[str, dict[str, object]] = {}
     original = runtime._set_phase

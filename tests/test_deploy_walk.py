@@ -16,6 +16,7 @@ from giwbc.apps.deploy import DeployOptions, add_deploy_command, deploy
 from giwbc.apps.deploy_walk import WalkCommand
 from giwbc.emulation.faults import FaultInjection
 from giwbc.errors import DeployError
+from giwbc.runlog import read_log
 from giwbc.runtimes.phases import StartupConfig
 
 STARTUP = StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.3, off_delay=0.1)
@@ -58,6 +59,52 @@ def test_steps_in_place_within_a_small_area(g1, model, tmp_path):
     assert standing["stood"]
     assert walking["steps"] >= 5  # it stepped ...
     assert standing["max_excursion"] < 0.1  # ... and stayed where it was (ground truth)
+
+
+def test_the_run_log_holds_the_walkers_state_at_every_tick(g1, model, tmp_path, monkeypatch):
+    """``/walker``: each control tick's phase, stance, steps and swing landing, as the walker had them."""
+    ticks = []  # the walker's own state after each of its ticks
+    tick = deploy_walk.WalkHold.__call__
+
+    def recorded(hold, robot):
+        command = tick(hold, robot)
+        s = hold.walker.state
+        ticks.append((s.phase.value, s.stance, s.steps, s.target.copy(), s.dcm - s.dcm_ref, hold.walker.last_result.ok))
+        return command
+
+    monkeypatch.setattr(deploy_walk.WalkHold, "__call__", recorded)
+    outcome = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.3), 2.5)
+    log = read_log(outcome.log_path).walker
+    # Every tick of the walker is logged, in order, but the runtime's hand-over tick (between two cycles).
+    assert len(log) == len(ticks) - 1 > 1000
+    ticks = ticks[1:]
+    assert [(m["phase"], m["stance"], m["steps"]) for m in log] == [t[:3] for t in ticks]
+    assert all(m["wbc"] in ("guess", "backend") for m in log) and [m["wbc"] for m in log].count("guess") > len(log) // 2
+    np.testing.assert_allclose([m["dcm_error"] for m in log], [t[4] for t in ticks], atol=1e-5)
+    # The phase sequence: stand, the weight shift, then single and double support in turn, the stance
+    # foot alternating, one step counted at each touch-down; as many steps as the walker counted.
+    runs = [(m["phase"], m["stance"], m["steps"]) for m in read_log(outcome.log_path).changes("/walker", ("phase", "stance", "steps"))]
+    assert runs[:2] == [("stand", "left", 0), ("double", runs[1][1], 0)] and len(runs) >= 8
+    for k, (phase, stance, steps) in enumerate(runs[2:], start=2):
+        before = runs[k - 1]
+        if phase == "single":
+            assert before[0] == "double" and steps == before[2] and stance == before[1]
+        else:
+            assert (phase, before[0], steps) == ("double", "single", before[2] + 1) and stance != before[1]
+    assert log[-1]["steps"] == outcome.walking["steps"] >= 3
+    # The swing landing targets (single support only): the walker's, and each step lands ahead of
+    # the one before, on the swing foot's own side.
+    landings = [(m["stance"], m["target"]) for m, after in zip(log, log[1:]) if m["phase"] == "single" and after["phase"] != "single"]
+    assert len(landings) >= 3
+    for m, t in zip(log, ticks):
+        if m["phase"] == "single":
+            np.testing.assert_allclose(m["target"], t[3], atol=1e-5)
+        else:
+            assert m["target"] == [None, None] and m["adjustment"] == [None, None]
+    xs = [target[0] for _, target in landings]
+    assert all(b > a + 0.05 for a, b in zip(xs, xs[1:]))
+    for (stance, target), (other, next_target) in zip(landings, landings[1:]):
+        assert stance != other and (next_target[1] - target[1]) * (1 if stance == "left" else -1) > 0.15
 
 
 def test_bad_walk_commands_are_refused(g1):
@@ -110,6 +157,8 @@ def test_the_walking_policy_walks_over_the_emulated_buses_at_its_rate(g1, model,
     # The policy ran at its 50 Hz over the 3 s (one action per 10 control cycles) and moved the steps.
     assert len(actions) == 150 and np.abs(np.array(actions)).max() > 1e-3
     assert outcome.result.cycles >= 10 * len(actions)
+    log = read_log(outcome.log_path).walker  # the walker under the policy is logged too
+    assert len(log) >= 10 * len(actions) - 1 and log[-1]["steps"] == walking["steps"]
 
 
 @pytest.mark.parametrize(
@@ -145,6 +194,13 @@ def test_a_push_while_walking_is_absorbed_by_step_adjustment_on_the_estimate(g1,
     push = (FaultInjection("push", start=7.5, stop=7.7, force=(-80.0, 0.0, 0.0), link=g1.base_link),)
     adjusted = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 5.0, push)
     assert adjusted.standing["stood"] and adjusted.walking["steps"] >= 6 and adjusted.standing["dx"] > 0.5
+    # The run log shows the adjustment: none before the push (the estimate's noise inside the
+    # deadband), then the landing moved by several cm, within the bound on each axis.
+    single = [m for m in read_log(adjusted.log_path).walker if m["phase"] == "single"]
+    moved = [(m["t"], float(np.hypot(*m["adjustment"])), abs(m["timing_adjustment"])) for m in single]
+    assert max(d for t, d, _ in moved if t < 7.5) < 1e-3
+    assert 0.03 < max(d for t, d, _ in moved if t >= 7.5) <= np.sqrt(2) * deploy_walk.DEPLOY_MAX_ADJUSTMENT + 1e-6
+    assert max(s for t, _, s in moved if t >= 7.5) > 0.01  # and the touch-down time
     nominal = replace(deploy_walk.deploy_walker_config(), step_adaptation=False)
     monkeypatch.setattr(deploy_walk, "deploy_walker_config", lambda: nominal)
     fixed = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 5.0, push, clean=False)

@@ -166,3 +166,35 @@ def test_the_logger_runs_where_it_is_told_and_below_the_loop(tmp_path):
         assert os.getpriority(os.PRIO_PROCESS, log.pid) >= os.getpriority(os.PRIO_PROCESS, 0) + 10 or os.getpriority(os.PRIO_PROCESS, log.pid) == 19
     finally:
         log.close()
+
+
+def test_numeric_channels_round_trip_with_their_names_and_schema(tmp_path):
+    from giwbc.runlog import Field, NumericChannel
+
+    channel = NumericChannel("/gait", "test.Gait", (
+        Field("phase", kind="label", labels=("stand", "swing")), Field("steps", kind="integer"), Field("dcm", 2), Field("time"),
+    ))  # fmt: skip
+    rows = [[1.0, 3.0, 0.25, -1 / 3, 0.5], [0.0, 4.0, np.nan, 0.1, np.inf], [7.0, 5.0, 0.0, 0.0, 1.0]]  # label 7: out of range
+    with RunLogWriter(tmp_path / "gait.mcap", JOINTS, channels=[channel]) as log:
+        for cycle, row in enumerate(rows):
+            log.channel("/gait", cycle, 0.002 * cycle, np.array(row))
+            log.flush()
+        with pytest.raises(ValueError, match="need 5 values"):
+            log.channel("/gait", 3, 0.006, np.zeros(4))
+        with pytest.raises(ValueError, match="no numeric channel"):
+            log.channel("/other", 3, 0.006, np.zeros(5))
+    assert log.counts["/gait"] == 3
+    run = read_log(log.path)
+    gait = run.topic("/gait")
+    assert [g["phase"] for g in gait] == ["swing", "stand", None] and [g["steps"] for g in gait] == [3, 4, 5]
+    assert gait[0]["dcm"] == [0.25, -0.333333] and gait[1]["dcm"] == [None, 0.1] and gait[1]["time"] is None
+    assert [c["phase"] for c in run.changes("/gait", ("phase",))] == ["swing", "stand", None]
+    schema = run.schemas["/gait"]
+    assert schema["title"] == "test.Gait" and set(schema["required"]) >= {"cycle", "t", "phase", "steps", "dcm", "time"}
+    jsonschema = pytest.importorskip("jsonschema")
+    for message in gait:
+        jsonschema.Draft202012Validator(schema).validate(message)
+    with pytest.raises(ValueError, match="own"):
+        NumericChannel("/commands", "clash", (Field("x"),))
+    with pytest.raises(ValueError, match="labels"):
+        Field("phase", kind="label")

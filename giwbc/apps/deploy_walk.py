@@ -7,7 +7,7 @@ touch-downs, the estimator's ground force on each sole (``robot.contact_wrench``
 the leg's joint efforts, or a foot sensor's). It stands for ``walk_delay`` seconds after the
 start-up ramp (the WBC takes the robot over from the ramp's joint PD and the estimate settles),
 then walks at the command; it outputs the WBC's impedance command (feed-forward torque, low gains)
-as :class:`giwbc.apps.deploy.WbcHold` does.
+as :class:`giwbc.apps.deploy_setup.WbcHold` does.
 
 ``giwbc deploy --policy g1_walk_residual.onnx`` (task ``walk``): :class:`WalkPolicyTask`, the
 policy's :class:`~giwbc.tasks.walk.G1Walk` task (its residual blocks and scales from the ONNX
@@ -215,7 +215,7 @@ def add_walk_arguments(parser: argparse.ArgumentParser) -> None:
 def walk_command(args: argparse.Namespace) -> WalkCommand | None:
     """The walk command of parsed ``giwbc deploy`` arguments: None when no walking option was given
     and the controller is not ``walk`` (whether the task walks is known once the policy is loaded:
-    :func:`giwbc.apps.deploy.deploy` refuses a command for a task that does not walk);
+    :func:`giwbc.apps.deploy_setup.choose_task` refuses a command for a task that does not walk);
     :class:`DeployError` for a non-finite one."""
     given = bool(args.vx or args.vy or args.yaw_rate or args.step_in_place or args.walk_delay != WalkCommand.walk_delay)
     if args.controller != "walk" and not given:

@@ -154,6 +154,7 @@ class WalkerState:
     # The swing target before and after the step residual (:meth:`WalkingController.set_step_residual`).
     planned_target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
     target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    nominal_target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # the plan's, before the step adapter
 
 
 class WalkingController:
@@ -189,6 +190,7 @@ class WalkingController:
         self.adapter: StepAdapter | None = None
         self.dcm_controller: DcmController | None = None
         self._anchored = False
+        self.last_result: WbcResult | None = None  # the last tick's
         self._clear_residuals()
 
     # --- commands ------------------------------------------------------------------------------
@@ -294,7 +296,8 @@ class WalkingController:
         q = np.asarray(q, dtype=float)
         v = np.asarray(v, dtype=float)
         if not math.isfinite(float(q.sum() + v.sum())):
-            return self.wbc.update(q, v, t)
+            self.last_result = self.wbc.update(q, v, t)
+            return self.last_result
         if not self._anchored:
             self.reset(q)
         self._time = t = float(t)
@@ -323,7 +326,8 @@ class WalkingController:
         self.state.dcm_ref, self.state.cop = xi_ref, cop
         self.state.com, self.state.com_velocity = self._com, self._com_velocity
         self.state.phase, self.state.stance = self._phase, self._stance
-        return self.wbc.update(q, v, t)
+        self.last_result = self.wbc.update(q, v, t)
+        return self.last_result
 
     def _estimate_disturbance(self, t: float, xi: np.ndarray) -> None:
         """What the LIPM does not explain: ``d = ξ̇ − ω (ξ − p)`` (m/s), ``ξ̇`` the DCM's measured
@@ -447,6 +451,7 @@ class WalkingController:
         ground = self._sole_world(self._stance).translation[2]
         self._swing = SwingTrajectory(t, t + duration, start_pose, np.array([*target.position, ground - cfg.touchdown_depth, yaw]), apex=cfg.swing_apex)
         self._target = target
+        self.state.nominal_target = self._nominal_target.position
         reference = self._plan_single(t, target, t + duration)
         self._nominal_offset = reference.dcm_at_segment_end(0) - target.position
         if self._recovering:
@@ -751,6 +756,15 @@ class WalkingController:
         end = self._swing.t1 if self._phase is Phase.SINGLE and self._swing is not None else self._phase_end
         span = end - self._phase_start
         return min(max((self._time - self._phase_start) / span, 0.0), 1.0) if span > 0 else 1.0
+
+    def phase_times(self) -> tuple[float, float, float]:
+        """``(start, nominal end, planned end)`` of the current phase (s, the ticks' clock): in single
+        support the touch-down the plan (with the step residual) set and the one the step adapter
+        moved it to; in double support its end twice; standing ``(start, inf, inf)``."""
+        if not self._anchored:
+            return 0.0, math.inf, math.inf
+        planned = self._swing.t1 if self._phase is Phase.SINGLE and self._swing is not None else self._phase_end
+        return self._phase_start, self._phase_end, planned
 
     def next_footstep(self) -> Footstep:
         """Where the next foot lands: the swing target in single support, the plan's next step in

@@ -12,7 +12,14 @@ Channels (``log_time`` = ``publish_time`` = robot time of the cycle in ns since 
 ``/timing``        deadline slot, lateness, period, work and bus times (us), overrun flag
 ``/faults``        every fault: kind, message, cycle, time, joints
 ``/events``        phase changes and notes (start-up pose, clamped fields, shutdown)
+``/walker``        with a walking controller, each control tick: its phase, stance side, steps,
+                   time in phase, the swing foot's planned landing and target, the DCM and its
+                   reference and error, the step adjustment, the WBC tick's outcome
+                   (:mod:`giwbc.apps.deploy_walk_log`)
 =================  ==========================================================================
+
+A run's own fixed-size numeric channels (:class:`NumericChannel`, e.g. ``/walker``) are declared
+when the writer is made; the loop hands over one float64 vector per record.
 
 Arrays are in the order of the ``joint_names`` run metadata. :func:`read_log` loads a file back.
 
@@ -25,9 +32,13 @@ the records in the logger process (the robot's 3D scene for Foxglove: ``giwbc.ap
 non-finite values become ``null``.
 """
 
+from giwbc.runlog.channels import WALKER_TOPIC, CycleRecorder, Field, NumericChannel
 from giwbc.runlog.extension import LogExtension, RobotState
 from giwbc.runlog.reader import RunLog, read_log
 from giwbc.runlog.schema import SCHEMAS, json_floats
 from giwbc.runlog.writer import RunLogWriter
 
-__all__ = ["SCHEMAS", "LogExtension", "RobotState", "RunLog", "RunLogWriter", "json_floats", "read_log"]
+__all__ = [
+    "SCHEMAS", "WALKER_TOPIC", "CycleRecorder", "Field", "LogExtension", "NumericChannel", "RobotState", "RunLog", "RunLogWriter",
+    "json_floats", "read_log",
+]  # fmt: skip

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from giwbc.runlog.channels import WALKER_TOPIC
 
 
 @dataclass
@@ -45,6 +47,23 @@ class RunLog:
 
     def event_names(self) -> list[str]:
         return [e["event"] for e in self.events]
+
+    @property
+    def walker(self) -> list[dict[str, Any]]:
+        """The walking controller's state, one message per logged control tick (``/walker``,
+        :mod:`giwbc.apps.deploy_walk_log`; empty when no walker ran or the log predates it)."""
+        return self.topic(WALKER_TOPIC)
+
+    def changes(self, topic: str, keys: Sequence[str]) -> list[dict[str, Any]]:
+        """The messages of ``topic`` where the values of ``keys`` differ from the message before
+        (the first included): e.g. the walker's phase sequence, ``changes("/walker", ("phase", "stance"))``."""
+        out, previous = [], None
+        for message in self.topic(topic):
+            values = tuple(message.get(k) for k in keys)
+            if values != previous:
+                out.append(message)
+                previous = values
+        return out
 
 
 def read_log(path: str | os.PathLike[str], topics: Iterable[str] | None = None) -> RunLog:

@@ -98,7 +98,7 @@ class _FloatBlock:
 # ----------------------------------------------------------------------------- the wire
 # A datagram carries records, each: u32 length, then a header (u8 record type, u64 cycle, f64 robot
 # time) and the record's body (see the methods of RunLogWriter). Native byte order: one machine.
-_COMMANDS, _REPLIES, _ESTIMATOR, _TIMING, _FAULT, _EVENT, _CLOSE = range(1, 8)
+_COMMANDS, _REPLIES, _ESTIMATOR, _TIMING, _FAULT, _EVENT, _CLOSE, _NUMERIC = range(1, 9)  # _NUMERIC: u8 channel index, then float64s
 _HEADER = struct.Struct("=BQd")
 _LENGTH = struct.Struct("=I")
 _COUNTS = struct.Struct("=qqq")  # late, corrupt, unknown

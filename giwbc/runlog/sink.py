@@ -15,16 +15,17 @@ import numpy as np
 
 from giwbc.runlog.extension import LogExtension, RobotState
 from giwbc.runlog.schema import (
-    _CLOSE, _COMMANDS, _COUNTS, _ESTIMATE_FLAGS, _ESTIMATOR, _EVENT, _FAULT, _HEADER, _LENGTH, _REPLIES, _TIMES, _TIMING,
-    _TOPIC, SCHEMAS, _FloatBlock, _ints,
+    _CLOSE, _COMMANDS, _COUNTS, _ESTIMATE_FLAGS, _ESTIMATOR, _EVENT, _FAULT, _HEADER, _LENGTH, _NUMERIC, _REPLIES, _TIMES,
+    _TIMING, _TOPIC, SCHEMAS, _FloatBlock, _ints,
 )  # fmt: skip
+from giwbc.runlog.channels import NumericChannel
 
 # ----------------------------------------------------------------------------- the logger process
 class _McapSink:
     """The MCAP file (in the logger process): JSON messages, a JSON schema per channel, LZ4 chunks."""
 
     def __init__(self, path: Path, joint_names: Sequence[str], metadata: Mapping[str, Any], chunk_size: int,
-                 extension: LogExtension | None = None) -> None:  # fmt: skip
+                 extension: LogExtension | None = None, channels: Sequence[NumericChannel] = ()) -> None:  # fmt: skip
         from mcap.writer import CompressionType, Writer
 
         self._file = open(path, "wb")  # noqa: SIM115 - closed in finish()
@@ -34,6 +35,11 @@ class _McapSink:
         for topic, schema in SCHEMAS.items():
             sid = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
             self._channels[topic] = self._writer.register_channel(topic, "json", sid)
+        self._numeric = tuple(channels)
+        for channel in self._numeric:
+            schema = channel.schema()
+            sid = self._writer.register_schema(schema["title"], "jsonschema", json.dumps(schema).encode())
+            self._channels[channel.topic] = self._writer.register_channel(channel.topic, "json", sid)
         self.extension = extension
         self.state = RobotState()  # the robot at the end of the last cycle, for the extension
         for topic, schema in (extension.schemas() if extension is not None else {}).items():
@@ -89,6 +95,10 @@ class _McapSink:
             if self.extension is not None:  # the cycle's last record: the extension sees the whole cycle
                 self.state.t = t
                 self.extend(lambda extension: extension.update(self.state))
+        elif kind == _NUMERIC:
+            channel = self._numeric[body[0]]
+            values = np.frombuffer(body, dtype=float, count=channel.size, offset=1)
+            self._add(channel.topic, t, f"{head},{channel.render(values)}}}")
         elif kind in (_FAULT, _EVENT):
             self._add(_TOPIC[kind], t, bytes(body).decode(), flush=True)
 
@@ -151,7 +161,8 @@ def _read_text(body: memoryview, k: int) -> tuple[str, int]:
 
 
 def _serve(sock: socket.socket, parent_end: socket.socket, path: Path, joint_names: Sequence[str], metadata: Mapping[str, Any],
-           chunk_size: int, cpus: list[int] | None, extension: LogExtension | None = None) -> None:  # fmt: skip
+           chunk_size: int, cpus: list[int] | None, extension: LogExtension | None = None,
+           channels: Sequence[NumericChannel] = ()) -> None:  # fmt: skip
     """The logger process: write records until told to close, or until the control process is gone."""
     parent_end.close()
     try:
@@ -161,7 +172,7 @@ def _serve(sock: socket.socket, parent_end: socket.socket, path: Path, joint_nam
     except (OSError, AttributeError):
         pass
     try:
-        sink = _McapSink(path, joint_names, metadata, chunk_size, extension)
+        sink = _McapSink(path, joint_names, metadata, chunk_size, extension, channels)
     except OSError as error:
         sock.send(f"cannot write the run log {path}: {error}".encode())
         return

@@ -15,9 +15,10 @@ from typing import Any
 import numpy as np
 
 from giwbc.runlog.schema import (
-    _CLOSE, _COMMANDS, _COUNTS, _ESTIMATE_FLAGS, _ESTIMATOR, _EVENT, _FAULT, _HEADER, _LENGTH, _MAX_DATAGRAM, _REPLIES,
+    _CLOSE, _COMMANDS, _COUNTS, _ESTIMATE_FLAGS, _ESTIMATOR, _EVENT, _FAULT, _HEADER, _LENGTH, _MAX_DATAGRAM, _NUMERIC, _REPLIES,
     _TIMES, _TIMING, _TOPIC, SCHEMAS, _floats, _plain, _text,
 )  # fmt: skip
+from giwbc.runlog.channels import NumericChannel
 from giwbc.runlog.extension import LogExtension
 from giwbc.runlog.sink import _serve
 from giwbc.util import children
@@ -41,16 +42,24 @@ class RunLogWriter:
 
     ``extension``: more channels derived from each cycle's records in the logger process (e.g. the
     robot's 3D scene, :mod:`giwbc.runlog.extension`); it is handed to the forked logger as it is.
+
+    ``channels``: fixed-size numeric channels of the run's own (e.g. the walker's state,
+    :mod:`giwbc.runlog.channels`), written with :meth:`channel`.
     """
 
     def __init__(self, path: str | os.PathLike[str], joint_names: Sequence[str], metadata: Mapping[str, Any] | None = None,
                  *, chunk_size: int = 256 * 1024, backlog: int = 4096, cpus: Iterable[int] | None = None,
-                 extension: LogExtension | None = None) -> None:  # fmt: skip
+                 extension: LogExtension | None = None, channels: Sequence[NumericChannel] = ()) -> None:  # fmt: skip
+        channels = tuple(channels)
+        topics = [c.topic for c in channels]
+        if len(set(topics)) != len(topics) or len(channels) > 255:
+            raise ValueError(f"numeric channels need distinct topics (at most 255), got {topics}")
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.joint_names = tuple(joint_names)
         meta = {"joint_names": list(self.joint_names), **(metadata or {})}
-        self.counts: dict[str, int] = {topic: 0 for topic in SCHEMAS}  # records handed over, per channel
+        self.counts: dict[str, int] = {topic: 0 for topic in (*SCHEMAS, *topics)}  # records handed over, per channel
+        self._channels = {c.topic: (bytes((i,)), c.size) for i, c in enumerate(channels)}
         self.dropped = 0  # records lost because the logger fell too far behind
         self._noted_drops = 0
         self._buffer = bytearray()
@@ -62,7 +71,7 @@ class RunLogWriter:
         self._sock, child = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         _grow_send_buffer(self._sock)
         cpus = None if cpus is None else sorted(set(cpus))
-        args = (child, self._sock, self.path, self.joint_names, meta, chunk_size, cpus, extension)
+        args = (child, self._sock, self.path, self.joint_names, meta, chunk_size, cpus, extension, channels)
         self._process = children.start(_serve, args, "giwbc-runlog")
         child.close()
         self._sock.setblocking(False)
@@ -73,7 +82,7 @@ class RunLogWriter:
         return self._process.pid
 
     # --- records: the control loop's side, packed and buffered -----------------------------------
-    def _record(self, kind: int, cycle: int, t: float, body: bytes) -> None:
+    def _record(self, kind: int, cycle: int, t: float, body: bytes, topic: str | None = None) -> None:
         if self._closed:
             raise ValueError(f"the run log {self.path} is closed")
         buffer = self._buffer
@@ -81,7 +90,7 @@ class RunLogWriter:
         buffer += _HEADER.pack(kind, max(0, int(cycle)), float(t))
         buffer += body
         self._buffered += 1
-        self.counts[_TOPIC[kind]] += 1
+        self.counts[topic or _TOPIC[kind]] += 1
 
     def commands(self, cycle: int, t: float, phase: str, kind: str, q_ref: Any, v_ref: Any, kp: Any, kd: Any, tau_ff: Any) -> None:
         self._record(_COMMANDS, cycle, t, _text(phase) + _text(kind) + _floats(q_ref, v_ref, kp, kd, tau_ff))
@@ -113,6 +122,18 @@ class RunLogWriter:
         period = math.nan if period_us is None else float(period_us)
         body = _TIMES.pack(int(slot), float(lateness_us), period, float(work_us), float(send_us), float(receive_us), bool(overrun))
         self._record(_TIMING, cycle, t, body)
+
+    def channel(self, topic: str, cycle: int, t: float, values: np.ndarray) -> None:
+        """One record of the numeric channel ``topic`` (declared at construction): ``values``, its
+        ``size`` numbers (a float64 vector: no conversion; copied at once)."""
+        entry = self._channels.get(topic)
+        if entry is None:
+            raise ValueError(f"no numeric channel {topic!r} in the run log {self.path} (declared: {', '.join(self._channels) or 'none'})")
+        index, size = entry
+        values = np.asarray(values, dtype=np.float64)
+        if values.shape != (size,):
+            raise ValueError(f"channel {topic}: need {size} values, got shape {values.shape}")
+        self._record(_NUMERIC, cycle, t, index + values.tobytes(), topic)
 
     def fault(self, fault: Any) -> None:
         """A :class:`~giwbc.hal.safety.Fault`: handed over at once, on disk before the logger reads on."""

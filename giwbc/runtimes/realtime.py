@@ -42,7 +42,7 @@ import signal
 import threading
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -54,7 +54,7 @@ from giwbc.hal.safety import Fault, FaultKind, SafetyConfig, SafetySupervisor, S
 from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.estimation.estimator import StateEstimator
 from giwbc.robot.interface import ImpedanceCommand, RobotWrapper
-from giwbc.runlog import RunLogWriter
+from giwbc.runlog import CycleRecorder, RunLogWriter
 from giwbc.runtimes.clock import DeadlineClock
 from giwbc.runtimes.fault_response import FaultResponse, LoopAbandoned, describe, robot_faults
 from giwbc.runtimes.os_settings import ProcessSettings
@@ -112,7 +112,9 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
     estimator (:attr:`estimated`) when a new IMU sample came, so it runs through start-up too.
 
     ``log``: a :class:`RunLogWriter` (owned by the caller) or None; ``log_every``: log commands,
-    replies, IMU and estimate every this many cycles (faults, events: always). ``realtime=False``
+    replies, IMU and estimate every this many cycles (faults, events: always); ``recorders``: the
+    controller's own channels (e.g. the walker's state, :mod:`giwbc.apps.deploy_walk_log`), each
+    asked for its record on the same cycles after the cycle's tick (their channels declared in ``log``). ``realtime=False``
     runs cycles back to back (the emulator follows the robot's nominal time, so the run is the same).
     ``rt_priority``: run under ``SCHED_FIFO`` at this priority while the motors are on (Linux, needs
     CAP_SYS_NICE; refused -> logged, run goes on), restored at :meth:`close`; mind Linux RT
@@ -147,6 +149,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         rt_priority: int | None = None,
         freeze_gc: bool = True,
         gc_every: int | None = 500,
+        recorders: Sequence[CycleRecorder] = (),
     ) -> None:
         can = robot.unwrapped if isinstance(robot, RobotWrapper) else robot
         if not isinstance(can, CanRobot):
@@ -180,6 +183,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         self.log = log
         self.log_path = str(log.path) if log is not None else None
         self.log_every = max(1, int(log_every))
+        self.recorders = tuple(recorders)
         self.damping = damping_command(d, self.safety)
         self.phase = Phase.IDLE
         self.fault: Fault | None = None
@@ -501,6 +505,10 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         estimate = self.estimated.latest_estimate if self.estimated is not None else None
         if imu is not None or estimate is not None:
             log.estimator(report.cycle, t, imu, estimate)
+        for recorder in self.recorders:  # the cycle's tick, if there was one (its command goes out next cycle)
+            values = recorder.sample()
+            if values is not None:
+                log.channel(recorder.channel.topic, report.cycle, t, values)
 
     # --- helpers ----------------------------------------------------------------------------
     @property
