@@ -71,3 +71,9 @@ def rotate_back(c: float, s: float, x: float, y: float) -> tuple[float, float]:
     """``[[c, −s], [s, c]]ᵀ @ (x, y)`` with numpy's bits (a transposed view: plain products here)."""
     row = _ROW_T
     return row(c, x, s * y), row(-s, x, c * y)  # type: ignore[operator]
+
+
+def distance2(a: np.ndarray, b: np.ndarray) -> float:
+    """``‖a − b‖`` of two (x, y) points, as ``np.linalg.norm`` computes it (``√(dx² + dy²)``), on floats."""
+    dx, dy = float(a[0]) - float(b[0]), float(a[1]) - float(b[1])
+    return math.sqrt(dx * dx + dy * dy)

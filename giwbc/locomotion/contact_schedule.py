@@ -1,0 +1,148 @@
+"""The contact schedule: a part of the walking controller
+(:class:`~giwbc.locomotion.walker.WalkingController`, which mixes :class:`ContactSchedule` in; it
+works on the controller's state).
+
+A phase machine over :class:`~giwbc.locomotion.walker_config.Phase`: standing (no step planned) →
+double support (the weight shifts; at its end the swing foot's contact is ramped out with the WBC's
+force ramp) → single support (one foot swings) → touch-down (the contact made again, its force
+ramped in) → double support … Touch-down is *early* when the foot's measured normal force exceeds
+``touchdown_force`` after ``early_touchdown`` of the swing near the landing spot, *late* when it has
+not by the planned time (the foot keeps descending, for at most ``late_touchdown`` s). A velocity
+command starts a walk; the command back at zero brings the feet together and the walk settles;
+a push standing starts recovery steps (:mod:`giwbc.locomotion.push_recovery`).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from giwbc.locomotion.footsteps import other_side, side_sign
+from giwbc.locomotion.walker_config import Phase
+
+
+class ContactSchedule:
+    """The walking controller's phase machine: lift-off, touch-down, settling (see the module docstring)."""
+
+    def _advance(self, t: float, xi: np.ndarray, forces: dict[str, float]) -> None:
+        """One tick of the schedule: start a walk or a recovery standing, lift off at the end of a
+        double support, adapt the step and detect touch-down in single support."""
+        cfg = self.config
+        if self._phase is Phase.STAND:
+            if self.walking:
+                first = self.planner.first_swing_side(self.command)
+                self._begin_double(t, stance=other_side(first), duration=cfg.start_shift)
+            elif self._pushed(t, xi):
+                self._start_recovery(t, xi)
+            return
+        if self._phase is Phase.DOUBLE:
+            swing = other_side(self._stance)
+            if not self._lift_off_issued and t >= self._phase_end - cfg.contact_ramp:
+                self.wbc.remove_contact(self.contacts[swing].name, ramp_time=cfg.contact_ramp)
+                self._lift_off_issued = True
+            if t >= self._phase_end and self._lift_off_issued and self.wbc.contact_activation(self.contacts[swing].name) == 0.0:
+                self._begin_single(t)
+            return
+        # Single support.
+        swing = other_side(self._stance)
+        elapsed = t - self._phase_start
+        assert self._swing is not None and self._target is not None
+        if cfg.step_adaptation and t < self._swing.t1 - 0.03:
+            self._adapt_step(t, xi)
+        force = forces.get(swing, 0.0)
+        landed = force >= cfg.touchdown_force * self.weight and elapsed >= cfg.early_touchdown * (self._swing.t1 - self._phase_start)
+        if landed and t < self._swing.t1 - 0.02:
+            # An early contact counts only near the landing spot: a sole scraping the ground far
+            # from it (a leaning robot) keeps swinging.
+            sole = self._sole_world(swing).translation
+            landed = math.hypot(sole[0] - self._target.position[0], sole[1] - self._target.position[1]) < cfg.touchdown_distance
+        if landed:
+            if t < self._swing.t1 - 1e-9:
+                self.state.early_touchdowns += 1
+            self._touch_down(t)
+        elif t >= self._swing.t1 + cfg.late_touchdown:
+            self.state.late_touchdowns += 1
+            self._touch_down(t)
+        elif not forces and t >= self._swing.t1:
+            self._touch_down(t)
+
+    def _begin_double(self, t: float, stance: str, duration: float) -> None:
+        """Double support until ``t + duration``; then ``stance`` carries and the other foot swings."""
+        self._phase, self._phase_start, self._phase_end = Phase.DOUBLE, t, t + duration
+        self._stance = stance
+        self._lift_off_issued = False
+        self._reference = None
+
+    def _begin_single(self, t: float) -> None:
+        """Lift-off: the swing foot's target (the plan's next step, or the recovery landing) and
+        duration, its trajectory and task, and the single-support DCM reference."""
+        cfg = self.config
+        self._phase, self._phase_start = Phase.SINGLE, t
+        swing = other_side(self._stance)
+        if cfg.drop_swing_contact:
+            self.wbc.forget_contact(self.contacts[swing].name)
+        stance_foot = self.feet[self._stance]
+        if self._recovering:
+            target, duration = self._predict_recovery(stance_foot, cfg.gait.single_support), cfg.gait.single_support
+        else:
+            # Plan from where the stance foot was *meant* to land: the step adapter's corrections do
+            # not accumulate into a drift (re-anchored on the real foot when they are far apart).
+            anchor = self._nominal_feet.get(self._stance)
+            if anchor is None or np.linalg.norm(anchor.position - stance_foot.position) > cfg.anchor_tolerance:
+                anchor = stance_foot
+            target, duration = self.planner.next_step(anchor, self.command), cfg.gait.single_support
+        target = self.planner.constrain(stance_foot, target)
+        self._nominal_feet[swing] = target
+        self._nominal_target = target
+        self.state.planned_target = target.position
+        target = self._apply_step_offset(stance_foot, target)
+        self.state.target = target.position
+        self._swing_nominal = duration
+        duration = self._swing_duration(duration)
+        self._phase_end = t + duration
+        self._swing = self._launch_swing(t, swing, target, duration)
+        self._target = target
+        self.state.nominal_target = self._nominal_target.position
+        reference = self._plan_single(t, target, t + duration)
+        self._nominal_offset = reference.dcm_at_segment_end(0) - target.position
+        if self._recovering:
+            self._nominal_offset = -side_sign(swing) * cfg.recovery_offset * np.array([-math.sin(target.yaw), math.cos(target.yaw)])
+        self._reference = self._step_reference = reference
+        self._dcm_shaper.reset()
+        self._engage_swing_task(t, swing)
+
+    def _touch_down(self, t: float) -> None:
+        """The swing foot landed (or ran out of time): its contact ramps in; then settle, or the
+        next double support (short after a push)."""
+        cfg = self.config
+        swing = other_side(self._stance)
+        self._remove_swing_task(self.swing_tasks[swing])
+        self.wbc.add_contact(self.contacts[swing], ramp_time=cfg.contact_ramp)
+        self.feet[swing] = self._measured_foot(swing)
+        self._polygons = {}
+        self.state.steps += 1
+        self._swing = None
+        if self._recovering:
+            self._recovery_touch_down(t, swing)
+            return
+        if not self.walking and self._feet_together():
+            self._settle(t)
+            self._lead_after = t + cfg.lead_settle_time
+            return
+        # A large DCM error (a push) shortens the double support to the force ramp: the next
+        # foot gets going at once.
+        error = float(np.linalg.norm(self.state.dcm - self.state.dcm_ref))
+        duration = cfg.gait.double_support if error < cfg.hurry_error else max(cfg.contact_ramp, 1e-3)
+        self._begin_double(t, stance=swing, duration=duration)
+
+    def _settle(self, t: float) -> None:
+        """Stand: double support, no step planned."""
+        self._phase, self._phase_start, self._phase_end = Phase.STAND, t, math.inf
+        self._reference = None
+
+    def _feet_together(self) -> bool:
+        """The feet side by side at about the nominal width (a stop)."""
+        left, right = self.feet["left"], self.feet["right"]
+        local = right.to_local(left.position)
+        return abs(local[0]) < 0.03 and abs(local[1] - self.config.gait.step_width) < 0.03

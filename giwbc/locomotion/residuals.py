@@ -1,0 +1,75 @@
+"""Residuals: a policy's corrections on top of the model-based walking controller — a part of
+:class:`~giwbc.locomotion.walker.WalkingController`, which mixes :class:`Residuals` in (it works on
+the controller's state).
+
+A step residual moves where the swinging (or next) foot lands and how long it swings; a reference
+residual offsets the DCM, CoM height and pelvis orientation references the walker gives the WBC.
+All zero (the default) leaves every computation of the walker untouched: bit for bit the walker
+alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from giwbc.locomotion.footsteps import Footstep
+
+
+class Residuals:
+    """The walking controller's policy residuals (see the module docstring)."""
+
+    def _clear_residuals(self) -> None:
+        """All residuals zero."""
+        self._step_offset: np.ndarray | None = None  # stance-sole frame (x forward, y left), m
+        self._duration_offset = 0.0  # s, added to the nominal single support
+        self._swing_nominal = self.config.gait.single_support
+        self._dcm_offset: np.ndarray | None = None  # world x, y, m
+        self._height_offset = 0.0  # m
+        self._orientation_offset: np.ndarray | None = None  # roll, pitch, yaw, rad
+        self._orientation_changed = False
+
+    def set_step_residual(self, offset: np.ndarray, duration: float = 0.0) -> None:
+        """Shift where the swinging (or next) foot lands by ``offset`` (x, y in the stance sole's
+        frame, m) on top of the plan and the step adapter's correction, and change the single
+        support by ``duration`` s. The result stays inside the step adapter's landing box and
+        ``[min_swing, max_swing]``; applied at once to a foot in flight (re-targeted swing)."""
+        offset = np.asarray(offset, dtype=float).reshape(2)
+        if not (np.all(np.isfinite(offset)) and math.isfinite(duration)):
+            raise ValueError(f"step residual must be finite, got {offset}, {duration}")
+        self._step_offset = offset.copy() if offset.any() else None
+        self._duration_offset = float(duration)
+
+    def set_reference_residual(self, dcm: np.ndarray | None = None, height: float = 0.0, orientation: np.ndarray | None = None) -> None:
+        """Offsets on the references the walker gives the WBC: the DCM reference (world x, y, m;
+        in steady state a CoM offset), the CoM height (m) and the pelvis orientation (roll, pitch,
+        yaw about the walker's heading, rad)."""
+        values = [np.zeros(2) if dcm is None else np.asarray(dcm, dtype=float).reshape(2),
+                  np.zeros(3) if orientation is None else np.asarray(orientation, dtype=float).reshape(3)]
+        if not (all(np.all(np.isfinite(x)) for x in values) and math.isfinite(height)):
+            raise ValueError(f"reference residual must be finite, got {dcm}, {height}, {orientation}")
+        self._dcm_offset = values[0].copy() if values[0].any() else None
+        self._height_offset = float(height)
+        orientation_offset = values[1].copy() if values[1].any() else None
+        previous = self._orientation_offset
+        same = (previous is None and orientation_offset is None) or (
+            previous is not None and orientation_offset is not None and np.array_equal(previous, orientation_offset))
+        if not same:
+            self._orientation_changed = True
+        self._orientation_offset = orientation_offset
+
+    def _apply_step_offset(self, stance: Footstep, target: Footstep) -> Footstep:
+        """``target`` shifted by the step residual (stance-sole frame), clipped into the landing box."""
+        if self._step_offset is None:
+            return target
+        local = stance.to_local(target.position) + self._step_offset
+        (x_lo, x_hi), (y_lo, y_hi) = self._landing_box(target.side)
+        local = np.array([min(max(local[0], x_lo), x_hi), min(max(local[1], y_lo), y_hi)])
+        return Footstep(target.side, stance.to_world(local), target.yaw)
+
+    def _swing_duration(self, nominal: float) -> float:
+        """The single support ``nominal`` s changed by the duration residual, within ``[min_swing, max_swing]``."""
+        if self._duration_offset == 0.0:
+            return nominal
+        return min(max(nominal + self._duration_offset, self.config.min_swing), self.config.max_swing)

@@ -1,0 +1,148 @@
+"""What the walking controller is configured with and what it reports: its contact-schedule
+:class:`Phase`, its :class:`WalkerConfig` (gait, gains, switching and push-recovery thresholds)
+and the :class:`WalkerState` it leaves after each tick (for logs, tests and benchmarks).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from giwbc.control.balance import BalanceConfig
+from giwbc.locomotion.footsteps import GaitConfig
+from giwbc.locomotion.step_adapter import StepAdapterWeights
+
+
+class Phase(enum.Enum):
+    STAND = "stand"  # double support, no step planned
+    DOUBLE = "double"  # double support between steps
+    SINGLE = "single"  # one foot swinging
+
+
+@dataclass(frozen=True)
+class WalkerConfig:
+    """Gait, gains and switching thresholds of :class:`~giwbc.locomotion.walker.WalkingController`."""
+
+    gait: GaitConfig = field(default_factory=GaitConfig)
+    # proxsuite gets 20 outer iterations (default 10): the ticks of a contact switch need more
+    balance: BalanceConfig = field(default_factory=lambda: BalanceConfig(min_normal_force=5.0, solver_settings={"max_iter": 20}))
+    com_height: float | None = None  # m above the soles; default: the standing pose's
+    dcm_gain: float = 5.0  # s⁻¹, walking
+    standing_dcm_gain: float = 8.0  # s⁻¹, standing (stiffer: feet-in-place balance)
+    com_height_kp: float = 100.0
+    swing_apex: float = 0.07  # m
+    swing_weight: float = 2.0  # walking: low, the CoM task keeps the priority
+    recovery_swing_weight: float = 10.0  # recovering from a push: the foot must get there
+    swing_kp: float = 400.0
+    contact_ramp: float = 0.04  # s, force ramp at lift-off and touch-down
+    start_shift: float = 0.3  # s, double support before the first step (weight shift)
+    preview_steps: int = 3
+    touchdown_force: float = 0.15  # fraction of the weight on the swing foot meaning "landed"
+    early_touchdown: float = 0.6  # fraction of the swing after which contact means touch-down
+    touchdown_distance: float = 0.05  # m: an early contact this close to the landing spot is a touch-down
+    late_touchdown: float = 0.08  # s, how long past the plan the foot may keep descending
+    descent_speed: float = 0.25  # m/s, of a late foot
+    touchdown_depth: float = 0.003  # m, the swing aims this far below the ground
+    step_adaptation: bool = True
+    # On an *estimated* DCM (deployment): the adapter sees the step's own nominal DCM reference
+    # plus the error beyond ``adapt_deadband`` (m), low-passed over ``adapt_filter`` (s), and moves
+    # a landing at most ``max_adjustment`` (m, each axis of the stance frame) from the plan:
+    # estimation noise leaves the nominal steps alone, a push still moves them.
+    adapt_deadband: float = 0.0
+    adapt_filter: float = 0.0
+    max_adjustment: float = math.inf
+    # Single support without the swing foot's (force-less) contact slot: a smaller QP each
+    # single-support tick, at the price of a re-layout and cold solve at lift-off and touch-down.
+    drop_swing_contact: bool = False
+    adapter: StepAdapterWeights = field(default_factory=StepAdapterWeights)
+    min_swing: float = 0.22  # s, shortest single support the adapter may choose
+    max_swing: float = 0.5  # s, longest
+    landing_box: tuple[tuple[float, float], tuple[float, float]] = ((-0.38, 0.45), (0.17, 0.65))  # stance frame, left foot
+    replan_distance: float = 0.01  # m: the DCM reference is re-planned when the landing spot moved this much ...
+    replan_time: float = 0.01  # s: ... or the touch-down time this much
+    anchor_tolerance: float = 0.08  # m: plan from the nominal footholds while the real ones are this close
+    push_margin: float = 0.0  # m: step when the capture point is this far outside the polygon
+    disturbance_time: float = 0.02  # s, low-pass of the DCM rate for the disturbance estimate
+    use_disturbance: bool = True  # choosing the recovery stance: predict the DCM with the estimated disturbance held ...
+    disturbance_horizon: float = 0.1  # s: ... this much longer (a push lasts a while)
+    settle_margin: float = 0.02  # m: after a recovery step, settle once the capture point is this far inside
+    stiff_swing_error: float = 0.08  # m: a DCM error this large in a swing makes the swing foot task stiff
+    hurry_error: float = 0.1  # m: a DCM error this large at touch-down cuts the double support short
+    recovery_offset: float = 0.05  # m: the recovering foot lands this far outward of the capture point
+    # Standing: step when the capture point *plus the disturbance lead* (a push still acting) leaves
+    # the polygon — ~0.05 s sooner than the capture point alone (150 N, tuning seeds 0-39: with the
+    # wider recovery box 29/40 vs 25/40; the wider box alone 18/40, a narrower one 16/40).
+    trigger_lead: bool = True
+    lead_settle_time: float = 0.5  # s after a walk stops: the capture point alone decides (the stop's own transient reads as a push)
+    recovery_landing_box: tuple[tuple[float, float], tuple[float, float]] | None = ((-0.45, 0.5), (0.17, 0.75))  # standing recovery's (None: landing_box)
+    # Where a recovering step's adapter holds the CoP: "edge" (the stance sole's point nearest the
+    # DCM, where the DCM controller clips it), "centre" (the sole centre), or "auto" (the edge, but
+    # the centre when the edge's landing is on the box's *forward* bound: the DCM then overshoots
+    # the reachable front more, and the adapter lands the saturated step sooner). Forward pushes
+    # at 150 N (|direction| <= 30 deg, tuning seeds 100-299): 30/41 vs 25/41 with the edge, the
+    # other directions the same. (Applied at every bound: forward 37/41, but back-diagonal pushes
+    # lost as much, 11 vs 21/28.)
+    recovery_cop: str = "auto"
+    # A recovering step *backward* reaches farther than a standing pelvis allows: the knee straight,
+    # the sole still ~3 cm up at the planned touch-down, the foot lands ~0.05-0.08 s late and ~0.1 m
+    # past its spot, and the split collapses (150 N, tuning seeds 100-299: 29 of the 69 falls). While
+    # such a foot swings, the CoM height reference drops so that the swing hip is within
+    # ``recovery_reach`` × the straight leg's length of the landing spot (0: off), by at most
+    # ``recovery_max_crouch`` m, held until the recovery ends. (Backward only: for every direction,
+    # forward and sideways steps got worse, 104 vs 102 of 154 overall — lowering the CoM fast unloads
+    # the feet just when the CoP must push; a fixed 5 cm crouch: 123 vs 131/200; a lower swing apex,
+    # a shorter minimum swing: within noise.) Not yet for a push straight backward: 150 N at 180 deg,
+    # seeds 0-29, 16/30 vs 22/30 without (at 165 deg 15/20 vs 3/20, at -165 deg 20/20 both).
+    recovery_reach: float = 0.97
+    recovery_max_crouch: float = 0.12
+
+    def __post_init__(self) -> None:
+        if self.preview_steps < 1:
+            raise ValueError("preview_steps must be >= 1")
+        if not (0.0 < self.min_swing <= self.gait.single_support <= self.max_swing):
+            raise ValueError("need 0 < min_swing <= single_support <= max_swing")
+        if self.contact_ramp < 0 or self.contact_ramp >= self.gait.double_support + 1e-12 and self.contact_ramp > 0.5:
+            raise ValueError("contact_ramp must be >= 0 and short")
+        if not (self.adapt_deadband >= 0.0 and self.adapt_filter >= 0.0 and self.max_adjustment > 0.0) or not math.isfinite(self.adapt_deadband + self.adapt_filter):
+            raise ValueError(f"need finite adapt_deadband, adapt_filter >= 0 and max_adjustment > 0, got {self.adapt_deadband}, {self.adapt_filter}, {self.max_adjustment}")
+        if not (0.0 <= self.recovery_reach <= 1.0):
+            raise ValueError(f"recovery_reach must be in [0, 1] (a fraction of the straight leg), got {self.recovery_reach}")
+        if not (0.0 <= self.recovery_max_crouch < 0.5):
+            raise ValueError(f"recovery_max_crouch must be in [0, 0.5) m, got {self.recovery_max_crouch}")
+        if self.recovery_cop not in ("edge", "centre", "auto"):
+            raise ValueError(f"recovery_cop must be 'edge', 'centre' or 'auto', got {self.recovery_cop!r}")
+        if not (self.lead_settle_time >= 0.0 and math.isfinite(self.lead_settle_time)):
+            raise ValueError(f"lead_settle_time must be finite and >= 0, got {self.lead_settle_time}")
+        for name in ("landing_box", "recovery_landing_box"):
+            box = getattr(self, name)
+            if box is None and name == "recovery_landing_box":
+                continue
+            (x_lo, x_hi), (y_lo, y_hi) = box
+            if not (x_lo < x_hi and 0.0 < y_lo < y_hi) or not all(math.isfinite(float(x)) for x in (x_lo, x_hi, y_lo, y_hi)):
+                raise ValueError(f"{name} must be ((x_lo, x_hi), (y_lo, y_hi)) with x_lo < x_hi and 0 < y_lo < y_hi (left foot, stance frame), got {box}")
+
+
+@dataclass
+class WalkerState:
+    """What the walker did at the last tick (for logs, tests and benchmarks)."""
+
+    phase: Phase = Phase.STAND
+    stance: str = "left"
+    dcm: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    dcm_ref: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    cop: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    disturbance: np.ndarray = field(default_factory=lambda: np.zeros(2))  # ξ̇ − ω (ξ − p), m/s
+    com: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    com_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    steps: int = 0  # touch-downs so far
+    recovery_steps: int = 0
+    early_touchdowns: int = 0
+    late_touchdowns: int = 0
+    notes: list[str] = field(default_factory=list)
+    # The swing target before and after the step residual (:meth:`~giwbc.locomotion.walker.WalkingController.set_step_residual`).
+    planned_target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
+    nominal_target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))  # the plan's, before the step adapter
