@@ -611,3 +611,105 @@ def test_the_guess_counts_its_work_and_reads_equality_rows_given_as_two_sided_li
     assert guess.polish(twice, np.array([1.0, 0.0])) is not None
     x = guess.try_solve(twice)
     assert x is not None and abs(x[0] - 1.0) < 1e-6 and twice.violation(x) < 1e-8
+
+
+def test_every_polish_solve_is_regularised_so_a_correction_to_dependent_rows_costs_one_solve() -> None:
+    """The polish starts from the rows tight at the backend's point (none here) and adds every
+    violated row at once: both copies of x₀ ≤ 1, linearly dependent. Solved regularised, as every
+    polish solve is, that set gives the optimum at once: two KKT solves, also within a budget of
+    two (an unregularised solve would fail on it and spend a third). From the vertex itself, both
+    rows tight: one solve."""
+    inf = np.inf
+    twice = QpProblem(H=np.eye(2), g=np.array([-3.0, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                      l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=95)  # fmt: skip
+    for steps in (4, 2):
+        guess = ActiveSetGuess(polish_steps=steps)
+        x = guess.polish(twice, np.zeros(2))
+        assert x is not None and guess.solves == 2 and guess.polished == 1, steps
+        np.testing.assert_array_equal(guess.active, [0, 1])
+        assert abs(x[0] - 1.0) < 1e-8 and x[1] == 0.0 and twice.violation(x) < 1e-8
+    guess = ActiveSetGuess()
+    assert guess.polish_steps == 4  # the polish's default budget of KKT solves
+    x = guess.polish(twice, np.array([1.0, 0.0]))
+    assert x is not None and guess.solves == 1 and abs(x[0] - 1.0) < 1e-8
+
+
+def test_a_polish_correction_adds_every_violated_row_on_its_side_and_drops_every_wrong_sign_one() -> None:
+    """min ½‖x − target‖² in the box −1 ≤ x ≤ 1 (rows of C). From a backend's point with nothing
+    tight, one all-at-once correction adds the four violated rows, two upper and two lower: two
+    solves (one row at a time would take five, beyond the polish's four). From a point where x₀
+    and x₂ sit at their upper limits, the first solve finds x₂'s multiplier of the wrong sign and
+    x₁, x₃, x₄ beyond their limits: one correction drops the one and adds the three."""
+    target = np.array([3.0, -2.5, 0.2, 2.0, -1.5, 0.0])
+    box = QpProblem(H=np.eye(6), g=-target, A=np.zeros((0, 6)), b=np.zeros(0), C=np.eye(6), l=np.full(6, -1.0), u=np.full(6, 1.0),
+                    structure=96)  # fmt: skip
+    optimum = np.clip(target, -1.0, 1.0)
+    guess = ActiveSetGuess()
+    for polished, start in enumerate((np.zeros(6), np.array([1.0, 0.0, 1.0, 0.0, 0.0, 0.0])), start=1):
+        x = guess.polish(box, start)
+        assert x is not None and guess.solves == 2 * polished and (guess.polished, guess.polish_failures) == (polished, 0)
+        np.testing.assert_allclose(x, optimum, atol=1e-10)
+        np.testing.assert_array_equal(guess.active, [0, 1, 3, 4])
+        np.testing.assert_array_equal(guess.upper, [True, False, True, False])
+
+
+def test_settle_reads_no_multiplier_left_by_an_earlier_solve() -> None:
+    """A search first solves {x₀, x₁} at their upper limits, where x₁'s multiplier has the wrong
+    sign, and ends at {x₀}. Settling at the optimum then takes {x₀} and returns its KKT point:
+    the multipliers of the earlier, larger set are not checked (settle checks none)."""
+    p = QpProblem(H=np.eye(3), g=-np.array([3.0, 3.0, 0.0]), A=np.zeros((0, 3)), b=np.zeros(0), C=np.eye(3), l=np.full(3, -1.0),
+                  u=np.full(3, 1.0), structure=97)  # fmt: skip
+    guess = ActiveSetGuess()
+    assert guess.try_solve(p) is not None
+    p.g[...] = -np.array([3.0, 0.5, 0.0])
+    before = guess.solves
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves - before == 2
+    np.testing.assert_array_equal(guess.active, [0])
+    settled = guess.settle(p, x)
+    assert settled is not None
+    np.testing.assert_array_equal(settled, [1.0, 0.5, 0.0])
+
+
+def test_a_qpsolvers_backend_named_without_the_prefix_gets_the_settings(monkeypatch) -> None:
+    """A name qpsolvers lists (other than osqp/proxqp, which giwbc takes itself) goes to that
+    qpsolvers backend, case-insensitively, with the settings given. (Only osqp and proxqp are
+    installed here: a third name is listed, and its solves are osqp's, recorded.)"""
+    from giwbc.control.qp.proxsuite_build import import_qpsolvers
+
+    qpsolvers = import_qpsolvers()
+    real, calls = qpsolvers.solve_problem, []
+
+    def solve_problem(problem, solver, **settings):
+        calls.append((solver, settings))
+        return real(problem, solver="osqp", **settings)
+
+    monkeypatch.setattr(qpsolvers, "available_solvers", [*qpsolvers.available_solvers, "other"])
+    monkeypatch.setattr(qpsolvers, "solve_problem", solve_problem)
+    via = make_solver("Other", eps_abs=1e-9, eps_rel=1e-9, polish=True)
+    assert isinstance(via, QpsolversSolver) and via.name == "other"
+    solution = via.solve(_box_problem([0.5, 2.0], [1.0, 1.0]))
+    assert solution.ok and np.abs(solution.x - [0.5, 1.0]).max() < 1e-6
+    assert calls == [("other", {"initvals": None, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True})]
+
+
+def test_a_row_held_at_equal_limits_takes_a_multiplier_of_either_sign_past_an_equality_row() -> None:
+    """x₂ = 0 is an equality (a row of A); the second row of C holds x₀ at l = u = 0.5. Last
+    tick's set had that row at its upper side; now the target pulls x₀ below 0.5: the multiplier
+    has the "wrong" sign for an upper limit, but the row is an equality (its own l and u, read
+    past the equality row, are equal): the set is optimal at once, one solve. Two failed polishes
+    count two."""
+    p = QpProblem(H=np.eye(3), g=np.array([0.0, -0.2, 0.0]), A=np.array([[0.0, 0.0, 1.0]]), b=np.zeros(1),
+                  C=np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]), l=np.array([-1.0, 0.5]), u=np.array([1.0, 0.5]), structure=98)  # fmt: skip
+    guess = ActiveSetGuess()
+    guess.learn(p, np.array([0.5, 0.2, 0.0]), np.array([0.0, 1.0]))
+    np.testing.assert_array_equal(guess.active, [1])
+    np.testing.assert_array_equal(guess.upper, [True])
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves == 1
+    np.testing.assert_allclose(x, [0.5, 0.2, 0.0], atol=1e-14)
+    singular = QpProblem(H=np.diag([1.0, 0.0]), g=np.array([-1.0, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0]]),
+                         l=np.array([-np.inf]), u=np.array([0.5]), structure=99)  # fmt: skip
+    for _ in range(2):
+        assert guess.polish(singular, np.array([0.5, 0.0])) is None
+    assert (guess.polished, guess.polish_failures) == (0, 2)
