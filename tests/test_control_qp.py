@@ -8,6 +8,8 @@ convex QP being unique, all backends must agree.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
@@ -566,10 +568,13 @@ def test_proxsuite_flags_on_a_qp_with_a_direction_of_zero_curvature() -> None:
 
 
 def test_the_backends_print_nothing(capfd) -> None:
-    for name, settings in ALL_BACKENDS[:4]:
-        assert make_solver(name, **settings).solve(random_qp(np.random.default_rng(14))).ok
+    """Nor do they warn (OSQP warns when its solve is not told whether to raise)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for name, settings in ALL_BACKENDS[:4]:
+            assert make_solver(name, **settings).solve(random_qp(np.random.default_rng(14))).ok
     captured = capfd.readouterr()
-    assert captured.out == "" and captured.err == ""
+    assert captured.out == "" and captured.err == "" and [str(w.message) for w in caught] == []
 
 
 def test_the_guess_counts_its_work_and_reads_equality_rows_given_as_two_sided_limits() -> None:
@@ -713,3 +718,35 @@ def test_a_row_held_at_equal_limits_takes_a_multiplier_of_either_sign_past_an_eq
     for _ in range(2):
         assert guess.polish(singular, np.array([0.5, 0.0])) is None
     assert (guess.polished, guess.polish_failures) == (0, 2)
+
+
+def test_proxsuites_iterate_is_polished_else_settled_within_its_accuracy_else_the_tick_fails() -> None:
+    """The same row twice, x₀ ≤ 1, pulled hard (λ ≈ ½|g₀|): proxsuite solves it, the polish does
+    not (regularised, the shared multiplier bends the rows by δ|λ| beyond the tolerance, 1e-8),
+    and the settled point — the rows' KKT point — is accepted when within proxsuite's accuracy
+    (max(eps_abs, 1e-7)) of feasible: bent by 5e-8 it is the answer, with proxsuite's status and
+    the rows; bent by 5e-7 with eps_abs = 1e-8 it is not, and the tick fails. A box QP is polished
+    into its exact optimum; without the guess, a repeated problem is proxsuite's again."""
+    inf = np.inf
+
+    def twice(pull: float) -> QpProblem:
+        return QpProblem(H=np.eye(2), g=np.array([-pull, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                         l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=100)  # fmt: skip
+
+    solver = ProxsuiteSolver()
+    p = twice(1e5)
+    solution = solver.solve(p)
+    assert solution.status is QpStatus.SOLVED and (solver.guess.polished, solver.guess.polish_failures) == (0, 1)
+    assert abs(solution.x[0] - 1.0) < 1e-7 and abs(solution.x[0] - 1.0) > 1e-8 and 1e-8 < p.violation(solution.x) < 1e-7
+    assert solution.rows is not None and np.array_equal(solution.rows, [solution.x[0]] * 2)
+    strict = ProxsuiteSolver(eps_abs=1e-8)
+    failed = strict.solve(twice(1e6))
+    assert failed.status is QpStatus.FAILED and "no KKT point near its iterate is feasible" in failed.message
+    assert strict.guess.polish_failures == 1
+    box = _box_problem([0.5, 2.0], [1.0, 1.0])
+    plain = ProxsuiteSolver(active_set_guess=False)
+    assert plain.guess is None
+    for _ in range(2):
+        solution = plain.solve(box)
+        assert solution.status is QpStatus.SOLVED and solution.message != "active-set guess"
+        np.testing.assert_allclose(solution.x, [0.5, 1.0], atol=1e-12)
