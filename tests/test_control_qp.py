@@ -750,3 +750,50 @@ def test_proxsuites_iterate_is_polished_else_settled_within_its_accuracy_else_th
         solution = plain.solve(box)
         assert solution.status is QpStatus.SOLVED and solution.message != "active-set guess"
         np.testing.assert_allclose(solution.x, [0.5, 1.0], atol=1e-12)
+
+
+def test_a_warm_tick_with_no_answer_is_retried_cold_with_the_rest_of_its_budget(monkeypatch) -> None:
+    """A problem solved, then changed in place (the same object and structure: a warm tick) into
+    the same row twice pulled hard, whose settled point is beyond eps_abs = 1e-8 (the guess off,
+    which would answer it with one of the rows): proxsuite solves it but no answer is accepted,
+    so the tick is retried from a cold start. With a large budget the iterations reported are
+    both attempts' (the first one's measured with the retry off, the retry's as a cold solve);
+    with the default 10 outer iterations the retry gets only those the first attempt left, and
+    runs out of them. A proxsuite error during the retry fails the tick with the iterations
+    spent and the time taken, and the next tick starts over."""
+    inf = np.inf
+
+    def solver_after_a_tick(**settings) -> tuple[ProxsuiteSolver, QpProblem]:
+        solver = ProxsuiteSolver(eps_abs=1e-8, active_set_guess=False, **settings)
+        p = QpProblem(H=np.eye(2), g=np.array([-0.5, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                      l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=101)  # fmt: skip
+        assert solver.solve(p).ok
+        p.g[0] = -1e6
+        return solver, p
+
+    cold = ProxsuiteSolver(eps_abs=1e-8, active_set_guess=False, max_iter=100).solve(solver_after_a_tick()[1])
+    solver, p = solver_after_a_tick(retry_cold=False, max_iter=100)
+    first = solver.solve(p)
+    solver, p = solver_after_a_tick(max_iter=100)
+    retried = solver.solve(p)
+    assert not cold.ok and not first.ok and not retried.ok and min(cold.iterations, first.iterations) > 0
+    assert "no KKT point near its iterate is feasible" in retried.message
+    assert retried.iterations == first.iterations + cold.iterations
+    solver, p = solver_after_a_tick()
+    budgeted = solver.solve(p)
+    assert budgeted.status is QpStatus.MAX_ITER and first.iterations < budgeted.iterations < first.iterations + cold.iterations
+
+    solver, p = solver_after_a_tick()
+
+    def broken(problem: QpProblem) -> None:
+        raise RuntimeError("out of memory")
+
+    monkeypatch.setattr(solver, "_init", broken)
+    failed, elapsed = _timed(solver, p)
+    assert failed.status is QpStatus.FAILED and failed.message == "proxsuite error: out of memory"
+    assert failed.iterations == first.iterations and failed.x.shape == (2,) and np.all(np.isnan(failed.x))
+    assert 0.0 <= failed.solve_time <= elapsed
+    monkeypatch.undo()
+    p.g[0] = -0.5
+    again = solver.solve(p)
+    assert again.ok and abs(again.x[0] - 0.5) < 1e-8
