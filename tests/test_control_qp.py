@@ -797,3 +797,31 @@ def test_a_warm_tick_with_no_answer_is_retried_cold_with_the_rest_of_its_budget(
     p.g[0] = -0.5
     again = solver.solve(p)
     assert again.ok and abs(again.x[0] - 0.5) < 1e-8
+
+
+@pytest.mark.parametrize("layout", ["controller", "separate", "bounded"])
+def test_the_guess_reads_arrays_replaced_on_the_same_problem_and_keeps_its_set_for_a_copy(layout: str) -> None:
+    """One problem object whose arrays are replaced, one at a time, by new arrays of other values
+    (not refilled in place: the controller's views no longer span A and C, l and u): every answer
+    is the optimum of the problem as it is now (its KKT conditions hold). A copy of the problem
+    (new arrays, the same sizes) is answered from the active set learned on the original, in one
+    KKT solve."""
+    reference = make_solver("proxsuite", **BACKENDS["proxsuite"], active_set_guess=False, polish=False, deterministic=False)
+    for order in (("C", "A", "l", "u"), ("A", "C", "u", "l")):  # (each of A, C, l, u first: while its pair is adjacent)
+        p = random_qp(np.random.default_rng(13), n=6, n_eq=2, n_in=5, structure=72)
+        if layout != "bounded":
+            p.lb = p.ub = None
+            p.l, p.u = p.l - 0.3, p.u + 0.3
+            if layout == "controller":
+                p = _controller_layout(p)
+        guess = ActiveSetGuess()
+        assert guess.polish(p, reference.solve(p.copy()).x) is not None
+        before = guess.solves
+        copy = guess.try_solve(p.copy())
+        assert copy is not None and guess.solves - before == 1
+        assert guess.try_solve(p) is not None and guess.solves - before == 2  # (the original again: the one prepared last)
+        for name in order:
+            setattr(p, name, getattr(p, name) * {"A": 1.01, "C": 0.99, "l": 1.02, "u": 1.02}[name])  # a new array
+            x = guess.try_solve(p)
+            assert x is not None, name  # (checked by its KKT conditions: a warm raw proxsuite can stop early after l moved)
+            assert p.violation(x) < 1e-9 and kkt_residual(_with_infinite_bounds(p) if p.lb is None else p, x) < 1e-7, name
