@@ -221,6 +221,9 @@ def test_solvers_by_name() -> None:
     strict = make_solver("proxsuite", eps_abs=1e-9, check_duality_gap=True, eps_duality_gap_abs=1e-300, eps_duality_gap_rel=0.0,
                          active_set_guess=False, polish=False, deterministic=False)  # fmt: skip
     assert strict.solve(random_qp(np.random.default_rng(3))).status is QpStatus.MAX_ITER
+    # with no absolute tolerance, a relative one is the only way to converge: it is passed on too
+    relative = ProxsuiteSolver(eps_abs=0.0, eps_rel=1e-6, max_iter=100, max_iter_in=100, active_set_guess=False, polish=False, deterministic=False)
+    assert relative.solve(random_qp(np.random.default_rng(3))).status is QpStatus.SOLVED
 
 
 @pytest.mark.parametrize("name", ["proxsuite", "osqp", "qpsolvers:osqp"])
