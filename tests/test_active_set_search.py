@@ -159,3 +159,56 @@ def test_rows_whose_active_limit_opened_to_infinity_leave_the_set() -> None:
     x = guess.try_solve(p)
     assert x is not None and guess.solves - before == 3 and len(guess.active) == 0
     np.testing.assert_allclose(x, [3.0, -0.5], atol=1e-12)
+
+
+@pytest.mark.parametrize("side", [1.0, -1.0])
+def test_only_the_rows_whose_active_side_opened_leave_and_equality_rows_are_skipped(side: float) -> None:
+    """With an equality row first (x₂ = 0) and the row of x₀ second in C: last tick x₀ was held
+    at its upper (lower) limit ±1; now that limit opened to ±inf while the other stays finite.
+    The search drops that row — read at its own index, past the equality and the row before it,
+    on its active side — and answers the unconstrained x₀ = ±3; the try is counted."""
+    lower, upper = np.array([-1.0, -1.0]), np.array([1.0, 1.0])
+    p = QpProblem(H=np.eye(3), g=-np.array([3.0 * side, 0.2, 0.0]), A=np.array([[0.0, 0.0, 1.0]]), b=np.zeros(1),
+                  C=np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]), l=lower, u=upper, structure=204)  # fmt: skip
+    guess = ActiveSetGuess()
+    x = guess.try_solve(p)
+    assert x is not None and np.array_equal(x, [side, 0.2, 0.0])
+    np.testing.assert_array_equal(guess.active, [1])
+    np.testing.assert_array_equal(guess.upper, [side > 0])
+    (p.u if side > 0 else p.l)[1] = side * INF
+    before = guess.solves
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves - before == 3 and len(guess.active) == 0
+    np.testing.assert_allclose(x, [3.0 * side, 0.2, 0.0], atol=1e-12)
+    assert (guess.tries, guess.hits) == (2, 2)
+
+
+def test_of_two_wrong_sign_rows_only_the_worst_leaves_per_solve() -> None:
+    """Last tick x₀ and x₁ were both held at their upper limits; now both targets moved inside:
+    both multipliers have the wrong sign. One row leaves per correction, the worst first (x₁,
+    whose target moved further): 3 solves, not 2."""
+    guess = ActiveSetGuess()
+    p = _box(np.array([3.0, 3.0, 0.0]))
+    assert guess.try_solve(p) is not None
+    np.testing.assert_array_equal(guess.active, [0, 1])
+    p.g[...] = -np.array([0.5, -0.5, 0.0])
+    before = guess.solves
+    guess.steps = 1  # one solve: x₁ has left, x₀ is still there
+    assert guess.try_solve(p) is None
+    np.testing.assert_array_equal(guess.active, [0])
+    guess.steps = 12
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves - before == 1 + 2
+    np.testing.assert_array_equal(x, [0.5, -0.5, 0.0])
+    assert len(guess.active) == 0
+
+
+def test_an_answer_is_not_overwritten_by_the_next_solve() -> None:
+    """The guess's answer is the caller's: solving another problem (same KKT size) leaves it as it was."""
+    guess = ActiveSetGuess()
+    first = guess.try_solve(_box(np.array([3.0, 0.5, 0.0])))
+    kept = first.copy()
+    second = guess.try_solve(_box(np.array([-3.0, 0.25, 0.0])))
+    assert first is not None and second is not None
+    np.testing.assert_array_equal(first, kept)
+    np.testing.assert_array_equal(second, [-1.0, 0.25, 0.0])

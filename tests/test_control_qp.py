@@ -8,6 +8,8 @@ convex QP being unique, all backends must agree.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
@@ -219,6 +221,9 @@ def test_solvers_by_name() -> None:
     strict = make_solver("proxsuite", eps_abs=1e-9, check_duality_gap=True, eps_duality_gap_abs=1e-300, eps_duality_gap_rel=0.0,
                          active_set_guess=False, polish=False, deterministic=False)  # fmt: skip
     assert strict.solve(random_qp(np.random.default_rng(3))).status is QpStatus.MAX_ITER
+    # with no absolute tolerance, a relative one is the only way to converge: it is passed on too
+    relative = ProxsuiteSolver(eps_abs=0.0, eps_rel=1e-6, max_iter=100, max_iter_in=100, active_set_guess=False, polish=False, deterministic=False)
+    assert relative.solve(random_qp(np.random.default_rng(3))).status is QpStatus.SOLVED
 
 
 @pytest.mark.parametrize("name", ["proxsuite", "osqp", "qpsolvers:osqp"])
@@ -566,10 +571,13 @@ def test_proxsuite_flags_on_a_qp_with_a_direction_of_zero_curvature() -> None:
 
 
 def test_the_backends_print_nothing(capfd) -> None:
-    for name, settings in ALL_BACKENDS[:4]:
-        assert make_solver(name, **settings).solve(random_qp(np.random.default_rng(14))).ok
+    """Nor do they warn (OSQP warns when its solve is not told whether to raise)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        for name, settings in ALL_BACKENDS[:4]:
+            assert make_solver(name, **settings).solve(random_qp(np.random.default_rng(14))).ok
     captured = capfd.readouterr()
-    assert captured.out == "" and captured.err == ""
+    assert captured.out == "" and captured.err == "" and [str(w.message) for w in caught] == []
 
 
 def test_the_guess_counts_its_work_and_reads_equality_rows_given_as_two_sided_limits() -> None:
@@ -611,3 +619,212 @@ def test_the_guess_counts_its_work_and_reads_equality_rows_given_as_two_sided_li
     assert guess.polish(twice, np.array([1.0, 0.0])) is not None
     x = guess.try_solve(twice)
     assert x is not None and abs(x[0] - 1.0) < 1e-6 and twice.violation(x) < 1e-8
+
+
+def test_every_polish_solve_is_regularised_so_a_correction_to_dependent_rows_costs_one_solve() -> None:
+    """The polish starts from the rows tight at the backend's point (none here) and adds every
+    violated row at once: both copies of x₀ ≤ 1, linearly dependent. Solved regularised, as every
+    polish solve is, that set gives the optimum at once: two KKT solves, also within a budget of
+    two (an unregularised solve would fail on it and spend a third). From the vertex itself, both
+    rows tight: one solve."""
+    inf = np.inf
+    twice = QpProblem(H=np.eye(2), g=np.array([-3.0, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                      l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=95)  # fmt: skip
+    for steps in (4, 2):
+        guess = ActiveSetGuess(polish_steps=steps)
+        x = guess.polish(twice, np.zeros(2))
+        assert x is not None and guess.solves == 2 and guess.polished == 1, steps
+        np.testing.assert_array_equal(guess.active, [0, 1])
+        assert abs(x[0] - 1.0) < 1e-8 and x[1] == 0.0 and twice.violation(x) < 1e-8
+    guess = ActiveSetGuess()
+    assert guess.polish_steps == 4  # the polish's default budget of KKT solves
+    x = guess.polish(twice, np.array([1.0, 0.0]))
+    assert x is not None and guess.solves == 1 and abs(x[0] - 1.0) < 1e-8
+
+
+def test_a_polish_correction_adds_every_violated_row_on_its_side_and_drops_every_wrong_sign_one() -> None:
+    """min ½‖x − target‖² in the box −1 ≤ x ≤ 1 (rows of C). From a backend's point with nothing
+    tight, one all-at-once correction adds the four violated rows, two upper and two lower: two
+    solves (one row at a time would take five, beyond the polish's four). From a point where x₀
+    and x₂ sit at their upper limits, the first solve finds x₂'s multiplier of the wrong sign and
+    x₁, x₃, x₄ beyond their limits: one correction drops the one and adds the three."""
+    target = np.array([3.0, -2.5, 0.2, 2.0, -1.5, 0.0])
+    box = QpProblem(H=np.eye(6), g=-target, A=np.zeros((0, 6)), b=np.zeros(0), C=np.eye(6), l=np.full(6, -1.0), u=np.full(6, 1.0),
+                    structure=96)  # fmt: skip
+    optimum = np.clip(target, -1.0, 1.0)
+    guess = ActiveSetGuess()
+    for polished, start in enumerate((np.zeros(6), np.array([1.0, 0.0, 1.0, 0.0, 0.0, 0.0])), start=1):
+        x = guess.polish(box, start)
+        assert x is not None and guess.solves == 2 * polished and (guess.polished, guess.polish_failures) == (polished, 0)
+        np.testing.assert_allclose(x, optimum, atol=1e-10)
+        np.testing.assert_array_equal(guess.active, [0, 1, 3, 4])
+        np.testing.assert_array_equal(guess.upper, [True, False, True, False])
+
+
+def test_settle_reads_no_multiplier_left_by_an_earlier_solve() -> None:
+    """A search first solves {x₀, x₁} at their upper limits, where x₁'s multiplier has the wrong
+    sign, and ends at {x₀}. Settling at the optimum then takes {x₀} and returns its KKT point:
+    the multipliers of the earlier, larger set are not checked (settle checks none)."""
+    p = QpProblem(H=np.eye(3), g=-np.array([3.0, 3.0, 0.0]), A=np.zeros((0, 3)), b=np.zeros(0), C=np.eye(3), l=np.full(3, -1.0),
+                  u=np.full(3, 1.0), structure=97)  # fmt: skip
+    guess = ActiveSetGuess()
+    assert guess.try_solve(p) is not None
+    p.g[...] = -np.array([3.0, 0.5, 0.0])
+    before = guess.solves
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves - before == 2
+    np.testing.assert_array_equal(guess.active, [0])
+    settled = guess.settle(p, x)
+    assert settled is not None
+    np.testing.assert_array_equal(settled, [1.0, 0.5, 0.0])
+
+
+def test_a_qpsolvers_backend_named_without_the_prefix_gets_the_settings(monkeypatch) -> None:
+    """A name qpsolvers lists (other than osqp/proxqp, which giwbc takes itself) goes to that
+    qpsolvers backend, case-insensitively, with the settings given. (Only osqp and proxqp are
+    installed here: a third name is listed, and its solves are osqp's, recorded.)"""
+    from giwbc.control.qp.proxsuite_build import import_qpsolvers
+
+    qpsolvers = import_qpsolvers()
+    real, calls = qpsolvers.solve_problem, []
+
+    def solve_problem(problem, solver, **settings):
+        calls.append((solver, settings))
+        return real(problem, solver="osqp", **settings)
+
+    monkeypatch.setattr(qpsolvers, "available_solvers", [*qpsolvers.available_solvers, "other"])
+    monkeypatch.setattr(qpsolvers, "solve_problem", solve_problem)
+    via = make_solver("Other", eps_abs=1e-9, eps_rel=1e-9, polish=True)
+    assert isinstance(via, QpsolversSolver) and via.name == "other"
+    solution = via.solve(_box_problem([0.5, 2.0], [1.0, 1.0]))
+    assert solution.ok and np.abs(solution.x - [0.5, 1.0]).max() < 1e-6
+    assert calls == [("other", {"initvals": None, "eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True})]
+
+
+def test_a_row_held_at_equal_limits_takes_a_multiplier_of_either_sign_past_an_equality_row() -> None:
+    """x₂ = 0 is an equality (a row of A); the second row of C holds x₀ at l = u = 0.5. Last
+    tick's set had that row at its upper side; now the target pulls x₀ below 0.5: the multiplier
+    has the "wrong" sign for an upper limit, but the row is an equality (its own l and u, read
+    past the equality row, are equal): the set is optimal at once, one solve. Two failed polishes
+    count two."""
+    p = QpProblem(H=np.eye(3), g=np.array([0.0, -0.2, 0.0]), A=np.array([[0.0, 0.0, 1.0]]), b=np.zeros(1),
+                  C=np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]), l=np.array([-1.0, 0.5]), u=np.array([1.0, 0.5]), structure=98)  # fmt: skip
+    guess = ActiveSetGuess()
+    guess.learn(p, np.array([0.5, 0.2, 0.0]), np.array([0.0, 1.0]))
+    np.testing.assert_array_equal(guess.active, [1])
+    np.testing.assert_array_equal(guess.upper, [True])
+    x = guess.try_solve(p)
+    assert x is not None and guess.solves == 1
+    np.testing.assert_allclose(x, [0.5, 0.2, 0.0], atol=1e-14)
+    singular = QpProblem(H=np.diag([1.0, 0.0]), g=np.array([-1.0, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0]]),
+                         l=np.array([-np.inf]), u=np.array([0.5]), structure=99)  # fmt: skip
+    for _ in range(2):
+        assert guess.polish(singular, np.array([0.5, 0.0])) is None
+    assert (guess.polished, guess.polish_failures) == (0, 2)
+
+
+def test_proxsuites_iterate_is_polished_else_settled_within_its_accuracy_else_the_tick_fails() -> None:
+    """The same row twice, x₀ ≤ 1, pulled hard (λ ≈ ½|g₀|): proxsuite solves it, the polish does
+    not (regularised, the shared multiplier bends the rows by δ|λ| beyond the tolerance, 1e-8),
+    and the settled point — the rows' KKT point — is accepted when within proxsuite's accuracy
+    (max(eps_abs, 1e-7)) of feasible: bent by 5e-8 it is the answer, with proxsuite's status and
+    the rows; bent by 5e-7 with eps_abs = 1e-8 it is not, and the tick fails. A box QP is polished
+    into its exact optimum; without the guess, a repeated problem is proxsuite's again."""
+    inf = np.inf
+
+    def twice(pull: float) -> QpProblem:
+        return QpProblem(H=np.eye(2), g=np.array([-pull, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                         l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=100)  # fmt: skip
+
+    solver = ProxsuiteSolver()
+    p = twice(1e5)
+    solution = solver.solve(p)
+    assert solution.status is QpStatus.SOLVED and (solver.guess.polished, solver.guess.polish_failures) == (0, 1)
+    assert abs(solution.x[0] - 1.0) < 1e-7 and abs(solution.x[0] - 1.0) > 1e-8 and 1e-8 < p.violation(solution.x) < 1e-7
+    assert solution.rows is not None and np.array_equal(solution.rows, [solution.x[0]] * 2)
+    strict = ProxsuiteSolver(eps_abs=1e-8)
+    failed = strict.solve(twice(1e6))
+    assert failed.status is QpStatus.FAILED and "no KKT point near its iterate is feasible" in failed.message
+    assert strict.guess.polish_failures == 1
+    box = _box_problem([0.5, 2.0], [1.0, 1.0])
+    plain = ProxsuiteSolver(active_set_guess=False)
+    assert plain.guess is None
+    for _ in range(2):
+        solution = plain.solve(box)
+        assert solution.status is QpStatus.SOLVED and solution.message != "active-set guess"
+        np.testing.assert_allclose(solution.x, [0.5, 1.0], atol=1e-12)
+
+
+def test_a_warm_tick_with_no_answer_is_retried_cold_with_the_rest_of_its_budget(monkeypatch) -> None:
+    """A problem solved, then changed in place (the same object and structure: a warm tick) into
+    the same row twice pulled hard, whose settled point is beyond eps_abs = 1e-8 (the guess off,
+    which would answer it with one of the rows): proxsuite solves it but no answer is accepted,
+    so the tick is retried from a cold start. With a large budget the iterations reported are
+    both attempts' (the first one's measured with the retry off, the retry's as a cold solve);
+    with the default 10 outer iterations the retry gets only those the first attempt left, and
+    runs out of them. A proxsuite error during the retry fails the tick with the iterations
+    spent and the time taken, and the next tick starts over."""
+    inf = np.inf
+
+    def solver_after_a_tick(**settings) -> tuple[ProxsuiteSolver, QpProblem]:
+        solver = ProxsuiteSolver(eps_abs=1e-8, active_set_guess=False, **settings)
+        p = QpProblem(H=np.eye(2), g=np.array([-0.5, 0.0]), A=np.zeros((0, 2)), b=np.zeros(0), C=np.array([[1.0, 0.0], [1.0, 0.0]]),
+                      l=np.array([-inf, -inf]), u=np.array([1.0, 1.0]), structure=101)  # fmt: skip
+        assert solver.solve(p).ok
+        p.g[0] = -1e6
+        return solver, p
+
+    cold = ProxsuiteSolver(eps_abs=1e-8, active_set_guess=False, max_iter=100).solve(solver_after_a_tick()[1])
+    solver, p = solver_after_a_tick(retry_cold=False, max_iter=100)
+    first = solver.solve(p)
+    solver, p = solver_after_a_tick(max_iter=100)
+    retried = solver.solve(p)
+    assert not cold.ok and not first.ok and not retried.ok and min(cold.iterations, first.iterations) > 0
+    assert "no KKT point near its iterate is feasible" in retried.message
+    assert retried.iterations == first.iterations + cold.iterations
+    solver, p = solver_after_a_tick()
+    budgeted = solver.solve(p)
+    assert budgeted.status is QpStatus.MAX_ITER and first.iterations < budgeted.iterations < first.iterations + cold.iterations
+
+    solver, p = solver_after_a_tick()
+
+    def broken(problem: QpProblem) -> None:
+        raise RuntimeError("out of memory")
+
+    monkeypatch.setattr(solver, "_init", broken)
+    failed, elapsed = _timed(solver, p)
+    assert failed.status is QpStatus.FAILED and failed.message == "proxsuite error: out of memory"
+    assert failed.iterations == first.iterations and failed.x.shape == (2,) and np.all(np.isnan(failed.x))
+    assert 0.0 <= failed.solve_time <= elapsed
+    monkeypatch.undo()
+    p.g[0] = -0.5
+    again = solver.solve(p)
+    assert again.ok and abs(again.x[0] - 0.5) < 1e-8
+
+
+@pytest.mark.parametrize("layout", ["controller", "separate", "bounded"])
+def test_the_guess_reads_arrays_replaced_on_the_same_problem_and_keeps_its_set_for_a_copy(layout: str) -> None:
+    """One problem object whose arrays are replaced, one at a time, by new arrays of other values
+    (not refilled in place: the controller's views no longer span A and C, l and u): every answer
+    is the optimum of the problem as it is now (its KKT conditions hold). A copy of the problem
+    (new arrays, the same sizes) is answered from the active set learned on the original, in one
+    KKT solve."""
+    reference = make_solver("proxsuite", **BACKENDS["proxsuite"], active_set_guess=False, polish=False, deterministic=False)
+    for order in (("C", "A", "l", "u"), ("A", "C", "u", "l")):  # (each of A, C, l, u first: while its pair is adjacent)
+        p = random_qp(np.random.default_rng(13), n=6, n_eq=2, n_in=5, structure=72)
+        if layout != "bounded":
+            p.lb = p.ub = None
+            p.l, p.u = p.l - 0.3, p.u + 0.3
+            if layout == "controller":
+                p = _controller_layout(p)
+        guess = ActiveSetGuess()
+        assert guess.polish(p, reference.solve(p.copy()).x) is not None
+        before = guess.solves
+        copy = guess.try_solve(p.copy())
+        assert copy is not None and guess.solves - before == 1
+        assert guess.try_solve(p) is not None and guess.solves - before == 2  # (the original again: the one prepared last)
+        for name in order:
+            setattr(p, name, getattr(p, name) * {"A": 1.01, "C": 0.99, "l": 1.02, "u": 1.02}[name])  # a new array
+            x = guess.try_solve(p)
+            assert x is not None, name  # (checked by its KKT conditions: a warm raw proxsuite can stop early after l moved)
+            assert p.violation(x) < 1e-9 and kkt_residual(_with_infinite_bounds(p) if p.lb is None else p, x) < 1e-7, name
