@@ -43,7 +43,8 @@ class ProxsuiteSolver(QpSolver):
       answer is then the exact optimum, computed deterministically. proxsuite alone is not
       bit-reproducible (its results differ by ~1e-14 with the memory layout of the process);
       polished answers are, its bits only deciding which side of ``max(10 eps_abs, 1e-5)`` a
-      row's slack falls.
+      row's slack falls. Without the polish, proxsuite's ``check_duality_gap`` defaults to True
+      (else a warm start can end on a non-optimal point reported solved).
     * ``deterministic`` (default True) — where the polish finds no provably optimal active set
       (degenerate or nearly infeasible problems, typically a falling robot), the answer is the
       KKT point of the rows tight at proxsuite's iterate (:meth:`ActiveSetGuess.settle`),
@@ -95,6 +96,11 @@ class ProxsuiteSolver(QpSolver):
             out.PROXQP_PRIMAL_INFEASIBLE: QpStatus.PRIMAL_INFEASIBLE,
             out.PROXQP_DUAL_INFEASIBLE: QpStatus.DUAL_INFEASIBLE,
         }
+        if not self._polish:
+            # Without the polish nothing checks complementarity: a warm-started solve whose
+            # limits moved can stop at once on a wrong point marked solved (measured: 27 of 40
+            # small random QPs after l *= 1.02). proxsuite's duality-gap test catches those.
+            self._settings.setdefault("check_duality_gap", True)
 
     def reset(self) -> None:
         self._qp = None
