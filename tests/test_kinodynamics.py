@@ -119,17 +119,25 @@ def test_frame_jacobian_and_drift_against_finite_differences(g1, g1_model, rng, 
     np.testing.assert_allclose(jacobian @ a + drift, twist_rate, atol=2e-5)
 
 
-def test_local_point_jacobian_and_drift(g1, g1_model, rng):
-    """The contact-frame (LOCAL) Jacobian of a point given by its joint placement, and its drift."""
+def _sole_point_at_random_state(g1, g1_model, rng, contact_index, reference):
+    """A sole's centre as a placement on its joint, at a random state with a random acceleration
+    ``a``: the model, the frame, the placement, ``q, v, a``, and the point's Jacobian and drift in
+    ``reference`` (copies)."""
     kin = Kinodynamics(g1_model)
-    contact = g1.contacts[0]
+    contact = g1.contacts[contact_index]
     frame = g1_model.frames[kin.frame_id(contact.link)]
     placement = frame.placement * pin.SE3(np.eye(3), np.asarray(contact.center))
     q, v = random_state(g1_model, g1, rng)
     a = rng.uniform(-1, 1, g1_model.nv)
     kin.update(q, v)
-    jacobian = kin.point_jacobian(frame.parentJoint, placement, LOCAL).copy()
-    drift = kin.point_drift(frame.parentJoint, placement, LOCAL).copy()
+    jacobian = kin.point_jacobian(frame.parentJoint, placement, reference).copy()
+    drift = kin.point_drift(frame.parentJoint, placement, reference).copy()
+    return kin, frame, placement, q, v, a, jacobian, drift
+
+
+def test_local_point_jacobian_and_drift(g1, g1_model, rng):
+    """The contact-frame (LOCAL) Jacobian of a point given by its joint placement, and its drift."""
+    kin, frame, placement, q, v, a, jacobian, drift = _sole_point_at_random_state(g1, g1_model, rng, 0, LOCAL)
 
     def local_twist(qq, vv):
         other = Kinodynamics(g1_model)
@@ -150,15 +158,7 @@ def test_local_point_jacobian_and_drift(g1, g1_model, rng):
 def test_world_aligned_point_jacobian_and_drift(g1, g1_model, rng):
     """With world-aligned axes, ``J a + J̇ v`` of a sole point is the time derivative of its world
     velocity (linear: the point's, angular: the foot's), by central finite differences along (v, a)."""
-    kin = Kinodynamics(g1_model)
-    contact = g1.contacts[1]
-    frame = g1_model.frames[kin.frame_id(contact.link)]
-    placement = frame.placement * pin.SE3(np.eye(3), np.asarray(contact.center))
-    q, v = random_state(g1_model, g1, rng)
-    a = rng.uniform(-1, 1, g1_model.nv)
-    kin.update(q, v)
-    jacobian = kin.point_jacobian(frame.parentJoint, placement, LWA).copy()
-    drift = kin.point_drift(frame.parentJoint, placement, LWA).copy()
+    kin, frame, placement, q, v, a, jacobian, drift = _sole_point_at_random_state(g1, g1_model, rng, 1, LWA)
 
     def world_twist(qq, vv):
         other = Kinodynamics(g1_model)
