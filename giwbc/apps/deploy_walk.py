@@ -21,8 +21,7 @@ from __future__ import annotations
 import argparse
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
-from types import MappingProxyType
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -30,6 +29,7 @@ import numpy as np
 from giwbc.errors import DeployError
 from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
+from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS, walker_config
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import ImpedanceCommand, Robot
 from giwbc.tasks.walk import G1Walk
@@ -57,35 +57,20 @@ class WalkCommand:
         return self.step_in_place or any(v != 0.0 for v in (self.vx, self.vy, self.yaw_rate))
 
 
-# The estimator's sole forces come from the legs' joint efforts, quasi-statically: a swinging leg's
-# own acceleration reads as up to ~60 N on its sole (measured on the emulated G1), above the
-# walker's default touch-down threshold (0.15 of the weight, ~50 N) late in a swing. Deployed, a
-# touch-down needs 0.35 of the weight (~120 N): a real landing gets there within a few ms.
-DEPLOY_TOUCHDOWN_FORCE = 0.35
-DEPLOY_SWING_KP = 250.0
-DEPLOY_ADAPT_DEADBAND = 0.03  # m of DCM error the step adapter ignores (estimation: ~1-2 cm around a touch-down)
-DEPLOY_ADAPT_FILTER = 0.02  # s, low-pass on that error
-DEPLOY_MAX_ADJUSTMENT = 0.1  # m: the adapter moves a landing at most this far from the plan (each axis)
-# The deployment walker's options (deploy_walker_config; over a walking policy's own walker options).
-DEPLOY_WALKER_OPTIONS: Mapping[str, Any] = MappingProxyType({
-    "touchdown_force": DEPLOY_TOUCHDOWN_FORCE, "swing_kp": DEPLOY_SWING_KP, "adapt_deadband": DEPLOY_ADAPT_DEADBAND,
-    "adapt_filter": DEPLOY_ADAPT_FILTER, "max_adjustment": DEPLOY_MAX_ADJUSTMENT,
-})  # fmt: skip
+# The deployment walker's options (giwbc.locomotion.walker_config.DEPLOYMENT_OPTIONS, why each there).
+DEPLOY_WALKER_OPTIONS: Mapping[str, Any] = DEPLOYMENT_OPTIONS
+DEPLOY_TOUCHDOWN_FORCE = float(DEPLOYMENT_OPTIONS["touchdown_force"])
+DEPLOY_SWING_KP = float(DEPLOYMENT_OPTIONS["swing_kp"])
+DEPLOY_ADAPT_DEADBAND = float(DEPLOYMENT_OPTIONS["adapt_deadband"])
+DEPLOY_ADAPT_FILTER = float(DEPLOYMENT_OPTIONS["adapt_filter"])
+DEPLOY_MAX_ADJUSTMENT = float(DEPLOYMENT_OPTIONS["max_adjustment"])
 
 
 def deploy_walker_config() -> WalkerConfig:
-    """The walker's configuration on the deployment path (estimated base and foot forces).
-
-    Online step adjustment on the *estimated* DCM: its velocity errs by a few cm/s around each
-    touch-down (the stance foot rolls), and the adapter fed the raw estimate moved the landing spots
-    and times enough that the emulated G1 landed on a sole edge (ankle roll at its soft limit)
-    within 2-3 steps at 0.3 m/s. Here the adapter sees the step's nominal DCM plus the low-passed
-    error beyond a deadband (:class:`~giwbc.locomotion.step_adapter.DcmErrorShaper`), and moves a
-    landing at most ``DEPLOY_MAX_ADJUSTMENT`` from the plan: the nominal footsteps while the
-    estimate is merely noisy, a step adjustment when a push moves the DCM
-    (tests/test_deploy_walk.py). A softer swing foot (kp 250 instead of 400): with the process
-    emulator's one-cycle reply delay the stiffer one landed on a sole edge after ~9 steps."""
-    return replace(WalkerConfig(), **DEPLOY_WALKER_OPTIONS)
+    """The walker's configuration on the deployment path (estimated base and foot forces): online
+    step adjustment on the shaped estimated DCM error, a later touch-down threshold and a softer
+    swing foot (:data:`~giwbc.locomotion.walker_config.DEPLOYMENT_OPTIONS`, why each there)."""
+    return walker_config("deployment")
 
 
 class WalkHold:
@@ -179,10 +164,15 @@ class WalkPolicyTask(G1Walk):
     command schedule. ``task_kwargs``: the policy's env_kwargs for the task."""
 
     def __init__(self, description: RobotDescription, command: WalkCommand | None = None, **task_kwargs: Any) -> None:
-        # Without online step adjustment under a policy: the residual already moves the steps, and
-        # the shipped (barely trained) policy plus the shaped adjustment on the estimate put the
-        # emulated G1's ankle roll on its soft limit within 2 steps; without it, 20 s walked.
-        walker = {**dict(task_kwargs.pop("walker", None) or {}), **DEPLOY_WALKER_OPTIONS, "step_adaptation": False}
+        trained = task_kwargs.pop("walker", None)
+        if trained == "deployment":  # trained on the deployment walker: the same walker, as trained
+            walker: dict[str, Any] | str = "deployment"
+        else:
+            # A policy trained on the simulation walker, without online step adjustment: its residual
+            # already moves the steps, and the shipped (barely trained) policy plus the shaped
+            # adjustment on the estimate put the emulated G1's ankle roll on its soft limit within 2
+            # steps; without it, 20 s walked.
+            walker = {**dict(trained or {}), **DEPLOY_WALKER_OPTIONS, "step_adaptation": False}
         super().__init__(description, walker=walker, **task_kwargs)
         self.hold = WalkHold(description, command, walker=self.walker)
 

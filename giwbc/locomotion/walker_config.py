@@ -7,7 +7,10 @@ from __future__ import annotations
 
 import enum
 import math
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 
@@ -123,6 +126,40 @@ class WalkerConfig:
             (x_lo, x_hi), (y_lo, y_hi) = box
             if not (x_lo < x_hi and 0.0 < y_lo < y_hi) or not all(math.isfinite(float(x)) for x in (x_lo, x_hi, y_lo, y_hi)):
                 raise ValueError(f"{name} must be ((x_lo, x_hi), (y_lo, y_hi)) with x_lo < x_hi and 0 < y_lo < y_hi (left foot, stance frame), got {box}")
+
+
+# The walker on an *estimated* state (deployment, or a policy trained for it). The estimator's sole
+# forces come from the legs' joint efforts, quasi-statically: a swinging leg's own acceleration
+# reads as up to ~60 N on its sole (measured on the emulated G1), above the default touch-down
+# threshold (0.15 of the weight, ~50 N) late in a swing; deployed, a touch-down needs 0.35 of the
+# weight (~120 N), which a real landing reaches within a few ms. The estimated DCM's velocity errs
+# by a few cm/s around each touch-down (the stance foot rolls): the step adapter fed the raw
+# estimate moved landings enough that the emulated G1 landed on a sole edge (ankle roll at its
+# soft limit) within 2-3 steps at 0.3 m/s, so it sees the nominal DCM plus the low-passed error
+# beyond a 3 cm deadband, and moves a landing at most 0.1 m from the plan. A softer swing foot
+# (kp 250, not 400): with the process emulator's one-cycle reply delay the stiffer one landed on a
+# sole edge after ~9 steps. (tests/test_deploy_walk.py)
+DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
+    "touchdown_force": 0.35, "swing_kp": 250.0, "adapt_deadband": 0.03, "adapt_filter": 0.02, "max_adjustment": 0.1,
+})  # fmt: skip
+WALKER_PRESETS = ("deployment",)
+
+
+def walker_config(options: "Mapping[str, Any] | str | None" = None, base: WalkerConfig | None = None) -> WalkerConfig:
+    """A :class:`WalkerConfig` from ``options``: field values (a mapping), a preset's name
+    (``"deployment"``: :data:`DEPLOYMENT_OPTIONS`, the walker on an estimated state), or None
+    (the defaults); applied over ``base`` (default ``WalkerConfig()``)."""
+    config = base if base is not None else WalkerConfig()
+    if options is None:
+        return config
+    if isinstance(options, str):
+        if options not in WALKER_PRESETS:
+            raise ValueError(f"unknown walker preset {options!r}: choose one of {WALKER_PRESETS} or give WalkerConfig fields")
+        options = DEPLOYMENT_OPTIONS
+    unknown = set(options) - set(WalkerConfig.__dataclass_fields__)
+    if unknown:
+        raise ValueError(f"unknown WalkerConfig fields {sorted(unknown)}")
+    return replace(config, **options)
 
 
 @dataclass

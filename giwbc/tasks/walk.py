@@ -39,7 +39,8 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
+from giwbc.locomotion.walker import Phase, WalkingController
+from giwbc.locomotion.walker_config import walker_config
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, quat_to_matrix
 from giwbc.tasks.floating_base import ANGULAR_VELOCITY_SCALE, JOINT_VELOCITY_SCALE, FloatingBaseTask
@@ -149,7 +150,7 @@ class G1Walk(FloatingBaseTask):
         initial_joint_noise: float = 0.02,
         min_height_ratio: float = 0.7,
         max_tilt: float = 0.7,
-        walker: dict[str, Any] | None = None,  # WalkerConfig fields (scalars)
+        walker: dict[str, Any] | str | None = None,  # WalkerConfig fields (scalars), or a preset: "deployment"
         wbc_options: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
@@ -162,7 +163,7 @@ class G1Walk(FloatingBaseTask):
         self.layout = _layout(self.scales, residuals or ("step",))
         self.initial_joint_noise = float(initial_joint_noise)
         self.max_tilt = float(max_tilt)
-        config = WalkerConfig(**(walker or {}))
+        config = walker_config(walker)
         if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
             config = replace(config, balance=replace(config.balance, **wbc_options))
         self.walker = WalkingController(description, config, description.pinocchio_model)
