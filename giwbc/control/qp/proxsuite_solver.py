@@ -26,8 +26,10 @@ class ProxsuiteSolver(QpSolver):
       ran 4734 inner iterations, 0.8 s, under ``max_iter=300``; an infeasible one 13 million,
       270 s, under proxsuite's defaults). Here ``max_iter`` is the budget of outer iterations of
       the whole tick, cold retry included, so a tick runs at most ``max_iter × (max_iter_in + 1)``
-      inner ones (110: 2–5 ms on the G1 problem), plus at most ``steps + 2 · polish_steps`` KKT
-      solves (:class:`ActiveSetGuess`, ~50 µs each). Measured need at ``eps_abs=1e-6``: ≤ 5 outer
+      inner ones (110: 2–5 ms on the G1 problem), plus at most ``3 · steps + 6 · polish_steps + 4``
+      KKT solves (:class:`ActiveSetGuess`, ~50 µs each: the guess, then per proxsuite answer the
+      polish, its recovery and the settle; ``steps + polish_steps`` on a tick whose polish
+      succeeds). Measured need at ``eps_abs=1e-6``: ≤ 5 outer
       / 6 inner iterations warm (the balance replay), ≤ 10 / 46 cold from random states; the
       polish turns a nearly converged iterate into the exact optimum. Accurate offline solves
       (``eps_abs=1e-9``) want larger budgets.
@@ -39,7 +41,9 @@ class ProxsuiteSolver(QpSolver):
       proxsuite runs only when no set reached so is provably optimal (0.3 % of the ticks of a
       recorded G1 walk, 7.6 % with the former all-at-once corrections).
     * ``polish`` (default True) — after proxsuite, solve the KKT system of the rows tight at its
-      iterate, corrected into a provably optimal active set (:meth:`ActiveSetGuess.polish`): the
+      iterate, corrected into a provably optimal active set (:meth:`ActiveSetGuess.polish`;
+      where that fails, :meth:`ActiveSetGuess.recover`: proxsuite can report success at a point
+      off by more than the slack, whose tight rows are not the optimum's): the
       answer is then the exact optimum, computed deterministically. proxsuite alone is not
       bit-reproducible (its results differ by ~1e-14 with the memory layout of the process);
       polished answers are, its bits only deciding which side of ``max(10 eps_abs, 1e-5)`` a
@@ -190,6 +194,8 @@ class ProxsuiteSolver(QpSolver):
             slack = max(10.0 * eps, 1e-5)
             iterate = np.asarray(results.x)
             x = kkt.polish(p, iterate, slack=slack)
+            if x is None:  # (an iterate off by more than slack, reported solved: ActiveSetGuess.recover)
+                x = kkt.recover(p, iterate, slack=slack)
             if x is not None:
                 self._rows = kkt.rows
                 return x, QpStatus.SOLVED  # every KKT condition verified: the optimum
