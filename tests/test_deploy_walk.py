@@ -205,3 +205,19 @@ def test_a_push_while_walking_is_absorbed_by_step_adjustment_on_the_estimate(g1,
     monkeypatch.setattr(deploy_walk, "deploy_walker_config", lambda: nominal)
     fixed = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 5.0, push, clean=False)
     assert fixed.exit_code != 0 and "limit" in fixed.message
+
+
+def test_a_policy_trained_on_the_deployment_walker_deploys_on_that_same_walker(g1) -> None:
+    """``walker="deployment"`` trains on the walker the deploy path runs; such a policy keeps its
+    step adjustment deployed, while one trained on the simulation walker runs without it."""
+    from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS, walker_config
+
+    trained = deploy_walk.WalkPolicyTask(g1, residuals=["step"], walker="deployment").walker.config
+    assert trained == walker_config("deployment") == deploy_walk.deploy_walker_config()
+    assert trained.step_adaptation and trained.max_adjustment == DEPLOYMENT_OPTIONS["max_adjustment"] == 0.1
+    legacy = deploy_walk.WalkPolicyTask(g1, residuals=["step"]).walker.config
+    assert not legacy.step_adaptation and legacy.touchdown_force == trained.touchdown_force == 0.35
+    with pytest.raises(ValueError, match="unknown walker preset 'fast'"):
+        walker_config("fast")
+    with pytest.raises(ValueError, match=r"unknown WalkerConfig fields \['swing_kq'\]"):
+        walker_config({"swing_kq": 1.0})

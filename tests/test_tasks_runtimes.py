@@ -421,6 +421,21 @@ def test_observation_noise_has_the_requested_std() -> None:
     assert abs(np.corrcoef(errors[:, 1], errors[:, 4])[0, 1]) < 0.3  # an independent draw per component
 
 
+def test_observation_noise_by_name_perturbs_only_the_named_entries() -> None:
+    """``{pattern: std}`` over the task's observation names (the cart-pole's: cart_position,
+    cart_velocity, pole_cos, pole_sin, pole_velocity)."""
+    env = make(sim2real={"observation_noise": {"*_velocity": 0.03, "pole_velocity": 0.0}}, max_angle=10.0, x_limit=2.3)
+    assert env._noise_std.tolist() == [0.0, 0.03, 0.0, 0.0, 0.0]  # the last matching pattern wins
+    env.reset(seed=0)
+    errors = np.array([env.step([0.0])[0] - env.task.get_observation() for _ in range(300)])
+    std = np.std(errors, axis=0)
+    assert std[[0, 2, 3, 4]].max() == 0.0 and std[1] == pytest.approx(0.03, rel=0.15)
+    with pytest.raises(ValueError, match="matches no observation entry"):
+        make(sim2real={"observation_noise": {"base_velocity/*": 0.05}})
+    with pytest.raises(ValueError, match="finite stds"):
+        make(sim2real={"observation_noise": {"obs/1": -0.1}})
+
+
 def test_sim2real_validation() -> None:
     with pytest.raises(ValueError, match="physics steps"):
         SimToReal(action_latency=-1)

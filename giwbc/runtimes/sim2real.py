@@ -16,8 +16,11 @@ goes through the runtime's seeded ``numpy.random.Generator`` so that seeded runs
 from __future__ import annotations
 
 import dataclasses
+import fnmatch
 import math
 from collections import deque
+from collections.abc import Mapping, Sequence
+from types import MappingProxyType
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -73,19 +76,23 @@ class SimToReal:
     """What separates the simulation from the robot, to train a policy that survives the gap.
 
     - ``observation_noise``: standard deviation of Gaussian noise added to each observation
-      entry (a scalar, or one value per entry);
+      entry (a scalar, one value per entry, or ``{pattern: std}`` over the task's observation
+      names, ``fnmatch`` patterns such as ``"base_velocity/*"``: the entries an estimator errs on);
     - ``action_latency``: physics steps between the agent's ``step(action)`` and the task receiving it;
     - ``actuator_delay``: physics steps between the controller's command and the actuators applying it;
     - ``pushes``: random external wrenches on the base, or ``None``.
     """
 
-    observation_noise: float | tuple[float, ...] = 0.0
+    observation_noise: float | tuple[float, ...] | Mapping[str, float] = 0.0
     action_latency: int = 0
     actuator_delay: int = 0
     pushes: PushConfig | None = None
 
     def __post_init__(self) -> None:
-        noise = np.asarray(self.observation_noise, dtype=float)
+        given = self.observation_noise
+        noise = np.asarray(list(given.values()) if isinstance(given, Mapping) else given, dtype=float)
+        if isinstance(given, Mapping) and not all(isinstance(k, str) and k for k in given):
+            raise ValueError(f"observation_noise patterns must be non-empty strings, got {list(given)}")
         if noise.ndim > 1 or not np.all(np.isfinite(noise)) or np.any(noise < 0):
             raise ValueError(f"observation_noise must be one or a vector of finite stds >= 0, got {self.observation_noise}")
         for name in ("action_latency", "actuator_delay"):
@@ -95,9 +102,21 @@ class SimToReal:
         if self.pushes is not None and not isinstance(self.pushes, PushConfig):
             raise ValueError(f"pushes must be a PushConfig (or a dict of its fields) or None, got {self.pushes!r}")
 
-    def noise_std(self, size: int) -> np.ndarray:
-        """The noise standard deviation per observation entry."""
-        noise = np.asarray(self.observation_noise, dtype=float)
+    def noise_std(self, size: int, names: Sequence[str] | None = None) -> np.ndarray:
+        """The noise standard deviation per observation entry (``names``: the task's observation
+        names, which a ``{pattern: std}`` noise needs; the last matching pattern wins)."""
+        given = self.observation_noise
+        if isinstance(given, Mapping):
+            if names is None or len(names) != size:
+                raise ValueError(f"observation_noise by name needs the task's {size} observation names, got {None if names is None else len(names)}")
+            std = np.zeros(size)
+            for pattern, value in given.items():
+                hits = [i for i, name in enumerate(names) if fnmatch.fnmatchcase(name, pattern)]
+                if not hits:
+                    raise ValueError(f"observation_noise pattern {pattern!r} matches no observation entry (names look like {names[0]!r}, {names[-1]!r})")
+                std[hits] = float(value)
+            return std
+        noise = np.asarray(given, dtype=float)
         if noise.ndim == 0:
             return np.full(size, float(noise))
         if noise.shape != (size,):
@@ -112,7 +131,11 @@ class SimToReal:
         if isinstance(pushes, dict):
             pushes = PushConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in pushes.items()})
         noise = values.pop("observation_noise", 0.0)
-        return cls(observation_noise=tuple(noise) if isinstance(noise, (list, np.ndarray)) else noise, pushes=pushes, **values)
+        if isinstance(noise, Mapping):
+            noise = MappingProxyType(dict(noise))
+        elif isinstance(noise, (list, np.ndarray)):
+            noise = tuple(noise)
+        return cls(observation_noise=noise, pushes=pushes, **values)
 
     def robot_entries(self) -> list[dict[str, Any]]:
         """The robot-side knobs (actuator delay, pushes) as fixed randomization config entries."""

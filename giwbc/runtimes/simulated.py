@@ -137,7 +137,7 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         task.bind(self.sim_robot, self.rates)
         self.action_space = task.action_space
         self.observation_space = task.observation_space
-        self._noise_std = self.sim2real.noise_std(int(np.prod(self.observation_space.shape)))
+        self._noise_std = self.sim2real.noise_std(int(np.prod(self.observation_space.shape)), task.observation_names())
         self._noisy = bool(np.any(self._noise_std > 0))
         self._observation_low = self.observation_space.low.astype(np.float64)
         self._observation_high = self.observation_space.high.astype(np.float64)
