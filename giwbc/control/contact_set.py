@@ -318,6 +318,7 @@ class ContactSet:
             slot.bounds_activation = math.nan  # (rewritten when it is made again)
             slot.pinned = True
             self.force_version = -2  # the force regularisation's gradient is recomputed
+            self._declare_fixed()
 
     def reengage(self, slot: ContactSlot) -> None:
         """Undo :meth:`disengage`'s ``f = 0`` rows and unbounded friction rows."""
@@ -326,6 +327,19 @@ class ContactSet:
         slot.contact.friction_bounds(p.l[slot.friction_rows], p.u[slot.friction_rows], slot.normal_limit())  # type: ignore[union-attr]
         slot.bounds_activation = slot.activation
         slot.pinned = False
+        self._declare_fixed()
+
+    def _declare_fixed(self) -> None:
+        """Tell the problem which variables the pinned slots hold at zero (``QpProblem.fixed``:
+        a KKT solver eliminates them — in single support, the swing foot's 6 wrench variables and
+        their 6 rows, a 12-row smaller system)."""
+        pinned = [slot for slot in self.slot_list if slot.pinned]
+        if not pinned:
+            self._problem.fixed = None  # type: ignore[union-attr]
+            return
+        columns = np.concatenate([np.arange(slot.columns.start, slot.columns.stop) for slot in pinned])
+        rows = np.concatenate([np.arange(slot.motion_rows.start, slot.motion_rows.stop) for slot in pinned])
+        self._problem.fixed = (columns, rows)  # type: ignore[union-attr]
 
     def _assemble_batch(self, kin: Kinodynamics, batch: tuple) -> None:
         """:meth:`Contact.assemble` for all contacts at once, when every one is engaged, has the

@@ -44,6 +44,11 @@ class ActiveSetGuess:
       only enter through discrete decisions (which side of a threshold a row's slack falls).
       The active set is kept sorted, so the KKT system of a given active set is always the same.
 
+    Variables the problem declares held at zero (``QpProblem.fixed``: a broken contact's pinned
+    wrench in single support) are eliminated with their equality rows: the KKT system is that
+    many rows and columns smaller (G1 single support: 12 of ~67, its LU ~30 % cheaper) and the
+    answer the same optimum, those variables exactly zero.
+
     The active set found (by either) is the next tick's guess. ``hits``/``tries`` count the
     guesses, ``polished``/``polish_failures`` the polishes, ``solves`` the KKT solves (all
     uses): diagnostics, not reset by
@@ -63,6 +68,8 @@ class ActiveSetGuess:
         self._prepared: QpProblem | None = None
         self._prepared_structure = -1
         self._prepared_arrays: tuple = (None, None, None, None)
+        self._fixed_source: tuple | None = None
+        self._keep: np.ndarray | None = None  # the variables the KKT system keeps (None: all)
         self.hits = 0
         self.tries = 0
         self.polished = 0
@@ -100,6 +107,8 @@ class ActiveSetGuess:
         arrays = self._prepared_arrays
         if p is self._prepared and p.A is arrays[0] and p.C is arrays[1] and p.l is arrays[2] and p.u is arrays[3] and p.structure == self._prepared_structure:
             # The same problem and arrays as last time (the controller's, refilled every tick).
+            if p.fixed is not self._fixed_source:
+                self._reduce(p)
             np.copyto(self._eq_limits, p.b)
             pair = self._lu_source[2]
             if pair is not None:
@@ -125,7 +134,7 @@ class ActiveSetGuess:
             self._in_limits = pair[:, ne : ne + ni]
             self._r = np.zeros(ne + m)  # [A; C; I] x
             self._check = np.zeros(2 * (ne + m) + m)  # violations (both sides) and signed multipliers
-            self._kkt: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+            self._kkt: dict[tuple[int, int, int], tuple] = {}
             self._layout = key
             self._source = (None, None)
             self._lu_source = (None, None, None)
@@ -164,6 +173,30 @@ class ActiveSetGuess:
             self._in_limits[1] = u
         self._prepared, self._prepared_structure = p, p.structure
         self._prepared_arrays = (p.A, p.C, p.l, p.u)
+        self._reduce(p)
+
+    def _reduce(self, p: QpProblem) -> None:
+        """The variables and equality rows the KKT system keeps: all but ``p.fixed``'s (when the
+        fixed variables have no finite bounds: a bound row of one would be a zero row)."""
+        self._fixed_source = fixed = p.fixed
+        self._stale = True
+        n, ne = p.n, p.n_eq
+        if fixed is not None and p.lb is not None:
+            if np.isfinite(p.lb[fixed[0]]).any() or np.isfinite(p.ub[fixed[0]]).any():  # type: ignore[index]
+                fixed = None
+        if fixed is None or not len(fixed[0]):
+            self._keep = None
+            self._n_keep, self._ne_keep = n, ne
+            self._keep_eq = np.arange(ne)
+            return
+        keep = np.ones(n, dtype=bool)
+        keep[fixed[0]] = False
+        keep_eq = np.ones(ne, dtype=bool)
+        keep_eq[fixed[1]] = False
+        self._keep = np.flatnonzero(keep)
+        self._keep_eq = np.flatnonzero(keep_eq)
+        self._n_keep, self._ne_keep = len(self._keep), len(self._keep_eq)
+        self._h_index = self._keep[:, None] * n + self._keep[None, :]  # H[keep][:, keep] as one take
 
     def _fill_rows(self, p: QpProblem) -> None:
         """Copy ``A``, ``C`` and the bounds into the guess's own stacked buffers."""
@@ -178,26 +211,30 @@ class ActiveSetGuess:
     def _refresh_active(self, p: QpProblem) -> None:
         """Vectors of the current active set (stacked row indices, right-hand-side indices,
         signs) and the views of its KKT buffers."""
-        n, ne = p.n, p.n_eq
+        ne = p.n_eq
+        n, ne_kept, keep_eq = self._n_keep, self._ne_keep, self._keep_eq
         active, upper = self.active, self.upper
         k = len(active)
-        self._eq_rows = np.concatenate([np.arange(ne), ne + active])
+        self._eq_rows = np.concatenate([keep_eq, ne + active])
+        if self._keep is not None:  # [A; C_a] restricted to the kept columns, as one take
+            self._e_index = self._eq_rows[:, None] * p.n + self._keep[None, :]
         # The right-hand side of [A; C_a]: b, then the active bound of each row, from _limits.
-        self._rhs_index = np.concatenate([np.arange(ne), np.where(upper, len(self._lo) + ne + active, ne + active)])
+        self._rhs_index = np.concatenate([keep_eq, np.where(upper, len(self._lo) + ne + active, ne + active)])
         # Multiplier signs, negated: − at an upper bound, + at a lower one, none for an equality row.
         same = self._lo[ne + active] + 0.0 == self._hi[ne + active]
         self._sign = np.where(same, 0.0, np.where(upper, -1.0, 1.0))
-        if k not in self._kkt:
-            size = n + ne + k
+        key = (k, n, ne_kept)
+        if key not in self._kkt:
+            size = n + ne_kept + k
             K, rhs = np.zeros((size, size)), np.zeros(size)
             E = K[n:, :n]
             rows = len(self._r)
             check = self._check
-            self._kkt[k] = (
+            self._kkt[key] = (
                 K, rhs, K.T, K[:n, :n], E, E.T, K[:n, n:], K[n:, n:],
                 rhs[:n], rhs[n:], check[:rows], check[rows : 2 * rows], check[2 * rows : 2 * rows + k], check[: 2 * rows + k],
             )
-        self._views = self._kkt[k]
+        self._views = self._kkt[key]
         self._stale = False
 
     # --- the solve ---------------------------------------------------------------------------------
@@ -355,18 +392,27 @@ class ActiveSetGuess:
         self.solves += 1
         if self._stale:
             self._refresh_active(p)
-        n, ne = p.n, p.n_eq
+        ne = self._ne_keep
         k = len(self.active)
         stack = self._stack
+        keep = self._keep
         K, rhs, KT, K_H, K_E, K_ET_source, K_ET, K_Z, rhs_g, rhs_e, over, under, signed, checked = self._views
         # K is overwritten by the factorisation: every block is written again.
-        np.copyto(K_H, p.H)
-        stack.take(self._eq_rows, axis=0, out=K_E, mode="clip")  # (the method: no Python wrapper)
+        if keep is None:
+            n = p.n
+            np.copyto(K_H, p.H)
+            stack.take(self._eq_rows, axis=0, out=K_E, mode="clip")  # (the method: no Python wrapper)
+            np.negative(p.g, out=rhs_g)
+        else:  # the fixed variables and their rows eliminated
+            n = self._n_keep
+            p.H.take(self._h_index, out=K_H, mode="clip")
+            stack.reshape(-1).take(self._e_index, out=K_E, mode="clip")
+            p.g.take(keep, out=rhs_g, mode="clip")
+            np.negative(rhs_g, out=rhs_g)
         np.copyto(K_ET, K_ET_source)
         K_Z.fill(0.0)
         if regularize:
             K_Z.flat[:: ne + k + 1] = -1e-4 * self.tolerance
-        np.negative(p.g, out=rhs_g)
         self._limits.take(self._rhs_index, out=rhs_e, mode="clip")
         # K is symmetric: its transpose is a Fortran-ordered view LAPACK factorises in place.
         # (Eliminating the diagonal force block first makes the LU 12 rows smaller, 25 → 19 µs,
@@ -374,7 +420,13 @@ class ActiveSetGuess:
         _, _, solution, info = self._gesv(KT, rhs, overwrite_a=1, overwrite_b=0)
         if info != 0:
             return None
-        x = solution[:n]
+        if keep is None:
+            x = solution[:n]
+        else:
+            x = np.zeros(p.n)
+            x.put(keep, solution[:n])
+        multipliers = solution[n + ne :]  # of the active inequality rows
+        ne = p.n_eq  # (the checks below are on every row)
         tol = self.tolerance if tol is None else tol
         r, check = self._r, self._check
         rows = len(r)
@@ -385,7 +437,7 @@ class ActiveSetGuess:
             checked = check[: 2 * rows]
             k = 0
         elif k:
-            np.multiply(solution[n + ne :], self._sign, out=signed)
+            np.multiply(multipliers, self._sign, out=signed)
         worst = float(checked[checked.argmax()]) if rows or k else -math.inf  # (argmax: 4× faster than max)
         if worst <= tol:
             return x

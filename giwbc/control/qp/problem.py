@@ -43,6 +43,12 @@ class QpProblem:
     ``H_pattern`` and ``AC_pattern`` (optional boolean masks of ``H`` and of ``[A; C]``) mark the
     entries that can ever be non-zero for this structure; sparse backends use them as their fixed
     sparsity pattern. ``structure`` is a token that changes whenever dimensions or patterns do.
+
+    ``fixed`` (optional): variables that equality rows hold at exactly zero — those rows are unit
+    rows ``x_i = 0`` (``b_i = 0``) and the variables have no finite bounds — as ``(variables,
+    their equality rows)``; e.g. a broken contact's pinned wrench. A KKT solver may eliminate
+    them (:class:`~giwbc.control.qp.ActiveSetGuess`: a smaller system, the same optimum); the
+    pair is replaced, not modified, whenever the set changes.
     """
 
     H: np.ndarray
@@ -57,6 +63,7 @@ class QpProblem:
     H_pattern: np.ndarray | None = field(default=None, repr=False)
     AC_pattern: np.ndarray | None = field(default=None, repr=False)
     structure: int = 0
+    fixed: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
@@ -84,6 +91,7 @@ class QpProblem:
             copy(self.H_pattern),
             copy(self.AC_pattern),
             self.structure,
+            None if self.fixed is None else (self.fixed[0].copy(), self.fixed[1].copy()),
         )
 
     def validate(self) -> None:
