@@ -36,6 +36,7 @@ from giwbc.control.kinodynamics import LWA, Kinodynamics
 
 _log3 = pin.log3
 _frame_jacobian = pin.getFrameJacobian
+_update_placement = pin.updateFramePlacement
 _classical_acceleration = pin.getFrameClassicalAcceleration
 
 
@@ -238,6 +239,7 @@ class TaskStack:
             task.rows_stale = True
             start += task.dim
         self._writes = [(task.write, rows, error, drift) for task, rows, error, drift, _ in self.views]
+        self._rate_rows = [(self._acc_ref[rows], self._vel_ref[rows]) for *_, rows in self.views]
         self._constant_tasks = [task for task, group in zip(self.tasks, self.groups) if group == 2]
         self._versions = [-1] * len(self.tasks)
         self._ref_versions = [-1] * len(self.tasks)
@@ -307,9 +309,9 @@ class TaskStack:
                 self._refresh()
                 break
             if task.ref_version != ref_versions[i]:  # (a swing foot's, every tick: its rates only)
-                rows = self.views[i][4]
-                self._acc_ref[rows] = task.acceleration_ref
-                self._vel_ref[rows] = task.velocity_ref
+                acceleration, velocity = self._rate_rows[i]
+                np.copyto(acceleration, task.acceleration_ref)
+                np.copyto(velocity, task.velocity_ref)
                 ref_versions[i] = task.ref_version
         if self._hessian_stale:
             self._refresh()
@@ -392,6 +394,7 @@ class FramePoseTask(WbcTask):
         self._angular_rows = slice(0, 3) if len(self.rows) == 3 and self._angular and not self._linear else self.rows[self.rows >= 3] - 3
         self._all_angular = isinstance(self._angular_rows, slice)
         self._relative = np.zeros((3, 3))
+        self._placement_views: tuple | None = None  # (Data, rotation, translation) of data.oMf[frame]
 
     def bind(self, kin: Kinodynamics) -> None:
         super().bind(kin)
@@ -455,16 +458,27 @@ class FramePoseTask(WbcTask):
             else:
                 error[...] = _log3(relative)[angular]
             return
+        if self._full:  # all six rows (a swing foot): no selection, the error written in place
+            model, data = kin.model, kin.data
+            placement = _update_placement(model, data, self.frame_id)
+            views = self._placement_views
+            if views is None or views[0] is not data:
+                views = self._bind_placement(data, placement)
+            if self.reference is None:
+                self.set_reference(placement)
+            rows[...] = _frame_jacobian(model, data, self.frame_id, LWA)
+            drift[...] = _classical_acceleration(model, data, self.frame_id, LWA).vector
+            if views[1] is None:  # (the bindings return copies: read the placement)
+                np.subtract(self._reference_translation, placement.translation, out=error[:3])
+                error[3:] = _log3(self._reference_rotation @ placement.rotation.T)
+                return
+            np.subtract(self._reference_translation, views[2], out=error[:3])
+            np.dot(self._reference_rotation, views[1].T, out=self._relative)
+            error[3:] = _log3(self._relative)
+            return
         placement = kin.frame_placement(self.frame_id)
         if self.reference is None:
             self.set_reference(placement)
-        if self._full:  # all six rows (a swing foot): no selection, the error written in place
-            model, data = kin.model, kin.data
-            rows[...] = _frame_jacobian(model, data, self.frame_id, LWA)
-            drift[...] = _classical_acceleration(model, data, self.frame_id, LWA).vector
-            np.subtract(self._reference_translation, placement.translation, out=error[:3])
-            error[3:] = _log3(self._reference_rotation @ placement.rotation.T)
-            return
         select = self._select
         rows[...] = kin.frame_jacobian(self.frame_id, LWA)[select]
         drift[...] = kin.frame_drift(self.frame_id, LWA)[select]
@@ -476,6 +490,17 @@ class FramePoseTask(WbcTask):
         if self._angular:
             e[3:] = pin.log3(self._reference_rotation @ placement.rotation.T)
         error[...] = e[select]
+
+
+    def _bind_placement(self, data: pin.Data, placement: pin.SE3) -> tuple:
+        """Views of ``data.oMf[frame]``'s rotation and translation (Pinocchio updates that
+        placement in place), checked to be its live storage; ``(data, None, None)`` when the
+        bindings return copies."""
+        rotation, translation = placement.rotation, placement.translation
+        stored = data.oMf[self.frame_id]
+        live = rotation.ctypes.data == stored.rotation.ctypes.data and translation.ctypes.data == stored.translation.ctypes.data
+        self._placement_views = (data, rotation, translation) if live else (data, None, None)
+        return self._placement_views
 
 
 class FramePositionTask(FramePoseTask):
