@@ -494,11 +494,17 @@ class FramePoseTask(WbcTask):
 
     def _bind_placement(self, data: pin.Data, placement: pin.SE3) -> tuple:
         """Views of ``data.oMf[frame]``'s rotation and translation (Pinocchio updates that
-        placement in place), checked to be its live storage; ``(data, None, None)`` when the
-        bindings return copies."""
-        rotation, translation = placement.rotation, placement.translation
+        placement in place; ``updateFramePlacement`` returns a copy), checked to be its live
+        storage; ``(data, None, None)`` when the bindings return copies."""
         stored = data.oMf[self.frame_id]
-        live = rotation.ctypes.data == stored.rotation.ctypes.data and translation.ctypes.data == stored.translation.ctypes.data
+        rotation, translation = stored.rotation, stored.translation
+        again = data.oMf[self.frame_id]
+        live = (
+            rotation.ctypes.data == again.rotation.ctypes.data
+            and translation.ctypes.data == again.translation.ctypes.data
+            and np.array_equal(rotation, placement.rotation)
+            and np.array_equal(translation, placement.translation)
+        )
         self._placement_views = (data, rotation, translation) if live else (data, None, None)
         return self._placement_views
 
