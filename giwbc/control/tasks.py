@@ -395,6 +395,7 @@ class FramePoseTask(WbcTask):
         self._all_angular = isinstance(self._angular_rows, slice)
         self._relative = np.zeros((3, 3))
         self._placement_views: tuple | None = None  # (Data, rotation, translation) of data.oMf[frame]
+        self._error_halves: tuple = (None,)  # (error rows, their position and rotation halves, Rᵀ view)
 
     def bind(self, kin: Kinodynamics) -> None:
         super().bind(kin)
@@ -472,9 +473,12 @@ class FramePoseTask(WbcTask):
                 np.subtract(self._reference_translation, placement.translation, out=error[:3])
                 error[3:] = _log3(self._reference_rotation @ placement.rotation.T)
                 return
-            np.subtract(self._reference_translation, views[2], out=error[:3])
-            np.dot(self._reference_rotation, views[1].T, out=self._relative)
-            error[3:] = _log3(self._relative)
+            halves = self._error_halves
+            if halves[0] is not error:  # (the controller passes the same rows every tick)
+                halves = self._error_halves = (error, error[:3], error[3:], views[1].T)
+            np.subtract(self._reference_translation, views[2], out=halves[1])
+            np.dot(self._reference_rotation, halves[3], out=self._relative)
+            halves[2][...] = _log3(self._relative)
             return
         placement = kin.frame_placement(self.frame_id)
         if self.reference is None:
@@ -506,6 +510,7 @@ class FramePoseTask(WbcTask):
             and np.array_equal(translation, placement.translation)
         )
         self._placement_views = (data, rotation, translation) if live else (data, None, None)
+        self._error_halves = (None,)  # (its Rᵀ view is of these views)
         return self._placement_views
 
 

@@ -357,9 +357,15 @@ class ActiveSetGuess:
         when the budget is spent, a set comes back (a cycle: the exchanges would repeat), or a
         regularised solve fails."""
         seen: set[tuple[bytes, bytes]] = set()
+        # The first set is keyed only when the search goes on (most ticks end at the first
+        # solve); _set_active replaces the arrays, never writes into them.
+        first: tuple[np.ndarray, np.ndarray] | None = (self.active, self.upper)
         regularize = again = unbounded = False
-        for _ in range(steps):
-            if not again:  # (a singular set solved again, regularised, is not a cycle)
+        for step in range(steps):
+            if not again and step:  # (a singular set solved again, regularised, is not a cycle)
+                if first is not None:
+                    seen.add((first[0].tobytes(), first[1].tobytes()))
+                    first = None
                 key = (self.active.tobytes(), self.upper.tobytes())
                 if key in seen:
                     return None
