@@ -14,8 +14,10 @@ them. Measured over the running phase only:
   running) or ``long_work`` (its work took too long), and among those ``cpu_short`` (the thread's
   CPU time fell 20 % or more short of the wall time, with no context switch: time the hypervisor
   took); ``steal_ms``: CPU time the kernel saw stolen by the hypervisor during the phase, per CPU;
-- host work per cycle (wall time of the loop's own work, from the cycle's start to its command
-  sent: mean and p50 / p99; with the lockstep emulator it includes the emulator's physics);
+- host work per cycle (wall time of the loop's own work, from the cycle's start to its next command
+  computed: mean and p50 / p99; with the lockstep emulator it includes the emulator's physics; the
+  cycle's run-log records are built after it, in the rest of the period, and show as lateness when
+  they overflow it);
 - CPU time per cycle (thread time), the host's CAN path alone (drain, encode, send, receive,
   decode, IMU, estimator) and the host's CPU time per CAN frame (one command plus one reply per
   motor and cycle); the emulator's CPU time (its own process, or the loop's thread in lockstep);

@@ -336,3 +336,45 @@ source = "emulated"
     for bad in ("0x800", "-1", '"0"'):
         with pytest.raises(HardwareConfigError, match="host_id"):
             parse_hardware(text.format(host=bad))
+
+
+def test_a_repeated_steady_batch_decodes_as_a_fresh_decoder_does(g1, rng):
+    """The G1's buses, every motor replying once per cycle in plan order with new values: the
+    decoder that keeps the last steady batch's lookup gives, batch after batch, exactly what a
+    fresh decoder gives; a batch whose ids or byte 0 change (a frame from no motor, a motor
+    missing) is decoded afresh, and the steady batches after it again agree."""
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    protocols = [b.make_protocol() for b in plan.buses]
+    kept = MitReplyDecoder(protocols)
+
+    def cycle() -> tuple[np.ndarray, np.ndarray]:
+        replies, bus = [], []
+        for b, p in enumerate(protocols):
+            for mc in p.motors:
+                span = np.array([[mc.model.position.min, mc.model.position.max], [mc.model.velocity.min, mc.model.velocity.max],
+                                 [mc.model.torque.min, mc.model.torque.max]])  # fmt: skip
+                q, v, tau = rng.uniform(span[:, 0], span[:, 1])
+                replies.append(p.encode_reply(mc.can_id, q, v, tau, temperature=float(rng.uniform(20, 80))))
+                bus.append(b)
+        return frames_of(replies), np.array(bus)
+
+    def agree(batch: np.ndarray, bus: np.ndarray) -> np.ndarray:
+        got, fresh = kept.decode(bus, batch), MitReplyDecoder(protocols).decode(bus, batch)
+        for name in ("verdict", "index", "motor_id", "state", "temperature", "rotor_temperature", "error_code", "voltage", "status"):
+            assert np.array_equal(getattr(got, name), getattr(fresh, name), equal_nan=True), name
+        return got.verdict
+
+    for _ in range(3):
+        assert (agree(*cycle()) == REPLY).all()
+    batch, bus = cycle()
+    stray = batch.copy()
+    stray["can_id"][4] = 0x123  # not the host id: foreign traffic
+    assert agree(stray, bus)[4] != REPLY
+    assert (agree(batch, bus) == REPLY).all()
+    cubemars = [i for i, mc in enumerate(mc for p in protocols for mc in p.motors) if mc.reply == "cubemars"]
+    assert cubemars  # the G1 plan has CubeMars motors: their error byte is checked on every batch
+    undefined = batch.copy()
+    undefined["data"][cubemars[0], 7] = 0xFF  # no CubeMars error code: corrupt
+    assert agree(undefined, bus)[cubemars[0]] != REPLY
+    assert (agree(batch[1:], bus[1:]) == REPLY).all()  # a motor missing: a shorter batch
+    assert (agree(*cycle()) == REPLY).all()

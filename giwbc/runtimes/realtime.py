@@ -5,8 +5,10 @@ Pacing: :mod:`giwbc.runtimes.clock` (absolute deadlines; the robot's time is the
 
 One control cycle: exchange with the motors (the command computed last cycle goes out, the state
 comes back), safety checks, then the controller tick (the Task's ``apply_command``: the WBC at
-the controller rate) computes the next command, then the cycle is logged. The policy runs at the
-agent rate between :meth:`RealtimeRuntime.step` calls.
+the controller rate) computes the next command, then the cycle is logged: its records are built
+after the cycle's work is counted done (the command is ready; the records use the rest of the
+period, as the young-generation collections do, and a period they overflow shows as the next
+cycle's lateness). The policy runs at the agent rate between :meth:`RealtimeRuntime.step` calls.
 
 Phases (:mod:`giwbc.runtimes.phases`): idle -> enable -> settle -> ramp -> calibrate (with a
 state estimator) -> running -> shutdown -> damping -> off; the process settings while the motors are on: :mod:`giwbc.runtimes.os_settings`.
@@ -442,24 +444,24 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
                     failure = self._controller_failure()
                     if failure is not None:
                         self._fail(FaultKind.CONTROLLER_FAILED, failure)
-            if log is not None:
-                try:
-                    self._log_lock.acquire()
-                    if self._abandoned:
-                        raise LoopAbandoned
-                    if report.cycle % self.log_every == 0:
-                        self._log_cycle(report, sent, kind, imu)
-                    if report.clamped and not self._clamp_noted:
-                        self._clamp_noted = True
-                        fields = ("position", "velocity", "kp", "kd", "torque")
-                        counts = {f"{self.description.joint_names[j]}.{fields[k]}": int(robot.clamp_counts[j, k])
-                                  for j, k in zip(*np.nonzero(robot.clamp_counts))}  # fmt: skip
-                        log.event(report.cycle, t, "clamped", {"note": "command fields clamped to the motors' ranges", "fields": counts})
-                except Exception as error:  # noqa: BLE001 - the robot must not depend on its log
-                    self._log_failed(error)
-                finally:
-                    self._log_lock.release()
         work, overrun = self.clock.done()
+        if log is not None and report is not None:  # after the work: the command is ready, the records wait
+            try:
+                self._log_lock.acquire()
+                if self._abandoned:
+                    raise LoopAbandoned
+                if report.cycle % self.log_every == 0:
+                    self._log_cycle(report, sent, kind, imu)
+                if report.clamped and not self._clamp_noted:
+                    self._clamp_noted = True
+                    fields = ("position", "velocity", "kp", "kd", "torque")
+                    counts = {f"{self.description.joint_names[j]}.{fields[k]}": int(robot.clamp_counts[j, k])
+                              for j, k in zip(*np.nonzero(robot.clamp_counts))}  # fmt: skip
+                    log.event(report.cycle, t, "clamped", {"note": "command fields clamped to the motors' ranges", "fields": counts})
+            except Exception as error:  # noqa: BLE001 - the robot must not depend on its log
+                self._log_failed(error)
+            finally:
+                self._log_lock.release()
         if self._gc_was_enabled is not None and self._cycles % self.gc_every == 0:  # type: ignore[operator]
             started = time.perf_counter()
             gc.collect(1)  # the young generations, in this cycle's slack
