@@ -25,6 +25,11 @@ answered (``guess_answered_us`` / ``backend_us``, ``backend_share``, the p99 wit
 the backend ticks), and ``backend_tick_parts_cpu_us``: the CPU time of each part of a backend
 tick (the guess's failed KKT solves, proxsuite, the polish, the settle fallback), from one more
 replay with those parts wrapped.
+
+``standing_after_planning_us``: the standing replay once more, a walker's between-tick planning
+(a separate walking controller stepping through the recorded walk, its WBC not run) before each
+tick — the standing tick in the walking tick's context; ``single_over_standing_after_planning``
+compares the single-support median with it (same process, interleaved).
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", 
     os.environ[_variable] = "1"
 
 import argparse  # noqa: E402
+import itertools  # noqa: E402
 import json  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
@@ -165,6 +171,26 @@ def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str
     return kinds, failures
 
 
+def planning_context(description, inputs: list, speed: float = 0.3):
+    """A callable running one tick of a walker's between-tick planning (measure, schedule, step
+    adapter, swing and references) on the recorded walk's next inputs, its WBC not run: the work a
+    walking WBC tick follows, put before a standing tick to compare the two in the same context."""
+    from giwbc.locomotion.walker import WalkingController
+
+    walker = WalkingController(description)
+    walker.reset(inputs[0][0])
+    walker.wbc.update = lambda q, v, t=None: None  # (planning only: the replayed walk's own WBC ticks are timed elsewhere)
+    walker.set_command(speed, 0.0, 0.0)
+    start = next((i for i, row in enumerate(inputs) if row[4]), 0)
+    ticks = itertools.count()
+
+    def plan() -> None:
+        q, v, t, forces, _ = inputs[start + next(ticks) % (len(inputs) - start)]
+        walker.update(q, v, t, forces)
+
+    return plan
+
+
 def profile_backend_ticks(description, inputs: list, speed: float = 0.3) -> dict:
     """CPU time (``time.thread_time``) of each part of the ticks the guess did not answer, in a
     separate replay with the parts wrapped (the wrappers' own cost is in the figures): the
@@ -254,12 +280,23 @@ def main(argv: list[str] | None = None) -> int:
 
     controller = make_balance_controller(description, solver=args.solver, solver_settings=settings)
     timings, iterations, failures = [], [], 0
+    after_planning: list[float] = []
+    if walk_inputs:
+        in_context = make_balance_controller(description, solver=args.solver, solver_settings=settings)
+        plan = planning_context(description, walk_inputs)
     for _ in range(args.repeat):
         if walk_inputs:  # interleaved with the standing replays: the same machine state for both
             kinds, lost = replay_walk(description, walk_inputs)
             walk_failures += lost
             for key, values in kinds.items():
                 walk_kinds[key] += values
+            in_context.wbc.solver.reset()
+            for i, (q, v, t, com_ref) in enumerate(states):
+                plan()
+                in_context.set_com_target(com_ref)
+                result = in_context.update(q, v, t)
+                if i >= 50:
+                    after_planning.append(result.timings.total)
         controller.wbc.solver.reset()
         for q, v, t, com_ref in states:
             controller.set_com_target(com_ref)
@@ -310,6 +347,9 @@ def main(argv: list[str] | None = None) -> int:
             # slower than the same tick repeated at once (cold caches), against ~1 µs for the
             # standing replay — this ratio leaves that context out.
             "single_over_double": round(float(np.median(walk_kinds["single"]) / np.median(walk_kinds["double"])), 3),
+            # The standing replay with a walker's planning before each tick: the same context.
+            "standing_after_planning_us": _stats(after_planning),
+            "single_over_standing_after_planning": round(float(np.median(walk_kinds["single"]) / np.median(after_planning)), 3),
             "failures": walk_failures,
             "scenario": f"replay of a recorded closed-loop MuJoCo walk at 0.3 m/s from 0.5 s, {args.walk_seconds:g} s, seed 0; switch = activations changed or ramping",
         },
