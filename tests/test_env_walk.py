@@ -239,3 +239,27 @@ def test_a_used_env_equals_a_fresh_one_after_falls_under_training_pushes(make) -
     assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
     used.close()
     fresh.close()
+
+
+def test_an_episode_ends_where_the_deployment_safety_would_stop_the_robot(make) -> None:
+    """``joint_limit_margin``: terminated (with the fall penalty) at the first agent step that ends
+    with a joint beyond its limits moved inward by the margin, as ``giwbc.hal.safety`` stops a
+    deployed robot; without it the same walk goes on."""
+    margin = 0.2  # wide, so that walking at 0.3 m/s reaches it (the ankle rolls ~0.1 rad)
+    zero = np.zeros(3, np.float32)
+    env = make(residuals=["step"], commands={**FORWARD, "vx": [0.3, 0.3]}, joint_limit_margin=margin)
+    env.reset(seed=1)
+    lower, upper = env.task.description.position_limits
+    for step in range(150):
+        _, reward, terminated, _, _ = env.step(zero)
+        q = env.task.robot.joint_positions()
+        assert terminated == bool(np.any(q < lower + margin) or np.any(q > upper - margin))
+        if terminated:
+            break
+    assert terminated and step > 10 and reward < -10.0  # walked first; ended as a fall
+    assert env.task.base_state().position[2] > env.task.min_height and env.task.tilt() < 0.3  # upright: the limit ended it
+    free = make(residuals=["step"], commands={**FORWARD, "vx": [0.3, 0.3]})
+    free.reset(seed=1)
+    assert not any(free.step(zero)[2] for _ in range(step + 1))
+    with pytest.raises(ValueError, match="joint_limit_margin"):
+        make(joint_limit_margin=-0.1)

@@ -151,6 +151,7 @@ class G1Walk(FloatingBaseTask):
         min_height_ratio: float = 0.7,
         max_tilt: float = 0.7,
         walker: dict[str, Any] | str | None = None,  # WalkerConfig fields (scalars), or a preset: "deployment"
+        joint_limit_margin: float | None = None,
         wbc_options: dict[str, Any] | None = None,
     ) -> None:
         super().__init__()
@@ -163,6 +164,16 @@ class G1Walk(FloatingBaseTask):
         self.layout = _layout(self.scales, residuals or ("step",))
         self.initial_joint_noise = float(initial_joint_noise)
         self.max_tilt = float(max_tilt)
+        # Deployment's safety layer stops the robot when a joint leaves its limits moved inward by
+        # its soft-limit margin (giwbc.hal.safety, 0.02 rad): with a margin here, an episode ends
+        # there too, as a fall, so a policy learns to stay where it can be deployed.
+        self.joint_limit_margin = None if joint_limit_margin is None else float(joint_limit_margin)
+        if self.joint_limit_margin is not None and not 0.0 <= self.joint_limit_margin < 0.5:
+            raise ValueError(f"joint_limit_margin must be in [0, 0.5) rad or None, got {joint_limit_margin}")
+        lower, upper = description.position_limits
+        margin = self.joint_limit_margin or 0.0
+        self._soft_lower, self._soft_upper = np.asarray(lower, dtype=float) + margin, np.asarray(upper, dtype=float) - margin
+        self._terminated: tuple[float, bool] | None = None
         config = walker_config(walker)
         if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
             config = replace(config, balance=replace(config.balance, **wbc_options))
@@ -213,6 +224,7 @@ class G1Walk(FloatingBaseTask):
 
     def reset_task(self) -> None:
         self._base = None
+        self._terminated = None
         self.result = None
         self.schedule = self.commands.draw(self.np_random)
         self._next_command = 0
@@ -247,6 +259,18 @@ class G1Walk(FloatingBaseTask):
             self.walker.set_command(*schedule[self._next_command][1])
             self._next_command += 1
         self.result = self.walker.step(robot)
+
+    def is_terminated(self) -> bool:
+        """Fallen (base low or tilted), or, with ``joint_limit_margin``, a joint beyond its soft limits."""
+        if super().is_terminated():
+            return True
+        if self.joint_limit_margin is None:
+            return False
+        now = self.robot.time()
+        if self._terminated is None or self._terminated[0] != now:
+            q = self.robot.joint_positions()
+            self._terminated = (now, bool(np.any(q < self._soft_lower) or np.any(q > self._soft_upper)))
+        return self._terminated[1]
 
     def controller_failure(self) -> str | None:
         return None if self.result is None else self.result.failure()
