@@ -792,6 +792,28 @@ def test_joint_limit_bounds_stop_a_joint_at_its_limit(g1, g1_model):
     assert np.all(np.isinf(problem.lb[:6])) and np.all(np.isinf(problem.lb[35:]))
 
 
+def test_joint_limit_margin_stops_a_joint_that_far_inside_its_limit(g1, g1_model):
+    """With ``joint_limit_margin`` the bounds stop a joint at its limit moved inward (a safety
+    layer's soft limit): the same knee 0.01 rad from its limit is already 0.02 rad beyond the
+    margin's limit, so its bound brakes harder, by exactly the margin's share."""
+    q, v = g1.default_configuration(), np.zeros(35)
+    lower, upper = g1.position_limits
+    knee = 3
+    q[7 + knee] = upper[knee] - 0.01
+    v[6 + knee] = 1.0
+    bounds = []
+    for margin in (0.0, 0.03):
+        wbc = WholeBodyController(g1_model, torque_limits=g1.effort_limits, joint_limits=True, joint_limit_horizon=0.05, joint_limit_margin=margin)
+        wbc.add_task(PostureTask(reference=g1.default_positions))
+        problem = wbc.build(q, v, 0.0)
+        bounds.append(problem.ub[6 + knee])
+        assert np.all(problem.lb <= problem.ub)
+    assert bounds[0] == pytest.approx(2.0 * (0.01 - 0.05) / 0.05**2)
+    assert bounds[1] == pytest.approx(2.0 * (0.01 - 0.03 - 0.05) / 0.05**2)
+    with pytest.raises(ValueError, match="joint_limit_margin"):
+        WholeBodyController(g1_model, joint_limits=True, joint_limit_margin=-0.01)
+
+
 # --- the active-set guess in front of proxsuite ----------------------------------------------------
 def test_active_set_guess_returns_the_qp_optimum(g1, g1_model, rng):
     """Along a smooth trajectory of states the guess (one KKT solve) answers most ticks, and every

@@ -83,6 +83,7 @@ class BalanceConfig:
     # far from the limits and the bounds cost ~25 µs a tick); turn on when references can push
     # joints towards their limits.
     joint_limits: bool = False
+    joint_limit_margin: float = 0.0  # rad: the bounds keep the joints this far inside their limits
     acceleration_regularization: float = 1e-6
     impedance_kp_scale: float = 0.0  # impedance output gains, fractions of the description's kp/kd
     impedance_kd_scale: float = 0.1
@@ -113,6 +114,7 @@ class BalanceController:
             solver_settings=dict(config.solver_settings),
             torque_limits=description.effort_limits * config.torque_limit_scale,
             joint_limits=config.joint_limits,
+            joint_limit_margin=config.joint_limit_margin,
             acceleration_regularization=config.acceleration_regularization,
             impedance_kp=description.kp * config.impedance_kp_scale,
             impedance_kd=description.kd * config.impedance_kd_scale,

@@ -159,6 +159,8 @@ class WholeBodyController:
     torque_limits: per-joint |τ| bounds (default ``model.effortLimit``; ≥ 1e10 or inf: none).
     joint_limits: add acceleration bounds keeping joints inside position/velocity limits.
     joint_limit_horizon: time, s, over which the acceleration bounds must stop a joint at its limit.
+    joint_limit_margin: rad, the position limits the bounds keep moved inward by this much (inside
+    a deployment safety layer's soft limits, which stop the robot).
     acceleration_regularization: ``ε`` of ``ε ‖q̈‖²`` (strict convexity).
     impedance_kp, impedance_kd, impedance_lookahead: the impedance output (module docstring).
     fallback_decay: factor applied to the last good torques per failed tick.
@@ -182,6 +184,7 @@ class WholeBodyController:
         torque_limits: np.ndarray | None = None,
         joint_limits: bool = False,
         joint_limit_horizon: float = 0.05,
+        joint_limit_margin: float = 0.0,
         acceleration_regularization: float = 1e-6,
         impedance_kp: float | np.ndarray = 0.0,
         impedance_kd: float | np.ndarray = 0.0,
@@ -197,6 +200,8 @@ class WholeBodyController:
             raise ValueError("acceleration_regularization must be finite and >= 0")
         if not (joint_limit_horizon > 0):
             raise ValueError("joint_limit_horizon must be > 0")
+        if not (0.0 <= joint_limit_margin < 0.5):
+            raise ValueError(f"joint_limit_margin must be in [0, 0.5) rad, got {joint_limit_margin}")
         self.kin = Kinodynamics(model, n_base=n_base)
         self.model = model
         self.dt = float(dt)
@@ -215,8 +220,9 @@ class WholeBodyController:
         lower = np.array(model.lowerPositionLimit[kin.joint_q], dtype=float)
         upper = np.array(model.upperPositionLimit[kin.joint_q], dtype=float)
         velocity = np.array(model.velocityLimit[self.n_base :], dtype=float)
-        self._q_lower = np.where(np.abs(lower) < UNLIMITED, lower, -np.inf)
-        self._q_upper = np.where(np.abs(upper) < UNLIMITED, upper, np.inf)
+        self.joint_limit_margin = float(joint_limit_margin)
+        self._q_lower = np.where(np.abs(lower) < UNLIMITED, lower + self.joint_limit_margin, -np.inf)
+        self._q_upper = np.where(np.abs(upper) < UNLIMITED, upper - self.joint_limit_margin, np.inf)
         self._v_limit = np.where(np.isfinite(velocity) & (velocity < UNLIMITED) & (velocity > 0), velocity, np.inf)
         self.acceleration_regularization = float(acceleration_regularization)
         self.impedance_kp = _as_joint_array(impedance_kp, nj, "impedance_kp")
