@@ -5,37 +5,42 @@ those variables exactly zero."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from giwbc.control.qp import ActiveSetGuess, QpProblem
 from giwbc.locomotion.simulation import simulate_walk
 
 
-def _pinned_problem(seed: int = 0, structure: int = 301) -> QpProblem:
-    """A random strictly convex QP in 9 variables: 2 general equalities, 3 unit rows ``x_i = 0``
-    (i = 5, 6, 7, also coupled to the others through ``H`` and the inequalities), and 6 two-sided
-    inequality rows, several of them active at the optimum."""
+def _pinned_problem(seed: int = 0, structure: int = 301, pinned: tuple[int, ...] = (5, 6, 7)) -> QpProblem:
+    """A random strictly convex QP in 9 variables: 2 general equalities, a unit row ``x_i = 0``
+    for each ``pinned`` i (default 5, 6, 7; also coupled to the others through ``H`` and the
+    inequalities), and 6 two-sided inequality rows, several of them active at the optimum."""
     rng = np.random.default_rng(seed)
     n = 9
     L = rng.normal(size=(n, n))
     H = L @ L.T + n * np.eye(n)
-    A = np.zeros((5, n))
+    A = np.zeros((2 + len(pinned), n))
     A[:2] = rng.normal(size=(2, n))
-    A[2:, 5:8] = np.eye(3)
-    b = np.concatenate([rng.normal(size=2), np.zeros(3)])
+    A[2 + np.arange(len(pinned)), list(pinned)] = 1.0
+    b = np.concatenate([rng.normal(size=2), np.zeros(len(pinned))])
     C = rng.normal(size=(6, n))
     return QpProblem(H=H, g=rng.normal(size=n) * 10.0, A=A, b=b, C=C, l=np.full(6, -1.0), u=np.full(6, 1.0), structure=structure)
 
 
-def test_eliminating_declared_zero_variables_gives_the_same_optimum_from_a_smaller_system() -> None:
+@pytest.mark.parametrize("pinned", [(5, 6, 7), (0, 2, 4, 8)])
+def test_eliminating_declared_zero_variables_gives_the_same_optimum_from_a_smaller_system(pinned: tuple[int, ...]) -> None:
     """The same QP solved by the guess with and without the declaration: the same answer (to
     1e-12 of its scale: only rounding differs), the fixed variables exactly zero, the answer
-    feasible; the declared solve's KKT system is 6 rows smaller (3 variables, 3 equality rows),
-    and it keeps its active set from tick to tick like the full one."""
+    feasible; the declared solve's KKT system is 2 rows smaller per pinned variable (the
+    variable, its equality row), and it keeps its active set from tick to tick like the full
+    one. The pinned variables one block (5, 6, 7) or scattered, the first and last included,
+    with gaps of one kept variable (0, 2, 4, 8)."""
     with_active_rows = 0
+    count = len(pinned)
     for seed in range(8):
-        full = _pinned_problem(seed)
+        full = _pinned_problem(seed, pinned=pinned)
         reduced = full.copy()
-        reduced.fixed = (np.array([5, 6, 7]), np.array([2, 3, 4]))
+        reduced.fixed = (np.array(pinned), 2 + np.arange(count))
         plain, eliminating = ActiveSetGuess(), ActiveSetGuess()
         x = plain.try_solve(full)
         y = eliminating.try_solve(reduced)
@@ -45,10 +50,10 @@ def test_eliminating_declared_zero_variables_gives_the_same_optimum_from_a_small
         with_active_rows += len(plain.active) >= 1  # (the multiplier signs were checked)
         np.testing.assert_array_equal(plain.active, eliminating.active)
         np.testing.assert_allclose(y, x, rtol=0, atol=1e-12 * max(1.0, float(np.abs(x).max())))
-        assert np.all(y[5:8] == 0.0)
+        assert np.all(y[list(pinned)] == 0.0)
         assert reduced.violation(y) < 1e-9
         k = len(eliminating.active)
-        assert eliminating._views[0].shape[0] == plain._views[0].shape[0] - 6 == 9 - 3 + 5 - 3 + k
+        assert eliminating._views[0].shape[0] == plain._views[0].shape[0] - 2 * count == 9 - count + 2 + k
         before = eliminating.solves
         assert eliminating.try_solve(reduced) is not None and eliminating.solves == before + 1
         # The declaration withdrawn (a contact made again): the full system, the same answer.
@@ -59,13 +64,15 @@ def test_eliminating_declared_zero_variables_gives_the_same_optimum_from_a_small
     assert with_active_rows >= 3
 
 
-def test_fixed_variables_with_a_finite_bound_are_not_eliminated() -> None:
+@pytest.mark.parametrize("side", ["lb", "ub"])
+def test_fixed_variables_with_a_finite_bound_are_not_eliminated(side: str) -> None:
     """A bound row of an eliminated variable would be a zero row of the KKT system: with a
-    finite variable bound on a declared variable the guess keeps the full system."""
+    finite variable bound (lower or upper) on a declared variable the guess keeps the full
+    system."""
     p = _pinned_problem(1)
     n = p.n
     p.lb, p.ub = np.full(n, -np.inf), np.full(n, np.inf)
-    p.lb[6] = -5.0
+    getattr(p, side)[6] = -5.0 if side == "lb" else 5.0
     p.fixed = (np.array([5, 6, 7]), np.array([2, 3, 4]))
     guess = ActiveSetGuess()
     x = guess.try_solve(p)
@@ -114,3 +121,25 @@ def test_in_single_support_the_swing_wrench_is_declared_fixed_and_answered_zero(
         scale = max(1.0, float(np.abs(x).max()))
         np.testing.assert_allclose(x, reference, rtol=0, atol=1e-11 * scale)
         assert p.violation(x) < 1e-8
+
+
+@pytest.mark.xfail(strict=True, reason="bug, reported not fixed: with variables eliminated, the KKT system copies H through block views "
+                   "made in _refresh_active, which runs only when the active set changes; a new H array in the same problem "
+                   "object is not read while the set stays (the WBC refills its H in place, so it is not affected)")
+def test_a_new_hessian_array_in_the_same_problem_is_read_by_the_reduced_system() -> None:
+    """The controller's problem object kept from tick to tick, its ``H`` replaced by a new array
+    (another cost): the reduced KKT system copies the new ``H``, not the blocks of the old one —
+    the answer is the new QP's optimum, the one the full system finds."""
+    p = _pinned_problem(0)
+    p.fixed = (np.array([5, 6, 7]), np.array([2, 3, 4]))
+    guess = ActiveSetGuess(steps=50)
+    assert guess.try_solve(p) is not None
+    rng = np.random.default_rng(7)
+    L = rng.normal(size=(p.n, p.n))
+    p.H = L @ L.T + 3.0 * p.n * np.eye(p.n)
+    x = guess.try_solve(p)
+    plain = p.copy()
+    plain.fixed = None
+    reference = ActiveSetGuess(steps=50).try_solve(plain)
+    assert x is not None and reference is not None
+    np.testing.assert_allclose(x, reference, rtol=0, atol=1e-12 * max(1.0, float(np.abs(reference).max())))

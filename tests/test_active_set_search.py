@@ -212,3 +212,46 @@ def test_an_answer_is_not_overwritten_by_the_next_solve() -> None:
     assert first is not None and second is not None
     np.testing.assert_array_equal(first, kept)
     np.testing.assert_array_equal(second, [-1.0, 0.25, 0.0])
+
+
+def test_recover_answers_the_search_from_the_tight_rows_else_the_polish_at_ten_times_the_slack() -> None:
+    """Points near the optimum of small random QPs (``x* +`` Gaussian noise of 5e-6 or 3e-5 per
+    variable) where the polish from the rows within ``slack = 1e-5`` finds no optimal set:
+    :meth:`ActiveSetGuess.recover` answers, bit for bit, what the one-row search from those rows
+    answers, or — where the search fails too — what the polish from the rows within ``slack / 10``,
+    else ``10 slack``, answers (the same deterministic, regularised KKT solves: its answer depends
+    on the point only through which rows fall within each threshold), and that answer is the
+    optimum (``x*`` to 1e-9). Both the search and the 10·slack polish are needed on some of them."""
+    from test_control_qp import random_qp
+
+    stages = {"search": 0, "tenfold": 0, "tenth": 0, "none": 0}
+    slack = 1e-5
+    for seed in range(400):
+        rng = np.random.default_rng(seed)
+        n, n_eq, n_in = int(rng.integers(6, 13)), int(rng.integers(0, 4)), int(rng.integers(2, 12))
+        p = random_qp(rng, n=n, n_eq=n_eq, n_in=n_in, structure=1)
+        optimum = ActiveSetGuess(steps=200).try_solve(p)  # (a long search from the empty set)
+        if optimum is None:
+            continue
+        for scale in (5e-6, 3e-5):
+            x = optimum + rng.normal(scale=scale, size=n)
+            if ActiveSetGuess().polish(p, x, slack) is not None:
+                continue
+            search = ActiveSetGuess()
+            search._tight(p, x, slack)
+            expected = search._search(p, search.steps)
+            stage = "search"
+            for name, other in (("tenth", 0.1 * slack), ("tenfold", 10.0 * slack)):
+                if expected is not None:
+                    break
+                expected, stage = ActiveSetGuess().polish(p, x, other), name
+            recovered = ActiveSetGuess().recover(p, x, slack)
+            if expected is None:
+                stages["none"] += 1
+                assert recovered is None
+                continue
+            stages[stage] += 1
+            assert recovered is not None
+            np.testing.assert_array_equal(recovered, expected)
+            np.testing.assert_allclose(recovered, optimum, rtol=0, atol=1e-9)
+    assert stages["search"] >= 20 and stages["tenfold"] >= 5, stages

@@ -93,8 +93,8 @@ GROUPS: tuple[Group, ...] = (
     # reach it (the closed-loop runs, marked slow, stay out). The globs are fnmatch patterns, where
     # "*" also matches "/": "wbc" takes every module of giwbc/control/ that no other part takes.
     Group("qp", ("giwbc/control/qp/*",),
-          ("tests/test_control_qp.py", "tests/test_active_set_search.py", "tests/test_proxsuite_build.py", "tests/test_wbc.py",
-           "tests/test_wbc_bounded.py", "-m", "not slow"), 1500),
+          ("tests/test_control_qp.py", "tests/test_active_set_search.py", "tests/test_active_set_fixed.py", "tests/test_proxsuite_build.py",
+           "tests/test_wbc.py", "tests/test_wbc_bounded.py", "-m", "not slow"), 1500),
     Group("wbc", ("giwbc/control/*.py",),
           ("tests/test_wbc.py", "tests/test_wbc_mujoco_dynamics.py", "tests/test_wbc_reset.py", "tests/test_wbc_bounded.py",
            "tests/test_wbc_task_api.py", "tests/test_control_physics.py", "tests/test_contact_set.py", "-m", "not slow"), 2400,
