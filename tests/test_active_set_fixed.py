@@ -123,9 +123,6 @@ def test_in_single_support_the_swing_wrench_is_declared_fixed_and_answered_zero(
         assert p.violation(x) < 1e-8
 
 
-@pytest.mark.xfail(strict=True, reason="bug, reported not fixed: with variables eliminated, the KKT system copies H through block views "
-                   "made in _refresh_active, which runs only when the active set changes; a new H array in the same problem "
-                   "object is not read while the set stays (the WBC refills its H in place, so it is not affected)")
 def test_a_new_hessian_array_in_the_same_problem_is_read_by_the_reduced_system() -> None:
     """The controller's problem object kept from tick to tick, its ``H`` replaced by a new array
     (another cost): the reduced KKT system copies the new ``H``, not the blocks of the old one —

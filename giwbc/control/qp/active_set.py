@@ -109,6 +109,8 @@ class ActiveSetGuess:
             # The same problem and arrays as last time (the controller's, refilled every tick).
             if p.fixed is not self._fixed_source:
                 self._reduce(p)
+            elif self._keep is not None and self._h_source is not p.H:
+                self._stale = True  # a new H array: the reduced system's block views must be made again
             np.copyto(self._eq_limits, p.b)
             pair = self._lu_source[2]
             if pair is not None:
@@ -203,6 +205,7 @@ class ActiveSetGuess:
         stops = np.concatenate([breaks, [len(self._keep)]])
         self._runs = [(int(a), int(b), int(self._keep[a])) for a, b in zip(starts, stops)]
         self._h_blocks: dict = {}
+        self._h_source: np.ndarray | None = None  # the H the current block views copy from
 
     def _fill_rows(self, p: QpProblem) -> None:
         """Copy ``A``, ``C`` and the bounds into the guess's own stacked buffers."""
@@ -249,6 +252,7 @@ class ActiveSetGuess:
                 pairs = [(K_H[a:b, c:d], H[sa : sa + b - a, sc : sc + d - c]) for a, b, sa in runs for c, d, sc in runs]
                 blocks = self._h_blocks[key] = (H, pairs)
             self._h_pairs = blocks[1]
+            self._h_source = p.H
         self._stale = False
 
     # --- the solve ---------------------------------------------------------------------------------
