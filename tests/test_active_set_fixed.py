@@ -142,10 +142,6 @@ def test_a_new_hessian_array_in_the_same_problem_is_read_by_the_reduced_system()
     np.testing.assert_allclose(x, reference, rtol=0, atol=1e-12 * max(1.0, float(np.abs(reference).max())))
 
 
-@pytest.mark.xfail(strict=True, reason="bug, reported not fixed: the multiplier signs of the active rows (none for a row whose "
-                   "limits are equal) are set in _refresh_active, which runs only when the active set (or the problem, or "
-                   "its H) changes; a row pinned (l == u) on one tick and opened on the next, in the same problem object "
-                   "refilled in place, keeps no sign, so its wrong-sign multiplier is accepted")
 @pytest.mark.parametrize("eliminated", [True, False])
 def test_a_row_pinned_on_one_tick_and_opened_on_the_next_gets_its_multiplier_checked(eliminated: bool) -> None:
     """The problem object and its arrays kept from tick to tick, refilled in place (as the

@@ -231,7 +231,9 @@ class ActiveSetGuess:
         self._rhs_index = np.concatenate([keep_eq, np.where(upper, len(self._lo) + ne + active, ne + active)])
         # Multiplier signs, negated: − at an upper bound, + at a lower one, none for an equality row.
         same = self._lo[ne + active] + 0.0 == self._hi[ne + active]
-        self._sign = np.where(same, 0.0, np.where(upper, -1.0, 1.0))
+        self._active_rows = ne + active
+        self._sign_open = np.where(upper, -1.0, 1.0)
+        self._sign = np.where(same, 0.0, self._sign_open)
         key = (k, n, ne_kept)
         if key not in self._kkt:
             size = n + ne_kept + k
@@ -462,6 +464,10 @@ class ActiveSetGuess:
             checked = check[: 2 * rows]
             k = 0
         elif k:
+            # The signs from this tick's limits: a row pinned (l = u) last tick may be open now in
+            # the same problem refilled in place, with the same active set (no refresh).
+            rows_a = self._active_rows
+            self._sign = np.where(self._lo[rows_a] + 0.0 == self._hi[rows_a], 0.0, self._sign_open)
             np.multiply(multipliers, self._sign, out=signed)
         worst = float(checked[checked.argmax()]) if rows or k else -math.inf  # (argmax: 4× faster than max)
         if worst <= tol:
