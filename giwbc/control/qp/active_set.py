@@ -229,11 +229,10 @@ class ActiveSetGuess:
             self._e_index = self._eq_rows[:, None] * p.n + self._keep[None, :]
         # The right-hand side of [A; C_a]: b, then the active bound of each row, from _limits.
         self._rhs_index = np.concatenate([keep_eq, np.where(upper, len(self._lo) + ne + active, ne + active)])
-        # Multiplier signs, negated: − at an upper bound, + at a lower one, none for an equality row.
-        same = self._lo[ne + active] + 0.0 == self._hi[ne + active]
+        # Multiplier signs, negated: − at an upper bound, + at a lower one; _solve_active drops
+        # them (0) for the rows this tick's limits pin (l = u), deriving the signs per solve.
         self._active_rows = ne + active
         self._sign_open = np.where(upper, -1.0, 1.0)
-        self._sign = np.where(same, 0.0, self._sign_open)
         key = (k, n, ne_kept)
         if key not in self._kkt:
             size = n + ne_kept + k
