@@ -59,10 +59,6 @@ class WalkCommand:
 
 # The deployment walker's options (giwbc.locomotion.walker_config.DEPLOYMENT_OPTIONS, why each there).
 DEPLOY_WALKER_OPTIONS: Mapping[str, Any] = DEPLOYMENT_OPTIONS
-DEPLOY_TOUCHDOWN_FORCE = float(DEPLOYMENT_OPTIONS["touchdown_force"])
-DEPLOY_SWING_KP = float(DEPLOYMENT_OPTIONS["swing_kp"])
-DEPLOY_ADAPT_DEADBAND = float(DEPLOYMENT_OPTIONS["adapt_deadband"])
-DEPLOY_ADAPT_FILTER = float(DEPLOYMENT_OPTIONS["adapt_filter"])
 DEPLOY_MAX_ADJUSTMENT = float(DEPLOYMENT_OPTIONS["max_adjustment"])
 
 

@@ -142,7 +142,7 @@ class WalkerConfig:
 DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
     "touchdown_force": 0.35, "swing_kp": 250.0, "adapt_deadband": 0.03, "adapt_filter": 0.02, "max_adjustment": 0.1,
 })  # fmt: skip
-WALKER_PRESETS = ("deployment",)
+WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS})
 
 
 def walker_config(options: "Mapping[str, Any] | str | None" = None, base: WalkerConfig | None = None) -> WalkerConfig:
@@ -154,8 +154,8 @@ def walker_config(options: "Mapping[str, Any] | str | None" = None, base: Walker
         return config
     if isinstance(options, str):
         if options not in WALKER_PRESETS:
-            raise ValueError(f"unknown walker preset {options!r}: choose one of {WALKER_PRESETS} or give WalkerConfig fields")
-        options = DEPLOYMENT_OPTIONS
+            raise ValueError(f"unknown walker preset {options!r}: choose one of {tuple(WALKER_PRESETS)} or give WalkerConfig fields")
+        options = WALKER_PRESETS[options]
     unknown = set(options) - set(WalkerConfig.__dataclass_fields__)
     if unknown:
         raise ValueError(f"unknown WalkerConfig fields {sorted(unknown)}")
