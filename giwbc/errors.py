@@ -26,6 +26,7 @@ GiwbcError
 │   ├── BaseStateUnavailable          a CAN robot without an estimator
 │   └── RenderingUnavailableError     no offscreen OpenGL library
 ├── WorkerLostError (RuntimeError)    a distributed worker died and its work could not be retried
+├── EstimatorCalibrationError (RuntimeError)  a simulated start-up calibration that never saw a standstill
 └── DeployError (RuntimeError)        a deployment that cannot start (exit code 2)
 ```
 """
@@ -121,6 +122,10 @@ class RenderingUnavailableError(UnavailableError):
 
 class WorkerLostError(GiwbcError, RuntimeError):
     """A distributed (Ray) worker, task or node died: its work is reported lost, never silently dropped."""
+
+
+class EstimatorCalibrationError(GiwbcError, RuntimeError):
+    """A simulated runtime's state estimator did not calibrate: the held robot never stood still."""
 
 
 class DeployError(GiwbcError, RuntimeError):

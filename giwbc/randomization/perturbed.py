@@ -100,11 +100,19 @@ class PerturbedRobot(RobotWrapper):
             self.pushes = episode.pushes
         self._schedule_pushes()
 
-    def _schedule_pushes(self) -> None:
+    def postpone_pushes(self) -> None:
+        """No push acts until :meth:`start_pushes` (a runtime's start-up before the episode proper)."""
+        self._events, self._event_index, self._push_starts = [], 0, np.zeros(0, dtype=int)
+
+    def start_pushes(self) -> None:
+        """The episode's pushes from now on: their start times count from this physics step."""
+        self._schedule_pushes(origin=self._tick)
+
+    def _schedule_pushes(self, origin: int = 0) -> None:
         dt = self.timestep
         events = []
         for push in self.pushes:
-            start = max(0, int(round(push.start / dt)))
+            start = origin + max(0, int(round(push.start / dt)))
             end = start + max(1, int(round(push.duration / dt)))
             events += [(start, push.link, push.force, True), (end, push.link, np.zeros(3), False)]
         self._events = sorted(events, key=lambda event: event[0])

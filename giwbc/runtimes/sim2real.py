@@ -1,4 +1,5 @@
-"""Sim-to-real knobs of a simulated runtime: observation noise, action latency, actuator delay, pushes.
+"""Sim-to-real knobs of a simulated runtime: observation noise, action latency, actuator delay, pushes,
+the state estimator in the loop.
 
 Where each effect lives (one implementation each):
 
@@ -7,7 +8,8 @@ Where each effect lives (one implementation each):
 * ``actuator_delay`` and ``pushes`` act on the robot, like the domain randomizer's
   ``actuator_latency`` and push schedule: they are turned into fixed randomization entries
   (:meth:`SimToReal.robot_entries`) that :class:`~giwbc.randomization.PerturbedRobot` applies,
-  on either physics engine. Sensor noise is the robot's too (:mod:`giwbc.robot.noise`).
+  on either physics engine. Sensor noise is the robot's too (:mod:`giwbc.robot.noise`);
+* ``estimator`` stands between the robot and the task (:mod:`giwbc.runtimes.estimated`).
 
 Every knob counts time in physics steps, the only clock a simulation has, and every random draw
 goes through the runtime's seeded ``numpy.random.Generator`` so that seeded runs stay bit-identical.
@@ -27,6 +29,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from giwbc.randomization import RandomizationConfig, RandomizationError
+from giwbc.runtimes.estimated import EstimatorInLoop
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
@@ -80,13 +83,16 @@ class SimToReal:
       names, ``fnmatch`` patterns such as ``"base_velocity/*"``: the entries an estimator errs on);
     - ``action_latency``: physics steps between the agent's ``step(action)`` and the task receiving it;
     - ``actuator_delay``: physics steps between the controller's command and the actuators applying it;
-    - ``pushes``: random external wrenches on the base, or ``None``.
+    - ``pushes``: random external wrenches on the base, or ``None``;
+    - ``estimator``: the task reads its base from a state estimator fed with the measured sensors,
+      calibrated at every reset (:class:`~giwbc.runtimes.estimated.EstimatorInLoop`), or ``None``.
     """
 
     observation_noise: float | tuple[float, ...] | Mapping[str, float] = 0.0
     action_latency: int = 0
     actuator_delay: int = 0
     pushes: PushConfig | None = None
+    estimator: EstimatorInLoop | None = None
 
     def __post_init__(self) -> None:
         given = self.observation_noise
@@ -101,6 +107,8 @@ class SimToReal:
                 raise ValueError(f"{name} is a number of physics steps (int >= 0), got {value!r}")
         if self.pushes is not None and not isinstance(self.pushes, PushConfig):
             raise ValueError(f"pushes must be a PushConfig (or a dict of its fields) or None, got {self.pushes!r}")
+        if self.estimator is not None and not isinstance(self.estimator, EstimatorInLoop):
+            raise ValueError(f"estimator must be an EstimatorInLoop (or true, or a dict of its fields) or None, got {self.estimator!r}")
 
     def noise_std(self, size: int, names: Sequence[str] | None = None) -> np.ndarray:
         """The noise standard deviation per observation entry (``names``: the task's observation
@@ -130,12 +138,13 @@ class SimToReal:
         pushes = values.pop("pushes", None)
         if isinstance(pushes, dict):
             pushes = PushConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in pushes.items()})
+        estimator = EstimatorInLoop.from_value(values.pop("estimator", None))
         noise = values.pop("observation_noise", 0.0)
         if isinstance(noise, Mapping):
             noise = MappingProxyType(dict(noise))
         elif isinstance(noise, (list, np.ndarray)):
             noise = tuple(noise)
-        return cls(observation_noise=noise, pushes=pushes, **values)
+        return cls(observation_noise=noise, pushes=pushes, estimator=estimator, **values)
 
     def robot_entries(self) -> list[dict[str, Any]]:
         """The robot-side knobs (actuator delay, pushes) as fixed randomization config entries."""

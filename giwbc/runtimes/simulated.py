@@ -35,6 +35,7 @@ from giwbc.randomization.randomizer import RandomizerSpec
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
 from giwbc.runtimes.engines import EnginePool, EngineSpec
+from giwbc.runtimes.estimated import calibrate
 from giwbc.tasks.rates import Rates
 from giwbc.runtimes.rendering import offscreen_renderer
 from giwbc.runtimes.sim2real import ActionQueue, SimToReal
@@ -134,7 +135,10 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self.render_size = render_size
         self.metadata = {**type(self).metadata, "render_fps": self.rates.agent}
 
-        task.bind(self.sim_robot, self.rates)
+        self.estimator = self.sim2real.estimator
+        if self.estimator is not None and description is None:
+            raise ValueError("an estimator in the loop needs the robot's description: give the runtime a RobotDescription")
+        self._bind(task, self.sim_robot)
         self.action_space = task.action_space
         self.observation_space = task.observation_space
         self._noise_std = self.sim2real.noise_std(int(np.prod(self.observation_space.shape)), task.observation_names())
@@ -172,6 +176,8 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
             robot.reset()
         else:
             robot.reset(*state)
+        if self.estimated is not None:
+            self._calibrate_estimator()
         self._tick = 0
         self._actions.clear()
         self._diverged = False
@@ -271,12 +277,33 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         clipped = np.minimum(np.maximum(observation, self._observation_low), self._observation_high)
         return clipped.astype(self.observation_space.dtype)
 
+    def _bind(self, task: Task, robot: Robot) -> None:
+        """Bind ``task`` to ``robot``, or, with an estimator in the loop, to ``robot`` seen through it."""
+        if self.estimator is None:
+            self.estimated = None
+            task.bind(robot, self.rates)
+        else:
+            self.estimated = self.estimator.wrap(robot, self.engines.description)
+            task.bind(self.estimated, self.rates, truth=robot)
+
+    def _calibrate_estimator(self) -> None:
+        """The estimator's start-up calibration on the reset robot, before the episode and its pushes."""
+        assert self.estimated is not None and self.estimator is not None
+        robot = self.sim_robot
+        perturbed = isinstance(robot, PerturbedRobot)
+        if perturbed:
+            robot.postpone_pushes()
+        calibrate(self.estimated, self.engines.description, self.rates.physics_per_controller, self.estimator.calibration_timeout,
+                  self.estimator.gantry_damping)
+        if perturbed:
+            robot.start_pushes()
+
     def _use_engine(self, engine: str) -> None:
         """Run the task on ``engine``'s robot from now on (same description: same rates and spaces)."""
         robot = self.engines.robot(engine)
         if _timestep(robot) != self.rates.physics_dt:
             raise ValueError(f"the {engine} robot steps {_timestep(robot)} s, the runtime {self.rates.physics_dt} s")
-        self.task.bind(robot, self.rates)
+        self._bind(self.task, robot)
         if self.task.action_space != self.action_space or self.task.observation_space != self.observation_space:
             raise ValueError(f"the task's spaces on {engine} differ from those on {self.engine}")
         self.engine, self.sim_robot, self.engine_robot = engine, robot, self.engines.engine_robot(engine)

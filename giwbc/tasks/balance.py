@@ -252,7 +252,7 @@ class G1Balance(FloatingBaseTask):
         return q, np.zeros(self._pin_model.nv)
 
     def reset_task(self) -> None:
-        self._base = None
+        self._base = self._observed = None
         self.last_action = np.zeros(self.layout.size)
         self.previous_action = np.zeros(self.layout.size)
         self.controller.reset(self.robot)

@@ -1,5 +1,6 @@
 """What every Task over a floating-base robot reads the same way: the base state once per robot
-time, the pelvis tilt, and the fall test that reward, termination and info share."""
+time, the pelvis tilt, and the fall test that reward, termination and info share (on the true
+base where a simulation estimates the one the task observes: :attr:`Task.truth`)."""
 
 from __future__ import annotations
 
@@ -25,13 +26,24 @@ class FloatingBaseTask(Task):
     description: RobotDescription
     layout: ResidualLayout
     _base: tuple[float, BaseState] | None = None
+    _observed: tuple[float, BaseState] | None = None
 
     def base_state(self) -> BaseState:
-        """The robot's base state, read once per robot time (reward, termination and info share it)."""
+        """The true base state, read once per robot time (reward, termination and info share it)."""
         now = self.robot.time()
         if self._base is None or self._base[0] != now:
-            self._base = (now, self.robot.base_state())
+            self._base = (now, self.truth.base_state())
         return self._base[1]
+
+    def observed_base_state(self) -> BaseState:
+        """The base state the robot reports (estimated, on hardware or with an estimator in a
+        simulation's loop), read once per robot time: what observations and controllers use."""
+        if self._truth is None:
+            return self.base_state()
+        now = self.robot.time()
+        if self._observed is None or self._observed[0] != now:
+            self._observed = (now, self.robot.base_state())
+        return self._observed[1]
 
     def tilt(self) -> float:
         """Angle between the pelvis z axis and the vertical (rad)."""

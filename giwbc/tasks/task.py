@@ -105,13 +105,17 @@ class Task(abc.ABC):
 
     def __init__(self) -> None:
         self._robot: Robot | None = None
+        self._truth: Robot | None = None
         self._rates: Rates | None = None
         self._np_random: np.random.Generator | None = None
 
     # --- wiring (done by the runtime) --------------------------------------------------------
-    def bind(self, robot: Robot, rates: Rates) -> None:
-        """Attach the robot and the rates, then create the spaces (called once by the runtime)."""
+    def bind(self, robot: Robot, rates: Rates, truth: Robot | None = None) -> None:
+        """Attach the robot and the rates, then create the spaces (called once by the runtime).
+        ``truth``: where a simulation runs the task on measured or estimated quantities, the robot
+        reporting the simulated truth (for reward, termination and info; None: ``robot``)."""
         self._robot = robot
+        self._truth = truth
         self._rates = rates
         self.action_space, self.observation_space = self.create_spaces()
 
@@ -120,6 +124,11 @@ class Task(abc.ABC):
         if self._robot is None:
             raise RuntimeError(f"{type(self).__name__} is not bound to a robot; a runtime binds it")
         return self._robot
+
+    @property
+    def truth(self) -> Robot:
+        """The robot reporting the true state: the simulation's (when the runtime gave one), else :attr:`robot`."""
+        return self._truth if self._truth is not None else self.robot
 
     @property
     def rates(self) -> Rates:

@@ -178,6 +178,8 @@ class G1Walk(FloatingBaseTask):
         if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
             config = replace(config, balance=replace(config.balance, **wbc_options))
         self.walker = WalkingController(description, config, description.pinocchio_model)
+        order = [c.link for c in description.contacts]  # an estimator's contact order
+        self._plans = {side: np.array([link == c.link for link in order]) for side, c in self.walker.contacts.items()}
         self.q0 = description.default_configuration()
         self.min_height = min_height_ratio * float(self.q0[2])
         self.default_positions = description.default_positions
@@ -223,10 +225,11 @@ class G1Walk(FloatingBaseTask):
         return q, np.zeros(len(q) - 1)
 
     def reset_task(self) -> None:
-        self._base = None
+        self._base = self._observed = None
         self._terminated = None
         self.result = None
-        self.schedule = self.commands.draw(self.np_random)
+        start = self.robot.time()  # 0, or the end of a start-up calibration (an estimator in the loop)
+        self.schedule = [(start + t, command) for t, command in self.commands.draw(self.np_random)]
         self._next_command = 0
         self.command = np.zeros(3)
         self.last_action = np.zeros(self.layout.size)
@@ -244,7 +247,7 @@ class G1Walk(FloatingBaseTask):
             walker.set_step_residual(step[:2], float(step[2]))
         if "com" in residuals or "orientation" in residuals:
             com = residuals.get("com", np.zeros(3))
-            yaw = _yaw(self.robot.base_state().quaternion)
+            yaw = _yaw(self.observed_base_state().quaternion)
             c, s = math.cos(yaw), math.sin(yaw)
             dcm = np.array([c * com[0] - s * com[1], s * com[0] + c * com[1]])
             walker.set_reference_residual(dcm, float(com[2]), residuals.get("orientation"))
@@ -259,6 +262,9 @@ class G1Walk(FloatingBaseTask):
             self.walker.set_command(*schedule[self._next_command][1])
             self._next_command += 1
         self.result = self.walker.step(robot)
+        set_plan = getattr(robot, "set_contact_plan", None)
+        if set_plan is not None:  # an estimating robot: a swinging foot is never taken as a stance foot
+            set_plan(self._plans[self.walker.state.stance] if self.walker.phase is Phase.SINGLE else None)
 
     def is_terminated(self) -> bool:
         """Fallen (base low or tilted), or, with ``joint_limit_margin``, a joint beyond its soft limits."""
@@ -276,9 +282,9 @@ class G1Walk(FloatingBaseTask):
         return None if self.result is None else self.result.failure()
 
     # --- outputs --------------------------------------------------------------------------
-    def heading_velocity(self) -> np.ndarray:
-        """Base ``(vx, vy, yaw_rate)`` in the heading frame (yaw of the pelvis)."""
-        base = self.base_state()
+    def heading_velocity(self, base: BaseState | None = None) -> np.ndarray:
+        """Base ``(vx, vy, yaw_rate)`` in the heading frame (yaw of the pelvis): of ``base``, else the true base."""
+        base = self.base_state() if base is None else base
         yaw = _yaw(base.quaternion)
         c, s = math.cos(yaw), math.sin(yaw)
         v = base.linear_velocity
@@ -288,7 +294,7 @@ class G1Walk(FloatingBaseTask):
         robot, walker = self.robot, self.walker
         imu = robot.imu()
         up = quat_to_matrix(imu.quaternion)[2]
-        base = self.base_state()
+        base = self.observed_base_state()
         yaw = _yaw(base.quaternion)
         c, s = math.cos(yaw), math.sin(yaw)
         phase = walker.phase
@@ -300,7 +306,7 @@ class G1Walk(FloatingBaseTask):
             ANGULAR_VELOCITY_SCALE * imu.angular_velocity,
             robot.joint_positions() - self.default_positions,
             JOINT_VELOCITY_SCALE * robot.joint_velocities(),
-            self.heading_velocity(),
+            self.heading_velocity(base),
             self.command,
             [float(phase is p) for p in _PHASES],
             [1.0 if walker.state.stance == "left" else -1.0, walker.phase_progress()],
