@@ -122,3 +122,10 @@ def test_options_parse(g1):
     assert SimToReal.from_dict({"estimator": True}).estimator == EstimatorInLoop()
     given = SimToReal.from_dict({"estimator": {"startup_blocks": 16, "config": {"contact_on": 0.2}}}).estimator
     assert given.startup_blocks == 16 and given.estimator(g1).config.contact_on == 0.2
+
+
+def test_gymnasium_checker_passes_with_the_estimator(make):
+    from gymnasium.utils.env_checker import check_env
+
+    env = make()
+    check_env(env, skip_render_check=True)
