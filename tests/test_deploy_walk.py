@@ -53,6 +53,21 @@ def test_walks_forward_over_the_emulated_buses_on_the_estimate(g1, model, tmp_pa
     assert walking["steps"] >= 5 and walking["single_support_ticks"] > 200
 
 
+def test_walks_on_the_estimate_of_a_datasheet_imu(g1, model, tmp_path):
+    """The emulated AHRS (turn-on gyro bias ~0.5 deg/s, orientation output off by ~0.3 deg, noise,
+    latency): the estimate restarts from its calibration just before the walker's first tick, and
+    that transient must not read as a push (it once started a recovery step that stopped the
+    standing G1 on an ankle roll's soft limit)."""
+    options = DeployOptions(  # giwbc deploy's own start-up (the calibration ends ~14 s in)
+        emulate=True, controller="walk", seconds=2.0, realtime=False, walk=WalkCommand(vx=0.3, walk_delay=0.5),
+        log=str(tmp_path / "walk.mcap"), scene_rate=0.0, imu_profile="ahrs",
+    )  # fmt: skip
+    outcome = deploy(options, model=model, description=g1, out=None)
+    assert outcome.exit_code == 0, outcome.message
+    assert outcome.standing["stood"] and outcome.standing["dx"] > 0.2 and abs(outcome.standing["dy"]) < 0.1
+    assert outcome.walking["steps"] >= 2
+
+
 def test_steps_in_place_within_a_small_area(g1, model, tmp_path):
     outcome = _walk(g1, model, tmp_path, WalkCommand(step_in_place=True, walk_delay=0.5), 3.5)
     standing, walking = outcome.standing, outcome.walking

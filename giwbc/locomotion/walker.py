@@ -163,7 +163,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._dcm_shaper = DcmErrorShaper(self.config.adapt_deadband, self.config.adapt_filter)
         self._recovering = False
         self._crouch = 0.0
-        self._lead_after = -math.inf
+        self._lead_after: float | None = None  # set at the first tick: start_settle_time after it
         self._xi_previous: np.ndarray | None = None
         self._xi_rate: np.ndarray | None = None
         self._last_cop: np.ndarray | None = None
@@ -221,6 +221,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         if not self._anchored:
             self.reset(q)
         self._time = t = float(t)
+        if self._lead_after is None:
+            self._lead_after = t + self.config.start_settle_time
         self._measure(q, v)
         omega = self.omega
         com, com_velocity = self._com, self._com_velocity

@@ -80,6 +80,12 @@ class WalkerConfig:
     # wider recovery box 29/40 vs 25/40; the wider box alone 18/40, a narrower one 16/40).
     trigger_lead: bool = True
     lead_settle_time: float = 0.5  # s after a walk stops: the capture point alone decides (the stop's own transient reads as a push)
+    # s after the walker's first tick: the capture point alone decides, as after a stop. Deployed, the
+    # estimate restarts from its calibration just before the walker's first tick, and that restart
+    # plus the controller taking over from the joint hold read as a push: with the AHRS IMU emulated
+    # (giwbc deploy --imu-profile ahrs) the disturbance lead was -1.4 m/s on the first tick and the
+    # standing G1 started a recovery step it did not need, which stopped it on an ankle roll's soft limit.
+    start_settle_time: float = 0.0
     recovery_landing_box: tuple[tuple[float, float], tuple[float, float]] | None = ((-0.45, 0.5), (0.17, 0.75))  # standing recovery's (None: landing_box)
     # Where a recovering step's adapter holds the CoP: "edge" (the stance sole's point nearest the
     # DCM, where the DCM controller clips it), "centre" (the sole centre), or "auto" (the edge, but
@@ -117,8 +123,10 @@ class WalkerConfig:
             raise ValueError(f"recovery_max_crouch must be in [0, 0.5) m, got {self.recovery_max_crouch}")
         if self.recovery_cop not in ("edge", "centre", "auto"):
             raise ValueError(f"recovery_cop must be 'edge', 'centre' or 'auto', got {self.recovery_cop!r}")
-        if not (self.lead_settle_time >= 0.0 and math.isfinite(self.lead_settle_time)):
-            raise ValueError(f"lead_settle_time must be finite and >= 0, got {self.lead_settle_time}")
+        for name in ("lead_settle_time", "start_settle_time"):
+            value = getattr(self, name)
+            if not (value >= 0.0 and math.isfinite(value)):
+                raise ValueError(f"{name} must be finite and >= 0, got {value}")
         for name in ("landing_box", "recovery_landing_box"):
             box = getattr(self, name)
             if box is None and name == "recovery_landing_box":
@@ -141,6 +149,7 @@ class WalkerConfig:
 # sole edge after ~9 steps. (tests/test_deploy_walk.py)
 DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
     "touchdown_force": 0.35, "swing_kp": 250.0, "adapt_deadband": 0.03, "adapt_filter": 0.02, "max_adjustment": 0.1,
+    "start_settle_time": 0.5,
 })  # fmt: skip
 WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS})
 
