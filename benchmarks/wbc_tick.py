@@ -63,6 +63,15 @@ def _stats(values_s: list[float]) -> dict[str, float]:
     return {"median": round(float(np.median(us)), 1), "p99": round(float(np.percentile(us, 99)), 1), "max": round(float(us.max()), 1)}
 
 
+def _stage_medians(timings: list) -> dict[str, float]:
+    """Median µs of each part of ticks' ``WbcTimings`` (``result``: the rest of the tick)."""
+    if not timings:
+        return {}
+    parts = {key: [getattr(t, key) for t in timings] for key in ("pinocchio", "build", "solve", "total")}
+    parts["result"] = [t.total - t.pinocchio - t.build - t.solve for t in timings]
+    return {key: round(float(np.median(values)) * 1e6, 1) for key, values in parts.items()}
+
+
 def _guess_stats(solver) -> dict | None:
     guess = getattr(solver, "guess", None)
     if guess is None or not guess.tries:
@@ -141,15 +150,16 @@ def record_walk(description, seconds: float, speed: float = 0.3, seed: int = 0) 
     return inputs
 
 
-def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str, list[float]], int]:
+def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str, list], int]:
     """Replay the recorded inputs through a fresh walking controller; tick times by kind (and,
-    across kinds, ``guess``/``backend``: the ticks the active-set guess answered, the others)."""
+    across kinds, ``guess``/``backend``: the ticks the active-set guess answered, the others;
+    ``single_stages``/``double_stages``: those ticks' ``WbcTimings``)."""
     from giwbc.locomotion.walker import Phase, WalkingController
 
     walker = WalkingController(description)
     walker.reset(inputs[0][0])
     names = [contact.name for contact in walker.contacts.values()]
-    kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": [], "guess": [], "backend": []}
+    kinds: dict[str, list] = {"single": [], "double": [], "switch": [], "guess": [], "backend": [], "single_stages": [], "double_stages": []}
     previous = None
     failures = 0
     for i, (q, v, t, forces, start) in enumerate(inputs):
@@ -165,8 +175,10 @@ def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str
                 kinds["switch"].append(result.timings.total)
             elif phase is Phase.SINGLE:
                 kinds["single"].append(result.timings.total)
+                kinds["single_stages"].append(result.timings)
             elif phase is Phase.DOUBLE or walker.state.steps:
                 kinds["double"].append(result.timings.total)
+                kinds["double_stages"].append(result.timings)
         previous = activations
     return kinds, failures
 
@@ -275,7 +287,7 @@ def main(argv: list[str] | None = None) -> int:
     states, in_loop = record(description, args.solver, args.seconds, settings)
 
     walk_inputs = record_walk(description, args.walk_seconds) if args.walk else []
-    walk_kinds: dict[str, list[float]] = {"single": [], "double": [], "switch": [], "guess": [], "backend": []}
+    walk_kinds: dict[str, list] = {"single": [], "double": [], "switch": [], "guess": [], "backend": [], "single_stages": [], "double_stages": []}
     walk_failures = 0
 
     controller = make_balance_controller(description, solver=args.solver, solver_settings=settings)
@@ -331,6 +343,8 @@ def main(argv: list[str] | None = None) -> int:
         "walking": None if not walk_inputs else {
             "single_support_us": _stats(walk_kinds["single"]),
             "double_support_us": _stats(walk_kinds["double"]),
+            # Where a walking tick's time goes (medians, µs; tick_us above: the standing tick's).
+            "stages_median_us": {kind: _stage_medians(walk_kinds[f"{kind}_stages"]) for kind in ("single", "double")},
             "contact_switch_us": _stats(walk_kinds["switch"]),
             # The ticks the guess answered and those that ran proxsuite + polish: the latter set
             # the walking tick's p99 (``p99_guess_only_us``: what it would be without them).
