@@ -263,3 +263,25 @@ def test_an_episode_ends_where_the_deployment_safety_would_stop_the_robot(make) 
     assert not any(free.step(zero)[2] for _ in range(step + 1))
     with pytest.raises(ValueError, match="joint_limit_margin"):
         make(joint_limit_margin=-0.1)
+
+
+def test_the_joint_limit_reward_costs_each_radian_beyond_the_band(make):
+    """``rewards={"joint_limits": w}``: w per rad a joint is beyond ``joint_limit_band`` of its half
+    range from the middle (legged_gym's dof_pos_limits), nothing inside it."""
+    plain, shaped = make(commands=FORWARD), make(commands=FORWARD, rewards={"joint_limits": 10.0, "joint_limit_band": 0.8})
+    rewards = []
+    for env in (plain, shaped):
+        env.reset(seed=0)
+        task = env.task
+        q, v = env.sim_robot.generalized_state()
+        j = task.description.joint_names.index("left_ankle_roll_joint")
+        lower, upper = task.description.position_limits
+        q[7 + j] = upper[j] - 0.01  # beyond the band, inside the limit
+        env.sim_robot.reset(q, v)
+        task._base = task._observed = None
+        rewards.append(task.get_reward())
+        excess = q[7 + j] - 0.8 * upper[j]  # the ankle roll's limits are symmetric
+    assert excess > 0.02
+    assert rewards[0] - rewards[1] == pytest.approx(10.0 * excess, rel=1e-9)
+    with pytest.raises(ValueError, match="joint_limit_band"):
+        make(rewards={"joint_limit_band": 0.0})

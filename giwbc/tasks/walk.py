@@ -104,6 +104,18 @@ class WalkRewards:
     effort: float = 0.05  # times the mean squared effort / effort limit
     action_rate: float = 0.05  # times the mean squared action change
     fall: float = 20.0
+    # Per rad a joint is beyond `joint_limit_band` of its half range from the middle, summed over the
+    # joints (legged_gym's dof_pos_limits): a dense signal before the deployment's soft limits (which
+    # `joint_limit_margin` turns into a fall) — the G1's ankle rolls reach 0.17-0.22 of their 0.26 rad
+    # in lateral and turning steps. 0: off.
+    joint_limits: float = 0.0
+    joint_limit_band: float = 0.8
+
+    def __post_init__(self) -> None:
+        if not (0.0 < self.joint_limit_band <= 1.0):
+            raise ValueError(f"joint_limit_band must be in (0, 1], got {self.joint_limit_band}")
+        if not (self.joint_limits >= 0.0 and math.isfinite(self.joint_limits)):
+            raise ValueError(f"joint_limits must be finite and >= 0, got {self.joint_limits}")
 
 
 @dataclass(frozen=True)
@@ -173,6 +185,11 @@ class G1Walk(FloatingBaseTask):
         lower, upper = description.position_limits
         margin = self.joint_limit_margin or 0.0
         self._soft_lower, self._soft_upper = np.asarray(lower, dtype=float) + margin, np.asarray(upper, dtype=float) - margin
+        middle, half = 0.5 * (np.asarray(upper, float) + np.asarray(lower, float)), 0.5 * (np.asarray(upper, float) - np.asarray(lower, float))
+        finite = np.isfinite(middle) & np.isfinite(half)
+        band = self.rewards.joint_limit_band * half
+        self._band_lower = np.where(finite, middle - band, -np.inf)
+        self._band_upper = np.where(finite, middle + band, np.inf)
         self._terminated: tuple[float, bool] | None = None
         config = walker_config(walker)
         if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
@@ -322,6 +339,10 @@ class G1Walk(FloatingBaseTask):
         yaw_error = velocity[2] - self.command[2]
         effort = self.robot.joint_efforts() * self._effort_scale
         change = self.last_action - self.previous_action
+        beyond = 0.0
+        if w.joint_limits:
+            q = self.truth.joint_positions()
+            beyond = float(np.sum(np.maximum(q - self._band_upper, 0.0) + np.maximum(self._band_lower - q, 0.0)))
         return float(
             w.alive
             + w.tracking * math.exp(-float(error @ error) / w.tracking_width**2)
@@ -329,6 +350,7 @@ class G1Walk(FloatingBaseTask):
             + w.upright * math.exp(-((self.tilt() / w.upright_width) ** 2))
             - w.effort * float(effort @ effort) / effort.size
             - w.action_rate * float(change @ change) / change.size
+            - w.joint_limits * beyond
             - (w.fall if self.is_terminated() else 0.0)
         )
 
