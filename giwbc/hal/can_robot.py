@@ -170,6 +170,7 @@ class CanRobot(DescribedRobot):
         self._stale = np.zeros(dofs, dtype=np.int64)
         self._replied = np.zeros(dofs, dtype=bool)
         self._effort = description.effort_limits
+        self._neg_effort = -self._effort
         self._gain_scale = 1.0
         self.command = ImpedanceCommand.damping(dofs, 0.0)
         self.clamp_counts = np.zeros((dofs, 5), dtype=np.int64)  # per joint and field, cumulative
@@ -447,7 +448,8 @@ class CanRobot(DescribedRobot):
             raise NonFiniteCommand(f"impedance command is not finite: {command}")
         if (rows[2:4] < 0).any():
             raise ValueError("impedance gains kp and kd must be >= 0")
-        np.clip(rows[4], -self._effort, self._effort, out=rows[4])
+        torque = rows[4]  # clipped to the effort limits (finite: min(max(.)) is np.clip, without its wrapper)
+        np.minimum(np.maximum(torque, self._neg_effort, out=torque), self._effort, out=torque)
         if self._gain_scale != 1.0:
             rows[2:4] *= self._gain_scale
         self.command = ImpedanceCommand(rows[0], rows[1], rows[2], rows[3], rows[4])
@@ -458,6 +460,7 @@ class CanRobot(DescribedRobot):
         if not (0 < torque_fraction <= 1 and 0 < gain_fraction <= 1):
             raise ValueError(f"fractions must be in (0, 1], got torque {torque_fraction}, gains {gain_fraction}")
         self._effort = self.description.effort_limits * torque_fraction
+        self._neg_effort = -self._effort
         self._gain_scale = float(gain_fraction)
 
     # --- latest measurements, without copies (the runtime and the supervisor read them) ---------
