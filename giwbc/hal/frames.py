@@ -513,13 +513,23 @@ class PortGroup:
                 got, more, errors[b] = ports[b].receive_raw(per_bus[b], None, None)
                 counts[b] += got
                 skipped[b] += more
-        raw = b"".join(chunk for chunks in per_bus for chunk in chunks)
+        raw = b"".join([chunk for chunks in per_bus for chunk in chunks])
         batch = np.frombuffer(raw, dtype=FRAME) if raw else _NO_FRAMES
         return GroupReceived(batch, np.repeat(self._buses, counts), tuple(skipped), tuple(errors))
 
     def _sockets(self, buses: Sequence[int]) -> tuple[dict[int, int], list[int]]:
         """The descriptors of ``buses`` to wait on ({fd: bus}) and the buses without one (a port
         with no socket yet, a python-can bus that has no descriptor): those are polled."""
+        direct = self._direct_sockets()
+        if direct is not None:  # every bus a socket: its descriptor, unless it was closed (then as below)
+            found: dict[int, int] = {}
+            for b in buses:
+                fd = direct[b].fileno()
+                if fd < 0:
+                    break
+                found[fd] = b
+            else:
+                return found, []
         sockets: dict[int, int] = {}
         polled = []
         ports = self.ports
