@@ -21,7 +21,11 @@ them. Measured over the running phase only:
 - CPU time per cycle (thread time), the host's CAN path alone (drain, encode, send, receive,
   decode, IMU, estimator) and the host's CPU time per CAN frame (one command plus one reply per
   motor and cycle); the emulator's CPU time (its own process, or the loop's thread in lockstep);
-- the bus loads of the hardware plan at that rate.
+- the bus loads of the hardware plan at that rate;
+- with ``--controller walk``, ``walking.contact_switches``: how many of the slowest 1 % of cycles
+  are contact-switch cycles (the walker's tick where its phase or stance changed, and the next one:
+  a lift-off or touch-down plans and changes the WBC's contacts and tasks), and the host work p99
+  of the other cycles (recording the walker's phase costs its tick about a microsecond).
 
 ``--emulator process`` (default): the emulator runs in its own process on ``giwbc-unix`` channels
 (as motors run on their own hardware), on its own real-time clock and its own CPU; the CAN robot
@@ -147,6 +151,27 @@ def _overrun_causes(stats, period: float) -> dict[str, int]:
     }
 
 
+def _switch_share(work: list[float], phases: dict[int, tuple[object, object]], first: int) -> dict[str, object]:
+    """Host work at the walker's contact switches: the tick whose phase (or stance) changed (a
+    lift-off or a touch-down: the walker plans, the WBC's contacts and tasks change) and the one
+    after it, against the others: how many of the slowest 1 % of cycles are switch cycles, and the
+    p99 of the other cycles."""
+    work_us = 1e6 * np.asarray(work)
+    switch = np.zeros(len(work_us), dtype=bool)
+    for k in range(len(work_us)):
+        now, before = phases.get(first + k), phases.get(first + k - 1)
+        if now is not None and before is not None and now != before:
+            switch[k : k + 2] = True
+    slowest = np.argsort(work_us)[len(work_us) - max(1, len(work_us) // 100):] if len(work_us) else np.zeros(0, dtype=int)
+    return {
+        "switch_cycles": int(switch.sum()),
+        "slowest_1pct": len(slowest),
+        "slowest_1pct_at_switches": int(switch[slowest].sum()),
+        "work_p99_us_without_switch_cycles": float(np.percentile(work_us[~switch], 99)) if (~switch).any() else None,
+        "work_mean_us_switch_cycles": float(work_us[switch].mean()) if switch.any() else None,
+    }
+
+
 def _free_port() -> int:
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -182,6 +207,16 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
                                   stdout=subprocess.PIPE, text=True)  # fmt: skip
     runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, safety=BENCHMARK_SAFETY, recorders=recorders,
                               startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.1, off_delay=0.05))  # fmt: skip
+    phases: dict[int, tuple[object, object]] = {}  # the walker's (phase, stance) after each tick, by the cycle's index in the clock's stats
+    if hold is not None:
+        apply = task.apply_command
+
+        def recorded_apply() -> None:
+            apply()
+            state = hold.walker.state
+            phases[len(runtime.clock.stats.work)] = (state.phase, state.stance)
+
+        task.apply_command = recorded_apply  # type: ignore[method-assign]
     marks: dict[str, dict[str, object]] = {}
     original = runtime._set_phase
 
@@ -229,7 +264,8 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         truth = emulator.truth_between(runtime.phase_times.get("running", 0.0), runtime.phase_times.get("shutdown", math.inf))
         walking = {"vx": vx, "steps": task.controller.steps,
                    "dx_m": float(truth[-1, 3] - truth[0, 3]) if len(truth) else None,
-                   "max_tilt_deg": float(np.degrees(truth[:, 2].max())) if len(truth) else None}  # fmt: skip
+                   "max_tilt_deg": float(np.degrees(truth[:, 2].max())) if len(truth) else None,
+                   "contact_switches": _switch_share(stats.work, phases, first if first is not None else 0)}  # fmt: skip
     return {
         "controller": controller,
         "walking": walking,

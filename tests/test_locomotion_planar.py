@@ -59,3 +59,28 @@ def test_polygon_clips_equal_the_numpy_formulation() -> None:
         assert np.array_equal(clip_along_ray(origin, point, hull), _numpy_clip_along_ray(origin, point, hull))
         inside = signed_distance(point, hull) <= 0.0
         assert inside == np.array_equal(clip_to_polygon(point, hull), point)
+
+
+def test_convex_hull_is_the_ccw_strictly_convex_hull_of_its_points() -> None:
+    """Duplicates, collinear points and two soles' corners: the hull's vertices are input points,
+    counter-clockwise with no collinear vertex, starting at the lowest (x, y); every point lies in it."""
+    rng = np.random.default_rng(3)
+    for trial in range(300):
+        if trial % 3 == 0:
+            points = np.vstack([sole_corners(rng.normal(size=2) * 0.2, rng.normal(), 0.1, 0.04) for _ in range(2)])
+        else:  # a small integer grid: many duplicates and collinear triples
+            points = rng.integers(-2, 3, size=(int(rng.integers(3, 12)), 2)).astype(float)
+        hull = convex_hull(points)
+        distinct = np.unique(points, axis=0)
+        assert {tuple(v) for v in hull.tolist()} <= {tuple(p) for p in points.tolist()}
+        if len(distinct) < 3:
+            assert np.array_equal(hull, distinct)
+            continue
+        assert tuple(hull[0]) == tuple(distinct[0])  # Andrew's chain starts at the smallest (x, y)
+        edges = np.roll(hull, -1, axis=0) - hull
+        turns = edges[:, 0] * np.roll(edges, -1, axis=0)[:, 1] - edges[:, 1] * np.roll(edges, -1, axis=0)[:, 0]
+        if len(hull) >= 3:
+            assert (turns > 0).all()  # counter-clockwise, strictly convex
+        for p in points:
+            cross = edges[:, 0] * (p[1] - hull[:, 1]) - edges[:, 1] * (p[0] - hull[:, 0])
+            assert (cross >= -1e-12).all()

@@ -35,7 +35,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from giwbc.hal.bus import BUS_ERRORS, DROPPED, RETRIES, SENT, UNKNOWN, VERDICT_COLUMNS, CanBusLink
+from giwbc.hal.bus import BUS_ERRORS, DROPPED, RECEIVED, RETRIES, SENT, UNKNOWN, VERDICT_COLUMNS, CanBusLink
 from giwbc.hal.can_imu import CanImu
 from giwbc.hal.frames import GroupReceived, PortGroup
 from giwbc.hal.hardware import HardwarePlan
@@ -51,6 +51,7 @@ if TYPE_CHECKING:
 
 COMMAND, ENTER, EXIT = "command", "enter", "exit"
 _SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
+assert _SEND_COLUMNS[:3] == [0, 1, 2]  # (exchange adds the first three as one slice)
 _SEND_BUDGET = 5e-3  # s: how long sending may take when the caller gives no deadline
 
 
@@ -158,6 +159,10 @@ class CanRobot(DescribedRobot):
         for b, link in enumerate(self.links):
             link.counts = self._link_counts[b]
         self._plan_order = np.arange(len(self.motors))  # the steady state: one reply per motor, in plan order
+        self._plan_order_bytes = self._plan_order.tobytes()
+        # What a steady read adds to the link counters: every motor's reply received on its bus.
+        plan_bus = np.repeat(np.arange(len(self.links)), np.diff(bounds))
+        self._steady_counts = np.bincount(plan_bus * 8 + RECEIVED, minlength=self._link_counts.size).reshape(self._link_counts.shape)
         self._no_corrupt = np.zeros(len(self.links), dtype=np.int64)
         self._no_frames = np.zeros(len(self.links), dtype=np.int64)  # expected per bus when draining
 
@@ -170,6 +175,7 @@ class CanRobot(DescribedRobot):
         self._stale = np.zeros(dofs, dtype=np.int64)
         self._replied = np.zeros(dofs, dtype=bool)
         self._effort = description.effort_limits
+        self._neg_effort = -self._effort
         self._gain_scale = 1.0
         self.command = ImpedanceCommand.damping(dofs, 0.0)
         self.clamp_counts = np.zeros((dofs, 5), dtype=np.int64)  # per joint and field, cumulative
@@ -225,7 +231,9 @@ class CanRobot(DescribedRobot):
             port.last_error = None  # type: ignore[attr-defined]
         outcomes = np.array(self.ports.send(batch, self._bounds, deadline, timeout=self._send_timeouts, retries=self._send_retries))
         driver_errors = tuple(getattr(port, "last_error", None) for port in ports)
-        self._link_counts[:, _SEND_COLUMNS] += outcomes
+        counts = self._link_counts  # += outcomes in the columns SENT, DROPPED, RETRIES (0-2) and BUS_ERRORS
+        counts[:, :3] += outcomes[:, :3]
+        counts[:, BUS_ERRORS] += outcomes[:, 3]
         dropped = int(outcomes[:, 1].sum())
         self.send_dropped += dropped
         t1 = sent = time.perf_counter()
@@ -316,7 +324,9 @@ class CanRobot(DescribedRobot):
         for part in received:
             self._count_received(part)
             skipped += sum(part.skipped)
-        if len(bus):
+        if decoded.index.tobytes() == self._plan_order_bytes:  # every motor once, in plan order: all replies, each on its bus
+            self._link_counts += self._steady_counts
+        elif len(bus):
             self._link_counts += np.bincount(bus * 8 + VERDICT_COLUMNS[decoded.verdict], minlength=self._link_counts.size).reshape(self._link_counts.shape)
         return decoded, bus, skipped
 
@@ -358,7 +368,7 @@ class CanRobot(DescribedRobot):
         """Receive every bus's replies (see :meth:`_receive`) and update the joint state with the
         newest reply of each motor. Returns (replied per joint, corrupt frames per bus, unknown frames)."""
         decoded, bus, skipped = self._receive(deadline)
-        if np.array_equal(decoded.index, self._plan_order):  # the steady state: every motor once, in order
+        if decoded.index.tobytes() == self._plan_order_bytes:  # the steady state: every motor once, in order
             state = self.group.states_to_joint(decoded.state)
             rows: Any = slice(None)
             j = self.joint_index
@@ -447,7 +457,8 @@ class CanRobot(DescribedRobot):
             raise NonFiniteCommand(f"impedance command is not finite: {command}")
         if (rows[2:4] < 0).any():
             raise ValueError("impedance gains kp and kd must be >= 0")
-        np.clip(rows[4], -self._effort, self._effort, out=rows[4])
+        torque = rows[4]  # clipped to the effort limits (finite: min(max(.)) is np.clip, without its wrapper)
+        np.minimum(np.maximum(torque, self._neg_effort, out=torque), self._effort, out=torque)
         if self._gain_scale != 1.0:
             rows[2:4] *= self._gain_scale
         self.command = ImpedanceCommand(rows[0], rows[1], rows[2], rows[3], rows[4])
@@ -458,6 +469,7 @@ class CanRobot(DescribedRobot):
         if not (0 < torque_fraction <= 1 and 0 < gain_fraction <= 1):
             raise ValueError(f"fractions must be in (0, 1], got torque {torque_fraction}, gains {gain_fraction}")
         self._effort = self.description.effort_limits * torque_fraction
+        self._neg_effort = -self._effort
         self._gain_scale = float(gain_fraction)
 
     # --- latest measurements, without copies (the runtime and the supervisor read them) ---------

@@ -435,6 +435,17 @@ class PortGroup:
     def __init__(self, ports: Sequence[FramePort]) -> None:
         self.ports = tuple(ports)
         self._buses = np.arange(len(self.ports), dtype=np.int64)
+        # Every port a SocketPort whose socket is there: the sockets (a SocketPort keeps its socket
+        # once it has one, so they stay the ports' own); until then, None.
+        self._direct: tuple[socket.socket, ...] | None = None
+
+    def _direct_sockets(self) -> tuple[socket.socket, ...] | None:
+        """The sockets of every bus when each port is a :class:`SocketPort` that has its socket
+        (then the group moves frames on them itself, as the ports would, without a call per
+        port); None otherwise (a MessagePort, a bus whose peer has not connected yet)."""
+        if self._direct is None and self.ports and all(type(p) is SocketPort and p._socket is not None for p in self.ports):
+            self._direct = tuple(p._socket for p in self.ports)  # type: ignore[attr-defined]
+        return self._direct
 
     def send(self, batch: np.ndarray, bounds: Sequence[int], deadline: float, *, timeout: Sequence[float],
              retries: Sequence[int]) -> list[tuple[int, int, int, int]]:  # fmt: skip
@@ -443,6 +454,12 @@ class PortGroup:
         :meth:`FramePort.send` counts them."""
         raw = batch.tobytes()
         size = CLASSIC_FRAME_SIZE
+        direct = self._direct_sockets()
+        if direct is not None:  # SocketPort.send_raw of each, without the calls
+            return [
+                _send_raw(sock, raw[size * a : size * b], deadline, t, r)
+                for sock, a, b, t, r in zip(direct, bounds[:-1], bounds[1:], timeout, retries)
+            ]
         return [
             port.send_raw(raw[size * a : size * b], deadline, t, r)
             for port, a, b, t, r in zip(self.ports, bounds[:-1], bounds[1:], timeout, retries)
@@ -467,11 +484,16 @@ class PortGroup:
         order = self._buses if buses is None else buses
         ports = self.ports
         short = []
+        direct = self._direct_sockets()
+        needs = None if need is None else need.tolist() if isinstance(need, np.ndarray) else need
         for b in order:
-            limit = None if need is None else int(need[b])
+            limit = None if needs is None else int(needs[b])
             if limit == 0:
                 continue
-            counts[b], skipped[b], errors[b] = ports[b].receive_raw(per_bus[b], None, limit)
+            if direct is not None:  # SocketPort.receive_raw, without the call
+                counts[b], skipped[b], errors[b] = _receive_raw(direct[b], per_bus[b], None, limit, ports[b].name)  # type: ignore[attr-defined]
+            else:
+                counts[b], skipped[b], errors[b] = ports[b].receive_raw(per_bus[b], None, limit)
             if errors[b] is None and (limit is None or counts[b] < limit):
                 short.append(b)
         if deadline is not None:
@@ -491,13 +513,23 @@ class PortGroup:
                 got, more, errors[b] = ports[b].receive_raw(per_bus[b], None, None)
                 counts[b] += got
                 skipped[b] += more
-        raw = b"".join(chunk for chunks in per_bus for chunk in chunks)
+        raw = b"".join([chunk for chunks in per_bus for chunk in chunks])
         batch = np.frombuffer(raw, dtype=FRAME) if raw else _NO_FRAMES
         return GroupReceived(batch, np.repeat(self._buses, counts), tuple(skipped), tuple(errors))
 
     def _sockets(self, buses: Sequence[int]) -> tuple[dict[int, int], list[int]]:
         """The descriptors of ``buses`` to wait on ({fd: bus}) and the buses without one (a port
         with no socket yet, a python-can bus that has no descriptor): those are polled."""
+        direct = self._direct_sockets()
+        if direct is not None:  # every bus a socket: its descriptor, unless it was closed (then as below)
+            found: dict[int, int] = {}
+            for b in buses:
+                fd = direct[b].fileno()
+                if fd < 0:
+                    break
+                found[fd] = b
+            else:
+                return found, []
         sockets: dict[int, int] = {}
         polled = []
         ports = self.ports

@@ -185,8 +185,9 @@ class SafetySupervisor:
         while the specific force is near 1 g. Each new sample (by timestamp) is taken once; NaN
         when the sample is not finite."""
         quaternion = imu.quaternion
-        if not math.isnan(quaternion[0]) or not np.isnan(quaternion).all():  # (one float test on the quiet path)
-            return self.base_tilt(imu)
+        x, y, z, w = floats = np.asarray(quaternion, float).tolist()
+        if not math.isnan(x) or not all(map(math.isnan, floats)):  # (one float test on the quiet path)
+            return self._tilt_of(x, y, z, w)
         gyro, accel = np.asarray(imu.angular_velocity, float), np.asarray(imu.linear_acceleration, float)
         if not (np.isfinite(gyro).all() and np.isfinite(accel).all() and math.isfinite(imu.time)):
             return math.nan
@@ -274,7 +275,7 @@ class SafetySupervisor:
 
         inside = (q >= self.soft_lower) & (q <= self.soft_upper)
         self._armed_limits |= inside
-        beyond = self._armed_limits & ~inside & ~report.missing
+        beyond = self._armed_limits > (inside | report.missing)  # armed, outside and measured (bools: a > b is a & ~b)
         if beyond.any():
             which = ", ".join(
                 f"{names[j]}={q[j]:.3f} not in [{self.soft_lower[j]:.3f}, {self.soft_upper[j]:.3f}]" for j in np.flatnonzero(beyond)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from giwbc.locomotion.lipm import dcm_at_linear_cop, dcm_before_linear_cop
+from giwbc.locomotion.lipm import dcm_at_linear_cop
 from giwbc.locomotion.support import clip_along_ray
 
 
@@ -50,18 +50,25 @@ class DcmReference:
         self.starts = t0 + np.concatenate([[0.0], np.cumsum(durations)[:-1]])
         self.end_time = float(t0 + durations.sum())
         self.terminal = np.asarray(segments[-1].end, dtype=float)[:2].copy()
-        # Backwards: the DCM at the start of each segment.
-        self.initial = np.zeros((len(segments), 2))
-        xi = self.terminal
-        for i in range(len(segments) - 1, -1, -1):
-            s = segments[i]
-            xi = dcm_before_linear_cop(s.duration, xi, np.asarray(s.start)[:2], np.asarray(s.end)[:2], self.omega)
-            self.initial[i] = xi
+        cops = [(tuple(np.asarray(s.start, dtype=float)[:2].tolist()), tuple(np.asarray(s.end, dtype=float)[:2].tolist())) for s in segments]
+        # Backwards: the DCM at the start of each segment, :func:`~giwbc.locomotion.lipm.dcm_before_linear_cop`
+        # on plain floats (the same operations in the same order: a plan is made at every contact switch).
+        omega = self.omega
+        initial: list[tuple[float, float]] = []
+        x, y = self.terminal.tolist()
+        for s, ((sx, sy), (ex, ey)) in zip(reversed(segments), reversed(cops)):
+            duration = s.duration
+            scale, decay = duration * omega, math.exp(-omega * duration)
+            shift_x, shift_y = (ex - sx) / scale, (ey - sy) / scale
+            x = float(sx + shift_x + (x - ex - shift_x) * decay)
+            y = float(sy + shift_y + (y - ey - shift_y) * decay)
+            initial.append((x, y))
+        initial.reverse()
+        self.initial = np.array(initial, dtype=float).reshape(len(segments), 2)
         self._starts = self.starts.tolist()
         # Per segment, as floats: (duration, start time, initial DCM, CoP start, CoP end).
         self._floats = [
-            (float(seg.duration), start, tuple(self.initial[i].tolist()), tuple(np.asarray(seg.start, dtype=float)[:2].tolist()), tuple(np.asarray(seg.end, dtype=float)[:2].tolist()))
-            for i, (seg, start) in enumerate(zip(segments, self._starts))
+            (float(seg.duration), start, xi0, *cop) for seg, start, xi0, cop in zip(segments, self._starts, initial, cops)
         ]
 
     def segment_index(self, t: float) -> int:

@@ -93,6 +93,7 @@ COMMAND_LEVELS: tuple[int, ...] = tuple((1 << b) - 1 for b in COMMAND_BITS)
 _SHIFTS = (48, 36, 24, 12, 0)
 _LEVELS_F = np.array(COMMAND_LEVELS, dtype=float)
 _SHIFTS_U = np.array(_SHIFTS, dtype=np.uint64)
+_FIELD_UNITS = np.uint64(1) << _SHIFTS_U  # each field's lowest bit in the 64-bit word
 _P_LEVELS, _VT_LEVELS = 65535, 4095
 
 ENTER_MOTOR_MODE = b"\xff" * 7 + b"\xfc"
@@ -232,13 +233,13 @@ class MitCommandEncoder:
             bad = [f"{self.names[i]}.{RANGE_FIELDS[j]}" for i, j in zip(*np.nonzero(nan))]
             raise CommandValueError(f"NaN in commands: {', '.join(bad)}")
         clamped = (x < self._lo) | (x > self._hi)
-        np.clip(x, self._lo, self._hi, out=x)
+        np.minimum(np.maximum(x, self._lo, out=x), self._hi, out=x)  # np.clip (no NaN here), without its wrapper
         x -= self._lo
         x *= _LEVELS_F
         x /= self._span
         x -= 0.5
         np.ceil(x, out=x)
-        words = np.bitwise_or.reduce(x.astype(np.uint64) << _SHIFTS_U, axis=1)
+        words = x.astype(np.uint64) @ _FIELD_UNITS  # the fields' bits do not overlap: their sum is their OR
         return words.astype(">u8").view(np.uint8).reshape(n, 8), clamped
 
 
@@ -657,21 +658,23 @@ class MitReplyDecoder:
             cubemars = self._is_cubemars[k]
             kept = (verdict, decoded.index, decoded.motor_id, t[:, 1:6:2].copy(), t[:, 0:6:2].copy(), t[:, 6].copy(),
                     t[:, 8].copy(), t[:, 7].copy(), error, status)  # fmt: skip
-            self._steady = (key, (*(a.copy() for a in kept), cubemars if cubemars.any() else None))
+            limit = np.where(cubemars, CUBEMARS_MAX_ERROR, np.iinfo(np.int64).max)  # byte 7 above it: corrupt
+            self._steady = (key, (*(a.copy() for a in kept), (cubemars, limit) if cubemars.any() else None))
         return decoded
 
     def _decode_steady(self, word: NDArray[np.uint64], verdict: NDArray[Any], index: NDArray[Any], motor_id: NDArray[Any],
                        scale: NDArray[Any], low: NDArray[Any], temperature: NDArray[Any], rotor: NDArray[Any],
                        volts: NDArray[Any], error: NDArray[Any], status: NDArray[Any],
-                       cubemars: NDArray[np.bool_] | None) -> DecodedReplies | None:  # fmt: skip
+                       cubemars: tuple[NDArray[np.bool_], NDArray[np.int64]] | None) -> DecodedReplies | None:  # fmt: skip
         """:meth:`decode` of a batch whose key repeats the kept one's: the same arithmetic on the
         payload, the rest copied from the kept batch; None when a CubeMars reply carries an
         undefined error byte (the full decode says corrupt)."""
         d7 = (word & np.uint64(0xFF)).astype(np.int64)
         if cubemars is not None:
-            if (d7[cubemars] > CUBEMARS_MAX_ERROR).any():
+            rows, limit = cubemars  # the CubeMars rows, and byte 7's largest defined error code per row
+            if (d7 > limit).any():
                 return None
-            error = np.where(cubemars, d7, error)
+            error = np.where(rows, d7, error)
         else:
             error = error.copy()
         values = ((word[:, None] >> self._SHIFTS) & self._MASKS) * scale + low
