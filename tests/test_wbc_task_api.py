@@ -11,7 +11,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from giwbc.control import Kinodynamics, WbcTask, make_balance_controller
+from giwbc.control import ComTask, FramePoseTask, Kinodynamics, PostureTask, WbcTask, WholeBodyController, make_balance_controller
 from giwbc.control.kinodynamics import LWA
 from giwbc.robot import MujocoRobot
 
@@ -113,3 +113,50 @@ def test_a_custom_task_without_gains_asks_for_no_feedback(g1, rng) -> None:
     task.compute(kin)
     assert task.error[0] > 1.0 and abs(task.jacobian @ v)[0] > 1e-3
     np.testing.assert_array_equal(task.desired_acceleration(), 0.0)
+
+
+
+def _standing_tasks(g1, q0: np.ndarray) -> list[WbcTask]:
+    """CoM, pelvis orientation and posture tasks, every reference given (none held from a tick)."""
+    com = ComTask(weight=10.0, kp=50.0)
+    com.set_reference(np.array([0.0, 0.0, 0.7]))
+    pelvis = FramePoseTask(g1.base_link, "pelvis", mask=[False, False, False, True, True, True], weight=5.0, kp=80.0)
+    pelvis.set_reference(pin.SE3.Identity())
+    posture = PostureTask(dim=len(q0) - 7, weight=0.1, kp=20.0, reference=q0[7:])
+    return [com, pelvis, posture]
+
+
+def test_switching_task_sets_builds_the_same_qp_as_a_fresh_controller(g1, rng) -> None:
+    """A walker swaps a swing foot's pose task in and out: the controller reuses each task set's
+    stack. Every tick's QP (Hessian, gradient) must be bit for bit the one a new controller with
+    the same tasks builds — also after a task's weight changed while it was out."""
+    model = g1.build_pinocchio()
+    q0 = g1.default_configuration()
+    switching = WholeBodyController(model)
+    for task in _standing_tasks(g1, q0):
+        switching.add_task(task)
+    swing = FramePoseTask("left_ankle_roll_link", "swing", weight=30.0, kp=200.0)
+    target = pin.SE3(np.eye(3), np.array([0.1, 0.12, 0.1]))
+    present = 0
+    for tick in range(10):
+        q = pin.integrate(model, q0, rng.normal(0.0, 0.02, model.nv))
+        v = rng.normal(0.0, 0.3, model.nv)
+        with_swing = tick % 3 != 0
+        if with_swing and not any(t is swing for t in switching.tasks):
+            swing.set_weight(30.0 + tick)  # changed while out of the QP
+            switching.add_task(swing)
+        elif not with_swing and any(t is swing for t in switching.tasks):
+            switching.remove_task("swing")
+        present += with_swing
+        velocity, acceleration = rng.normal(0.0, 0.1, 6), rng.normal(0.0, 1.0, 6)
+        swing.set_reference(target, velocity, acceleration)
+        fresh = WholeBodyController(model)
+        for task in _standing_tasks(g1, q0):
+            fresh.add_task(task)
+        if with_swing:
+            twin = fresh.add_task(FramePoseTask("left_ankle_roll_link", "swing", weight=swing.weight, kp=200.0))
+            twin.set_reference(target, velocity, acceleration)
+        a, b = switching.build(q, v, 0.002 * tick).copy(), fresh.build(q, v, 0.002 * tick)
+        np.testing.assert_array_equal(a.H, b.H)
+        np.testing.assert_array_equal(a.g, b.g)
+    assert 0 < present < 10

@@ -234,6 +234,8 @@ class WholeBodyController:
         self.tasks: list[WbcTask] = []
         self.force_regularization: ContactForceRegularization | None = ContactForceRegularization()
         self.contact_set = ContactSet(self.kin)
+        self._stacks: dict[tuple, TaskStack] = {}  # per task list (ids: its tasks are kept alive by the stack)
+        self._stack: TaskStack | None = None
         self._structure = 0
         self._layout_dirty = True
         self._tasks_dirty = True
@@ -418,7 +420,23 @@ class WholeBodyController:
         return mass, supports
 
     def _layout_tasks(self) -> None:
-        self._stack = TaskStack(self.tasks, self.nv, self.acceleration_regularization)
+        """The task stack of the current task list: a walker switches between a few task sets (a
+        swing foot's pose task in or out), so each set's stack is kept and reused. A reused stack
+        is re-armed as a new one would start (every task's rows written again, its constant Hessian
+        part recomputed; gains and references re-gathered where their versions moved), with the
+        same numbers as a new one."""
+        key = (tuple(map(id, self.tasks)), self.acceleration_regularization)
+        stack = self._stacks.get(key)
+        if stack is None:
+            stack = TaskStack(self.tasks, self.nv, self.acceleration_regularization)
+            if len(self._stacks) >= 8:  # (a handful of task sets: bounded all the same)
+                del self._stacks[next(iter(self._stacks))]
+            self._stacks[key] = stack
+        elif stack is not self._stack:
+            for task in stack.tasks:
+                task.rows_stale = True
+            stack._hessian_stale = True
+        self._stack = stack
         self._tasks_dirty = False
 
     # --- the tick ----------------------------------------------------------------------------------
@@ -514,6 +532,8 @@ class WholeBodyController:
         self.contact_set.reset()
         self._layout_dirty = True
         self._tasks_dirty = True
+        self._stacks.clear()
+        self._stack = None
         self.problem = None
         self.solver.reset()
 
