@@ -109,6 +109,7 @@ class WbcTask(abc.ABC):
         self.error = np.zeros(self.dim)
         self.error_velocity = np.zeros(self.dim)
         self.nv = 0
+        self.bound_to: Kinodynamics | None = None  # the last :meth:`bind`'s (a controller re-adding the task skips it)
 
     # --- settings ------------------------------------------------------------------------------
     def _changed(self) -> None:
@@ -139,9 +140,11 @@ class WbcTask(abc.ABC):
 
     # --- evaluation ----------------------------------------------------------------------------
     def bind(self, kin: Kinodynamics) -> None:
-        """Resolve names in the model (called when the task is added to a controller)."""
+        """Resolve names in the model (called when the task is first added to a controller;
+        it depends on the model only, so a controller re-adding the task skips it)."""
         self.nv = kin.nv
         self.rows_stale = True
+        self.bound_to = kin
 
     def compute_error(self, kin: Kinodynamics) -> np.ndarray:
         """``e`` (dim,): reference minus measured, at the state of ``kin``."""

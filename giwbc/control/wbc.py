@@ -234,7 +234,8 @@ class WholeBodyController:
         self.tasks: list[WbcTask] = []
         self.force_regularization: ContactForceRegularization | None = ContactForceRegularization()
         self.contact_set = ContactSet(self.kin)
-        self._stacks: dict[tuple, TaskStack] = {}  # per task list (ids: its tasks are kept alive by the stack)
+        self._stacks: dict[tuple, tuple[TaskStack, int]] = {}  # per task list (ids: its tasks are kept alive by the stack)
+        self._bind_epoch = 0  # task binds so far (a stack last used before one is re-armed)
         self._stack: TaskStack | None = None
         self._structure = 0
         self._layout_dirty = True
@@ -257,7 +258,9 @@ class WholeBodyController:
             raise TypeError(f"expected a WbcTask, got {type(task).__name__}")
         if any(existing.name == task.name for existing in self.tasks):
             raise ValueError(f"a task named {task.name!r} already exists")
-        task.bind(self.kin)
+        if getattr(task, "bound_to", None) is not self.kin:  # (re-added, e.g. a swing foot's: bound already)
+            task.bind(self.kin)
+            self._bind_epoch += 1
         self.tasks.append(task)
         self._tasks_dirty = True
         return task
@@ -421,21 +424,24 @@ class WholeBodyController:
 
     def _layout_tasks(self) -> None:
         """The task stack of the current task list: a walker switches between a few task sets (a
-        swing foot's pose task in or out), so each set's stack is kept and reused. A reused stack
-        is re-armed as a new one would start (every task's rows written again, its constant Hessian
-        part recomputed; gains and references re-gathered where their versions moved), with the
-        same numbers as a new one."""
+        swing foot's pose task in or out), so each set's stack is kept and reused, with the same
+        numbers as a new one: gains and references are re-gathered where their versions moved, and
+        a task's constant rows (written only when ``rows_stale``, which only binding sets) are
+        written again, with the constant Hessian part, when a task was bound since the stack's last
+        use (a re-added task already bound to this controller is not bound again)."""
         key = (tuple(map(id, self.tasks)), self.acceleration_regularization)
-        stack = self._stacks.get(key)
-        if stack is None:
+        cached = self._stacks.get(key)
+        if cached is None:
             stack = TaskStack(self.tasks, self.nv, self.acceleration_regularization)
             if len(self._stacks) >= 8:  # (a handful of task sets: bounded all the same)
                 del self._stacks[next(iter(self._stacks))]
-            self._stacks[key] = stack
-        elif stack is not self._stack:
-            for task in stack.tasks:
-                task.rows_stale = True
-            stack._hessian_stale = True
+        else:
+            stack, epoch = cached
+            if epoch != self._bind_epoch:  # a task was bound since: its rows may have changed
+                for task in stack.tasks:
+                    task.rows_stale = True
+                stack._hessian_stale = True
+        self._stacks[key] = (stack, self._bind_epoch)
         self._stack = stack
         self._tasks_dirty = False
 
