@@ -87,3 +87,23 @@ def test_a_contact_ramping_out_shares_by_activation(g1):
     assert sum(shares) == pytest.approx(1.0)
     assert shares == pytest.approx(expected)
     assert shares[1] < 0.5  # the foot being lifted carries less than its static share
+
+
+def test_a_contact_re_made_after_its_offset_moved_uses_the_new_offset(g1):
+    """Re-making a known contact skips binding it again only while its link and offset are the
+    ones it was bound with: a moved sole centre is where the re-made contact's frame is."""
+    import pinocchio as pin
+
+    controller = _standing(g1, None)
+    wbc = controller.wbc
+    contact = wbc.contacts[0]
+    before = pin.SE3(contact.placement)
+    wbc.remove_contact(contact.name)
+    wbc.add_contact(contact)  # the same contact again: the same frame
+    assert contact.placement.isApprox(before, 0.0)
+    wbc.remove_contact(contact.name)
+    contact.offset = contact.offset * pin.SE3(np.eye(3), np.array([0.02, 0.0, 0.0]))
+    wbc.add_contact(contact)
+    moved = before * pin.SE3(np.eye(3), np.array([0.02, 0.0, 0.0]))
+    np.testing.assert_allclose(contact.placement.translation, moved.translation, atol=1e-15)
+    assert not np.allclose(contact.placement.translation, before.translation)

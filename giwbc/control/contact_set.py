@@ -135,7 +135,8 @@ class ContactSet:
         """Make ``contact`` (or re-make a known name), its force bound ramping up over
         ``ramp_time``; True when the problem must be laid out again (a new name, or a different
         number of variables or friction rows)."""
-        contact.bind(self.kin)
+        if not contact.is_bound(self.kin):
+            contact.bind(self.kin)
         slot = self.slots.get(contact.name)
         relayout = False
         if slot is None or slot.contact.n_force != contact.n_force or slot.contact.n_ineq != contact.n_ineq:

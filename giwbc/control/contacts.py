@@ -167,6 +167,7 @@ class Contact(abc.ABC):
         self.reference: pin.SE3 | None = None  # contact-frame placement when the contact was made
         self.joint_id = -1
         self.placement = offset  # contact frame in the parent joint frame, set by bind
+        self._bound: tuple | None = None  # (kin, link, offset matrix) of the last bind
         self.jacobian = np.zeros((6, 0))
         self.drift = np.zeros(6)
         self._friction = self.friction_matrix()
@@ -210,6 +211,13 @@ class Contact(abc.ABC):
         frame = kin.model.frames[kin.frame_id(self.link)]
         self.joint_id = int(frame.parentJoint)
         self.placement = frame.placement * self.offset
+        self._bound = (kin, self.link, self.offset.homogeneous)
+
+    def is_bound(self, kin: Kinodynamics) -> bool:
+        """Bound to ``kin`` with its present link and offset (a walker re-makes its feet's
+        contacts at every touch-down: binding them again would give the same numbers)."""
+        bound = self._bound
+        return bound is not None and bound[0] is kin and bound[1] == self.link and np.array_equal(bound[2], self.offset.homogeneous)
 
     def placement_in_world(self, kin: Kinodynamics) -> pin.SE3:
         return kin.data.oMi[self.joint_id] * self.placement
