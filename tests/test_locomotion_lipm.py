@@ -156,3 +156,23 @@ def test_dcm_reference_refuses_bad_segments():
         DcmReference([CopSegment(0.0, np.zeros(2), np.zeros(2))], OMEGA)
     with pytest.raises(ValueError):
         DcmController(OMEGA, gain=math.nan)
+
+
+def test_a_reference_put_before_a_plan_is_the_reference_of_the_whole_plan(rng):
+    """``DcmReference.before`` reuses the plan's backward pass: the same numbers, bit for bit, as
+    the reference of the whole CoP plan (a double support's ramp in front of the walk)."""
+
+    omega = 3.3
+    stance = rng.normal(0.0, 0.1, 2)
+    landings = [stance + np.array([0.15 * (i + 1), 0.2 * (-1) ** i]) for i in range(3)]
+    rest = walking_cop_plan(CopSegment(0.4, stance, stance), landings, 0.4, 0.15, 0.5 * (landings[-1] + landings[-2]))
+    tail = DcmReference(rest, omega)
+    ramp = CopSegment(0.13, rng.normal(0.0, 0.05, 2), stance)
+    joined, whole = DcmReference.before(ramp, tail, 2.5), DcmReference([ramp, *rest], omega, 2.5)
+    np.testing.assert_array_equal(joined.initial, whole.initial)
+    np.testing.assert_array_equal(joined.starts, whole.starts)
+    assert joined.end_time == whole.end_time
+    np.testing.assert_array_equal(joined.initial[1], tail.initial[0])
+    for t in np.linspace(2.4, whole.end_time + 0.1, 37):
+        for a, b in zip(joined.evaluate(t), whole.evaluate(t)):
+            np.testing.assert_array_equal(a, b)

@@ -37,6 +37,19 @@ class DcmReference:
     """The DCM reference of a CoP plan starting at ``t0``, at rest on the last CoP at its end."""
 
     def __init__(self, segments: list[CopSegment], omega: float, t0: float = 0.0) -> None:
+        self._set_up(segments, omega, t0, None)
+
+    @classmethod
+    def before(cls, segment: CopSegment, rest: DcmReference, t0: float) -> DcmReference:
+        """``DcmReference([segment, *rest.segments], rest.omega, t0)`` — the same numbers — with
+        ``rest``'s backward pass reused (a double support's plan is made of its own CoP ramp in
+        front of the rest of the walk, whose DCM start it needs first)."""
+        reference = cls.__new__(cls)
+        reference._set_up([segment, *rest.segments], rest.omega, t0, rest)
+        return reference
+
+    def _set_up(self, segments: list[CopSegment], omega: float, t0: float, tail: DcmReference | None) -> None:
+        """``tail``: a reference of the last segments (its backward pass is theirs here)."""
         if not segments:
             raise ValueError("a DCM reference needs at least one CoP segment")
         if not (math.isfinite(omega) and omega > 0):
@@ -49,14 +62,15 @@ class DcmReference:
         durations = np.array([s.duration for s in segments])
         self.starts = t0 + np.concatenate([[0.0], np.cumsum(durations)[:-1]])
         self.end_time = float(t0 + durations.sum())
-        self.terminal = np.asarray(segments[-1].end, dtype=float)[:2].copy()
-        cops = [(tuple(np.asarray(s.start, dtype=float)[:2].tolist()), tuple(np.asarray(s.end, dtype=float)[:2].tolist())) for s in segments]
+        self.terminal = np.asarray(segments[-1].end, dtype=float)[:2].copy() if tail is None else tail.terminal.copy()
+        head = segments if tail is None else segments[: len(segments) - len(tail.segments)]
+        cops = [(tuple(np.asarray(s.start, dtype=float)[:2].tolist()), tuple(np.asarray(s.end, dtype=float)[:2].tolist())) for s in head]
         # Backwards: the DCM at the start of each segment, :func:`~giwbc.locomotion.lipm.dcm_before_linear_cop`
         # on plain floats (the same operations in the same order: a plan is made at every contact switch).
         omega = self.omega
         initial: list[tuple[float, float]] = []
-        x, y = self.terminal.tolist()
-        for s, ((sx, sy), (ex, ey)) in zip(reversed(segments), reversed(cops)):
+        x, y = self.terminal.tolist() if tail is None else tail._initial[0]
+        for s, ((sx, sy), (ex, ey)) in zip(reversed(head), reversed(cops)):
             duration = s.duration
             scale, decay = duration * omega, math.exp(-omega * duration)
             shift_x, shift_y = (ex - sx) / scale, (ey - sy) / scale
@@ -64,6 +78,10 @@ class DcmReference:
             y = float(sy + shift_y + (y - ey - shift_y) * decay)
             initial.append((x, y))
         initial.reverse()
+        if tail is not None:
+            cops += tail._cops
+            initial += tail._initial
+        self._cops, self._initial = cops, initial
         self.initial = np.array(initial, dtype=float).reshape(len(segments), 2)
         self._starts = self.starts.tolist()
         # Per segment, as floats: (duration, start time, initial DCM, CoP start, CoP end).

@@ -79,10 +79,11 @@ class WalkerReferences:
                 rest = walking_cop_plan(hold, landings, gait.single_support, gait.double_support, final) if landings else []
                 if rest:
                     # Start the CoP ramp where the reference starts at the measured DCM (within the feet).
-                    after = DcmReference(rest, self.omega).initial[0]
-                    start = clip_to_polygon(cop_start_for_dcm(xi, duration, after, stance.position, self.omega), self.support_polygon())
-                segments = [CopSegment(duration, start, stance.position)] + rest
-                self._reference = DcmReference(segments, self.omega, t)
+                    tail = DcmReference(rest, self.omega)
+                    start = clip_to_polygon(cop_start_for_dcm(xi, duration, tail.initial[0], stance.position, self.omega), self.support_polygon())
+                    self._reference = DcmReference.before(CopSegment(duration, start, stance.position), tail, t)
+                else:
+                    self._reference = DcmReference([CopSegment(duration, start, stance.position)], self.omega, t)
             xi_ref, rate, _ = self._reference.evaluate(t)
             return xi_ref, rate, self.support_polygon()
         # Single support: the stance sole only; the swing sole follows its trajectory.
