@@ -26,7 +26,12 @@ joint positions minus the default pose, joint velocities, the base velocity in t
 (vx, vy, yaw rate), the command, the gait phase (stand / double / single one-hot, stance side,
 progress), the next footstep relative to the base (x, y, yaw), the DCM error (heading frame), the
 previous action. Reward: alive + velocity tracking (xy and yaw rate) + uprightness, minus effort,
-action-rate and a fall penalty. Terminates when the pelvis drops or tilts too far.
+action-rate, optionally joints near their limits, and a fall penalty. Terminates when the pelvis
+drops or tilts too far (or, with ``joint_limit_margin``, a joint passes the deployment's soft limits).
+
+With a state estimator in the runtime's loop (``sim2real={"estimator": ...}``) the walker and the
+observation run on the estimated base, as deployed, and the contact plan goes to the estimator;
+reward, termination and info read the simulated truth (:attr:`Task.truth`).
 """
 
 from __future__ import annotations
