@@ -4,9 +4,10 @@ and the gradient the QP gets from them (statics: the shares support the weight a
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
-from giwbc.control import make_balance_controller
+from giwbc.control import Kinodynamics, make_balance_controller
 from giwbc.control.contact_set import Lever
 
 
@@ -92,8 +93,6 @@ def test_a_contact_ramping_out_shares_by_activation(g1):
 def test_a_contact_re_made_after_its_offset_moved_uses_the_new_offset(g1):
     """Re-making a known contact skips binding it again only while its link and offset are the
     ones it was bound with: a moved sole centre is where the re-made contact's frame is."""
-    import pinocchio as pin
-
     controller = _standing(g1, None)
     wbc = controller.wbc
     contact = wbc.contacts[0]
@@ -107,3 +106,29 @@ def test_a_contact_re_made_after_its_offset_moved_uses_the_new_offset(g1):
     moved = before * pin.SE3(np.eye(3), np.array([0.02, 0.0, 0.0]))
     np.testing.assert_allclose(contact.placement.translation, moved.translation, atol=1e-15)
     assert not np.allclose(contact.placement.translation, before.translation)
+
+
+def test_a_contact_is_bound_only_to_the_model_link_and_offset_it_was_bound_with(g1):
+    """``Contact.is_bound``, which lets the controller skip binding a re-made contact, is False for
+    another model's kinodynamics, another link or another offset; a contact re-made on the other
+    foot's link is bound to that link."""
+    controller = _standing(g1, None)
+    wbc = controller.wbc
+    contact, other = wbc.contacts[0], wbc.contacts[1]
+    assert contact.link != other.link
+    assert contact.is_bound(wbc.kin)
+    assert not contact.is_bound(Kinodynamics(g1.build_pinocchio(), n_base=wbc.n_base))
+    link = contact.link
+    contact.link = other.link
+    assert not contact.is_bound(wbc.kin)
+    contact.link = link
+    offset = contact.offset
+    contact.offset = offset * pin.SE3(np.eye(3), np.array([0.0, 0.01, 0.0]))
+    assert not contact.is_bound(wbc.kin)
+    contact.offset = offset
+    assert contact.is_bound(wbc.kin)
+    wbc.remove_contact(contact.name)
+    contact.link = other.link
+    wbc.add_contact(contact)
+    assert contact.joint_id == other.joint_id
+    assert contact.placement.isApprox(other.placement * other.offset.inverse() * contact.offset, 1e-12)

@@ -160,3 +160,100 @@ def test_switching_task_sets_builds_the_same_qp_as_a_fresh_controller(g1, rng) -
         np.testing.assert_array_equal(a.H, b.H)
         np.testing.assert_array_equal(a.g, b.g)
     assert 0 < present < 10
+
+
+def test_more_task_sets_than_the_controller_keeps_build_the_same_qp_as_a_fresh_controller(g1, rng) -> None:
+    """The controller keeps the stacks of a few task sets only: laying out more sets than it keeps
+    (the oldest stack dropped), then one whose stack was dropped, still builds every tick's QP bit
+    for bit as a new controller with the same tasks does."""
+    model = g1.build_pinocchio()
+    q0 = g1.default_configuration()
+    controller = WholeBodyController(model)
+    for task in _standing_tasks(g1, q0):
+        controller.add_task(task)
+    targets = [pin.SE3(np.eye(3), np.array([0.1, 0.12, 0.01 * k])) for k in range(12)]
+    extras = [FramePoseTask("left_ankle_roll_link", f"swing{k}", weight=30.0 + k, kp=200.0) for k in range(12)]
+    for k, target in zip(range(12), targets):
+        extras[k].set_reference(target)
+    for tick, k in enumerate([*range(12), 0, 11]):  # twelve sets, then a dropped one and a kept one again
+        if tick:
+            controller.remove_task(controller.tasks[-1].name)
+        controller.add_task(extras[k])
+        q = pin.integrate(model, q0, rng.normal(0.0, 0.02, model.nv))
+        v = rng.normal(0.0, 0.3, model.nv)
+        fresh = WholeBodyController(model)
+        for task in _standing_tasks(g1, q0):
+            fresh.add_task(task)
+        twin = fresh.add_task(FramePoseTask("left_ankle_roll_link", f"swing{k}", weight=30.0 + k, kp=200.0))
+        twin.set_reference(targets[k])
+        a, b = controller.build(q, v, 0.002 * tick).copy(), fresh.build(q, v, 0.002 * tick)
+        np.testing.assert_array_equal(a.H, b.H)
+        np.testing.assert_array_equal(a.g, b.g)
+
+
+class JointAccelerationTask(WbcTask):
+    """One joint's acceleration held at zero: a constant Jacobian row, written only when stale."""
+
+    constant_jacobian = True
+    zero_drift = True
+
+    def __init__(self, joint: int, *, weight: float = 1.0) -> None:
+        super().__init__("joint_acceleration", 1, weight=weight)
+        self.joint = joint  # index among the joints, resolved to a velocity column by bind
+
+    def bind(self, kin: Kinodynamics) -> None:
+        super().bind(kin)
+        self.column = kin.joint_v.start + self.joint
+
+    def write(self, kin: Kinodynamics, rows: np.ndarray, error: np.ndarray, drift: np.ndarray) -> None:
+        if self.rows_stale:
+            rows[:] = 0.0
+            rows[0, self.column] = 1.0
+            drift[:] = 0.0
+            self.rows_stale = False
+        error[:] = 0.0
+
+
+def test_a_task_bound_again_is_written_again_in_every_kept_stack(g1, rng) -> None:
+    """A task moved to another controller, changed there and brought back is bound again: every
+    kept stack holding it (not only the first one used after) gets its new constant rows, and the
+    QP is bit for bit a new controller's."""
+    model = g1.build_pinocchio()
+    q0 = g1.default_configuration()
+    controller, elsewhere = WholeBodyController(model), WholeBodyController(model)
+    for task in _standing_tasks(g1, q0):
+        controller.add_task(task)
+    held = controller.add_task(JointAccelerationTask(3, weight=4.0))
+    target = pin.SE3(np.eye(3), np.array([0.1, 0.12, 0.1]))
+    swings = {name: FramePoseTask("left_ankle_roll_link", name, weight=30.0, kp=200.0) for name in ("x", "y")}
+    for swing in swings.values():
+        swing.set_reference(target)
+
+    def tick(swing: str, tick: int) -> None:
+        q = pin.integrate(model, q0, rng.normal(0.0, 0.02, model.nv))
+        v = rng.normal(0.0, 0.3, model.nv)
+        fresh = WholeBodyController(model)
+        for task in _standing_tasks(g1, q0):
+            fresh.add_task(task)
+        fresh.add_task(JointAccelerationTask(held.joint, weight=4.0))
+        fresh.add_task(FramePoseTask("left_ankle_roll_link", swing, weight=30.0, kp=200.0)).set_reference(target)
+        a, b = controller.build(q, v, 0.002 * tick).copy(), fresh.build(q, v, 0.002 * tick)
+        np.testing.assert_array_equal(a.H, b.H)
+        np.testing.assert_array_equal(a.g, b.g)
+
+    controller.add_task(swings["x"])
+    tick("x", 0)  # the stack of [standing, held, x]
+    controller.remove_task("x")
+    controller.add_task(swings["y"])
+    tick("y", 1)  # the stack of [standing, held, y]
+    controller.remove_task("y")
+    controller.remove_task(held.name)
+    elsewhere.add_task(held)  # bound to another controller's model, then changed and brought back
+    elsewhere.remove_task(held.name)
+    held.joint = 5
+    controller.add_task(held)
+    controller.add_task(swings["y"])
+    tick("y", 2)  # the kept stack of [standing, held, y]: the held task's rows were stale anyway
+    controller.remove_task("y")
+    controller.add_task(swings["x"])
+    tick("x", 3)  # the kept stack of [standing, held, x]: its rows are written again too
