@@ -82,6 +82,24 @@ def test_same_seed_same_rollout_and_a_used_env_matches_a_fresh_one(make):
     np.testing.assert_array_equal(first, run(a, 11))
 
 
+def test_the_estimate_is_bit_identical_after_a_reset_to_a_fresh_environments(make):
+    """Float64 estimates, not only the float32 observations: an estimator reset must forget
+    everything (its Kalman filter once kept its correction count, so P was symmetrized on other
+    ticks than in a new filter: estimates 1e-19 apart after some resets)."""
+    used, fresh = make(), make()
+
+    def estimates(env, seed, steps):
+        env.reset(seed=seed)
+        out = [env.task.robot.estimate.q.copy()]
+        for _ in range(steps):
+            env.step(np.zeros(env.action_space.shape, np.float32))
+            out.append(env.task.robot.estimate.q.copy())
+        return np.array(out)
+
+    estimates(used, 4, 7)  # 7 agent steps: a correction count not a multiple of 16
+    np.testing.assert_array_equal(estimates(used, 11, 20), estimates(fresh, 11, 20))
+
+
 def test_pushes_count_from_the_end_of_the_calibration(make):
     env = make(pushes={"interval": [0.5, 0.5], "duration": 0.2, "force": [40.0, 40.0]})
     _, info = env.reset(seed=0)

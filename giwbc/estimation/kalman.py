@@ -126,6 +126,7 @@ class LegKalmanFilter:
         variances[1] = velocity_std**2
         for group in self._groups:
             group.P[:] = np.diag(variances)
+        self._corrections = 0  # P is symmetrized every 16 corrections: counted from the start, as in a new filter
 
     def predict(self, acceleration: Sequence[float] | None, dt: float, stance: Sequence[float]) -> None:
         """Propagate over ``dt`` with the IMU's world acceleration (``None``: unknown, assume 0).
