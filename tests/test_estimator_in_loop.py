@@ -12,6 +12,7 @@ import pytest
 from giwbc.errors import EstimatorCalibrationError
 from giwbc.envs.factories import g1_walk
 from giwbc.estimation.estimated_robot import EstimatedRobot
+from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS
 from giwbc.randomization import PerturbedRobot
 from giwbc.runtimes.estimated import EstimatorInLoop
 from giwbc.runtimes.sim2real import SimToReal
@@ -27,10 +28,10 @@ def g1_model(g1):
 
 @pytest.fixture
 def make(g1, g1_model):
-    def factory(estimator=True, pushes=None, **kwargs):
+    def factory(estimator=True, pushes=None, walker="deployment", **kwargs):
         kwargs.setdefault("commands", FORWARD)
         kwargs.setdefault("randomization", AHRS)
-        return g1_walk(robot=g1, model=g1_model, residuals=["step"], walker="deployment", initial_joint_noise=0.0,
+        return g1_walk(robot=g1, model=g1_model, residuals=["step"], walker=walker, initial_joint_noise=0.0,
                        sim2real={"estimator": estimator, "pushes": pushes}, **kwargs)
 
     return factory
@@ -98,6 +99,30 @@ def test_the_estimate_is_bit_identical_after_a_reset_to_a_fresh_environments(mak
 
     estimates(used, 4, 7)  # 7 agent steps: a correction count not a multiple of 16
     np.testing.assert_array_equal(estimates(used, 11, 20), estimates(fresh, 11, 20))
+
+
+def test_the_deployment_walker_lands_on_the_estimated_sole_forces(make):
+    """A lateral, turning walk on the estimate (ideal sensors: the estimate's own errors only). Its
+    sole forces come from the legs' efforts, and a landed foot carries little until the contact takes
+    the weight: the deployment preset, waiting for 0.35 of the weight after the planned touch-down,
+    pressed the late foot onto its sole edge and stopped the walk on an ankle roll's soft limit;
+    counting 0.1 of the weight (on a sole down at the stance sole's height) from the planned
+    touch-down on walks it. (Not in the preset yet: deployed, an 80 N backward push while walking
+    then ends on a soft limit, tests/test_deploy_walk.py.)"""
+    command = {"vx": [0.126, 0.126], "vy": [-0.098, -0.098], "yaw_rate": [-0.188, -0.188], "standing": 0.0, "interval": [100.0, 100.0]}
+    options = {"randomization": None, "commands": command, "joint_limit_margin": 0.02,
+               "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}}
+    ends = []
+    for walker in ({**DEPLOYMENT_OPTIONS, "late_touchdown_force": 0.1}, "deployment"):
+        env = make(walker=walker, **options)
+        env.reset(seed=511)
+        for _ in range(190):  # 3.8 s
+            _, _, terminated, _, info = env.step(np.zeros(env.action_space.shape, np.float32))
+            if terminated:
+                break
+        ends.append((terminated, info["steps"]))
+    assert not ends[0][0] and ends[0][1] >= 6
+    assert ends[1][0]  # the preset, waiting for 0.35 of the weight: stopped on the soft limit
 
 
 def test_pushes_count_from_the_end_of_the_calibration(make):

@@ -51,7 +51,12 @@ class ContactSchedule:
         if cfg.step_adaptation and t < self._swing.t1 - 0.03:
             self._adapt_step(t, xi)
         force = forces.get(swing, 0.0)
-        landed = force >= cfg.touchdown_force * self.weight and elapsed >= cfg.early_touchdown * (self._swing.t1 - self._phase_start)
+        late = t >= self._swing.t1 and cfg.late_touchdown_force is not None
+        threshold = cfg.late_touchdown_force if late else cfg.touchdown_force
+        landed = force >= threshold * self.weight and elapsed >= cfg.early_touchdown * (self._swing.t1 - self._phase_start)
+        if landed and late:  # a light load counts only on a sole down at the stance sole's height
+            height = self._sole_world(swing).translation[2] - self._sole_world(self._stance).translation[2]
+            landed = height < cfg.late_touchdown_height
         if landed and t < self._swing.t1 - 0.02:
             # An early contact counts only near the landing spot: a sole scraping the ground far
             # from it (a leaning robot) keeps swinging.
