@@ -85,7 +85,7 @@ class WalkHold:
         self._links = {side: contact.link for side, contact in self.walker.contacts.items()}
         order = [c.link for c in description.contacts]  # the estimator's contact order
         self._index = {side: order.index(link) for side, link in self._links.items()}
-        self._plans = {side: np.array([link == self._links[side] for link in order]) for side in self._links}
+        self._plans = self.walker.contact_plans(order)
         self._anchor = True
         self._started_at: float | None = None
         self._commanded = False
@@ -117,11 +117,7 @@ class WalkHold:
         self.single_support_ticks += single
         set_plan = getattr(robot, "set_contact_plan", None)
         if self.contact_plan and set_plan is not None:
-            # In single support the estimator's next update takes the schedule's contacts: a swinging
-            # foot is never taken as a still stance foot (its quasi-static force estimate can read
-            # tens of N); otherwise it detects them from the forces (a landing foot counts once loaded).
-            stance = walker.state.stance
-            set_plan(self._plans[stance] if single else None)
+            set_plan(walker.single_support_plan(self._plans))  # the schedule's contacts while a foot swings
         return self.last.impedance
 
     def _foot_forces(self, robot: Robot) -> dict[str, float]:

@@ -33,6 +33,7 @@ controller's state.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -190,6 +191,17 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         placement = self._sole_world(side)
         rotation = placement.rotation
         return Footstep(side, placement.translation[:2].copy(), math.atan2(rotation[1, 0], rotation[0, 0]))
+
+    def contact_plans(self, links: Sequence[str]) -> dict[str, np.ndarray]:
+        """Per stance side, which of ``links`` (an estimator's contact order) carry in that side's
+        single support: the plan an estimating robot takes while a foot swings (its quasi-static
+        force estimate can read tens of N, and a swinging foot is never a still stance foot)."""
+        return {side: np.array([link == contact.link for link in links]) for side, contact in self.contacts.items()}
+
+    def single_support_plan(self, plans: dict[str, np.ndarray]) -> np.ndarray | None:
+        """``plans[stance]`` (from :meth:`contact_plans`) in single support, else None (the
+        estimator detects contacts from forces: a landing foot counts once loaded)."""
+        return plans[self.state.stance] if self._phase is Phase.SINGLE else None
 
     def support_polygon(self, sides: tuple[str, ...] | None = None) -> np.ndarray:
         """CCW hull of the soles in contact (both in double support) at their planned holds."""

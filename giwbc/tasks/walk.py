@@ -200,8 +200,7 @@ class G1Walk(FloatingBaseTask):
         if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
             config = replace(config, balance=replace(config.balance, **wbc_options))
         self.walker = WalkingController(description, config, description.pinocchio_model)
-        order = [c.link for c in description.contacts]  # an estimator's contact order
-        self._plans = {side: np.array([link == c.link for link in order]) for side, c in self.walker.contacts.items()}
+        self._plans = self.walker.contact_plans([c.link for c in description.contacts])  # an estimator's contact order
         self.q0 = description.default_configuration()
         self.min_height = min_height_ratio * float(self.q0[2])
         self.default_positions = description.default_positions
@@ -286,7 +285,7 @@ class G1Walk(FloatingBaseTask):
         self.result = self.walker.step(robot)
         set_plan = getattr(robot, "set_contact_plan", None)
         if set_plan is not None:  # an estimating robot: a swinging foot is never taken as a stance foot
-            set_plan(self._plans[self.walker.state.stance] if self.walker.phase is Phase.SINGLE else None)
+            set_plan(self.walker.single_support_plan(self._plans))
 
     def is_terminated(self) -> bool:
         """Fallen (base low or tilted), or, with ``joint_limit_margin``, a joint beyond its soft limits."""
