@@ -104,16 +104,15 @@ def test_the_estimate_is_bit_identical_after_a_reset_to_a_fresh_environments(mak
 def test_the_deployment_walker_lands_on_the_estimated_sole_forces(make):
     """A lateral, turning walk on the estimate (ideal sensors: the estimate's own errors only). Its
     sole forces come from the legs' efforts, and a landed foot carries little until the contact takes
-    the weight: the deployment preset, waiting for 0.35 of the weight after the planned touch-down,
-    pressed the late foot onto its sole edge and stopped the walk on an ankle roll's soft limit;
-    counting 0.1 of the weight (on a sole down at the stance sole's height) from the planned
-    touch-down on walks it. (Not in the preset yet: deployed, an 80 N backward push while walking
-    then ends on a soft limit, tests/test_deploy_walk.py.)"""
+    the weight: waiting for the preset's 0.35 of the weight after the planned touch-down too
+    (``late_touchdown_force=None``) pressed the late foot onto its sole edge and stopped the walk on
+    an ankle roll's soft limit; the preset counts 0.1 of the weight (on a sole down at the stance
+    sole's height) from the planned touch-down on, and walks it."""
     command = {"vx": [0.126, 0.126], "vy": [-0.098, -0.098], "yaw_rate": [-0.188, -0.188], "standing": 0.0, "interval": [100.0, 100.0]}
     options = {"randomization": None, "commands": command, "joint_limit_margin": 0.02,
                "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}}
     ends = []
-    for walker in ({**DEPLOYMENT_OPTIONS, "late_touchdown_force": 0.1}, "deployment"):
+    for walker in ("deployment", {**DEPLOYMENT_OPTIONS, "late_touchdown_force": None}):
         env = make(walker=walker, **options)
         env.reset(seed=511)
         for _ in range(190):  # 3.8 s
@@ -122,7 +121,7 @@ def test_the_deployment_walker_lands_on_the_estimated_sole_forces(make):
                 break
         ends.append((terminated, info["steps"]))
     assert not ends[0][0] and ends[0][1] >= 6
-    assert ends[1][0]  # the preset, waiting for 0.35 of the weight: stopped on the soft limit
+    assert ends[1][0]  # waiting for 0.35 of the weight: stopped on the soft limit
 
 
 def test_pushes_count_from_the_end_of_the_calibration(make):
