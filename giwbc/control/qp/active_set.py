@@ -224,15 +224,15 @@ class ActiveSetGuess:
         n, ne_kept, keep_eq = self._n_keep, self._ne_keep, self._keep_eq
         active, upper = self.active, self.upper
         k = len(active)
-        self._eq_rows = np.concatenate([keep_eq, ne + active])
+        rows_a = self._active_rows = ne + active
+        self._eq_rows = np.concatenate((keep_eq, rows_a))
         if self._keep is not None:  # [A; C_a] restricted to the kept columns, as one take
             self._e_index = self._eq_rows[:, None] * p.n + self._keep[None, :]
         # The right-hand side of [A; C_a]: b, then the active bound of each row, from _limits.
-        self._rhs_index = np.concatenate([keep_eq, np.where(upper, len(self._lo) + ne + active, ne + active)])
+        self._rhs_index = np.concatenate((keep_eq, rows_a + len(self._lo) * upper))
         # Multiplier signs, negated: − at an upper bound, + at a lower one; _solve_active drops
         # them (0) for the rows this tick's limits pin (l = u), deriving the signs per solve.
-        self._active_rows = ne + active
-        self._sign_open = np.where(upper, -1.0, 1.0)
+        self._sign_open = 1.0 - 2.0 * upper
         key = (k, n, ne_kept)
         if key not in self._kkt:
             size = n + ne_kept + k
@@ -493,18 +493,29 @@ class ActiveSetGuess:
     def _exchange(self, ne: int, rows: int, k: int, tol: float) -> None:
         """One row out, one row in: the active row whose multiplier has the worst sign (beyond
         ``tol``) is dropped, the inactive row violated most (beyond ``tol``; its upper side on a
-        tie) is added — from the check of the last :meth:`_solve_active`."""
+        tie) is added — from the check of the last :meth:`_solve_active`, whose violations (a
+        scratch buffer, written again by the next solve) it masks in place: the equality rows
+        and the active rows (regularised solves bend those slightly) cannot be added. The set
+        stays sorted by a splice at the added row's place (no re-sort: it is the same array)."""
         check = self._check
-        keep = np.ones(k, dtype=bool)
+        active, upper = self.active, self.upper
         if k:
             signed = check[2 * rows : 2 * rows + k]
             worst = int(signed.argmax())
-            keep[worst] = signed[worst] <= tol
-        violation = check[: 2 * rows].reshape(2, rows)[:, ne:].copy()  # rows: above, below
-        violation[:, self.active] = -math.inf  # an active row stays (regularised solves bend them slightly)
-        side, row = divmod(int(violation.argmax()), rows - ne)
-        if violation[side, row] > tol:
-            added, upper = np.array([row], dtype=np.int64), np.array([side == 0])
-        else:
-            added, upper = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
-        self._set_active(np.concatenate([self.active[keep], added]), np.concatenate([self.upper[keep], upper]))
+            if signed[worst] > tol:
+                active = np.concatenate((active[:worst], active[worst + 1 :]))
+                upper = np.concatenate((upper[:worst], upper[worst + 1 :]))
+        violation = check[: 2 * rows]  # above, then below, every row: the first maximum is the
+        violation[:ne] = -math.inf  # same (side, row) as in the (2, rows − ne) block of the inequalities
+        violation[rows : rows + ne] = -math.inf
+        violation[ne + self.active] = -math.inf
+        violation[rows + ne + self.active] = -math.inf
+        best = int(violation.argmax())
+        if violation[best] > tol:
+            side, row = divmod(best, rows)
+            row -= ne
+            at = int(active.searchsorted(row))
+            active = np.concatenate((active[:at], (row,), active[at:]))
+            upper = np.concatenate((upper[:at], (side == 0,), upper[at:]))
+        self.active, self.upper = active, upper
+        self._stale = True
