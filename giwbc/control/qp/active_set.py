@@ -47,7 +47,15 @@ class ActiveSetGuess:
     Variables the problem declares held at zero (``QpProblem.fixed``: a broken contact's pinned
     wrench in single support) are eliminated with their equality rows: the KKT system is that
     many rows and columns smaller (G1 single support: 12 of ~67, its LU ~30 % cheaper) and the
-    answer the same optimum, those variables exactly zero.
+    answer the same optimum, those variables exactly zero. Inequality rows the declaration names
+    (rows of fixed variables only, e.g. a just-made contact's friction cone closed at zero force)
+    never enter the active set: at those variables' zero they are a degenerate vertex (16 cone
+    faces meeting at one point), whose rows in a KKT system are zero.
+
+    When the declaration changes (a contact made or broken), the guess is the active set found
+    the last time the same change happened, when there was one: last tick's set is then often
+    many exchanges away (at a touch-down's second tick, the new contact's cone faces and the
+    stance contact's own move together), and a walker repeats its changes step after step.
 
     The active set found (by either) is the next tick's guess. ``hits``/``tries`` count the
     guesses, ``polished``/``polish_failures`` the polishes, ``solves`` the KKT solves (all
@@ -56,10 +64,11 @@ class ActiveSetGuess:
     torques there).
     """
 
-    def __init__(self, tolerance: float = 1e-8, steps: int = 12, polish_steps: int = 4, threshold: float = 1e-10) -> None:
+    def __init__(self, tolerance: float = 1e-8, steps: int = 12, polish_steps: int = 4, threshold: float = 1e-10, change_steps: int = 24) -> None:
         from scipy.linalg import lapack
 
         self.steps = int(steps)
+        self.change_steps = int(change_steps)  # the search's budget at a declaration change
         self.polish_steps = int(polish_steps)
         self.tolerance = float(tolerance)
         self.threshold = float(threshold)  # |multiplier| above which a backend's row counts as active
@@ -70,6 +79,9 @@ class ActiveSetGuess:
         self._prepared_arrays: tuple = (None, None, None, None)
         self._fixed_source: tuple | None = None
         self._keep: np.ndarray | None = None  # the variables the KKT system keeps (None: all)
+        self._dead: np.ndarray | None = None  # inequality rows of fixed variables only (never active)
+        self._changes: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # declaration change -> set found after it
+        self._change: tuple | None = None  # the change of the last tick's declaration (its set is stored next tick)
         self.hits = 0
         self.tries = 0
         self.polished = 0
@@ -78,14 +90,25 @@ class ActiveSetGuess:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the active set (the next :meth:`try_solve` starts from an empty one)."""
+        """Forget the active set (the next :meth:`try_solve` starts from an empty one) and the
+        sets found after declaration changes."""
         self._set_active(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool))
+        self._changes = {}
+        self._change = None
 
     def _set_active(self, active: np.ndarray, upper: np.ndarray) -> None:
         order = np.argsort(active, kind="stable")
         self.active = np.ascontiguousarray(active[order], dtype=np.int64)
         self.upper = np.ascontiguousarray(upper[order], dtype=bool)
         self._stale = True  # per-active-set vectors to recompute
+
+    def _set_live(self, active: np.ndarray, upper: np.ndarray) -> None:
+        """:meth:`_set_active` without the rows the problem's declaration holds dead."""
+        dead = self._dead
+        if dead is not None:
+            live = ~np.isin(active, dead)
+            active, upper = active[live], upper[live]
+        self._set_active(active, upper)
 
     @property
     def rows(self) -> np.ndarray:
@@ -98,16 +121,22 @@ class ActiveSetGuess:
         new layout would otherwise discard the set at the next :meth:`try_solve`."""
         self._prepare(problem)
         active = np.flatnonzero(np.abs(z) > self.threshold)
-        self._set_active(active, z[active] > 0)
+        self._set_live(active, z[active] > 0)
 
     # --- per-tick preparation --------------------------------------------------------------------
     def _prepare(self, p: QpProblem) -> None:
         """Stacked ``[A; C; I]`` rows and their bounds for this tick (views when the problem's
         ``A`` and ``C`` are adjacent in one buffer, as the controller lays them out)."""
         arrays = self._prepared_arrays
+        if self._change is not None:  # the set found at the tick after a declaration change
+            if len(self._changes) >= 32:
+                self._changes = {}  # (a bound on the memory; a walker repeats a handful of changes)
+            self._changes[self._change] = (self.active, self.upper)
+            self._change = None
         if p is self._prepared and p.A is arrays[0] and p.C is arrays[1] and p.l is arrays[2] and p.u is arrays[3] and p.structure == self._prepared_structure:
             # The same problem and arrays as last time (the controller's, refilled every tick).
             if p.fixed is not self._fixed_source:
+                self._recall(p.fixed)
                 self._reduce(p)
             elif self._keep is not None and self._h_source is not p.H:
                 self._stale = True  # a new H array: the reduced system's block views must be made again
@@ -137,6 +166,7 @@ class ActiveSetGuess:
             self._r = np.zeros(ne + m)  # [A; C; I] x
             self._check = np.zeros(2 * (ne + m) + m)  # violations (both sides) and signed multipliers
             self._kkt: dict[tuple[int, int, int], tuple] = {}
+            self._changes = {}  # (row indices of another layout)
             self._layout = key
             self._source = (None, None)
             self._lu_source = (None, None, None)
@@ -177,6 +207,14 @@ class ActiveSetGuess:
         self._prepared_arrays = (p.A, p.C, p.l, p.u)
         self._reduce(p)
 
+    def _recall(self, fixed: tuple | None) -> None:
+        """A declaration change: its active set of last time as the guess, when there is one."""
+        change = (_signature(self._fixed_source), _signature(fixed))
+        known = self._changes.get(change)
+        if known is not None:
+            self._set_active(*known)
+        self._change = change
+
     def _reduce(self, p: QpProblem) -> None:
         """The variables and equality rows the KKT system keeps: all but ``p.fixed``'s (when the
         fixed variables have no finite bounds: a bound row of one would be a zero row)."""
@@ -186,6 +224,7 @@ class ActiveSetGuess:
         if fixed is not None and p.lb is not None:
             if np.isfinite(p.lb[fixed[0]]).any() or np.isfinite(p.ub[fixed[0]]).any():  # type: ignore[index]
                 fixed = None
+        self._dead = None
         if fixed is None or not len(fixed[0]):
             self._keep = None
             self._n_keep, self._ne_keep = n, ne
@@ -197,6 +236,9 @@ class ActiveSetGuess:
         keep_eq[fixed[1]] = False
         self._keep = np.flatnonzero(keep)
         self._keep_eq = np.flatnonzero(keep_eq)
+        if len(fixed) > 2 and len(fixed[2]):
+            self._dead = np.asarray(fixed[2], dtype=np.int64)
+            self._set_live(self.active, self.upper)  # (last tick's set may hold them)
         self._n_keep, self._ne_keep = len(self._keep), len(self._keep_eq)
         # The kept variables as runs of consecutive indices (KKT start, stop, problem start):
         # H[keep][:, keep] is one block copy per pair of runs (faster than a gather).
@@ -259,11 +301,13 @@ class ActiveSetGuess:
     # --- the solve ---------------------------------------------------------------------------------
     def try_solve(self, p: QpProblem) -> np.ndarray | None:
         """The optimum if last tick's active set — or one reached from it by up to ``steps − 1``
-        single-row primal-dual exchanges (:meth:`_search`) — is provably optimal; else None (run
-        the backend)."""
+        single-row primal-dual exchanges (:meth:`_search`; ``change_steps − 1`` at a change of
+        the problem's ``fixed`` declaration, a contact made or broken: a rare tick, whose set
+        may be further away, and the backend's answer costs as much as a dozen solves) — is
+        provably optimal; else None (run the backend)."""
         self.tries += 1
         self._prepare(p)
-        x = self._search(p, self.steps)
+        x = self._search(p, self.steps if self._change is None else max(self.steps, self.change_steps))
         if x is not None:
             self.hits += 1
         return x
@@ -330,8 +374,8 @@ class ActiveSetGuess:
         above = (self._hi[ne:] - r[ne:]) <= slack
         below = (r[ne:] - self._lo[ne:]) <= slack
         active = np.flatnonzero(above | below)
-        self._set_active(active, above[active])
-        return active
+        self._set_live(active, above[active])
+        return self.active
 
     def _iterate(self, p: QpProblem, steps: int, regularized: bool = False) -> np.ndarray | None:
         """Up to ``steps`` KKT solves (each correction or regularised re-solve is one);
@@ -519,3 +563,8 @@ class ActiveSetGuess:
             upper = np.concatenate((upper[:at], (side == 0,), upper[at:]))
         self.active, self.upper = active, upper
         self._stale = True
+
+
+def _signature(fixed: tuple | None) -> tuple[bytes, ...]:
+    """A ``QpProblem.fixed`` declaration as a dictionary key."""
+    return () if fixed is None else tuple(np.asarray(part, dtype=np.int64).tobytes() for part in fixed)
