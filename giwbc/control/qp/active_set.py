@@ -79,7 +79,9 @@ class ActiveSetGuess:
         self._prepared_arrays: tuple = (None, None, None, None)
         self._fixed_source: tuple | None = None
         self._keep: np.ndarray | None = None  # the variables the KKT system keeps (None: all)
-        self._dead: np.ndarray | None = None  # inequality rows of fixed variables only (never active)
+        self._dead: np.ndarray | None = None  # mask of the inequality rows of fixed variables only (never active)
+        self._reductions: dict[tuple, tuple] = {}  # fixed declaration -> what _reduce derives from it
+        self._fixed_key: tuple = ()  # the declaration of _fixed_source, as a key
         self._changes: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # declaration change -> set found after it
         self._change: tuple | None = None  # the change of the last tick's declaration (its set is stored next tick)
         self.hits = 0
@@ -105,8 +107,8 @@ class ActiveSetGuess:
     def _set_live(self, active: np.ndarray, upper: np.ndarray) -> None:
         """:meth:`_set_active` without the rows the problem's declaration holds dead."""
         dead = self._dead
-        if dead is not None:
-            live = ~np.isin(active, dead)
+        if dead is not None and len(active):
+            live = ~dead[active]
             active, upper = active[live], upper[live]
         self._set_active(active, upper)
 
@@ -167,6 +169,7 @@ class ActiveSetGuess:
             self._check = np.zeros(2 * (ne + m) + m)  # violations (both sides) and signed multipliers
             self._kkt: dict[tuple[int, int, int], tuple] = {}
             self._changes = {}  # (row indices of another layout)
+            self._reductions = {}
             self._layout = key
             self._source = (None, None)
             self._lu_source = (None, None, None)
@@ -209,7 +212,7 @@ class ActiveSetGuess:
 
     def _recall(self, fixed: tuple | None) -> None:
         """A declaration change: its active set of last time as the guess, when there is one."""
-        change = (_signature(self._fixed_source), _signature(fixed))
+        change = (self._fixed_key, _signature(fixed))
         known = self._changes.get(change)
         if known is not None:
             self._set_active(*known)
@@ -219,35 +222,44 @@ class ActiveSetGuess:
         """The variables and equality rows the KKT system keeps: all but ``p.fixed``'s (when the
         fixed variables have no finite bounds: a bound row of one would be a zero row)."""
         self._fixed_source = fixed = p.fixed
+        self._fixed_key = _signature(fixed)
         self._stale = True
+        self._h_source: np.ndarray | None = None  # the H the current block views copy from
         n, ne = p.n, p.n_eq
         if fixed is not None and p.lb is not None:
             if np.isfinite(p.lb[fixed[0]]).any() or np.isfinite(p.ub[fixed[0]]).any():  # type: ignore[index]
                 fixed = None
-        self._dead = None
+        key = self._fixed_key if fixed is not None else ()
+        reduction = self._reductions.get(key)
+        if reduction is None:  # (a walker alternates between a few declarations: derived once each)
+            if len(self._reductions) >= 32:
+                self._reductions = {}
+            reduction = self._reductions[key] = self._reduction(fixed, n, ne)
+        self._keep, self._keep_eq, self._n_keep, self._ne_keep, self._runs, self._dead, self._h_blocks = reduction
+        if self._dead is not None:
+            self._set_live(self.active, self.upper)  # (last tick's set may hold them)
+
+    def _reduction(self, fixed: tuple | None, n: int, ne: int) -> tuple:
+        """What :meth:`_reduce` keeps of a declaration: the kept variables and equality rows,
+        their counts, the runs of kept variables, the mask of dead rows, a cache of ``H`` blocks."""
         if fixed is None or not len(fixed[0]):
-            self._keep = None
-            self._n_keep, self._ne_keep = n, ne
-            self._keep_eq = np.arange(ne)
-            return
+            return None, np.arange(ne), n, ne, [], None, {}
         keep = np.ones(n, dtype=bool)
         keep[fixed[0]] = False
         keep_eq = np.ones(ne, dtype=bool)
         keep_eq[fixed[1]] = False
-        self._keep = np.flatnonzero(keep)
-        self._keep_eq = np.flatnonzero(keep_eq)
+        kept, kept_eq = np.flatnonzero(keep), np.flatnonzero(keep_eq)
+        dead = None
         if len(fixed) > 2 and len(fixed[2]):
-            self._dead = np.asarray(fixed[2], dtype=np.int64)
-            self._set_live(self.active, self.upper)  # (last tick's set may hold them)
-        self._n_keep, self._ne_keep = len(self._keep), len(self._keep_eq)
+            dead = np.zeros(self._m, dtype=bool)
+            dead[fixed[2]] = True
         # The kept variables as runs of consecutive indices (KKT start, stop, problem start):
         # H[keep][:, keep] is one block copy per pair of runs (faster than a gather).
-        breaks = np.flatnonzero(np.diff(self._keep) != 1) + 1
+        breaks = np.flatnonzero(np.diff(kept) != 1) + 1
         starts = np.concatenate([[0], breaks])
-        stops = np.concatenate([breaks, [len(self._keep)]])
-        self._runs = [(int(a), int(b), int(self._keep[a])) for a, b in zip(starts, stops)]
-        self._h_blocks: dict = {}
-        self._h_source: np.ndarray | None = None  # the H the current block views copy from
+        stops = np.concatenate([breaks, [len(kept)]])
+        runs = [(int(a), int(b), int(kept[a])) for a, b in zip(starts, stops)]
+        return kept, kept_eq, len(kept), len(kept_eq), runs, dead, {}
 
     def _fill_rows(self, p: QpProblem) -> None:
         """Copy ``A``, ``C`` and the bounds into the guess's own stacked buffers."""
