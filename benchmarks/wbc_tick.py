@@ -58,7 +58,10 @@ def _pin_to_one_cpu() -> int | None:
         return None
 
 
-def _stats(values_s: list[float]) -> dict[str, float]:
+def _stats(values_s: list[float]) -> dict[str, float] | None:
+    """Median, p99 and max in µs; None for no values (e.g. no tick needed the backend)."""
+    if not len(values_s):
+        return None
     us = np.asarray(values_s) * 1e6
     return {"median": round(float(np.median(us)), 1), "p99": round(float(np.percentile(us, 99)), 1), "max": round(float(us.max()), 1)}
 

@@ -255,3 +255,75 @@ def test_recover_answers_the_search_from_the_tight_rows_else_the_polish_at_ten_t
             np.testing.assert_array_equal(recovered, expected)
             np.testing.assert_allclose(recovered, optimum, rtol=0, atol=1e-9)
     assert stages["search"] >= 20 and stages["tenfold"] >= 5, stages
+
+
+def _reference_exchange(check: np.ndarray, active: np.ndarray, upper: np.ndarray, ne: int, rows: int, tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """The exchange rule spelled out: drop the active row of worst multiplier sign beyond ``tol``;
+    add the inactive inequality row violated most beyond ``tol`` (upper side first on a tie, then
+    the lower row index); the set sorted by row."""
+    k = len(active)
+    keep = np.ones(k, dtype=bool)
+    if k:
+        signed = check[2 * rows : 2 * rows + k]
+        keep[int(signed.argmax())] = signed.max() <= tol
+    violation = check[: 2 * rows].reshape(2, rows)[:, ne:].copy()
+    violation[:, active] = -np.inf
+    side, row = divmod(int(violation.argmax()), rows - ne)
+    new_active, new_upper = list(active[keep]), list(upper[keep])
+    if violation[side, row] > tol:
+        new_active.append(row)
+        new_upper.append(side == 0)
+    order = np.argsort(new_active, kind="stable")
+    return np.array(new_active, dtype=np.int64)[order], np.array(new_upper, dtype=bool)[order]
+
+
+def test_the_exchange_takes_the_rule_s_decisions_on_ties_equalities_and_active_rows() -> None:
+    """``_exchange`` (which masks the last solve's check buffer in place) against the rule spelled
+    out, on 400 random checks drawn from few values (ties between rows and sides everywhere),
+    with equality rows and active rows among the most violated: the same row leaves, the same
+    row joins on the same side, the set stays sorted."""
+    rng = np.random.default_rng(15)
+    n, ne, ni = 5, 2, 9
+    A = rng.normal(size=(ne, n))
+    p = QpProblem(H=np.eye(n), g=np.zeros(n), A=A, b=np.zeros(ne), C=rng.normal(size=(ni, n)),
+                  l=np.full(ni, -1.0), u=np.full(ni, 1.0), structure=203)  # fmt: skip
+    guess = ActiveSetGuess()
+    guess._prepare(p)
+    rows = ne + ni
+    tol = guess.tolerance
+    changed = 0
+    for _ in range(400):
+        k = int(rng.integers(0, 5))
+        active = np.sort(rng.choice(ni, size=k, replace=False)).astype(np.int64)
+        upper = rng.random(k) < 0.5
+        guess.active, guess.upper = active, upper
+        check = rng.choice([-1.0, 0.0, 0.5 * tol, 2.0 * tol, 1.0, 3.0], size=2 * rows + k)
+        check[rng.random(len(check)) < 0.1] = 5.0  # the largest values on equality and active rows too
+        guess._check[: len(check)] = check
+        expected = _reference_exchange(check.copy(), active, upper, ne, rows, tol)
+        guess._exchange(ne, rows, k, tol)
+        np.testing.assert_array_equal(guess.active, expected[0])
+        np.testing.assert_array_equal(guess.upper, expected[1])
+        assert guess.active.dtype == np.int64 and guess.upper.dtype == bool
+        assert np.all(np.diff(guess.active) > 0)
+        changed += not np.array_equal(guess.active, active)
+    assert changed > 300  # (most draws exchange something)
+
+
+def test_on_a_tie_the_upper_side_joins_and_lands_in_order_among_the_active_rows() -> None:
+    """Rows 0 and 3 held at their upper limits; rows 1 (below) and 2 (above) violated by the
+    same 2: one exchange (a bound of one solve) adds row 2, upper side, between 0 and 3; the
+    full search then reaches the clipped optimum."""
+    target = np.array([3.0, -3.0, 3.0, 2.0])
+    p = _box(target, structure=204)
+    guess = ActiveSetGuess(steps=1)
+    guess.learn(p, np.clip(target, -1.0, 1.0), np.array([1.0, 0.0, 0.0, 1.0]))
+    assert guess.try_solve(p) is None
+    np.testing.assert_array_equal(guess.active, [0, 2, 3])
+    np.testing.assert_array_equal(guess.upper, [True, True, True])
+    guess.steps = 12
+    x = guess.try_solve(p)
+    assert x is not None
+    np.testing.assert_array_equal(x, np.clip(target, -1.0, 1.0))
+    np.testing.assert_array_equal(guess.active, [0, 1, 2, 3])
+    np.testing.assert_array_equal(guess.upper, [True, False, True, True])

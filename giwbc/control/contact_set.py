@@ -75,6 +75,7 @@ class ContactSlot:
     bounds_activation: float = -1.0  # activation the friction bounds were last written for
     in_problem: bool = False  # motion rows currently written (True) or zeroed
     pinned: bool = False  # broken: its force variables held at zero by its motion rows (see ContactSet.disengage)
+    closed: bool = False  # made, its normal force capped at 0: its friction rows hold its forces at zero
     ramp_force: float = 0.0  # N: the normal force a ramp moves between 0 and
     unit_index: np.ndarray | None = None  # entries of the force vector carrying normal force
     xy: tuple[float, float] = (0.0, 0.0)  # ground position of the contact reference (cached)
@@ -202,6 +203,7 @@ class ContactSet:
             n, eq = n + c.n_force, eq + c.n_motion
             slot.bounds_activation = -1.0
             slot.pinned = False
+            slot.closed = False
             slot.in_problem = not slot.engaged  # a broken contact is pinned again (disengage) at the next tick
         return n, eq
 
@@ -263,7 +265,7 @@ class ContactSet:
         and ``−JᵀΦ`` columns, pin the broken ones, and update the force regularisation."""
         p = self._problem
         kin = self.kin
-        force_changed = False
+        force_changed = closed_changed = False
         batch = self._batch
         for slot in self.slot_list:
             c = slot.contact
@@ -274,6 +276,10 @@ class ContactSet:
                     c.friction_bounds(p.l[rows], p.u[rows], slot.normal_limit())  # type: ignore[union-attr]
                     slot.bounds_activation = activation
                     force_changed = True
+                closed = slot.engaged and slot.normal_limit() == 0.0
+                if closed != slot.closed:
+                    slot.closed = closed
+                    closed_changed = True
             if slot.engaged:
                 if slot.pinned:
                     self.reengage(slot)
@@ -283,6 +289,8 @@ class ContactSet:
                     batch = None
             else:
                 batch = None
+        if closed_changed:
+            self._declare_fixed()
         if batch is not None:
             self._assemble_batch(kin, batch)
         else:
@@ -331,16 +339,24 @@ class ContactSet:
         self._declare_fixed()
 
     def _declare_fixed(self) -> None:
-        """Tell the problem which variables the pinned slots hold at zero (``QpProblem.fixed``:
-        a KKT solver eliminates them — in single support, the swing foot's 6 wrench variables and
-        their 6 rows, a 12-row smaller system)."""
+        """Tell the problem which variables the pinned and the closed slots hold at zero
+        (``QpProblem.fixed``: a KKT solver eliminates them — in single support, the swing foot's
+        6 wrench variables and their 6 rows, a 12-row smaller system). A closed slot — made, its
+        normal force capped at 0, at a touch-down's first tick — keeps its motion rows: its
+        friction rows hold its forces at zero (a friction cone closed at its apex; its faces,
+        all tight there, a degenerate active set), declared with them instead of unit rows."""
         pinned = [slot for slot in self.slot_list if slot.pinned]
-        if not pinned:
+        closed = [slot for slot in self.slot_list if slot.closed and not slot.pinned]
+        if not pinned and not closed:
             self._problem.fixed = None  # type: ignore[union-attr]
             return
-        columns = np.concatenate([np.arange(slot.columns.start, slot.columns.stop) for slot in pinned])
-        rows = np.concatenate([np.arange(slot.motion_rows.start, slot.motion_rows.stop) for slot in pinned])
-        self._problem.fixed = (columns, rows)  # type: ignore[union-attr]
+        columns = np.concatenate([np.arange(slot.columns.start, slot.columns.stop) for slot in pinned + closed])
+        rows = np.concatenate([np.arange(slot.motion_rows.start, slot.motion_rows.stop) for slot in pinned] or [np.zeros(0, dtype=np.int64)])
+        if not closed:
+            self._problem.fixed = (columns, rows)  # type: ignore[union-attr]
+            return
+        dead = np.concatenate([np.arange(slot.friction_rows.start, slot.friction_rows.stop) for slot in closed])
+        self._problem.fixed = (np.sort(columns), rows, dead)  # type: ignore[union-attr]
 
     def _assemble_batch(self, kin: Kinodynamics, batch: tuple) -> None:
         """:meth:`Contact.assemble` for all contacts at once, when every one is engaged, has the

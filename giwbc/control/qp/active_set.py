@@ -47,7 +47,15 @@ class ActiveSetGuess:
     Variables the problem declares held at zero (``QpProblem.fixed``: a broken contact's pinned
     wrench in single support) are eliminated with their equality rows: the KKT system is that
     many rows and columns smaller (G1 single support: 12 of ~67, its LU ~30 % cheaper) and the
-    answer the same optimum, those variables exactly zero.
+    answer the same optimum, those variables exactly zero. Inequality rows the declaration names
+    (rows of fixed variables only, e.g. a just-made contact's friction cone closed at zero force)
+    never enter the active set: at those variables' zero they are a degenerate vertex (16 cone
+    faces meeting at one point), whose rows in a KKT system are zero.
+
+    When the declaration changes (a contact made or broken), the guess is the active set found
+    the last time the same change happened, when there was one: last tick's set is then often
+    many exchanges away (at a touch-down's second tick, the new contact's cone faces and the
+    stance contact's own move together), and a walker repeats its changes step after step.
 
     The active set found (by either) is the next tick's guess. ``hits``/``tries`` count the
     guesses, ``polished``/``polish_failures`` the polishes, ``solves`` the KKT solves (all
@@ -56,10 +64,11 @@ class ActiveSetGuess:
     torques there).
     """
 
-    def __init__(self, tolerance: float = 1e-8, steps: int = 12, polish_steps: int = 4, threshold: float = 1e-10) -> None:
+    def __init__(self, tolerance: float = 1e-8, steps: int = 12, polish_steps: int = 4, threshold: float = 1e-10, change_steps: int = 24) -> None:
         from scipy.linalg import lapack
 
         self.steps = int(steps)
+        self.change_steps = int(change_steps)  # the search's budget at a declaration change
         self.polish_steps = int(polish_steps)
         self.tolerance = float(tolerance)
         self.threshold = float(threshold)  # |multiplier| above which a backend's row counts as active
@@ -70,6 +79,11 @@ class ActiveSetGuess:
         self._prepared_arrays: tuple = (None, None, None, None)
         self._fixed_source: tuple | None = None
         self._keep: np.ndarray | None = None  # the variables the KKT system keeps (None: all)
+        self._dead: np.ndarray | None = None  # mask of the inequality rows of fixed variables only (never active)
+        self._reductions: dict[tuple, tuple] = {}  # fixed declaration -> what _reduce derives from it
+        self._fixed_key: tuple = ()  # the declaration of _fixed_source, as a key
+        self._changes: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}  # declaration change -> set found after it
+        self._change: tuple | None = None  # the change of the last tick's declaration (its set is stored next tick)
         self.hits = 0
         self.tries = 0
         self.polished = 0
@@ -78,14 +92,25 @@ class ActiveSetGuess:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the active set (the next :meth:`try_solve` starts from an empty one)."""
+        """Forget the active set (the next :meth:`try_solve` starts from an empty one) and the
+        sets found after declaration changes."""
         self._set_active(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool))
+        self._changes = {}
+        self._change = None
 
     def _set_active(self, active: np.ndarray, upper: np.ndarray) -> None:
         order = np.argsort(active, kind="stable")
         self.active = np.ascontiguousarray(active[order], dtype=np.int64)
         self.upper = np.ascontiguousarray(upper[order], dtype=bool)
         self._stale = True  # per-active-set vectors to recompute
+
+    def _set_live(self, active: np.ndarray, upper: np.ndarray) -> None:
+        """:meth:`_set_active` without the rows the problem's declaration holds dead."""
+        dead = self._dead
+        if dead is not None and len(active):
+            live = ~dead[active]
+            active, upper = active[live], upper[live]
+        self._set_active(active, upper)
 
     @property
     def rows(self) -> np.ndarray:
@@ -98,16 +123,22 @@ class ActiveSetGuess:
         new layout would otherwise discard the set at the next :meth:`try_solve`."""
         self._prepare(problem)
         active = np.flatnonzero(np.abs(z) > self.threshold)
-        self._set_active(active, z[active] > 0)
+        self._set_live(active, z[active] > 0)
 
     # --- per-tick preparation --------------------------------------------------------------------
     def _prepare(self, p: QpProblem) -> None:
         """Stacked ``[A; C; I]`` rows and their bounds for this tick (views when the problem's
         ``A`` and ``C`` are adjacent in one buffer, as the controller lays them out)."""
         arrays = self._prepared_arrays
+        if self._change is not None:  # the set found at the tick after a declaration change
+            if len(self._changes) >= 32:
+                self._changes = {}  # (a bound on the memory; a walker repeats a handful of changes)
+            self._changes[self._change] = (self.active, self.upper)
+            self._change = None
         if p is self._prepared and p.A is arrays[0] and p.C is arrays[1] and p.l is arrays[2] and p.u is arrays[3] and p.structure == self._prepared_structure:
             # The same problem and arrays as last time (the controller's, refilled every tick).
             if p.fixed is not self._fixed_source:
+                self._recall(p.fixed)
                 self._reduce(p)
             elif self._keep is not None and self._h_source is not p.H:
                 self._stale = True  # a new H array: the reduced system's block views must be made again
@@ -137,6 +168,8 @@ class ActiveSetGuess:
             self._r = np.zeros(ne + m)  # [A; C; I] x
             self._check = np.zeros(2 * (ne + m) + m)  # violations (both sides) and signed multipliers
             self._kkt: dict[tuple[int, int, int], tuple] = {}
+            self._changes = {}  # (row indices of another layout)
+            self._reductions = {}
             self._layout = key
             self._source = (None, None)
             self._lu_source = (None, None, None)
@@ -177,35 +210,56 @@ class ActiveSetGuess:
         self._prepared_arrays = (p.A, p.C, p.l, p.u)
         self._reduce(p)
 
+    def _recall(self, fixed: tuple | None) -> None:
+        """A declaration change: its active set of last time as the guess, when there is one."""
+        change = (self._fixed_key, _signature(fixed))
+        known = self._changes.get(change)
+        if known is not None:
+            self._set_active(*known)
+        self._change = change
+
     def _reduce(self, p: QpProblem) -> None:
         """The variables and equality rows the KKT system keeps: all but ``p.fixed``'s (when the
         fixed variables have no finite bounds: a bound row of one would be a zero row)."""
         self._fixed_source = fixed = p.fixed
+        self._fixed_key = _signature(fixed)
         self._stale = True
+        self._h_source: np.ndarray | None = None  # the H the current block views copy from
         n, ne = p.n, p.n_eq
         if fixed is not None and p.lb is not None:
             if np.isfinite(p.lb[fixed[0]]).any() or np.isfinite(p.ub[fixed[0]]).any():  # type: ignore[index]
                 fixed = None
+        key = self._fixed_key if fixed is not None else ()
+        reduction = self._reductions.get(key)
+        if reduction is None:  # (a walker alternates between a few declarations: derived once each)
+            if len(self._reductions) >= 32:
+                self._reductions = {}
+            reduction = self._reductions[key] = self._reduction(fixed, n, ne)
+        self._keep, self._keep_eq, self._n_keep, self._ne_keep, self._runs, self._dead, self._h_blocks = reduction
+        if self._dead is not None:
+            self._set_live(self.active, self.upper)  # (last tick's set may hold them)
+
+    def _reduction(self, fixed: tuple | None, n: int, ne: int) -> tuple:
+        """What :meth:`_reduce` keeps of a declaration: the kept variables and equality rows,
+        their counts, the runs of kept variables, the mask of dead rows, a cache of ``H`` blocks."""
         if fixed is None or not len(fixed[0]):
-            self._keep = None
-            self._n_keep, self._ne_keep = n, ne
-            self._keep_eq = np.arange(ne)
-            return
+            return None, np.arange(ne), n, ne, [], None, {}
         keep = np.ones(n, dtype=bool)
         keep[fixed[0]] = False
         keep_eq = np.ones(ne, dtype=bool)
         keep_eq[fixed[1]] = False
-        self._keep = np.flatnonzero(keep)
-        self._keep_eq = np.flatnonzero(keep_eq)
-        self._n_keep, self._ne_keep = len(self._keep), len(self._keep_eq)
+        kept, kept_eq = np.flatnonzero(keep), np.flatnonzero(keep_eq)
+        dead = None
+        if len(fixed) > 2 and len(fixed[2]):
+            dead = np.zeros(self._m, dtype=bool)
+            dead[fixed[2]] = True
         # The kept variables as runs of consecutive indices (KKT start, stop, problem start):
         # H[keep][:, keep] is one block copy per pair of runs (faster than a gather).
-        breaks = np.flatnonzero(np.diff(self._keep) != 1) + 1
+        breaks = np.flatnonzero(np.diff(kept) != 1) + 1
         starts = np.concatenate([[0], breaks])
-        stops = np.concatenate([breaks, [len(self._keep)]])
-        self._runs = [(int(a), int(b), int(self._keep[a])) for a, b in zip(starts, stops)]
-        self._h_blocks: dict = {}
-        self._h_source: np.ndarray | None = None  # the H the current block views copy from
+        stops = np.concatenate([breaks, [len(kept)]])
+        runs = [(int(a), int(b), int(kept[a])) for a, b in zip(starts, stops)]
+        return kept, kept_eq, len(kept), len(kept_eq), runs, dead, {}
 
     def _fill_rows(self, p: QpProblem) -> None:
         """Copy ``A``, ``C`` and the bounds into the guess's own stacked buffers."""
@@ -224,15 +278,15 @@ class ActiveSetGuess:
         n, ne_kept, keep_eq = self._n_keep, self._ne_keep, self._keep_eq
         active, upper = self.active, self.upper
         k = len(active)
-        self._eq_rows = np.concatenate([keep_eq, ne + active])
+        rows_a = self._active_rows = ne + active
+        self._eq_rows = np.concatenate((keep_eq, rows_a))
         if self._keep is not None:  # [A; C_a] restricted to the kept columns, as one take
             self._e_index = self._eq_rows[:, None] * p.n + self._keep[None, :]
         # The right-hand side of [A; C_a]: b, then the active bound of each row, from _limits.
-        self._rhs_index = np.concatenate([keep_eq, np.where(upper, len(self._lo) + ne + active, ne + active)])
+        self._rhs_index = np.concatenate((keep_eq, rows_a + len(self._lo) * upper))
         # Multiplier signs, negated: − at an upper bound, + at a lower one; _solve_active drops
         # them (0) for the rows this tick's limits pin (l = u), deriving the signs per solve.
-        self._active_rows = ne + active
-        self._sign_open = np.where(upper, -1.0, 1.0)
+        self._sign_open = 1.0 - 2.0 * upper
         key = (k, n, ne_kept)
         if key not in self._kkt:
             size = n + ne_kept + k
@@ -259,11 +313,13 @@ class ActiveSetGuess:
     # --- the solve ---------------------------------------------------------------------------------
     def try_solve(self, p: QpProblem) -> np.ndarray | None:
         """The optimum if last tick's active set — or one reached from it by up to ``steps − 1``
-        single-row primal-dual exchanges (:meth:`_search`) — is provably optimal; else None (run
-        the backend)."""
+        single-row primal-dual exchanges (:meth:`_search`; ``change_steps − 1`` at a change of
+        the problem's ``fixed`` declaration, a contact made or broken: a rare tick, whose set
+        may be further away, and the backend's answer costs as much as a dozen solves) — is
+        provably optimal; else None (run the backend)."""
         self.tries += 1
         self._prepare(p)
-        x = self._search(p, self.steps)
+        x = self._search(p, self.steps if self._change is None else max(self.steps, self.change_steps))
         if x is not None:
             self.hits += 1
         return x
@@ -330,8 +386,8 @@ class ActiveSetGuess:
         above = (self._hi[ne:] - r[ne:]) <= slack
         below = (r[ne:] - self._lo[ne:]) <= slack
         active = np.flatnonzero(above | below)
-        self._set_active(active, above[active])
-        return active
+        self._set_live(active, above[active])
+        return self.active
 
     def _iterate(self, p: QpProblem, steps: int, regularized: bool = False) -> np.ndarray | None:
         """Up to ``steps`` KKT solves (each correction or regularised re-solve is one);
@@ -493,18 +549,34 @@ class ActiveSetGuess:
     def _exchange(self, ne: int, rows: int, k: int, tol: float) -> None:
         """One row out, one row in: the active row whose multiplier has the worst sign (beyond
         ``tol``) is dropped, the inactive row violated most (beyond ``tol``; its upper side on a
-        tie) is added — from the check of the last :meth:`_solve_active`."""
+        tie) is added — from the check of the last :meth:`_solve_active`, whose violations (a
+        scratch buffer, written again by the next solve) it masks in place: the equality rows
+        and the active rows (regularised solves bend those slightly) cannot be added. The set
+        stays sorted by a splice at the added row's place (no re-sort: it is the same array)."""
         check = self._check
-        keep = np.ones(k, dtype=bool)
+        active, upper = self.active, self.upper
         if k:
             signed = check[2 * rows : 2 * rows + k]
             worst = int(signed.argmax())
-            keep[worst] = signed[worst] <= tol
-        violation = check[: 2 * rows].reshape(2, rows)[:, ne:].copy()  # rows: above, below
-        violation[:, self.active] = -math.inf  # an active row stays (regularised solves bend them slightly)
-        side, row = divmod(int(violation.argmax()), rows - ne)
-        if violation[side, row] > tol:
-            added, upper = np.array([row], dtype=np.int64), np.array([side == 0])
-        else:
-            added, upper = np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool)
-        self._set_active(np.concatenate([self.active[keep], added]), np.concatenate([self.upper[keep], upper]))
+            if signed[worst] > tol:
+                active = np.concatenate((active[:worst], active[worst + 1 :]))
+                upper = np.concatenate((upper[:worst], upper[worst + 1 :]))
+        violation = check[: 2 * rows]  # above, then below, every row: the first maximum is the
+        violation[:ne] = -math.inf  # same (side, row) as in the (2, rows − ne) block of the inequalities
+        violation[rows : rows + ne] = -math.inf
+        violation[ne + self.active] = -math.inf
+        violation[rows + ne + self.active] = -math.inf
+        best = int(violation.argmax())
+        if violation[best] > tol:
+            side, row = divmod(best, rows)
+            row -= ne
+            at = int(active.searchsorted(row))
+            active = np.concatenate((active[:at], (row,), active[at:]))
+            upper = np.concatenate((upper[:at], (side == 0,), upper[at:]))
+        self.active, self.upper = active, upper
+        self._stale = True
+
+
+def _signature(fixed: tuple | None) -> tuple[bytes, ...]:
+    """A ``QpProblem.fixed`` declaration as a dictionary key."""
+    return () if fixed is None else tuple(np.asarray(part, dtype=np.int64).tobytes() for part in fixed)

@@ -44,11 +44,16 @@ class QpProblem:
     entries that can ever be non-zero for this structure; sparse backends use them as their fixed
     sparsity pattern. ``structure`` is a token that changes whenever dimensions or patterns do.
 
-    ``fixed`` (optional): variables that equality rows hold at exactly zero — those rows are unit
-    rows ``x_i = 0`` (``b_i = 0``) and the variables have no finite bounds — as ``(variables,
-    their equality rows)``; e.g. a broken contact's pinned wrench. A KKT solver may eliminate
-    them (:class:`~giwbc.control.qp.ActiveSetGuess`: a smaller system, the same optimum); the
-    pair is replaced, not modified, whenever the set changes.
+    ``fixed`` (optional): variables held at exactly zero, with no finite bounds, as ``(variables,
+    equality rows)`` or ``(variables, equality rows, inequality rows)``: the equality rows are
+    unit rows ``x_i = 0`` (``b_i = 0``) of some of them (e.g. a broken contact's pinned wrench);
+    the inequality rows (indices into ``C``) involve fixed variables only and hold the others at
+    zero — bounds with ``l ≤ 0 ≤ u`` whose only solution among those variables is zero, every
+    direction of their dual cone generated (e.g. a contact's friction cone with its normal
+    force capped at 0: the contact made, its force not yet ramped up). A KKT solver may
+    eliminate the variables, their equality rows and those inequality rows
+    (:class:`~giwbc.control.qp.ActiveSetGuess`: a smaller system, the same optimum); the tuple
+    is replaced, not modified, whenever the set changes.
     """
 
     H: np.ndarray
@@ -63,7 +68,7 @@ class QpProblem:
     H_pattern: np.ndarray | None = field(default=None, repr=False)
     AC_pattern: np.ndarray | None = field(default=None, repr=False)
     structure: int = 0
-    fixed: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False)
+    fixed: tuple[np.ndarray, ...] | None = field(default=None, repr=False)
 
     @property
     def n(self) -> int:
@@ -91,7 +96,7 @@ class QpProblem:
             copy(self.H_pattern),
             copy(self.AC_pattern),
             self.structure,
-            None if self.fixed is None else (self.fixed[0].copy(), self.fixed[1].copy()),
+            None if self.fixed is None else tuple(part.copy() for part in self.fixed),  # type: ignore[arg-type]
         )
 
     def validate(self) -> None:
