@@ -78,6 +78,12 @@ def test_fixed_variables_with_a_finite_bound_are_not_eliminated(side: str) -> No
     x = guess.try_solve(p)
     assert x is not None and p.violation(x) < 1e-9
     assert guess._views[0].shape[0] == n + p.n_eq + len(guess.active)
+    # The bound opened again (the same arrays), the same variables declared anew: now eliminated.
+    getattr(p, side)[6] = -np.inf if side == "lb" else np.inf
+    p.fixed = (np.array([5, 6, 7]), np.array([2, 3, 4]))
+    x = guess.try_solve(p)
+    assert x is not None and p.violation(x) < 1e-9 and np.all(x[[5, 6, 7]] == 0.0)
+    assert guess._views[0].shape[0] == n - 3 + p.n_eq - 3 + len(guess.active)
 
 
 def test_in_single_support_the_swing_wrench_is_declared_fixed_and_answered_zero(g1, monkeypatch) -> None:
@@ -163,3 +169,102 @@ def test_a_row_pinned_on_one_tick_and_opened_on_the_next_gets_its_multiplier_che
     assert x is not None
     np.testing.assert_allclose(x, [2.0, 2.0, 0.0], atol=1e-12)
     assert len(guess.active) == 0
+
+
+def _declared_box(n: int = 30) -> QpProblem:
+    """min ½‖x − t‖² s.t. −1 ≤ x ≤ 1 (rows of C), refilled in place from tick to tick: a declaration
+    closes some rows at 0 (``l = u = 0``: their variables held at zero, the rows dead)."""
+    return QpProblem(H=np.eye(n), g=np.zeros(n), A=np.zeros((0, n)), b=np.zeros(0), C=np.eye(n),
+                     l=np.full(n, -1.0), u=np.full(n, 1.0), structure=310)  # fmt: skip
+
+
+def _tick(guess: ActiveSetGuess, p: QpProblem, target: np.ndarray, closed: tuple[int, ...] | None, dtype=np.int64):
+    """Refill ``p`` for ``target`` with the rows ``closed`` at zero and declared (a new tuple, as
+    ``ContactSet`` makes one per change), and return the guess's answer and its KKT solves."""
+    p.g[...] = -target
+    p.l[...], p.u[...] = -1.0, 1.0
+    if closed is None:
+        if p.fixed is not None:
+            p.fixed = None
+    else:
+        p.l[list(closed)] = p.u[list(closed)] = 0.0
+        if p.fixed is None or list(p.fixed[0]) != list(closed) or p.fixed[0].dtype != dtype:
+            p.fixed = (np.array(closed, dtype=dtype), np.zeros(0, dtype=dtype), np.array(closed, dtype=dtype))
+    before = guess.solves
+    x = guess.try_solve(p)
+    if x is not None:
+        expected = np.clip(target, -1.0, 1.0)
+        if closed is not None:
+            expected[list(closed)] = 0.0
+        np.testing.assert_array_equal(x, expected)
+    return x, guess.solves - before
+
+
+def test_at_a_declaration_change_the_guess_is_the_set_found_after_the_same_change_last_time() -> None:
+    """A box QP whose declaration alternates as a walker's does (none, B, none, C, none, B), each
+    phase with its own target: 23 coordinates beyond the box in B and C (24 solves from an empty
+    set), none in the undeclared phase. A change has a budget of ``change_steps`` = 24 solves
+    (enough), a tick without one ``steps`` = 12 (not enough); the second B change starts from the
+    set the first found (1 solve) — C's change, from the same declaration, is told apart —
+    and so does a B declared with int32 indices; after ``reset`` the changes are forgotten."""
+    n = 30
+    inside = np.full(n, 0.5)
+    b_target, c_target = inside.copy(), inside.copy()
+    b_target[7:30] = 3.0  # 23 rows at their upper limit
+    c_target[5:28] = -3.0  # 23 rows at their lower limit
+    p = _declared_box(n)
+    guess = ActiveSetGuess()
+    assert (guess.steps, guess.change_steps) == (12, 24)
+    x, solves = _tick(guess, p, inside, None)
+    assert x is not None and solves == 1
+    x, solves = _tick(guess, p, b_target, (0, 1, 2))  # a change: 24 solves within its budget
+    assert x is not None and solves == 24
+    assert guess._views[0].shape[0] == n - 3 + 23  # (the closed rows' variables eliminated, their rows never active)
+    x, solves = _tick(guess, p, inside, None)  # the change back: its set unknown yet, 24 exchanges away
+    assert x is not None and solves == 24
+    x, solves = _tick(guess, p, c_target, (0, 1, 2, 3, 4))
+    assert x is not None and solves == 24
+    x, solves = _tick(guess, p, inside, None)  # the change back from C: not B's
+    assert x is not None and solves == 24
+    x, solves = _tick(guess, p, b_target, (0, 1, 2), dtype=np.int32)  # B again: the set found last time
+    assert x is not None and solves == 1
+    x, solves = _tick(guess, p, inside, None)  # and back (the change B -> none was seen once)
+    assert x is not None and solves == 1
+    # A tick without a change has a budget of 12: B's 23 rows from an empty set are not reached.
+    _tick(guess, p, inside, (0, 1, 2))  # (the change none -> B: its set recalled, then the search)
+    guess._set_active(np.zeros(0, dtype=np.int64), np.zeros(0, dtype=bool))
+    x, solves = _tick(guess, p, b_target, (0, 1, 2))
+    assert x is None and solves == 12
+    # reset forgets the sets found after changes: none -> B takes its full search again.
+    guess.reset()
+    _tick(guess, p, inside, None)
+    x, solves = _tick(guess, p, b_target, (0, 1, 2))
+    assert x is not None and solves == 24
+
+
+@pytest.mark.parametrize("closed_rows, expected", [(23, 24), (24, None)])
+def test_a_change_s_search_is_bounded_by_change_steps(closed_rows: int, expected: int | None) -> None:
+    """From an empty set, k rows to add take k + 1 solves: at a declaration change 23 rows are
+    reached within the 24-solve budget, 24 rows are not (exactly 24 solves spent, no answer)."""
+    n = 30
+    target = np.full(n, 0.5)
+    target[3 : 3 + closed_rows] = 3.0
+    p = _declared_box(n)
+    guess = ActiveSetGuess()
+    _tick(guess, p, np.full(n, 0.5), None)
+    x, solves = _tick(guess, p, target, (0, 1, 2))
+    assert solves == 24
+    assert (x is not None) == (expected is not None)
+
+
+def test_more_than_32_declarations_and_changes_are_answered() -> None:
+    """The memories of declarations and of changes are bounded (cleared at 32 entries): 40
+    different declarations in a row (each a change never seen) are all answered exactly."""
+    n = 12
+    p = _declared_box(n)
+    guess = ActiveSetGuess(steps=20)
+    target = np.linspace(-3.0, 3.0, n)
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)][:40]
+    for pair in pairs:
+        x, _ = _tick(guess, p, target, pair)
+        assert x is not None

@@ -94,6 +94,7 @@ GROUPS: tuple[Group, ...] = (
     # "*" also matches "/": "wbc" takes every module of giwbc/control/ that no other part takes.
     Group("qp", ("giwbc/control/qp/*",),
           ("tests/test_control_qp.py", "tests/test_active_set_search.py", "tests/test_active_set_fixed.py", "tests/test_proxsuite_build.py",
+           "tests/test_touchdown_tick.py::test_a_cone_closed_at_zero_declared_fixed_gives_the_optimum_of_the_undeclared_problem",
            "tests/test_wbc.py", "tests/test_wbc_bounded.py", "-m", "not slow"), 1500),
     Group("wbc", ("giwbc/control/*.py",),
           ("tests/test_wbc.py", "tests/test_wbc_mujoco_dynamics.py", "tests/test_wbc_reset.py", "tests/test_wbc_bounded.py",
