@@ -132,3 +132,36 @@ def test_a_contact_is_bound_only_to_the_model_link_and_offset_it_was_bound_with(
     wbc.add_contact(contact)
     assert contact.joint_id == other.joint_id
     assert contact.placement.isApprox(other.placement * other.offset.inverse() * contact.offset, 1e-12)
+
+
+def test_a_contact_made_at_zero_force_is_declared_fixed_until_its_ramp_opens_it(g1):
+    """Single support (the right foot broken: its 6 wrench variables and 6 motion rows pinned,
+    declared fixed, the same declaration tick after tick), then the right foot made again with
+    a ramp: at its first tick its normal force is capped at 0, so its forces are declared fixed
+    with its friction rows (no equality row: its motion rows hold the foot); from the next tick
+    the ramp has opened the cone and nothing is declared."""
+    controller = make_balance_controller(g1)
+    wbc = controller.wbc
+    q, v = g1.default_configuration(), np.zeros(wbc.nv)
+    wbc.update(q, v, 0.0)
+    right = controller.contacts[1]
+    wbc.remove_contact(right.name)
+    wbc.update(q, v, 0.002)
+    wbc.update(q, v, 0.004)
+    slot = wbc.contact_set.slot(right.name)
+    fixed = wbc.problem.fixed
+    assert fixed is not None and len(fixed) == 2
+    np.testing.assert_array_equal(fixed[0], np.arange(slot.columns.start, slot.columns.stop))
+    np.testing.assert_array_equal(fixed[1], np.arange(slot.motion_rows.start, slot.motion_rows.stop))
+    wbc.update(q, v, 0.006)
+    assert wbc.problem.fixed is fixed  # unchanged: not replaced (a new tuple is a change to the QP guess)
+    wbc.add_contact(right, ramp_time=0.1)
+    wbc.update(q, v, 0.008)
+    assert slot.engaged and slot.activation == 0.0 and not slot.pinned
+    fixed = wbc.problem.fixed
+    assert fixed is not None and len(fixed) == 3
+    np.testing.assert_array_equal(fixed[0], np.arange(slot.columns.start, slot.columns.stop))
+    assert len(fixed[1]) == 0
+    np.testing.assert_array_equal(fixed[2], np.arange(slot.friction_rows.start, slot.friction_rows.stop))
+    wbc.update(q, v, 0.010)
+    assert 0.0 < slot.activation < 1.0 and wbc.problem.fixed is None
