@@ -238,3 +238,30 @@ def test_task_defaults_and_given_gains() -> None:
     with pytest.raises(ValueError, match=r"^posture reference must be finite, got \[nan\]$"):
         PostureTask(reference=[np.nan])
     np.testing.assert_array_equal(PostureTask(reference=[0.5, 0.25]).position_ref, [0.5, 0.25])
+
+
+def test_a_full_pose_task_measures_each_state_tick_after_tick(g1, rng) -> None:
+    """The swing foot's full-pose path (from its second tick: no placement call of its own, the
+    placement read where the Jacobian's Pinocchio call leaves it) measures every new state: its
+    error and Jacobian equal a fresh task's at that state, tick after tick."""
+    model = g1.build_pinocchio()
+    kin = Kinodynamics(model)
+    task = FramePoseTask("left_ankle_roll_link")
+    task.bind(kin)
+    reference = pin.SE3(pin.rpy.rpyToMatrix(0.1, 0.2, -0.3), np.array([0.05, 0.1, 0.1]))
+    task.set_reference(reference)
+    rows, error, drift = np.zeros((6, 35)), np.zeros(6), np.zeros(6)
+    for _ in range(4):
+        q = pin.integrate(model, g1.default_configuration(), rng.uniform(-0.4, 0.4, 35))
+        v = rng.normal(size=35)
+        kin.update(q, v)
+        task.write(kin, rows, error, drift)
+        fresh_kin = Kinodynamics(model)
+        fresh_kin.update(q, v)
+        fresh = FramePoseTask("left_ankle_roll_link")
+        fresh.bind(fresh_kin)
+        fresh.set_reference(reference)
+        fresh.compute(fresh_kin)
+        np.testing.assert_array_equal(error, fresh.error)
+        np.testing.assert_array_equal(rows, fresh.jacobian)
+        np.testing.assert_array_equal(drift, fresh.drift)

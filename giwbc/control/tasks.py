@@ -464,12 +464,15 @@ class FramePoseTask(WbcTask):
             return
         if self._full:  # all six rows (a swing foot): no selection, the error written in place
             model, data = kin.model, kin.data
-            placement = _update_placement(model, data, self.frame_id)
             views = self._placement_views
-            if views is None or views[0] is not data:
-                views = self._bind_placement(data, placement)
-            if self.reference is None:
-                self.set_reference(placement)
+            if views is None or views[0] is not data or views[1] is None or self.reference is None:
+                placement = _update_placement(model, data, self.frame_id)
+                if views is None or views[0] is not data:
+                    views = self._bind_placement(data, placement)
+                if self.reference is None:
+                    self.set_reference(placement)
+            # (getFrameJacobian writes data.oMf[frame] too, oMi[joint] · placement as
+            # updateFramePlacement does: the live views read this tick's placement with no more call.)
             rows[...] = _frame_jacobian(model, data, self.frame_id, LWA)
             drift[...] = _classical_acceleration(model, data, self.frame_id, LWA).vector
             if views[1] is None:  # (the bindings return copies: read the placement)
