@@ -285,3 +285,21 @@ def test_the_joint_limit_reward_costs_each_radian_beyond_the_band(make):
     assert rewards[0] - rewards[1] == pytest.approx(10.0 * excess, rel=1e-9)
     with pytest.raises(ValueError, match="joint_limit_band"):
         make(rewards={"joint_limit_band": 0.0})
+
+
+def test_the_action_reward_costs_the_residual_itself(make):
+    """``rewards={"action": w}``: w times the mean squared action (the residual; zero is the walker
+    alone) on top of the action-rate term; nothing for the zero action."""
+    plain, shaped = make(commands=FORWARD), make(commands=FORWARD, rewards={"action": 2.0})
+    action = np.linspace(-0.8, 0.6, plain.action_space.shape[0]).astype(np.float32)
+    ends = []
+    for env in (plain, shaped):
+        env.reset(seed=0)
+        zero = env.step(np.zeros_like(action))[1]
+        ends.append((zero, env.step(action)[1]))
+    assert ends[0][0] == ends[1][0]  # the zero residual costs nothing
+    a = action.astype(float)
+    assert ends[0][1] - ends[1][1] == pytest.approx(2.0 * float(a @ a) / a.size, rel=1e-9)
+    assert ends[0][1] - ends[1][1] > 0.5
+    with pytest.raises(ValueError, match="action"):
+        make(rewards={"action": -1.0})
