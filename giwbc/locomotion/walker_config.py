@@ -157,7 +157,8 @@ class WalkerConfig:
 # soft limit) within 2-3 steps at 0.3 m/s, so it sees the nominal DCM plus the low-passed error
 # beyond a 3 cm deadband, and moves a landing at most 0.1 m from the plan. A softer swing foot
 # (kp 250, not 400): with the process emulator's one-cycle reply delay the stiffer one landed on a
-# sole edge after ~9 steps. (tests/test_deploy_walk.py)
+# sole edge after ~9 steps. From the planned touch-down on, 0.1 of the weight (on a sole down at the
+# stance sole's height) counts as landed: see ``late_touchdown_force``. (tests/test_deploy_walk.py)
 DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
     "touchdown_force": 0.35, "swing_kp": 250.0, "adapt_deadband": 0.03, "adapt_filter": 0.02, "max_adjustment": 0.1,
     "start_settle_time": 0.5, "late_touchdown_force": 0.1,
