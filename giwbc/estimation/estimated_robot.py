@@ -9,6 +9,7 @@ import pinocchio as pin
 
 from giwbc.estimation.estimator import Estimate, StateEstimator
 from giwbc.robot.interface import BaseState, ContactWrench, Robot, RobotWrapper
+from giwbc.robot.so3 import cross
 
 
 class EstimatedRobot(RobotWrapper):
@@ -91,7 +92,7 @@ class EstimatedRobot(RobotWrapper):
         force = estimate.contact_forces[index]
         position, rotation = self.link_pose(link)
         lever = rotation @ np.asarray(self.estimator.description.contacts[index].center, float)
-        return ContactWrench(force.copy(), np.cross(lever, force), bool(estimate.contacts[index]))
+        return ContactWrench(force.copy(), cross(lever, force), bool(estimate.contacts[index]))
 
 
 __all__ = ["EstimatedRobot"]
