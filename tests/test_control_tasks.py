@@ -265,3 +265,38 @@ def test_a_full_pose_task_measures_each_state_tick_after_tick(g1, rng) -> None:
         np.testing.assert_array_equal(error, fresh.error)
         np.testing.assert_array_equal(rows, fresh.jacobian)
         np.testing.assert_array_equal(drift, fresh.drift)
+
+
+def test_a_task_written_from_error_and_jacobian_sizes_its_rows_from_the_model_it_is_bound_to(g1, rng) -> None:
+    """A user's task (pink-style: error and Jacobian only) gets the base class's defaults (weight 1,
+    no gains) and knows the model's velocity size once bound (0 before): a knee-angle task."""
+
+    class Knee(WbcTask):
+        def __init__(self, joint: int) -> None:
+            super().__init__("knee", 1)
+            self.joint = joint
+
+        def compute_error(self, kin):
+            return np.array([0.6 - kin.q[7 + self.joint]])
+
+        def compute_jacobian(self, kin):
+            rows = np.zeros((1, self.nv))
+            rows[0, 6 + self.joint] = 1.0
+            return rows
+
+    knee = Knee(g1.joint_names.index("left_knee_joint"))
+    np.testing.assert_array_equal(knee.weight, 1.0)
+    np.testing.assert_array_equal(knee.kp, 0.0)
+    np.testing.assert_array_equal(knee.kd, 0.0)
+    assert knee.nv == 0  # not bound: no model yet
+    model = g1.build_pinocchio()
+    kin = Kinodynamics(model)
+    knee.bind(kin)
+    assert knee.nv == 35
+    q = pin.integrate(model, g1.default_configuration(), rng.uniform(-0.2, 0.2, 35))
+    v = rng.uniform(-1.0, 1.0, 35)
+    kin.update(q, v)
+    knee.compute(kin)
+    assert knee.jacobian.shape == (1, 35) and knee.jacobian[0, 6 + knee.joint] == 1.0
+    assert knee.error[0] == pytest.approx(0.6 - q[7 + knee.joint])
+    assert knee.error_velocity[0] == pytest.approx(-v[6 + knee.joint])
