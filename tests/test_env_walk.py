@@ -303,3 +303,30 @@ def test_the_action_reward_costs_the_residual_itself(make):
     assert ends[0][1] - ends[1][1] > 0.5
     with pytest.raises(ValueError, match="action"):
         make(rewards={"action": -1.0})
+
+
+def test_the_residual_gate_leaves_undisturbed_walking_to_the_walker(make):
+    """``residual_gate=(start, full)``: the residual acts in proportion to the walker's DCM error
+    beyond ``start`` (all of it from ``full``): undisturbed walking (DCM error under 2 cm here) is the
+    walker alone whatever the policy outputs; an always-open gate lets the same actions act."""
+    actions = np.random.default_rng(3).uniform(-1.0, 1.0, (60, 3)).astype(np.float32)
+    gated = make(residuals=["step"], commands=FORWARD, residual_gate=[0.03, 0.08])
+    observations, gates = [], []
+    observation, _ = gated.reset(seed=0)
+    for action in actions:
+        gates.append(gated.task.gate())
+        observation, *_ = gated.step(action)
+        observations.append(observation)
+    assert max(gates) == 0.0 and gated.task.last_action.any()
+    walker_alone, _ = rollout(make(residuals=["step"], commands=FORWARD), 0, 60)
+    np.testing.assert_array_equal(np.array(observations)[:, :-3], walker_alone[1:, :-3])  # all but the action echo
+    open_gate, _ = rollout(make(residuals=["step"], commands=FORWARD, residual_gate=[0.0, 1e-6]), 0, 60, actions)
+    assert np.abs(open_gate[1:, :-3] - walker_alone[1:, :-3]).max() > 0.1
+    task = gated.task
+    task.walker.state.dcm = task.walker.state.dcm_ref + np.array([0.033, 0.044])  # |error| 0.055 m: half way
+    assert task.gate() == pytest.approx(0.5)
+    task.walker.state.dcm = task.walker.state.dcm_ref + np.array([0.3, 0.0])
+    assert task.gate() == 1.0
+    for bad in ([0.05, 0.05], [-0.01, 0.05], [0.03], [0.0, math.inf]):
+        with pytest.raises(ValueError, match="residual_gate"):
+            make(residual_gate=bad)

@@ -19,7 +19,10 @@ Action blocks (``residuals=``; each entry in [-1, 1] times its scale):
   and of the CoM height (m);
 - ``orientation``: pelvis roll, pitch, yaw offsets about the walker's heading (rad).
 
-The zero action is the walker alone, bit for bit.
+The zero action is the walker alone, bit for bit. With ``residual_gate=(start, full)`` (m) the
+residuals act in proportion to ``clip((|ξ − ξ_ref| − start) / (full − start), 0, 1)`` of the
+walker's DCM error: none while the walker tracks its DCM reference (undisturbed walking is the
+walker alone, whatever the policy outputs), in full once a push has moved the DCM by ``full``.
 
 Observation (what the robot and its walker know): gravity in the IMU frame, IMU angular rate,
 joint positions minus the default pose, joint velocities, the base velocity in the heading frame
@@ -176,6 +179,7 @@ class G1Walk(FloatingBaseTask):
         walker: dict[str, Any] | str | None = None,  # WalkerConfig fields (scalars), or a preset: "deployment"
         joint_limit_margin: float | None = None,
         wbc_options: dict[str, Any] | None = None,
+        residual_gate: Sequence[float] | None = None,  # (start, full) m of DCM error: see the module docstring
     ) -> None:
         super().__init__()
         if not description.floating_base or len(description.contacts) != 2:
@@ -202,6 +206,11 @@ class G1Walk(FloatingBaseTask):
         self._band_lower = np.where(finite, middle - band, -np.inf)
         self._band_upper = np.where(finite, middle + band, np.inf)
         self._terminated: tuple[float, bool] | None = None
+        self.residual_gate = None if residual_gate is None else tuple(float(x) for x in residual_gate)
+        if self.residual_gate is not None and not (
+            len(self.residual_gate) == 2 and all(map(math.isfinite, self.residual_gate)) and 0.0 <= self.residual_gate[0] < self.residual_gate[1]
+        ):
+            raise ValueError(f"residual_gate must be (start, full) m of DCM error with 0 <= start < full, got {residual_gate}")
         config = walker_config(walker)
         if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
             config = replace(config, balance=replace(config.balance, **wbc_options))
@@ -264,10 +273,25 @@ class G1Walk(FloatingBaseTask):
         q, _ = self.robot.generalized_state()
         self.walker.reset(q)
 
+    def dcm_error(self) -> np.ndarray:
+        """The walker's DCM error ``ξ − ξ_ref`` (world xy, m; zero before its first step)."""
+        state = self.walker.state
+        return state.dcm - state.dcm_ref if self.walker.phase is not Phase.STAND or state.steps else np.zeros(2)
+
+    def gate(self) -> float:
+        """How much of the residual acts now (1 without ``residual_gate``)."""
+        if self.residual_gate is None:
+            return 1.0
+        start, full = self.residual_gate
+        return min(max((float(np.hypot(*self.dcm_error())) - start) / (full - start), 0.0), 1.0)
+
     def set_action(self, action: np.ndarray) -> None:
         self.previous_action = self.last_action
         self.last_action = np.array(action, dtype=float)
         residuals = self.layout.split(self.last_action)
+        gate = self.gate()
+        if gate != 1.0:
+            residuals = {name: gate * value for name, value in residuals.items()}
         walker = self.walker
         if "step" in residuals:
             step = residuals["step"]
@@ -327,7 +351,7 @@ class G1Walk(FloatingBaseTask):
         phase = walker.phase
         step = walker.next_footstep()
         dx, dy = step.position[0] - base.position[0], step.position[1] - base.position[1]
-        error = walker.state.dcm - walker.state.dcm_ref if phase is not Phase.STAND or walker.state.steps else np.zeros(2)
+        error = self.dcm_error()
         return np.concatenate([
             -up,
             ANGULAR_VELOCITY_SCALE * imu.angular_velocity,
