@@ -169,7 +169,7 @@ def test_the_walking_policy_walks_over_the_emulated_buses_at_its_rate(g1, model,
     standing, walking = outcome.standing, outcome.walking
     assert standing["stood"] and standing["dx"] > 0.4 and abs(standing["dy"]) < 0.15  # walked forward (ground truth)
     assert walking["steps"] >= 4
-    # The policy ran at its 50 Hz over the 3 s (one action per 10 control cycles) and moved the steps.
+    # The policy ran at its 50 Hz over the 3 s (one action per 10 control cycles).
     assert len(actions) == 150 and np.abs(np.array(actions)).max() > 1e-3
     assert outcome.result.cycles >= 10 * len(actions)
     log = read_log(outcome.log_path).walker  # the walker under the policy is logged too
