@@ -53,7 +53,7 @@ def deployment(g1, tmp_path_factory):
     if viewer is not None:
         viewer.start()
     options = DeployOptions(
-        emulate=True, controller="wbc", seconds=1.0, log=str(path), foxglove_port=port,
+        emulate=True, controller="wbc", seconds=1.0, realtime=False, log=str(path), foxglove_port=port,
         startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.3, off_delay=0.1),
         safety=SafetyConfig(max_stall=0.5),
     )  # fmt: skip
