@@ -3,6 +3,8 @@ that stops answering ends in damping, the IMU crosses processes intact, the chil
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -74,6 +76,28 @@ def test_the_shared_imu_mailbox_round_trips() -> None:
         for field in ("quaternion", "angular_velocity", "linear_acceleration"):
             assert np.array_equal(getattr(got, field), getattr(sample, field))
     finally:
+        reader.close()
+        writer.close()
+
+
+def test_a_write_in_progress_is_no_new_sample_not_a_crash() -> None:
+    """A writer preempted in the middle of a write (odd sequence) on a loaded machine: the reader
+    waits a bounded time, then reports no new sample (the CAN robot keeps the last one and the
+    supervisor's IMU timeout catches a writer that stays stuck); once the write ends it reads."""
+    writer = SharedImuChannel()
+    reader = SharedImuChannel(writer.name)
+    try:
+        sample = ImuReading(np.array([1.0, 0.0, 0.0, 0.0]), np.zeros(3), np.array([0.0, 0.0, 9.81]), 0.5)
+        writer.publish(sample)
+        values = np.ndarray((13,), dtype=np.float64, buffer=writer._shm.buf)
+        values[0] += 1.0  # the writer starts a write and is preempted
+        start = time.perf_counter()
+        assert reader.read() is None
+        assert time.perf_counter() - start < 0.05
+        values[0] += 1.0  # the write completes
+        assert reader.read().time == 0.5
+    finally:
+        del values
         reader.close()
         writer.close()
 
