@@ -20,7 +20,8 @@ ramps of lift-off and touch-down, and the first tick of each phase). Its single-
 is compared with the standing double-support median above (``single_over_standing``) and with
 the walker's own double-support ticks (``single_over_double``: after the same between-tick
 planning work, which leaves the caches colder than the standing replay's), all measured in this
-one process, interleaved replays (``--repeat``). The same ticks split by who
+one process, interleaved replays (``--repeat``); ``planning_us``: the walker's own work in those ticks (its update
+minus the WBC tick). The same ticks split by who
 answered (``guess_answered_us`` / ``backend_us``, ``backend_share``, the p99 with and without
 the backend ticks), and ``backend_tick_parts_cpu_us``: the CPU time of each part of a backend
 tick (the guess's failed KKT solves, proxsuite, the polish, the settle fallback), from one more
@@ -162,13 +163,17 @@ def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str
     walker = WalkingController(description)
     walker.reset(inputs[0][0])
     names = [contact.name for contact in walker.contacts.values()]
-    kinds: dict[str, list] = {"single": [], "double": [], "switch": [], "guess": [], "backend": [], "single_stages": [], "double_stages": []}
+    kinds: dict[str, list] = {"single": [], "double": [], "switch": [], "guess": [], "backend": [], "single_stages": [], "double_stages": [],
+                              "planning_single": [], "planning_double": []}
     previous = None
+    clock = time.perf_counter
     failures = 0
     for i, (q, v, t, forces, start) in enumerate(inputs):
         if start:
             walker.set_command(speed, 0.0, 0.0)
+        begin = clock()
         result = walker.update(q, v, t, forces)
+        planning = clock() - begin - result.timings.total  # the walker's own work of the tick
         failures += not result.ok
         activations = tuple(walker.wbc.contact_activation(name) for name in names)
         phase = walker.state.phase
@@ -179,9 +184,11 @@ def replay_walk(description, inputs: list, speed: float = 0.3) -> tuple[dict[str
             elif phase is Phase.SINGLE:
                 kinds["single"].append(result.timings.total)
                 kinds["single_stages"].append(result.timings)
+                kinds["planning_single"].append(planning)
             elif phase is Phase.DOUBLE or walker.state.steps:
                 kinds["double"].append(result.timings.total)
                 kinds["double_stages"].append(result.timings)
+                kinds["planning_double"].append(planning)
         previous = activations
     return kinds, failures
 
@@ -290,7 +297,8 @@ def main(argv: list[str] | None = None) -> int:
     states, in_loop = record(description, args.solver, args.seconds, settings)
 
     walk_inputs = record_walk(description, args.walk_seconds) if args.walk else []
-    walk_kinds: dict[str, list] = {"single": [], "double": [], "switch": [], "guess": [], "backend": [], "single_stages": [], "double_stages": []}
+    walk_kinds: dict[str, list] = {"single": [], "double": [], "switch": [], "guess": [], "backend": [], "single_stages": [], "double_stages": [],
+                                   "planning_single": [], "planning_double": []}
     walk_failures = 0
 
     controller = make_balance_controller(description, solver=args.solver, solver_settings=settings)
@@ -349,6 +357,9 @@ def main(argv: list[str] | None = None) -> int:
             # Where a walking tick's time goes (medians, µs; tick_us above: the standing tick's).
             "stages_median_us": {kind: _stage_medians(walk_kinds[f"{kind}_stages"]) for kind in ("single", "double")},
             "contact_switch_us": _stats(walk_kinds["switch"]),
+            # The walker's own work per tick (its update minus its WBC tick: measure, schedule,
+            # step adapter, swing, references), in single and in double support.
+            "planning_us": {"single": _stats(walk_kinds["planning_single"]), "double": _stats(walk_kinds["planning_double"])},
             # The ticks the guess answered and those that ran proxsuite + polish: the latter set
             # the walking tick's p99 (``p99_guess_only_us``: what it would be without them).
             "guess_answered_us": _stats(walk_kinds["guess"]),

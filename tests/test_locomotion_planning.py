@@ -12,7 +12,7 @@ import pytest
 from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, GaitConfig, VelocityCommand, side_sign
 from giwbc.locomotion.lipm import dcm_at, natural_frequency
 from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter, StepAdapterWeights, bounded_box, solve_box_qp, solve_step_qp, step_qp_matrices
-from giwbc.locomotion.swing import SwingTrajectory
+from giwbc.locomotion.swing import SwingTrajectory, quintic
 from giwbc.locomotion.walker import WalkerConfig
 
 OMEGA = natural_frequency(0.68)
@@ -90,6 +90,31 @@ def test_step_adapter_lands_the_foot_on_the_dcm_offset_it_is_given():
         np.testing.assert_allclose(result.dcm_at_touchdown, predicted, atol=1e-12)
         np.testing.assert_allclose(result.position + np.asarray(offset), predicted, atol=2e-3)
         np.testing.assert_allclose(result.offset, offset, atol=2e-3)
+
+
+def test_step_adapter_frame_made_once_per_step_gives_the_same_numbers(rng=np.random.default_rng(3)):
+    """The walker makes the adapter's per-step part once (:meth:`StepAdapter.frame`) and adapts
+    every tick with it: the same bits as :meth:`StepAdapter.adapt`, the lazily rotated DCM and
+    offset included; a non-finite nominal step is refused when the frame is made."""
+    adapter = StepAdapter(OMEGA)
+    stance = Footstep("right", [0.1, -0.12], 0.3)
+    nominal, offset, box = np.array([0.3, 0.1]), np.array([0.02, 0.05]), ((-0.3, 0.4), (0.15, 0.45))
+    frame = adapter.frame(stance, nominal, offset)
+    for _ in range(20):
+        dcm = stance.position + rng.normal(0.0, 0.1, 2)
+        cop = stance.position + rng.normal(0.0, 0.02, 2)
+        remaining = float(rng.uniform(0.05, 0.4))
+        a = adapter.adapt(stance, cop, dcm, nominal, remaining, offset, box, (0.05, 0.5))
+        b = adapter.adapt_in(frame, cop, dcm, remaining, box, (0.05, 0.5))
+        assert a.remaining_time == b.remaining_time
+        for x, y in ((a.position, b.position), (a.dcm_at_touchdown, b.dcm_at_touchdown), (a.offset, b.offset)):
+            np.testing.assert_array_equal(x, y)
+        # the predicted DCM: the LIPM closed form with the CoP held at `cop`
+        np.testing.assert_allclose(b.dcm_at_touchdown, dcm_at(b.remaining_time, dcm, cop, OMEGA), atol=1e-12)
+    with pytest.raises(ValueError, match="finite"):
+        adapter.frame(stance, np.array([math.nan, 0.0]), offset)
+    with pytest.raises(ValueError, match="finite"):
+        adapter.adapt_in(frame, stance.position, np.array([math.inf, 0.0]), 0.2, box, (0.05, 0.5))
 
 
 def test_step_adapter_keeps_the_plan_when_the_dcm_is_on_plan():
@@ -223,6 +248,29 @@ def test_retargeting_in_flight_keeps_continuity_and_lands_at_rest_on_the_new_spo
     np.testing.assert_allclose(swing.evaluate(touchdown)[0], new_target, atol=1e-9)
     np.testing.assert_allclose(swing.evaluate(touchdown)[1], 0.0, atol=1e-9)
     assert swing.t1 == pytest.approx(touchdown)
+
+
+def test_quintic_meets_its_end_conditions_and_the_swing_state_is_its_evaluation():
+    """A quintic (the swing's pieces) takes the given position, velocity and acceleration at both
+    ends; :meth:`SwingTrajectory.state` (floats, the walker's every-tick read) is
+    :meth:`SwingTrajectory.evaluate`'s numbers, before and after a re-target."""
+    start, end = (0.1, -0.4, 2.0), (0.35, 0.2, -1.0)
+    c = quintic(1.0, 1.3, start, end)
+    for s, expected in ((0.0, start), (0.3, end)):
+        p = np.polyval(c[::-1], s)
+        v = np.polyval(np.polyder(c[::-1]), s)
+        a = np.polyval(np.polyder(c[::-1], 2), s)
+        np.testing.assert_allclose([p, v, a], expected, atol=1e-9)
+    with pytest.raises(ValueError):
+        quintic(1.0, 1.0, start, end)
+    swing = SwingTrajectory(1.0, 1.4, np.array([0.0, 0.12, 0.0, 0.0]), np.array([0.3, 0.14, 0.0, 0.2]), apex=0.08)
+    for retarget in (False, True):
+        if retarget:
+            swing.retarget(1.1, np.array([0.35, 0.2, 0.0, 0.1]), 1.45)
+        for t in (0.9, 1.05, 1.2, 1.38, 1.5):
+            state = np.array(swing.state(t))  # (x, y, z, yaw) × (position, velocity, acceleration)
+            for k, array in enumerate(swing.evaluate(t)):
+                np.testing.assert_array_equal(state[:, k], array)
 
 
 def test_swing_refuses_bad_input():

@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from giwbc.locomotion.footsteps import Footstep, other_side, side_sign
-from giwbc.locomotion.step_adapter import StepAdjustment
+from giwbc.locomotion.step_adapter import StepAdjustment, StepFrame
 from giwbc.locomotion.support import clip_to_polygon, signed_distance
 from giwbc.locomotion.walker_config import Phase
 
@@ -116,10 +116,11 @@ class PushRecovery:
         (x_lo, x_hi), (y_lo, y_hi) = box
         return ((x_lo, x_hi), (y_lo, y_hi)) if side_sign(swing) > 0 else ((x_lo, x_hi), (-y_hi, -y_lo))
 
-    def _landing_adjustment(self, t: float, stance: Footstep, dcm: np.ndarray, box: tuple[tuple[float, float], tuple[float, float]],
+    def _landing_adjustment(self, t: float, stance: Footstep, dcm: np.ndarray, frame: StepFrame, box: tuple[tuple[float, float], tuple[float, float]],
                             remaining_range: tuple[float, float]) -> StepAdjustment:
         """The step adapter's landing and touch-down for the DCM ``dcm``, with the CoP held where the
-        DCM controller will hold it: the stance sole's centre walking; recovering, per ``recovery_cop``."""
+        DCM controller will hold it: the stance sole's centre walking; recovering, per ``recovery_cop``
+        (``frame``: the adapter's per-step part, :meth:`_step_frame`)."""
         cfg = self.config
         # Recovering, the DCM controller holds the CoP on the stance sole's edge nearest the DCM
         # (clipped there), not at its centre: predicting from the centre overstated the DCM's run by
@@ -129,13 +130,9 @@ class PushRecovery:
         assert self._nominal_target is not None
         edge = self._recovering and cfg.recovery_cop != "centre"
         cop_hold = clip_to_polygon(dcm, self.support_polygon((self._stance,))) if edge else stance.position
-        adjustment = self.adapter.adapt(  # type: ignore[union-attr]
-            stance, cop_hold, dcm, self._nominal_target.position, self._phase_end - t, self._nominal_offset, box, remaining_range,
-        )
+        adjustment = self.adapter.adapt_in(frame, cop_hold, dcm, self._phase_end - t, box, remaining_range)  # type: ignore[union-attr]
         if edge and cfg.recovery_cop == "auto" and float(stance.to_local(adjustment.position)[0]) >= box[0][1] - 1e-6:
-            adjustment = self.adapter.adapt(  # type: ignore[union-attr]
-                stance, stance.position, dcm, self._nominal_target.position, self._phase_end - t, self._nominal_offset, box, remaining_range,
-            )
+            adjustment = self.adapter.adapt_in(frame, stance.position, dcm, self._phase_end - t, box, remaining_range)  # type: ignore[union-attr]
         return adjustment
 
     # --- the reach crouch -------------------------------------------------------------------------

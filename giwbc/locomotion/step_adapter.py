@@ -41,14 +41,30 @@ class StepAdapterWeights:
                 raise ValueError(f"step adapter weights must be finite and > 0, got {self}")
 
 
-@dataclass(frozen=True)
 class StepAdjustment:
-    """The adapted next footstep (world x, y), the remaining step time and the predicted DCM."""
+    """The adapted next footstep (world x, y), the remaining step time and the predicted DCM.
 
-    position: np.ndarray
-    remaining_time: float
-    dcm_at_touchdown: np.ndarray
-    offset: np.ndarray  # ξ_end − u, world
+    ``dcm_at_touchdown`` and ``offset`` (``ξ_end − u``, world) are rotated into the world when
+    asked for: the walker's every-tick adaptation reads the footstep and the time only."""
+
+    __slots__ = ("position", "remaining_time", "_frame", "_stance_values")
+
+    def __init__(self, position: np.ndarray, remaining_time: float, frame: StepFrame, stance_values: tuple[float, float, float, float]) -> None:
+        self.position, self.remaining_time = position, remaining_time
+        self._frame, self._stance_values = frame, stance_values  # (ξ_end x, y, u x, y) in the stance frame
+
+    @property
+    def dcm_at_touchdown(self) -> np.ndarray:
+        frame = self._frame
+        ex, ey, _, _ = self._stance_values
+        x, y = rotate(frame.c, frame.s, ex, ey)
+        return np.array([frame.ox + x, frame.oy + y])
+
+    @property
+    def offset(self) -> np.ndarray:
+        frame = self._frame
+        ex, ey, ux, uy = self._stance_values
+        return np.array(rotate(frame.c, frame.s, ex - ux, ey - uy))
 
 
 def solve_box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
@@ -138,6 +154,24 @@ def solve_step_qp(
     return np.array(best)
 
 
+class StepFrame:
+    """What one step's adaptations share (a swing's every tick): the stance sole's frame and the
+    plan's next foot and DCM offset in it — made once per step (:meth:`StepAdapter.frame`)."""
+
+    __slots__ = ("c", "s", "ox", "oy", "u_nom", "b_nom")
+
+    def __init__(self, stance: Footstep, nominal_step: np.ndarray, nominal_offset: np.ndarray) -> None:
+        (nx, ny), (bx, by) = ((float(v[0]), float(v[1])) for v in (nominal_step, nominal_offset))
+        self.ox, self.oy = float(stance.position[0]), float(stance.position[1])
+        if not all(math.isfinite(v) for v in (nx, ny, bx, by)):  # (the stance foot is finite: a Footstep)
+            raise ValueError("step adapter inputs must be finite")
+        # Plain floats, the same bits as the 2 × 2 numpy products they replace (giwbc.locomotion.planar):
+        # Rᵀ (x − s) into the stance sole's frame, s + R x back to the world.
+        self.c, self.s = c, sn = math.cos(stance.yaw), math.sin(stance.yaw)
+        self.u_nom = rotate_back(c, sn, nx - self.ox, ny - self.oy)
+        self.b_nom = rotate_back(c, sn, bx, by)
+
+
 class StepAdapter:
     """The step-adjustment QP of the module docstring for a stance foot and a box of landing spots."""
 
@@ -146,6 +180,11 @@ class StepAdapter:
             raise ValueError(f"omega must be > 0, got {omega}")
         self.omega = float(omega)
         self.weights = weights or StepAdapterWeights()
+
+    @staticmethod
+    def frame(stance: Footstep, nominal_step: np.ndarray, nominal_offset: np.ndarray) -> StepFrame:
+        """The per-step part of :meth:`adapt` (for :meth:`adapt_in`, every tick of the step)."""
+        return StepFrame(stance, nominal_step, nominal_offset)
 
     def adapt(
         self,
@@ -166,34 +205,38 @@ class StepAdapter:
         the stance sole's frame ``((x_lo, x_hi), (y_lo, y_hi))``; ``remaining_range`` the allowed
         remaining time ``(T_min, T_max)``, s.
         """
-        (cx, cy), (xx, xy), (nx, ny), (bx, by) = ((float(v[0]), float(v[1])) for v in (cop, dcm, nominal_step, nominal_offset))
-        if not all(math.isfinite(v) for v in (cx, cy, xx, xy, nx, ny, bx, by, nominal_remaining)):
+        return self.adapt_in(StepFrame(stance, nominal_step, nominal_offset), cop, dcm, nominal_remaining, box, remaining_range)
+
+    def adapt_in(
+        self,
+        frame: StepFrame,
+        cop: np.ndarray,
+        dcm: np.ndarray,
+        nominal_remaining: float,
+        box: tuple[tuple[float, float], tuple[float, float]],
+        remaining_range: tuple[float, float],
+    ) -> StepAdjustment:
+        """:meth:`adapt` with its per-step part made already (:meth:`frame`): the same numbers."""
+        cx, cy, xx, xy = float(cop[0]), float(cop[1]), float(dcm[0]), float(dcm[1])
+        if not all(math.isfinite(v) for v in (cx, cy, xx, xy, nominal_remaining)):
             raise ValueError("step adapter inputs must be finite")
         t_lo, t_hi = remaining_range
         if not (0.0 <= t_lo <= t_hi):
             raise ValueError(f"remaining time range must satisfy 0 <= T_min <= T_max, got {remaining_range}")
         w = self.weights
-        # Plain floats, the same bits as the 2 × 2 numpy products they replace (giwbc.locomotion.planar):
-        # Rᵀ (x − s) into the stance sole's frame, s + R x back to the world.
-        c, sn = math.cos(stance.yaw), math.sin(stance.yaw)
-        ox, oy = float(stance.position[0]), float(stance.position[1])
+        c, sn, ox, oy = frame.c, frame.s, frame.ox, frame.oy
         p = rotate_back(c, sn, cx - ox, cy - oy)
         d = rotate_back(c, sn, xx - cx, xy - cy)
-        u_nom = rotate_back(c, sn, nx - ox, ny - oy)
-        b_nom = rotate_back(c, sn, bx, by)
+        b_nom = frame.b_nom
         sigma_lo, sigma_hi = math.exp(self.omega * t_lo), math.exp(self.omega * t_hi)
         sigma_nom = math.exp(self.omega * min(max(nominal_remaining, t_lo), t_hi))
         (x_lo, x_hi), (y_lo, y_hi) = box
         k = (p[0] - b_nom[0], p[1] - b_nom[1])
-        z = solve_step_qp(w.position, w.timing, w.offset, u_nom, sigma_nom, d, k, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
+        z = solve_step_qp(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
         ux, uy, sigma = float(z[0]), float(z[1]), float(z[2])
-        ex, ey = p[0] + d[0] * sigma, p[1] + d[1] * sigma  # ξ_end, stance frame
         u_world = rotate(c, sn, ux, uy)
-        xi_world = rotate(c, sn, ex, ey)
-        offset = rotate(c, sn, ex - ux, ey - uy)
-        return StepAdjustment(
-            np.array([ox + u_world[0], oy + u_world[1]]), math.log(sigma) / self.omega, np.array([ox + xi_world[0], oy + xi_world[1]]), np.array(offset)
-        )
+        ex, ey = p[0] + d[0] * sigma, p[1] + d[1] * sigma  # ξ_end, stance frame
+        return StepAdjustment(np.array([ox + u_world[0], oy + u_world[1]]), math.log(sigma) / self.omega, frame, (ex, ey, ux, uy))
 
 
 class DcmErrorShaper:

@@ -20,16 +20,22 @@ import numpy as np
 def quintic(t0: float, t1: float, start: tuple[float, float, float], end: tuple[float, float, float]) -> np.ndarray:
     """Coefficients (6,) in ``s = t − t0`` of the quintic with the given (position, velocity,
     acceleration) at ``t0`` and ``t1``."""
+    return np.array(_quintic(t0, t1, start, end))
+
+
+def _quintic(t0: float, t1: float, start: tuple[float, float, float], end: tuple[float, float, float]) -> tuple[float, ...]:
+    """:func:`quintic`'s coefficients as plain floats (a swing is re-targeted at many ticks:
+    the same operations on the same values, without numpy)."""
     T = t1 - t0
     if not T > 0:
         raise ValueError(f"a quintic needs t1 > t0, got {t0}, {t1}")
-    p0, v0, a0 = start
-    p1, v1, a1 = end
+    p0, v0, a0 = (float(x) for x in start)
+    p1, v1, a1 = (float(x) for x in end)
     T2, T3, T4, T5 = T * T, T**3, T**4, T**5
     c3 = (20 * (p1 - p0) - (8 * v1 + 12 * v0) * T - (3 * a0 - a1) * T2) / (2 * T3)
     c4 = (-30 * (p1 - p0) + (14 * v1 + 16 * v0) * T + (3 * a0 - 2 * a1) * T2) / (2 * T4)
     c5 = (12 * (p1 - p0) - 6 * (v1 + v0) * T - (a0 - a1) * T2) / (2 * T5)
-    return np.array([p0, v0, a0 / 2.0, c3, c4, c5])
+    return (p0, v0, a0 / 2.0, float(c3), float(c4), float(c5))
 
 
 def _evaluate(coefficients: tuple[float, ...] | np.ndarray, s: float) -> tuple[float, float, float]:
@@ -41,11 +47,11 @@ def _evaluate(coefficients: tuple[float, ...] | np.ndarray, s: float) -> tuple[f
 
 
 class _Chain:
-    """A sequence of quintics over consecutive time intervals; constant outside them."""
+    """A sequence of quintics (coefficient tuples, :func:`_quintic`) over consecutive time
+    intervals; constant outside them."""
 
-    def __init__(self, knots: list[float], pieces: list[np.ndarray]) -> None:
-        self.knots, self.pieces = knots, pieces
-        self._floats = [tuple(piece.tolist()) for piece in pieces]  # (evaluated every tick: no numpy scalars)
+    def __init__(self, knots: list[float], pieces: list[tuple[float, ...]]) -> None:
+        self.knots, self._floats = knots, pieces  # (evaluated every tick: no numpy scalars)
 
     def __call__(self, t: float) -> tuple[float, float, float]:
         knots, pieces = self.knots, self._floats
@@ -75,17 +81,21 @@ class SwingTrajectory:
         self.apex_time = t0 + apex_fraction * (t1 - t0)
         self.target = target.copy()
         zero = (0.0, 0.0)
-        self._axes = [_Chain([t0, t1], [quintic(t0, t1, (start[i], *zero), (target[i], *zero))]) for i in (0, 1, 3)]
+        self._axes = [_Chain([t0, t1], [_quintic(t0, t1, (start[i], *zero), (target[i], *zero))]) for i in (0, 1, 3)]
         self._z = _Chain(
             [t0, self.apex_time, t1],
-            [quintic(t0, self.apex_time, (start[2], *zero), (self.apex_height, *zero)), quintic(self.apex_time, t1, (self.apex_height, *zero), (target[2], *zero))],
+            [_quintic(t0, self.apex_time, (start[2], *zero), (self.apex_height, *zero)), _quintic(self.apex_time, t1, (self.apex_height, *zero), (target[2], *zero))],
         )
 
     def evaluate(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, z, yaw) position, velocity and acceleration at ``t`` (held at rest outside the swing)."""
-        x, y, yaw = (axis(t) for axis in self._axes)
-        z = self._z(t)
+        x, y, z, yaw = self.state(t)
         return np.array([x[0], y[0], z[0], yaw[0]]), np.array([x[1], y[1], z[1], yaw[1]]), np.array([x[2], y[2], z[2], yaw[2]])
+
+    def state(self, t: float) -> tuple[tuple[float, float, float], ...]:
+        """:meth:`evaluate`'s numbers as floats, per coordinate (x, y, z, yaw): (position, velocity, acceleration)."""
+        x, y, yaw = (axis(t) for axis in self._axes)
+        return x, y, self._z(t), yaw
 
     def retarget(self, t: float, target: np.ndarray | None = None, touchdown: float | None = None, min_remaining: float = 0.02) -> None:
         """From time ``t`` on, go to ``target`` (default: the current one) landing at
@@ -97,11 +107,11 @@ class SwingTrajectory:
         if t >= self.t1:
             return  # already landed (or past it): nothing left to re-plan
         touchdown = max(touchdown, t + min_remaining)
-        position, velocity, acceleration = self.evaluate(t)
+        now = self.state(t)  # (position, velocity, acceleration) per coordinate
         self.target = target.copy()
         end = (0.0, 0.0)
         self._axes = [
-            _Chain([t, touchdown], [quintic(t, touchdown, (position[i], velocity[i], acceleration[i]), (target[i], *end))]) for i in (0, 1, 3)
+            _Chain([t, touchdown], [_quintic(t, touchdown, now[i], (target[i], *end))]) for i in (0, 1, 3)
         ]
         # The apex keeps its share of the swing; once past it, straight down to the target.
         apex_time = self.t0 + (self.apex_time - self.t0) / (self.t1 - self.t0) * (touchdown - self.t0)
@@ -109,11 +119,11 @@ class SwingTrajectory:
             self._z = _Chain(
                 [t, apex_time, touchdown],
                 [
-                    quintic(t, apex_time, (position[2], velocity[2], acceleration[2]), (self.apex_height, *end)),
-                    quintic(apex_time, touchdown, (self.apex_height, *end), (target[2], *end)),
+                    _quintic(t, apex_time, now[2], (self.apex_height, *end)),
+                    _quintic(apex_time, touchdown, (self.apex_height, *end), (target[2], *end)),
                 ],
             )
         else:
-            self._z = _Chain([t, touchdown], [quintic(t, touchdown, (position[2], velocity[2], acceleration[2]), (target[2], *end))])
+            self._z = _Chain([t, touchdown], [_quintic(t, touchdown, now[2], (target[2], *end))])
             apex_time = t
         self.apex_time, self.t1 = apex_time, touchdown

@@ -19,7 +19,7 @@ import pinocchio as pin
 from giwbc.control.tasks import FramePoseTask
 from giwbc.locomotion.footsteps import Footstep, other_side, wrap_angle
 from giwbc.locomotion.planar import distance2
-from giwbc.locomotion.step_adapter import bounded_box
+from giwbc.locomotion.step_adapter import StepFrame, bounded_box
 from giwbc.locomotion.swing import SwingTrajectory
 
 
@@ -63,8 +63,8 @@ class SwingControl:
             task.set_weight(cfg.recovery_swing_weight)  # pushed: the foot must get where the adapter sends it
         shaper = self._dcm_shaper
         dcm = shaper(t, xi, self._step_reference.evaluate(t)[0]) if shaper.active and self._step_reference is not None else xi
-        box = bounded_box(self._landing_box(swing), stance.to_local(self._nominal_target.position), cfg.max_adjustment)
-        adjustment = self._landing_adjustment(t, stance, dcm, box, remaining_range)
+        frame, box = self._step_frame(stance, swing)
+        adjustment = self._landing_adjustment(t, stance, dcm, frame, box, remaining_range)
         target = Footstep(swing, adjustment.position, self._nominal_target.yaw)
         self.state.planned_target = target.position
         target = self._apply_step_offset(stance, target)
@@ -79,6 +79,20 @@ class SwingControl:
             if planned is None or distance2(target.position, planned[0]) > cfg.replan_distance or abs(self._swing.t1 - planned[1]) > cfg.replan_time:
                 self._reference = self._plan_single(t, target, self._swing.t1)
 
+    def _step_frame(self, stance: Footstep, swing: str) -> tuple[StepFrame, tuple[tuple[float, float], tuple[float, float]]]:
+        """The step adapter's per-step part and the landing box: made at the step's first
+        adaptation, reused while the stance foot, the nominal step, its DCM offset and the
+        recovery flag stay the same objects (they change only at lift-off and touch-down)."""
+        key = (stance, self._nominal_target, self._nominal_offset, self._recovering, swing)
+        cached = self._step_frames
+        if cached is not None and all(a is b for a, b in zip(cached[0], key)):
+            return cached[1], cached[2]
+        assert self._nominal_target is not None
+        box = bounded_box(self._landing_box(swing), stance.to_local(self._nominal_target.position), self.config.max_adjustment)
+        frame = self.adapter.frame(stance, self._nominal_target.position, self._nominal_offset)  # type: ignore[union-attr]
+        self._step_frames = (key, frame, box)
+        return frame, box
+
     def _remove_swing_task(self, task: FramePoseTask) -> None:
         """Take a swing sole's task out of the QP (if it is there)."""
         if any(existing is task for existing in self.wbc.tasks):
@@ -89,22 +103,20 @@ class SwingControl:
         at ``t``; past the planned touch-down the foot keeps descending at ``descent_speed``."""
         swing = other_side(self._stance)
         assert self._swing is not None
-        position, velocity, acceleration = self._swing.evaluate(t)
+        # (Plain floats: the same numbers as the swing's evaluate() arrays.)
+        (px, vx, ax), (py, vy, ay), (pz, vz, az_), (yaw, wz, az) = self._swing.state(t)
         if t > self._swing.t1:  # late: keep descending
             late = t - self._swing.t1
-            position[2] -= self.config.descent_speed * late
-            velocity[2] = -self.config.descent_speed
-        yaw = float(position[3])
+            pz -= self.config.descent_speed * late
+            vz = -self.config.descent_speed
         c, s = math.cos(yaw), math.sin(yaw)
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        sole = pin.SE3(rotation, position[:3].copy())
+        sole = pin.SE3(rotation, np.array([px, py, pz]))
         ankle = sole * self._sole_inverse[swing]
         # The ankle origin's velocity and acceleration (the sole turns about z only).
-        ankle_xy, sole_xy = ankle.translation[:2].tolist(), position[:2].tolist()
-        lx, ly = ankle_xy[0] - sole_xy[0], ankle_xy[1] - sole_xy[1]
-        vx, vy, vz, wz = velocity.tolist()
-        ax, ay, az_, az = acceleration.tolist()
+        ankle_xy = ankle.translation[:2].tolist()
+        lx, ly = ankle_xy[0] - px, ankle_xy[1] - py
         # ω × r and α × r + ω × (ω × r) for ω, α along z
         twist = np.array([vx - wz * ly, vy + wz * lx, vz, 0.0, 0.0, wz])
         accel = np.array([ax - az * ly - wz * wz * lx, ay + az * lx - wz * wz * ly, az_, 0.0, 0.0, az])
-        self.swing_tasks[swing].set_reference(ankle, twist, accel)
+        self.swing_tasks[swing].set_reference(ankle, twist, accel, owned=True)  # (new objects, handed over)
