@@ -424,25 +424,10 @@ class FramePoseTask(WbcTask):
         gram[3:6, 3:6] = self.weight[0] * np.eye(3)
         return gram
 
-    def set_reference(
-        self, placement: pin.SE3, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None, *, owned: bool = False,
-    ) -> None:
-        """Reference pose; optional twist and classical acceleration, 6D world axes ``[linear; angular]``.
-
-        ``owned``: the caller hands ``placement`` and the rates over (a swing foot's reference, new
-        every tick) — finite float arrays of six entries that it no longer touches: kept as they
-        are, without copies or checks."""
+    def set_reference(self, placement: pin.SE3, velocity: np.ndarray | None = None, acceleration: np.ndarray | None = None) -> None:
+        """Reference pose; optional twist and classical acceleration, 6D world axes ``[linear; angular]``."""
         if not isinstance(placement, pin.SE3):
             raise TypeError("the reference of a frame task is a pinocchio.SE3")
-        if owned:
-            self.reference = placement
-            self._reference_rotation = placement.rotation
-            self._reference_translation = placement.translation
-            if not self._full:
-                velocity = None if velocity is None else velocity[self.rows]
-                acceleration = None if acceleration is None else acceleration[self.rows]
-            self._set_rates(velocity, acceleration, checked=True)
-            return
         self.reference = pin.SE3(placement)
         self._reference_rotation = np.array(self.reference.rotation)
         self._reference_translation = np.array(self.reference.translation)

@@ -119,4 +119,4 @@ class SwingControl:
         # ω × r and α × r + ω × (ω × r) for ω, α along z
         twist = np.array([vx - wz * ly, vy + wz * lx, vz, 0.0, 0.0, wz])
         accel = np.array([ax - az * ly - wz * wz * lx, ay + az * lx - wz * wz * ly, az_, 0.0, 0.0, az])
-        self.swing_tasks[swing].set_reference(ankle, twist, accel, owned=True)  # (new objects, handed over)
+        self.swing_tasks[swing].set_reference(ankle, twist, accel)
