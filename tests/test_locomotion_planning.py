@@ -171,6 +171,28 @@ def test_the_dcm_shaper_low_passes_the_error_and_forgets_it_at_reset():
         DcmErrorShaper(deadband=math.nan)
 
 
+def test_the_dcm_shapers_deadband_fades_out_below_full_error():
+    """With ``full_error`` the deadband still hides small errors, but a push's error reaches the
+    adapter whole (the plain deadband kept taking 3 cm off it: a lateral push's step landed that much
+    too narrow); in between the scale is linear and continuous at both ends."""
+    nominal = np.array([0.1, -0.2])
+    plain, fading = DcmErrorShaper(deadband=0.03), DcmErrorShaper(deadband=0.03, full_error=0.06)
+    direction = np.array([0.6, -0.8])
+    for size, expected in ((0.02, 0.0), (0.03, 0.0), (0.045, 0.03), (0.06, 0.06), (0.1, 0.1)):
+        seen = fading(0.0, nominal + size * direction, nominal)
+        np.testing.assert_allclose(seen, nominal + expected * direction, atol=1e-12)
+    # the plain deadband on a 0.1 m error: 0.07 reaches the adapter
+    np.testing.assert_allclose(plain(0.0, nominal + 0.1 * direction, nominal), nominal + 0.07 * direction, atol=1e-12)
+    # without full_error: the plain deadband's formula, bit for bit
+    for size in (0.01, 0.05, 0.08):
+        error = (nominal + size * direction) - nominal
+        np.testing.assert_array_equal(plain(0.0, nominal + size * direction, nominal), nominal + error * max(1.0 - 0.03 / float(np.linalg.norm(error)), 0.0))
+    with pytest.raises(ValueError, match="full_error"):
+        DcmErrorShaper(deadband=0.03, full_error=0.03)
+    with pytest.raises(ValueError, match="adapt_full_error"):
+        WalkerConfig(adapt_deadband=0.03, adapt_full_error=0.02)
+
+
 def test_bounded_box_keeps_the_landing_within_the_bound_of_the_plan_and_inside_the_box():
     box = ((-0.3, 0.4), (0.15, 0.45))
     np.testing.assert_allclose(bounded_box(box, np.array([0.2, 0.25]), 0.1), ((0.1, 0.3), (0.15, 0.35)))

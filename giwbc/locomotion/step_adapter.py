@@ -244,12 +244,18 @@ class DcmErrorShaper:
     nominal reference ``ξ_nom(t)`` plus the error ``e = ξ − ξ_nom`` low-passed over
     ``time_constant`` s and shrunk by ``deadband`` m (``e (1 − deadband/‖e‖)⁺``). An error inside
     the deadband gives the adapter the nominal DCM, hence the nominal step and timing; a push still
-    moves the landing by all of the error beyond it. Both zero: the measured DCM unchanged."""
+    moves the landing by all of the error beyond it. Both zero: the measured DCM unchanged.
 
-    def __init__(self, deadband: float = 0.0, time_constant: float = 0.0) -> None:
+    With a finite ``full_error`` (m, > ``deadband``) the deadband fades out: an error of that size
+    or more passes whole, one between the two is scaled linearly from nothing to all of it — a push
+    then moves the landing by all of its error, not by the error less the deadband."""
+
+    def __init__(self, deadband: float = 0.0, time_constant: float = 0.0, full_error: float = math.inf) -> None:
         if not (math.isfinite(deadband) and deadband >= 0.0 and math.isfinite(time_constant) and time_constant >= 0.0):
             raise ValueError(f"deadband and time_constant must be finite and >= 0, got {deadband}, {time_constant}")
-        self.deadband, self.time_constant = float(deadband), float(time_constant)
+        if not (full_error > deadband):
+            raise ValueError(f"full_error must exceed the deadband ({deadband}), got {full_error}")
+        self.deadband, self.time_constant, self.full_error = float(deadband), float(time_constant), float(full_error)
         self._last: tuple[float, np.ndarray] | None = None
 
     @property
@@ -268,6 +274,11 @@ class DcmErrorShaper:
             error = previous + dt / (self.time_constant + dt) * (error - previous)
         self._last = (float(t), error)
         size = float(np.linalg.norm(error))
+        if size >= self.full_error:
+            return np.asarray(nominal, dtype=float)[:2] + error
+        if math.isfinite(self.full_error):  # fading: |shaped| = full (size - deadband) / (full - deadband)
+            scale = max(size - self.deadband, 0.0) * self.full_error / ((self.full_error - self.deadband) * size) if size > 0.0 else 0.0
+            return np.asarray(nominal, dtype=float)[:2] + error * scale
         return np.asarray(nominal, dtype=float)[:2] + error * (max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0)
 
 

@@ -65,6 +65,9 @@ class WalkerConfig:
     # estimation noise leaves the nominal steps alone, a push still moves them.
     adapt_deadband: float = 0.0
     adapt_filter: float = 0.0
+    # m (> adapt_deadband, inf: off): a (low-passed) DCM error this large reaches the adapter whole, the
+    # deadband fading out linearly below it (giwbc.locomotion.step_adapter.DcmErrorShaper).
+    adapt_full_error: float = math.inf
     max_adjustment: float = math.inf
     # Single support without the swing foot's (force-less) contact slot: a smaller QP each
     # single-support tick, at the price of a re-layout and cold solve at lift-off and touch-down.
@@ -126,6 +129,8 @@ class WalkerConfig:
             raise ValueError("contact_ramp must be >= 0 and short")
         if not (self.adapt_deadband >= 0.0 and self.adapt_filter >= 0.0 and self.max_adjustment > 0.0) or not math.isfinite(self.adapt_deadband + self.adapt_filter):
             raise ValueError(f"need finite adapt_deadband, adapt_filter >= 0 and max_adjustment > 0, got {self.adapt_deadband}, {self.adapt_filter}, {self.max_adjustment}")
+        if not (self.adapt_full_error > self.adapt_deadband):
+            raise ValueError(f"adapt_full_error must exceed adapt_deadband ({self.adapt_deadband}), got {self.adapt_full_error}")
         if not (0.0 <= self.recovery_reach <= 1.0):
             raise ValueError(f"recovery_reach must be in [0, 1] (a fraction of the straight leg), got {self.recovery_reach}")
         if not (0.0 <= self.recovery_max_crouch < 0.5):

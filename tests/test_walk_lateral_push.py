@@ -1,0 +1,50 @@
+"""A lateral push while walking on the estimate (the deployment walker, AHRS IMU errors, the WBC's
+joint-limit bounds, episode end at the deployment's soft limits): the step adapter's DCM deadband
+took 3 cm off the push's error, the push-side foot landed too narrow, the DCM rolled over it and the
+next stance leg spread until its ankle roll passed the soft limit. With ``adapt_full_error`` the
+push's whole error reaches the adapter and the ankle roll stays inside its limits (selection seed 502)."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+import giwbc.envs  # noqa: F401  (registers the ids)
+from giwbc.apps.walk_evaluation import WalkProtocol
+from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS
+
+SEED = 502  # selection seed: a 40 N push to the right and forward, 1.86 s into the episode
+
+
+def _episode(extra: dict) -> tuple[bool, float, float, float]:
+    """(terminated, lowest and highest left ankle roll, its soft lower limit) over one episode."""
+    kwargs = {
+        "residuals": ["step"], "walker": {**DEPLOYMENT_OPTIONS, **extra}, "initial_joint_noise": 0.0,
+        "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}, "joint_limit_margin": 0.02,
+        "sim2real": {"estimator": True}, "randomization": {"imu_profile": "ahrs", "parameters": []},
+    }  # fmt: skip
+    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=40.0).env_overrides(kwargs, 50.0))
+    task = env.unwrapped.task
+    joint = task.description.joint_names.index("left_ankle_roll_joint")
+    env.reset(seed=SEED)
+    zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    low = high = 0.0
+    terminated = truncated = False
+    pushed = False
+    while not (terminated or truncated):
+        _, _, terminated, truncated, info = env.step(zero)
+        pushed = pushed or info.get("pushes", 0) > 0
+        q = float(task.robot.joint_positions()[joint])
+        low, high = min(low, q), max(high, q)
+    env.close()
+    assert pushed
+    return terminated, low, high, float(task._soft_lower[joint])
+
+
+@pytest.mark.slow
+def test_the_whole_push_error_keeps_the_ankle_roll_inside_its_soft_limit():
+    ended, low, _, soft_lower = _episode({})
+    assert ended and low < soft_lower  # the deadband: the left ankle rolls past the deployment soft limit
+    ended, low, high, soft_lower = _episode({"adapt_full_error": 0.06})
+    assert not ended and soft_lower + 0.02 < low and high < -soft_lower - 0.02  # walked on, the ankle roll with margin
