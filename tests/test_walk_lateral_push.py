@@ -42,7 +42,7 @@ def _episode(extra: dict, seed: int = SEED, force: float = 40.0) -> tuple[bool, 
         q = float(task.robot.joint_positions()[joint])
         low, high = min(low, q), max(high, q)
     env.close()
-    assert pushed == (force > 0.0)
+    assert pushed or force == 0.0  # (at 0 N the protocol still counts its zero pushes)
     return terminated, low, high, float(task._soft_lower[joint])
 
 
