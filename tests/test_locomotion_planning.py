@@ -193,6 +193,25 @@ def test_the_dcm_shapers_deadband_fades_out_below_full_error():
         WalkerConfig(adapt_deadband=0.03, adapt_full_error=0.02)
 
 
+def test_the_dcm_shapers_fade_comes_in_only_as_the_error_lasts():
+    """With ``fade_delay`` a fresh error beyond the deadband gets the plain deadband; the fading's extra
+    comes in linearly over that long an error (a push lasts) and restarts when the error drops inside
+    the deadband or the step changes (an estimate's brief swing-end excursion gets the plain deadband)."""
+    nominal, direction = np.array([0.1, -0.2]), np.array([0.6, -0.8])
+    shaper = DcmErrorShaper(deadband=0.03, full_error=0.06, fade_delay=0.1)
+    for t, size, expected in ((0.0, 0.045, 0.015), (0.05, 0.045, 0.0225), (0.1, 0.045, 0.03), (0.2, 0.045, 0.03),
+                              (0.21, 0.02, 0.0), (0.22, 0.045, 0.015), (0.4, 0.07, 0.07)):  # fmt: skip
+        np.testing.assert_allclose(shaper(t, nominal + size * direction, nominal), nominal + expected * direction, atol=1e-12)
+    shaper.reset()
+    np.testing.assert_allclose(shaper(0.5, nominal + 0.045 * direction, nominal), nominal + 0.015 * direction, atol=1e-12)
+    with pytest.raises(ValueError, match="fade_delay"):
+        DcmErrorShaper(deadband=0.03, full_error=0.06, fade_delay=-0.1)
+    with pytest.raises(ValueError, match="adapt_fade_delay"):
+        WalkerConfig(adapt_deadband=0.03, adapt_full_error=0.06, adapt_fade_delay=math.inf)
+    with pytest.raises(ValueError, match="adapt_freeze_time"):
+        WalkerConfig(adapt_freeze_time=-0.05)
+
+
 def test_bounded_box_keeps_the_landing_within_the_bound_of_the_plan_and_inside_the_box():
     box = ((-0.3, 0.4), (0.15, 0.45))
     np.testing.assert_allclose(bounded_box(box, np.array([0.2, 0.25]), 0.1), ((0.1, 0.3), (0.15, 0.35)))

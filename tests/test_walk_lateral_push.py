@@ -2,7 +2,9 @@
 joint-limit bounds, episode end at the deployment's soft limits): the step adapter's DCM deadband
 took 3 cm off the push's error, the push-side foot landed too narrow, the DCM rolled over it and the
 next stance leg spread until its ankle roll passed the soft limit. With ``adapt_full_error`` the
-push's whole error reaches the adapter and the ankle roll stays inside its limits (selection seed 502)."""
+push's whole error reaches the adapter and the ankle roll stays inside its limits (selection seed 502).
+Without a push the faded deadband passes the estimate's own swing-end error too (selection seed 599):
+``adapt_freeze_time`` holds the landing in a swing's last moments and that walk goes on."""
 
 from __future__ import annotations
 
@@ -15,19 +17,21 @@ from giwbc.apps.walk_evaluation import WalkProtocol
 from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS
 
 SEED = 502  # selection seed: a 40 N push to the right and forward, 1.86 s into the episode
+UNPUSHED_SEED = 599  # selection seed: vx 0.38 m/s, yaw rate 0.29 rad/s, no push
+FREEZE = 0.1  # s, adapt_freeze_time (selection seeds 500-599: 0 N 100 %, 40 N 76 %)
 
 
-def _episode(extra: dict) -> tuple[bool, float, float, float]:
+def _episode(extra: dict, seed: int = SEED, force: float = 40.0) -> tuple[bool, float, float, float]:
     """(terminated, lowest and highest left ankle roll, its soft lower limit) over one episode."""
     kwargs = {
         "residuals": ["step"], "walker": {**DEPLOYMENT_OPTIONS, **extra}, "initial_joint_noise": 0.0,
         "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}, "joint_limit_margin": 0.02,
         "sim2real": {"estimator": True}, "randomization": {"imu_profile": "ahrs", "parameters": []},
     }  # fmt: skip
-    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=40.0).env_overrides(kwargs, 50.0))
+    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=force).env_overrides(kwargs, 50.0))
     task = env.unwrapped.task
     joint = task.description.joint_names.index("left_ankle_roll_joint")
-    env.reset(seed=SEED)
+    env.reset(seed=seed)
     zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
     low = high = 0.0
     terminated = truncated = False
@@ -38,7 +42,7 @@ def _episode(extra: dict) -> tuple[bool, float, float, float]:
         q = float(task.robot.joint_positions()[joint])
         low, high = min(low, q), max(high, q)
     env.close()
-    assert pushed
+    assert pushed or force == 0.0  # (at 0 N the protocol still counts its zero pushes)
     return terminated, low, high, float(task._soft_lower[joint])
 
 
@@ -48,3 +52,16 @@ def test_the_whole_push_error_keeps_the_ankle_roll_inside_its_soft_limit():
     assert ended and low < soft_lower  # the deadband: the left ankle rolls past the deployment soft limit
     ended, low, high, soft_lower = _episode({"adapt_full_error": 0.06})
     assert not ended and soft_lower + 0.02 < low and high < -soft_lower - 0.02  # walked on, the ankle roll with margin
+
+
+@pytest.mark.slow
+def test_holding_the_landing_late_in_a_swing_keeps_the_unpushed_walk_on_its_soles():
+    # The faded deadband alone: late in a swing the estimated DCM runs ahead of the true one while the
+    # stance foot rolls, the adapter widens the landing in the swing's last ~60 ms and the left sole rolls.
+    ended, low, _, soft_lower = _episode({"adapt_full_error": 0.06}, UNPUSHED_SEED, 0.0)
+    assert ended and low < soft_lower
+    held = {"adapt_full_error": 0.06, "adapt_freeze_time": FREEZE}
+    ended, low, high, soft_lower = _episode(held, UNPUSHED_SEED, 0.0)
+    assert not ended and soft_lower + 0.02 < low and high < -soft_lower - 0.02
+    ended, low, high, soft_lower = _episode(held)  # the 40 N push of seed 502 is still recovered
+    assert not ended and soft_lower + 0.02 < low and high < -soft_lower - 0.02

@@ -248,15 +248,24 @@ class DcmErrorShaper:
 
     With a finite ``full_error`` (m, > ``deadband``) the deadband fades out: an error of that size
     or more passes whole, one between the two is scaled linearly from nothing to all of it — a push
-    then moves the landing by all of its error, not by the error less the deadband."""
+    then moves the landing by all of its error, not by the error less the deadband.
 
-    def __init__(self, deadband: float = 0.0, time_constant: float = 0.0, full_error: float = math.inf) -> None:
+    With a ``fade_delay`` (s, > 0) the fading's extra over the plain deadband comes in linearly over
+    that long an error beyond the deadband: a push's error lasts, an estimate's brief swing-end
+    excursion does not, and it gets the plain deadband only (an error of ``full_error`` or more still
+    passes whole at once)."""
+
+    def __init__(self, deadband: float = 0.0, time_constant: float = 0.0, full_error: float = math.inf, fade_delay: float = 0.0) -> None:
         if not (math.isfinite(deadband) and deadband >= 0.0 and math.isfinite(time_constant) and time_constant >= 0.0):
             raise ValueError(f"deadband and time_constant must be finite and >= 0, got {deadband}, {time_constant}")
         if not (full_error > deadband):
             raise ValueError(f"full_error must exceed the deadband ({deadband}), got {full_error}")
+        if not (math.isfinite(fade_delay) and fade_delay >= 0.0):
+            raise ValueError(f"fade_delay must be finite and >= 0, got {fade_delay}")
         self.deadband, self.time_constant, self.full_error = float(deadband), float(time_constant), float(full_error)
+        self.fade_delay = float(fade_delay)
         self._last: tuple[float, np.ndarray] | None = None
+        self._beyond_since: float | None = None  # when the error last went beyond the deadband
 
     @property
     def active(self) -> bool:
@@ -265,6 +274,7 @@ class DcmErrorShaper:
     def reset(self) -> None:
         """Forget the filtered error (a new step, a new nominal reference)."""
         self._last = None
+        self._beyond_since = None
 
     def __call__(self, t: float, measured: np.ndarray, nominal: np.ndarray) -> np.ndarray:
         error = np.asarray(measured, dtype=float)[:2] - np.asarray(nominal, dtype=float)[:2]
@@ -278,6 +288,14 @@ class DcmErrorShaper:
             return np.asarray(nominal, dtype=float)[:2] + error
         if math.isfinite(self.full_error):  # fading: |shaped| = full (size - deadband) / (full - deadband)
             scale = max(size - self.deadband, 0.0) * self.full_error / ((self.full_error - self.deadband) * size) if size > 0.0 else 0.0
+            if self.fade_delay > 0.0:  # the extra over the plain deadband, by how long the error has lasted
+                if size <= self.deadband:
+                    self._beyond_since = None
+                elif self._beyond_since is None:
+                    self._beyond_since = float(t)
+                lasted = 0.0 if self._beyond_since is None else min((float(t) - self._beyond_since) / self.fade_delay, 1.0)
+                plain = max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0
+                scale = plain + lasted * (scale - plain)
             return np.asarray(nominal, dtype=float)[:2] + error * scale
         return np.asarray(nominal, dtype=float)[:2] + error * (max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0)
 

@@ -61,6 +61,8 @@ class SwingControl:
         task = self.swing_tasks[swing]
         if task.weight[0] < cfg.recovery_swing_weight and distance2(xi, self.state.dcm_ref) > cfg.stiff_swing_error:
             task.set_weight(cfg.recovery_swing_weight)  # pushed: the foot must get where the adapter sends it
+        if cfg.adapt_freeze_time > 0.0 and t >= self._swing.t1 - cfg.adapt_freeze_time:
+            return  # the last moments of the swing: the landing is held (WalkerConfig.adapt_freeze_time)
         shaper = self._dcm_shaper
         dcm = shaper(t, xi, self._step_reference.evaluate(t)[0]) if shaper.active and self._step_reference is not None else xi
         frame, box = self._step_frame(stance, swing)

@@ -162,7 +162,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._nominal_target: Footstep | None = None
         self._step_reference: DcmReference | None = None
         self._step_frames: tuple | None = None  # (key, StepFrame, landing box) of the step in flight
-        self._dcm_shaper = DcmErrorShaper(self.config.adapt_deadband, self.config.adapt_filter, self.config.adapt_full_error)
+        self._dcm_shaper = DcmErrorShaper(self.config.adapt_deadband, self.config.adapt_filter, self.config.adapt_full_error, self.config.adapt_fade_delay)
         self._recovering = False
         self._crouch = 0.0
         self._lead_after: float | None = None  # set at the first tick: start_settle_time after it

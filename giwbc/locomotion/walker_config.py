@@ -68,6 +68,13 @@ class WalkerConfig:
     # m (> adapt_deadband, inf: off): a (low-passed) DCM error this large reaches the adapter whole, the
     # deadband fading out linearly below it (giwbc.locomotion.step_adapter.DcmErrorShaper).
     adapt_full_error: float = math.inf
+    # s (0: at once): with adapt_full_error, the fading's extra comes in over this long an error beyond
+    # the deadband (a push's error lasts, the estimate's swing-end excursion does not).
+    adapt_fade_delay: float = 0.0
+    # s (0: off): in the last this-many seconds before the planned touch-down the landing spot and time
+    # are held — a change then is barely reachable by the foot and, on an estimated DCM, is mostly the
+    # estimate's own swing-end error (the stance foot rolls).
+    adapt_freeze_time: float = 0.0
     max_adjustment: float = math.inf
     # Single support without the swing foot's (force-less) contact slot: a smaller QP each
     # single-support tick, at the price of a re-layout and cold solve at lift-off and touch-down.
@@ -129,6 +136,10 @@ class WalkerConfig:
             raise ValueError("contact_ramp must be >= 0 and short")
         if not (self.adapt_deadband >= 0.0 and self.adapt_filter >= 0.0 and self.max_adjustment > 0.0) or not math.isfinite(self.adapt_deadband + self.adapt_filter):
             raise ValueError(f"need finite adapt_deadband, adapt_filter >= 0 and max_adjustment > 0, got {self.adapt_deadband}, {self.adapt_filter}, {self.max_adjustment}")
+        if not (math.isfinite(self.adapt_fade_delay) and self.adapt_fade_delay >= 0.0):
+            raise ValueError(f"adapt_fade_delay must be finite and >= 0, got {self.adapt_fade_delay}")
+        if not (math.isfinite(self.adapt_freeze_time) and self.adapt_freeze_time >= 0.0):
+            raise ValueError(f"adapt_freeze_time must be finite and >= 0, got {self.adapt_freeze_time}")
         if not (self.adapt_full_error > self.adapt_deadband):
             raise ValueError(f"adapt_full_error must exceed adapt_deadband ({self.adapt_deadband}), got {self.adapt_full_error}")
         if not (0.0 <= self.recovery_reach <= 1.0):
