@@ -11,7 +11,7 @@ import pytest
 
 from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, GaitConfig, VelocityCommand, side_sign
 from giwbc.locomotion.lipm import dcm_at, natural_frequency
-from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter, StepAdapterWeights, bounded_box, solve_box_qp, solve_step_qp, step_qp_matrices
+from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter, StepAdapterWeights, StepFrame, bounded_box, solve_box_qp, solve_step_qp, step_qp_matrices
 from giwbc.locomotion.swing import SwingTrajectory, quintic
 from giwbc.locomotion.walker import WalkerConfig
 
@@ -99,7 +99,7 @@ def test_step_adapter_frame_made_once_per_step_gives_the_same_numbers(rng=np.ran
     adapter = StepAdapter(OMEGA)
     stance = Footstep("right", [0.1, -0.12], 0.3)
     nominal, offset, box = np.array([0.3, 0.1]), np.array([0.02, 0.05]), ((-0.3, 0.4), (0.15, 0.45))
-    frame = adapter.frame(stance, nominal, offset)
+    frame = StepFrame(stance, nominal, offset)
     for _ in range(20):
         dcm = stance.position + rng.normal(0.0, 0.1, 2)
         cop = stance.position + rng.normal(0.0, 0.02, 2)
@@ -112,7 +112,7 @@ def test_step_adapter_frame_made_once_per_step_gives_the_same_numbers(rng=np.ran
         # the predicted DCM: the LIPM closed form with the CoP held at `cop`
         np.testing.assert_allclose(b.dcm_at_touchdown, dcm_at(b.remaining_time, dcm, cop, OMEGA), atol=1e-12)
     with pytest.raises(ValueError, match="finite"):
-        adapter.frame(stance, np.array([math.nan, 0.0]), offset)
+        StepFrame(stance, np.array([math.nan, 0.0]), offset)
     with pytest.raises(ValueError, match="finite"):
         adapter.adapt_in(frame, stance.position, np.array([math.inf, 0.0]), 0.2, box, (0.05, 0.5))
 

@@ -156,7 +156,7 @@ def solve_step_qp(
 
 class StepFrame:
     """What one step's adaptations share (a swing's every tick): the stance sole's frame and the
-    plan's next foot and DCM offset in it — made once per step (:meth:`StepAdapter.frame`)."""
+    plan's next foot and DCM offset in it — made once per step, for :meth:`StepAdapter.adapt_in`."""
 
     __slots__ = ("c", "s", "ox", "oy", "u_nom", "b_nom")
 
@@ -180,11 +180,6 @@ class StepAdapter:
             raise ValueError(f"omega must be > 0, got {omega}")
         self.omega = float(omega)
         self.weights = weights or StepAdapterWeights()
-
-    @staticmethod
-    def frame(stance: Footstep, nominal_step: np.ndarray, nominal_offset: np.ndarray) -> StepFrame:
-        """The per-step part of :meth:`adapt` (for :meth:`adapt_in`, every tick of the step)."""
-        return StepFrame(stance, nominal_step, nominal_offset)
 
     def adapt(
         self,
@@ -216,7 +211,7 @@ class StepAdapter:
         box: tuple[tuple[float, float], tuple[float, float]],
         remaining_range: tuple[float, float],
     ) -> StepAdjustment:
-        """:meth:`adapt` with its per-step part made already (:meth:`frame`): the same numbers."""
+        """:meth:`adapt` with its per-step part made already (:class:`StepFrame`): the same numbers."""
         cx, cy, xx, xy = float(cop[0]), float(cop[1]), float(dcm[0]), float(dcm[1])
         if not all(math.isfinite(v) for v in (cx, cy, xx, xy, nominal_remaining)):
             raise ValueError("step adapter inputs must be finite")
@@ -284,9 +279,11 @@ class DcmErrorShaper:
             error = previous + dt / (self.time_constant + dt) * (error - previous)
         self._last = (float(t), error)
         size = float(np.linalg.norm(error))
+        plain = max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0  # the deadband's shrink
+        scale = plain
         if size >= self.full_error:
-            return np.asarray(nominal, dtype=float)[:2] + error
-        if math.isfinite(self.full_error):  # fading: |shaped| = full (size - deadband) / (full - deadband)
+            scale = 1.0
+        elif math.isfinite(self.full_error):  # fading: |shaped| = full (size - deadband) / (full - deadband)
             scale = max(size - self.deadband, 0.0) * self.full_error / ((self.full_error - self.deadband) * size) if size > 0.0 else 0.0
             if self.fade_delay > 0.0:  # the extra over the plain deadband, by how long the error has lasted
                 if size <= self.deadband:
@@ -294,10 +291,8 @@ class DcmErrorShaper:
                 elif self._beyond_since is None:
                     self._beyond_since = float(t)
                 lasted = 0.0 if self._beyond_since is None else min((float(t) - self._beyond_since) / self.fade_delay, 1.0)
-                plain = max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0
                 scale = plain + lasted * (scale - plain)
-            return np.asarray(nominal, dtype=float)[:2] + error * scale
-        return np.asarray(nominal, dtype=float)[:2] + error * (max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0)
+        return np.asarray(nominal, dtype=float)[:2] + error * scale
 
 
 def bounded_box(box: tuple[tuple[float, float], tuple[float, float]], centre: np.ndarray, bound: float) -> tuple[tuple[float, float], tuple[float, float]]:

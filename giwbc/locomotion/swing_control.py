@@ -91,7 +91,7 @@ class SwingControl:
             return cached[1], cached[2]
         assert self._nominal_target is not None
         box = bounded_box(self._landing_box(swing), stance.to_local(self._nominal_target.position), self.config.max_adjustment)
-        frame = self.adapter.frame(stance, self._nominal_target.position, self._nominal_offset)  # type: ignore[union-attr]
+        frame = StepFrame(stance, self._nominal_target.position, self._nominal_offset)
         self._step_frames = (key, frame, box)
         return frame, box
 
