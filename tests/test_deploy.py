@@ -252,3 +252,36 @@ def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, 
     assert gc.isenabled()  # restored
     (summary,) = [e["detail"] for e in read_log(log, topics=["/events"]).events if e["event"] == "garbage_collection"]
     assert summary["young_collections"] >= result.cycles // 20 - 1 and summary["longest_us"] > 0
+
+
+def test_an_unpaced_run_is_the_same_run_on_a_loaded_machine(g1, model, tmp_path, monkeypatch):
+    """An unpaced lockstep run lives in simulated time: a send the host machine preempts (here the
+    virtual bus sleeping 8 ms in every 40th send, past the 5 ms a paced cycle's sends may take)
+    drops no command frame, and the run's replies are bit for bit those of an unloaded run.
+    (Before, under a loaded machine's preemption the same walk ended clean or on a soft limit.)"""
+    import can.interfaces.virtual as virtual
+
+    def run(name: str) -> tuple[np.ndarray, int]:
+        options = DeployOptions(
+            emulate=True, controller="pd", seconds=0.4, realtime=False, log=str(tmp_path / f"{name}.mcap"), scene_rate=0.0,
+            startup=StartupConfig(settle_time=0.05, ramp_time=0.2, shutdown_time=0.1, off_delay=0.05),
+        )  # fmt: skip
+        outcome = deploy(options, model=model, description=g1, out=None)
+        assert outcome.exit_code == 0, outcome.message
+        replies = read_log(outcome.log_path).topic("/replies")
+        return np.array([m["q"] for m in replies]), sum(len(m["missing"]) for m in replies)  # joints without a reply
+
+    quiet, quiet_missing = run("quiet")
+    send, calls = virtual.VirtualBus.send, [0]
+
+    def preempted(self, msg, timeout=None):
+        calls[0] += 1
+        if calls[0] % 40 == 0:
+            time.sleep(8e-3)
+        return send(self, msg, timeout)
+
+    monkeypatch.setattr(virtual.VirtualBus, "send", preempted)
+    loaded, loaded_missing = run("loaded")
+    assert calls[0] > 1000  # the sleeps happened (~40 sends a cycle, ~450 cycles)
+    assert quiet_missing == loaded_missing == 0
+    assert loaded.shape == quiet.shape and np.array_equal(loaded, quiet)
