@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from giwbc.apps import deploy_walk
-from giwbc.apps.deploy import DeployOptions, add_deploy_command, deploy
+from giwbc.apps.deploy import DeployOptions, add_deploy_command, deploy, make_controller
 from giwbc.apps.deploy_walk import WalkCommand
 from giwbc.emulation.faults import FaultInjection
 from giwbc.errors import DeployError
@@ -238,3 +238,41 @@ def test_a_policy_trained_on_the_deployment_walker_deploys_on_that_same_walker(g
         walker_config("fast")
     with pytest.raises(ValueError, match=r"unknown WalkerConfig fields \['swing_kq'\]"):
         walker_config({"swing_kq": 1.0})
+
+
+@pytest.mark.slow
+def test_the_lateral_push_options_deployed_hold_a_push_the_preset_walker_stops_on(g1, model, tmp_path):
+    """``giwbc deploy --controller walk --walker '{"adapt_full_error": 0.06, "adapt_freeze_time": 0.1}'``:
+    50 N x 0.2 s to the right at 0.3 m/s (emulator time 7.5 s). The preset walker lands the
+    push-side foot inside its 3 cm deadband and the stance ankle roll reaches its soft limit (a
+    safety stop); with the deadband fading out and the landing held late in the swing the walk goes
+    on. (A 16-run sweep at 50 N, 8 directions x 2 push times: preset 5 clean, options 9.)"""
+    push = (FaultInjection("push", start=7.5, stop=7.7, force=(0.0, -50.0, 0.0), link=g1.base_link),)
+    preset = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 5.0, push, clean=False)
+    assert preset.exit_code != 0 and "ankle_roll" in preset.message
+    options = DeployOptions(
+        emulate=True, controller="walk", seconds=5.0, realtime=False, startup=STARTUP, walk=WalkCommand(vx=0.3, walk_delay=0.5),
+        log=str(tmp_path / "options.mcap"), scene_rate=0.0, faults=push, walker={"adapt_full_error": 0.06, "adapt_freeze_time": 0.1},
+    )  # fmt: skip
+    held = deploy(options, model=model, description=g1, out=None)
+    assert held.exit_code == 0, held.message
+    assert held.standing["stood"] and held.walking["steps"] >= 6 and held.standing["dx"] > 0.5
+
+
+def test_walker_options_reach_the_walk_controller_and_bad_ones_are_refused(g1, walk_policy):
+    parser = argparse.ArgumentParser()
+    add_deploy_command(parser.add_subparsers())
+    args = parser.parse_args(["deploy", "--emulate", "--controller", "walk", "--walker", '{"adapt_full_error": 0.06}'])
+    assert deploy_walk.walker_overrides(args) == {"adapt_full_error": 0.06}
+    hold = make_controller("walk", g1, WalkCommand(vx=0.3), {"adapt_full_error": 0.06})
+    config = hold.walker.config
+    assert config.adapt_full_error == 0.06 and config.adapt_deadband == deploy_walk.deploy_walker_config().adapt_deadband  # over the preset
+    for text, match in (("{", "JSON object"), ("[1]", "JSON object"), ('{"adapt_ful_error": 1}', "unknown WalkerConfig fields"),
+                        ('{"adapt_full_error": 0.01}', "must exceed adapt_deadband")):
+        args = parser.parse_args(["deploy", "--emulate", "--controller", "walk", "--walker", text])
+        with pytest.raises(DeployError, match=match):
+            deploy_walk.walker_overrides(args)
+        assert args.run(args) == 2  # refused before anything starts
+    policy, metadata = walk_policy  # a walking policy runs on the walker it was trained on
+    outcome = deploy(DeployOptions(emulate=True, walker={"adapt_full_error": 0.06}), policy=policy, policy_metadata=metadata, description=g1, out=None)
+    assert outcome.exit_code == 2 and "walker it was trained on" in outcome.message

@@ -24,7 +24,7 @@ from giwbc.apps.deploy_run import deploy, scene_channels
 from giwbc.apps.deploy_setup import (
     CONTROLLERS, TASKS, WALK_ENV, WbcHold, build_task, check_layout, check_policy_metadata, choose_task, load_policy, make_controller,
 )  # fmt: skip
-from giwbc.apps.deploy_walk import add_walk_arguments, walk_command
+from giwbc.apps.deploy_walk import add_walk_arguments, walk_command, walker_overrides
 from giwbc.apps.live import DEFAULT_PORT, require_foxglove
 from giwbc.errors import DeployError
 from giwbc.robot.noise import IMU_PROFILES
@@ -89,6 +89,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         require_foxglove()  # before the motors, not after
     try:
         walk = walk_command(args)
+        walker = walker_overrides(args)
     except DeployError as error:
         print(f"giwbc deploy: error: {error}", file=sys.stderr)
         return 2
@@ -97,7 +98,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log, realtime=not args.unpaced,
         startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
-        foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk,
+        foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk, walker=walker,
     )  # fmt: skip
     outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr)) if args.json else print)
     if args.json:

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from collections.abc import Mapping
 from typing import Any
 
 from giwbc.apps.deploy_walk import WalkCommand
@@ -49,6 +50,7 @@ class DeployOptions:
     foxglove_port: int | None = None  # also stream the scene to Foxglove on this loopback port (the logger's process)
     imu_profile: str | None = None  # the IMU's class (giwbc.robot.noise.IMU_PROFILES): the emulated IMU's errors, the estimator's setup
     walk: WalkCommand | None = None  # the walk controller's command (None: stand)
+    walker: Mapping[str, Any] | None = None  # the walk controller's WalkerConfig fields over the deployment walker's
 
 
 @dataclass

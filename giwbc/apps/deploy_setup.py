@@ -26,10 +26,11 @@ import gymnasium
 import numpy as np
 
 from giwbc.apps.deploy_options import DeployOptions
-from giwbc.apps.deploy_walk import WalkCommand, WalkHold, WalkPolicyTask
+from giwbc.apps.deploy_walk import WalkCommand, WalkHold, WalkPolicyTask, deploy_walker_config
 from giwbc.control.balance import make_balance_controller
 from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import DeployError
+from giwbc.locomotion.walker_config import walker_config
 from giwbc.policy import OnnxPolicy, PolicyFormatError
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.standing import PdHold
@@ -128,10 +129,11 @@ class WbcHold:
         return None if self.last is None else self.last.failure()
 
 
-def make_controller(name: str, description: RobotDescription, walk: WalkCommand | None = None) -> Any:
-    """A deployment controller by name; ``walk``: the ``walk`` controller's command (default: stand)."""
+def make_controller(name: str, description: RobotDescription, walk: WalkCommand | None = None, walker: Mapping[str, Any] | None = None) -> Any:
+    """A deployment controller by name; ``walk``: the ``walk`` controller's command (default:
+    stand); ``walker``: its WalkerConfig fields over the deployment walker's."""
     if name == "walk":
-        return WalkHold(description, walk)
+        return WalkHold(description, walk, walker_config(walker, base=deploy_walker_config()) if walker else None)
     if name == "pd":
         return PdHold(description)
     if name == "wbc":
@@ -167,6 +169,8 @@ def choose_task(options: DeployOptions, metadata: Mapping[str, Any] | None, poli
         raise DeployError("the walk controller runs the 'stand' task (no policy) or a walking policy (task 'walk')")
     elif walking_policy and task_name == "balance":
         raise DeployError(f"this policy is for {WALK_ENV}: run it with --task walk (the default for it)")
+    if options.walker and not (task_name == "stand" and options.controller == "walk"):
+        raise DeployError("--walker configures the walk controller (--controller walk, no policy): a walking policy runs on the walker it was trained on")
     if options.walk is not None and options.walk.moves and task_name != "walk" and options.controller != "walk":
         raise DeployError("--vx/--vy/--yaw-rate/--step-in-place need --controller walk or a walking policy")
     if task_name == "walk" and (options.estimator is False or not description.floating_base):
@@ -184,7 +188,7 @@ def wants_estimator(options: DeployOptions, task_name: str) -> bool:
 def build_task(task_name: str, description: RobotDescription, metadata: Mapping[str, Any] | None, options: DeployOptions) -> Any:
     """The task :func:`choose_task` chose: the ``stand`` task's controller, or the policy's task."""
     if task_name == "stand":
-        return StandingTask(make_controller(options.controller, description, options.walk), description.default_positions)
+        return StandingTask(make_controller(options.controller, description, options.walk, options.walker), description.default_positions)
     if task_name == "walk":
         return _walk_task(description, metadata, options.walk)
     return _balance_task(description, metadata, options.controller)

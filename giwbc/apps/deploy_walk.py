@@ -19,6 +19,7 @@ output, the command after ``walk_delay``); the policy sets its residuals at its 
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -192,6 +193,10 @@ def add_walk_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--step-in-place", action="store_true", help="with --controller walk or a walking policy: step with a zero command")
     parser.add_argument("--walk-delay", type=float, default=WalkCommand.walk_delay,
                         help="with --controller walk or a walking policy: seconds of standing after the start-up ramp before the command")
+    parser.add_argument("--walker", default=None, metavar="JSON",
+                        help="with --controller walk: WalkerConfig fields over the deployment walker's, e.g. "
+                             "'{\"adapt_full_error\": 0.06, \"adapt_freeze_time\": 0.1}' (the lateral-push options, README); "
+                             "a walking policy runs on the walker it was trained on")
 
 
 def walk_command(args: argparse.Namespace) -> WalkCommand | None:
@@ -205,4 +210,24 @@ def walk_command(args: argparse.Namespace) -> WalkCommand | None:
     return WalkCommand(args.vx, args.vy, args.yaw_rate, args.step_in_place, args.walk_delay)
 
 
-__all__ = ["DEPLOY_WALKER_OPTIONS", "WalkCommand", "WalkHold", "WalkPolicyTask", "add_walk_arguments", "walk_command"]
+def walker_overrides(args: argparse.Namespace) -> dict[str, Any] | None:
+    """``--walker``'s WalkerConfig fields (None when not given), checked by building the walker's
+    configuration from them: :class:`DeployError` names what is wrong (not JSON, not an object,
+    an unknown field, a value the walker refuses) before anything starts."""
+    text = getattr(args, "walker", None)
+    if text is None:
+        return None
+    try:
+        overrides = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise DeployError(f"--walker must be a JSON object of WalkerConfig fields: {error}") from None
+    if not isinstance(overrides, dict):
+        raise DeployError(f"--walker must be a JSON object of WalkerConfig fields, got {text!r}")
+    try:
+        walker_config(overrides, base=deploy_walker_config())
+    except (TypeError, ValueError) as error:
+        raise DeployError(f"--walker: {error}") from None
+    return overrides
+
+
+__all__ = ["DEPLOY_WALKER_OPTIONS", "WalkCommand", "WalkHold", "WalkPolicyTask", "add_walk_arguments", "walk_command", "walker_overrides"]
