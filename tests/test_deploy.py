@@ -256,8 +256,9 @@ def test_garbage_is_collected_between_cycles_while_the_motors_are_on(g1, model, 
 
 def test_an_unpaced_run_is_the_same_run_on_a_loaded_machine(g1, model, tmp_path, monkeypatch):
     """An unpaced lockstep run lives in simulated time: a send the host machine preempts (here the
-    virtual bus sleeping 8 ms in every 40th send, past the 5 ms a paced cycle's sends may take)
-    drops no command frame, and the run's replies are bit for bit those of an unloaded run.
+    virtual bus sleeping 8 ms in every 40th send, past the 5 ms a paced cycle's sends may take, and
+    25 ms in every 1001st, past the 20 ms the emulator's replies may take) drops no command frame
+    and no reply, and the run's replies are bit for bit those of an unloaded run.
     (Before, under a loaded machine's preemption the same walk ended clean or on a soft limit.)"""
     import can.interfaces.virtual as virtual
 
@@ -278,6 +279,8 @@ def test_an_unpaced_run_is_the_same_run_on_a_loaded_machine(g1, model, tmp_path,
         calls[0] += 1
         if calls[0] % 40 == 0:
             time.sleep(8e-3)
+        if calls[0] % 1001 == 0:  # and now and then past the 20 ms the emulator's replies may take
+            time.sleep(25e-3)
         return send(self, msg, timeout)
 
     monkeypatch.setattr(virtual.VirtualBus, "send", preempted)

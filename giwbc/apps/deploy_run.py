@@ -195,7 +195,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                     except HardwareConfigError as error:
                         raise DeployError(str(error)) from error
                     truth = truth.with_imu(plan.imu)
-                emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None else None)
+                # Unpaced (simulated time): no wall-clock deadline on the replies either (see the host's sends below).
+                unpaced = {} if options.realtime else {"send_deadline": math.inf}
+                emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None else None, **unpaced)
                 host_plan, peer = on_channels(plan, emulator.host_plan()), emulator
                 say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
             imu = imu_source_for(host_plan.imu, emulator.imu_channel)

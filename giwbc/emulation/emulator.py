@@ -95,8 +95,12 @@ class ActuatorEmulator(FaultEffects):
         channel_prefix: str | None = None,
         interface: str = "virtual",
         bus_options: dict[str, Any] | None = None,
+        send_deadline: float = _SEND_DEADLINE,
     ) -> None:
+        """``send_deadline``: s a poll's replies may take to send (``math.inf`` for a run in simulated
+        time, where the host machine's preemption must not drop a reply)."""
         self.config = c = config or EmulatorConfig()
+        self.send_deadline = float(send_deadline)
         self.description = description
         names = description.joint_names
         self.plan = plan
@@ -360,12 +364,12 @@ class ActuatorEmulator(FaultEffects):
         """Send on bus ``b`` now or never: a full host queue loses the reply, as a real bus under
         overload would: no waiting for room. The deadline only bounds a send the host machine
         preempts (firmware is not preempted: a loaded test machine must not drop replies)."""
-        self.ports[b].send(batch, time.perf_counter() + _SEND_DEADLINE, timeout=0.0, retries=0)
+        self.ports[b].send(batch, time.perf_counter() + self.send_deadline, timeout=0.0, retries=0)
 
     def _send_by_bus(self, bus: np.ndarray, batch: np.ndarray) -> None:
         """Send each frame of ``batch`` on its bus (``bus`` ascending, as frames are received)."""
         bounds = np.searchsorted(bus, np.arange(len(self.ports) + 1)).tolist()
-        self._ports.send(batch, bounds, time.perf_counter() + _SEND_DEADLINE, timeout=self._no_wait[0], retries=self._no_wait[1])
+        self._ports.send(batch, bounds, time.perf_counter() + self.send_deadline, timeout=self._no_wait[0], retries=self._no_wait[1])
 
     def _commands(self, index: np.ndarray, values: np.ndarray, t: float) -> bool:
         """Plain command frames, one per motor in ``index`` (the every-cycle path, vectorized)."""
