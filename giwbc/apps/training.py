@@ -76,12 +76,15 @@ class TrainConfig:
     progress_bar: bool = True
     eval_episodes: int = 3
     resume: str | None = None  # a checkpoint's .zip (its .vecnormalize.pkl beside it): continue that run to total_timesteps
+    warm_start: str | None = None  # another run's checkpoint .zip: a new run starting from it, matched by names (giwbc.apps.warm_start)
 
     def __post_init__(self) -> None:
         if self.vectorization not in ("subproc", "dummy", "ray"):
             raise ValueError(f"vectorization must be 'subproc', 'dummy' or 'ray', got {self.vectorization!r}")
         if self.n_envs < 1 or self.total_timesteps < 1 or (self.envs_per_worker is not None and self.envs_per_worker < 1):
             raise ValueError("n_envs, total_timesteps and envs_per_worker must be >= 1")
+        if self.resume is not None and self.warm_start is not None:
+            raise ValueError("resume continues a run, warm_start begins one: give one of them")
         if self.seed < 0 or self.checkpoint_every < 0:
             raise ValueError(f"seed and checkpoint_every must be >= 0, got {self.seed} and {self.checkpoint_every}")
         try:
@@ -175,7 +178,7 @@ def read_learning_curve(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
 
 # The TrainConfig fields that define a run (with the seed): a resume that changes one starts a new branch.
 RUN_FIELDS = ("env_id", "env_kwargs", "n_envs", "seed", "checkpoint_every", "normalize_observations", "normalize_rewards",
-              "net_arch", "activation", "log_std_init", "ppo")
+              "net_arch", "activation", "log_std_init", "ppo", "warm_start")
 
 
 def resume_branch(config: TrainConfig) -> list[str]:
@@ -324,6 +327,12 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
                            "activation_fn": _activation(config.activation), "log_std_init": config.log_std_init},
             **ppo_kwargs,
         )
+        if config.warm_start is not None:
+            from giwbc.apps.warm_start import warm_start
+
+            started = warm_start(model, venv, config.warm_start, described["observation_names"], described["action_names"],
+                                 config.log_std_init)
+            print(started.summary())
     start = model.num_timesteps
     training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
                      "n_envs": config.n_envs}
@@ -407,6 +416,8 @@ def add_train_command(commands: Any) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--resume", default=None, help="continue from a checkpoint .zip of the same run (to --timesteps in all; with the run's "
                         "seed and options it continues exactly as the uninterrupted run: see giwbc.apps.training)")
+    parser.add_argument("--warm-start", default=None, help="begin from another run's checkpoint .zip whose environment differs (e.g. fewer "
+                        "residual blocks): weights matched by observation and action names, new ones zero (see giwbc.apps.warm_start)")
     add_ray_argument(parser)
     parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
                         help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
@@ -419,7 +430,8 @@ def run_train_command(args: Any) -> int:
                          checkpoint_every=args.checkpoint_every, vectorization="ray" if args.ray else args.vectorization,
                          ray_address=args.ray, envs_per_worker=args.envs_per_worker,
                          env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
-                         net_arch=tuple(args.net_arch), log_std_init=args.log_std_init, resume=args.resume)
+                         net_arch=tuple(args.net_arch), log_std_init=args.log_std_init, resume=args.resume,
+                         warm_start=args.warm_start)
     if config.resume is not None:
         branch = resume_branch(config)
         print(f"resuming {config.resume}: " + ("a new branch (" + "; ".join(branch) + ")" if branch else

@@ -1,0 +1,98 @@
+"""Warm start across layouts: the new run's actor acts as its source on the shared actions and not
+at all on the new ones, and its critic values states as the source did."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+WALK = "giwbc/G1Walk-v0"
+KWARGS = {"max_episode_steps": 20, "initial_joint_noise": 0.0}
+
+
+def _source(tmp_path):
+    from giwbc.apps.training import TrainConfig, train
+
+    config = TrainConfig(env_id=WALK, total_timesteps=32, n_envs=1, seed=3, out_dir=str(tmp_path / "source"), vectorization="dummy",
+                         checkpoint_every=32, progress_bar=False, eval_episodes=0, net_arch=(16, 16), log_std_init=-1.0,
+                         env_kwargs={**KWARGS, "residuals": ["step"]}, ppo={"n_steps": 32, "batch_size": 32, "n_epochs": 1})
+    return train(config).checkpoints[-1].with_suffix(".zip")
+
+
+def _target(kwargs, log_std_init=-2.0):
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from giwbc.apps.training import _activation, _module_id, describe_env
+
+    venv = VecNormalize(make_vec_env(_module_id(WALK), n_envs=1, seed=5, env_kwargs=kwargs, vec_env_cls=DummyVecEnv), clip_obs=10.0)
+    model = PPO("MlpPolicy", venv, seed=5, device="cpu", n_steps=32, batch_size=32,
+                policy_kwargs={"net_arch": {"pi": [16, 16], "vf": [16, 16]}, "activation_fn": _activation("tanh"), "log_std_init": log_std_init})
+    return model, venv, describe_env(WALK, kwargs)
+
+
+def _act_and_value(model, venv, raw):
+    import torch
+
+    obs = torch.as_tensor(venv.normalize_obs(raw)[None], dtype=torch.float32)
+    with torch.no_grad():
+        distribution = model.policy.get_distribution(obs)
+        return distribution.distribution.mean.numpy()[0], model.policy.predict_values(obs).numpy()[0, 0], distribution.distribution.stddev.numpy()[0]
+
+
+def test_a_warm_started_policy_with_a_new_block_acts_as_its_source(tmp_path):
+    import pickle
+
+    from stable_baselines3 import PPO
+
+    from giwbc.apps.warm_start import warm_start
+    from giwbc.policy import OnnxPolicy
+
+    checkpoint = _source(tmp_path)
+    source = PPO.load(checkpoint, device="cpu")
+    with checkpoint.with_suffix(".vecnormalize.pkl").open("rb") as f:
+        source_norm = pickle.load(f)
+    source_names = OnnxPolicy(checkpoint.with_suffix(".onnx")).metadata["observation_names"]
+
+    model, venv, described = _target({**KWARGS, "residuals": ["step", "orientation"]})
+    names = described["observation_names"]
+    started = warm_start(model, venv, checkpoint, names, described["action_names"], log_std_init=-2.0)
+    assert started.new_actions == ("orientation/roll", "orientation/pitch", "orientation/yaw")
+    assert set(started.new_observations) == {f"last_action/{a}" for a in started.new_actions}
+    assert started.shared_actions == 3 and started.shared_observations == len(source_names)
+
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        raw = rng.normal(size=len(names)) * 2.0
+        shared = np.array([names.index(n) for n in source_names])
+        raw_source = raw[shared]
+        mean, value, std = _act_and_value(model, venv, raw)
+        source_mean, source_value, source_std = _act_and_value(source, source_norm, raw_source)
+        # The shared actions as the source's; the new block's mean exactly zero (the walker alone there).
+        np.testing.assert_allclose(mean[:3], source_mean, rtol=1e-6, atol=1e-7)
+        assert np.all(mean[3:] == 0.0)
+        np.testing.assert_allclose(value, source_value, rtol=1e-6, atol=1e-7)
+        np.testing.assert_allclose(std[:3], source_std, rtol=1e-6)
+        np.testing.assert_allclose(std[3:], np.exp(-2.0), rtol=1e-6)
+    venv.close()
+
+
+def test_warm_start_refuses_a_source_that_shares_no_action(tmp_path):
+    from giwbc.apps.warm_start import warm_start
+    from giwbc.errors import ConfigError
+
+    checkpoint = _source(tmp_path)
+    model, venv, described = _target({**KWARGS, "residuals": ["orientation"]})
+    with pytest.raises(ConfigError, match="shares no observation or no action"):
+        warm_start(model, venv, checkpoint, described["observation_names"], described["action_names"], log_std_init=-1.0)
+    venv.close()
+
+
+def test_resume_and_warm_start_are_one_or_the_other():
+    from giwbc.apps.training import TrainConfig
+
+    with pytest.raises(ValueError, match="give one of them"):
+        TrainConfig(resume="a.zip", warm_start="b.zip")
