@@ -178,7 +178,7 @@ def read_learning_curve(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
 
 # The TrainConfig fields that define a run (with the seed): a resume that changes one starts a new branch.
 RUN_FIELDS = ("env_id", "env_kwargs", "n_envs", "seed", "checkpoint_every", "normalize_observations", "normalize_rewards",
-              "net_arch", "activation", "log_std_init", "ppo", "warm_start")
+              "net_arch", "activation", "log_std_init", "ppo")  # (a warm start's source is in config.json: its resume gives none)
 
 
 def resume_branch(config: TrainConfig) -> list[str]:
