@@ -138,6 +138,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
             self._remove_swing_task(task)
         self._polygons: dict[tuple[str, ...], np.ndarray] = {}
         self._heading = math.nan
+        self._hip_roll = 0.0
         self._com_kp = self.config.com_height_kp
         self.balance.com_task.set_gains(self._com_kp, np.array([0.0, 0.0, 2.0 * math.sqrt(self._com_kp)]))
         self._measure(q, np.zeros(self.model.nv))
@@ -257,7 +258,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self.balance.com_task.set_reference(np.array([self._com[0] + acceleration[0] / kp, self._com[1] + acceleration[1] / kp, self._ground + self._com_height + self._height_offset - self._recovery_drop()]))
         if self._phase is not Phase.SINGLE:  # (one foot: it carries the weight, no split to set)
             self.balance.force_regularization.set_support_point(np.array([cop[0], cop[1], 0.0]))
-        self._heading_reference()
+        self._heading_reference(self._hip_roll_reference(xi, xi_ref))
         self.state.dcm_ref, self.state.cop = xi_ref, cop
         self.state.com, self.state.com_velocity = self._com, self._com_velocity
         self.state.phase, self.state.stance = self._phase, self._stance

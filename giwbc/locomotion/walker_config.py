@@ -126,6 +126,17 @@ class WalkerConfig:
     # seeds 0-29, 16/30 vs 22/30 without (at 165 deg 15/20 vs 3/20, at -165 deg 20/20 both).
     recovery_reach: float = 0.97
     recovery_max_crouch: float = 0.12
+    # A hip strategy (0: off): the pelvis rolls *into* a lateral DCM error, by ``hip_roll_gain`` rad
+    # per m of the error across the heading (at most ``hip_roll_max`` rad), in proportion to
+    # clip((|ξ − ξ_ref| − start) / (full − start), 0, 1) with ``hip_gate = (start, full)`` m: nothing
+    # while the walker tracks its DCM, in full after a push. Leaning the trunk toward the fall gives
+    # the ground a shear force back under the CoM, where the stance foot's CoP is at its edge and the
+    # other foot cannot cross (the G1's lateral pushes end on a stance ankle roll's soft limit).
+    # Walker alone on the estimate, 50 N x 0.2 s while walking (giwbc evaluate --protocol walk):
+    # see policies/README.md ("a hand-made hip strategy").
+    hip_roll_gain: float = 0.0
+    hip_roll_max: float = 0.2
+    hip_gate: tuple[float, float] = (0.03, 0.08)
 
     def __post_init__(self) -> None:
         if self.preview_steps < 1:
@@ -146,6 +157,11 @@ class WalkerConfig:
             raise ValueError(f"recovery_reach must be in [0, 1] (a fraction of the straight leg), got {self.recovery_reach}")
         if not (0.0 <= self.recovery_max_crouch < 0.5):
             raise ValueError(f"recovery_max_crouch must be in [0, 0.5) m, got {self.recovery_max_crouch}")
+        if not (math.isfinite(self.hip_roll_gain) and self.hip_roll_gain >= 0.0 and 0.0 < self.hip_roll_max < 0.5):
+            raise ValueError(f"need a finite hip_roll_gain >= 0 (rad/m) and 0 < hip_roll_max < 0.5 rad, got {self.hip_roll_gain}, {self.hip_roll_max}")
+        start, full = (float(x) for x in self.hip_gate)
+        if not (math.isfinite(full) and 0.0 <= start < full):
+            raise ValueError(f"hip_gate must be (start, full) m of DCM error with 0 <= start < full, got {self.hip_gate}")
         if self.recovery_cop not in ("edge", "centre", "auto"):
             raise ValueError(f"recovery_cop must be 'edge', 'centre' or 'auto', got {self.recovery_cop!r}")
         if self.late_touchdown_force is not None and not (0.0 <= self.late_touchdown_force <= 1.0):

@@ -92,8 +92,23 @@ class WalkerReferences:
         xi_ref, rate, _ = self._reference.evaluate(t)
         return xi_ref, rate, self.support_polygon((self._stance,))
 
-    def _heading_reference(self) -> None:
-        """Pelvis upright, heading the mean of the feet's (the swing target's while it flies)."""
+    def _hip_roll_reference(self, xi: np.ndarray, xi_ref: np.ndarray) -> float:
+        """The hip strategy's pelvis roll for this tick (``WalkerConfig.hip_roll_gain``; 0 when off,
+        standing before the first step, or inside the gate)."""
+        cfg = self.config
+        if cfg.hip_roll_gain == 0.0 or (self._phase is Phase.STAND and not self.state.steps) or not math.isfinite(self._heading):
+            return 0.0
+        ex, ey = float(xi[0] - xi_ref[0]), float(xi[1] - xi_ref[1])
+        start, full = cfg.hip_gate
+        gate = min(max((math.hypot(ex, ey) - start) / (full - start), 0.0), 1.0)
+        if gate == 0.0:
+            return 0.0
+        across = -math.sin(self._heading) * ex + math.cos(self._heading) * ey  # left of the heading
+        return gate * min(max(-cfg.hip_roll_gain * across, -cfg.hip_roll_max), cfg.hip_roll_max)
+
+    def _heading_reference(self, hip_roll: float = 0.0) -> None:
+        """Pelvis upright, heading the mean of the feet's (the swing target's while it flies);
+        rolled by ``hip_roll`` rad (the hip strategy) on top of a policy's orientation residual."""
         left, right = self.feet["left"].yaw, self.feet["right"].yaw
         if self._phase is Phase.SINGLE and self._target is not None:
             if self._target.side == "left":
@@ -101,12 +116,16 @@ class WalkerReferences:
             else:
                 right = self._target.yaw
         yaw = left + 0.5 * wrap_angle(right - left)
-        if yaw == self._heading and not self._orientation_changed:
+        if yaw == self._heading and not self._orientation_changed and hip_roll == self._hip_roll:
             return
         self._heading = yaw
         self._orientation_changed = False
+        self._hip_roll = hip_roll
         c, s = math.cos(yaw), math.sin(yaw)
         rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-        if self._orientation_offset is not None:
-            rotation = rotation @ pin.rpy.rpyToMatrix(self._orientation_offset)
+        offset = self._orientation_offset
+        if hip_roll != 0.0:
+            offset = np.array([hip_roll, 0.0, 0.0]) if offset is None else offset + np.array([hip_roll, 0.0, 0.0])
+        if offset is not None:
+            rotation = rotation @ pin.rpy.rpyToMatrix(offset)
         self.balance.base_task.set_reference(pin.SE3(rotation, np.zeros(3)))

@@ -1,0 +1,63 @@
+"""The walker's hip strategy (``WalkerConfig.hip_roll_gain``): after a lateral push while walking on
+the estimate, the pelvis rolls into the DCM error and the stance ankle roll stays inside the
+deployment's soft limits where the preset walker's passes them (selection seed 508: 50 N to the
+right, 1.82 s into the episode). Off by default, and bit for bit the walker without it."""
+
+from __future__ import annotations
+
+import gymnasium
+import numpy as np
+import pytest
+
+import giwbc.envs  # noqa: F401  (registers the ids)
+from giwbc.apps.walk_evaluation import WalkProtocol
+from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS, WalkerConfig
+
+SEED = 508
+HIP = {"hip_roll_gain": 4.0, "hip_roll_max": 0.2}  # rad per m of lateral DCM error, rad
+
+
+def _episode(extra: dict) -> tuple[bool, np.ndarray, np.ndarray, float]:
+    """(terminated, per ankle roll: lowest and highest angle and the soft limit's margin, the largest |pelvis roll reference|)."""
+    kwargs = {
+        "residuals": ["step"], "walker": {**DEPLOYMENT_OPTIONS, **extra}, "initial_joint_noise": 0.0,
+        "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}, "joint_limit_margin": 0.02,
+        "sim2real": {"estimator": True}, "randomization": {"imu_profile": "ahrs", "parameters": []},
+    }  # fmt: skip
+    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=50.0).env_overrides(kwargs, 50.0))
+    task = env.unwrapped.task
+    names = task.description.joint_names
+    joints = [names.index("left_ankle_roll_joint"), names.index("right_ankle_roll_joint")]
+    env.reset(seed=SEED)
+    zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    low, high = np.zeros(2), np.zeros(2)
+    roll = 0.0
+    terminated = truncated = False
+    while not (terminated or truncated):
+        _, _, terminated, truncated, _ = env.step(zero)
+        q = task.robot.joint_positions()[joints]
+        low, high = np.minimum(low, q), np.maximum(high, q)
+        rotation = task.walker.balance.base_task.reference.rotation
+        roll = max(roll, abs(float(np.arctan2(rotation[2, 1], rotation[2, 2]))))
+    env.close()
+    inside = np.minimum(low - task._soft_lower[joints], task._soft_upper[joints] - high)
+    return terminated, inside, roll
+
+
+@pytest.mark.slow
+def test_the_hip_strategy_keeps_the_stance_ankle_roll_inside_its_soft_limit():
+    ended, inside, roll = _episode({})
+    assert ended and inside.min() < 0.0 and roll == 0.0  # the preset: an ankle roll past the deployment soft limit, pelvis level
+    ended, inside, roll = _episode(HIP)
+    assert not ended and inside.min() > 0.01  # walked on, both ankle rolls inside with a margin
+    assert 0.05 < roll <= HIP["hip_roll_max"] + 1e-9  # the pelvis did roll, within the bound
+
+
+@pytest.mark.parametrize(
+    "options",
+    [{"hip_roll_gain": -1.0}, {"hip_roll_gain": float("nan")}, {"hip_roll_max": 0.0}, {"hip_roll_max": 0.6},
+     {"hip_gate": (0.08, 0.03)}, {"hip_gate": (-0.01, 0.05)}],
+)
+def test_bad_hip_strategy_options_are_refused(options):
+    with pytest.raises(ValueError, match="hip_"):
+        WalkerConfig(**options)
