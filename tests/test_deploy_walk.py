@@ -246,7 +246,9 @@ def test_the_lateral_push_options_deployed_hold_a_push_the_preset_walker_stops_o
     50 N x 0.2 s to the right at 0.3 m/s (emulator time 7.5 s). The preset walker lands the
     push-side foot inside its 3 cm deadband and the stance ankle roll reaches its soft limit (a
     safety stop); with the deadband fading out and the landing held late in the swing the walk goes
-    on. (A 16-run sweep at 50 N, 8 directions x 2 push times: preset 5 clean, options 9.)"""
+    on. The hip strategy (``{"hip_roll_gain": 4.0, "hip_roll_max": 0.2}``: the pelvis rolls into the
+    lateral DCM error) holds it too. (A 16-run sweep at 50 N, 8 directions x 2 push times: preset 5
+    clean, the two adapter options 9, the hip strategy 8.)"""
     push = (FaultInjection("push", start=7.5, stop=7.7, force=(0.0, -50.0, 0.0), link=g1.base_link),)
     preset = _walk(g1, model, tmp_path, WalkCommand(vx=0.3, walk_delay=0.5), 5.0, push, clean=False)
     assert preset.exit_code != 0 and "ankle_roll" in preset.message
@@ -254,9 +256,10 @@ def test_the_lateral_push_options_deployed_hold_a_push_the_preset_walker_stops_o
         emulate=True, controller="walk", seconds=5.0, realtime=False, startup=STARTUP, walk=WalkCommand(vx=0.3, walk_delay=0.5),
         log=str(tmp_path / "options.mcap"), scene_rate=0.0, faults=push, walker={"adapt_full_error": 0.06, "adapt_freeze_time": 0.1},
     )  # fmt: skip
-    held = deploy(options, model=model, description=g1, out=None)
-    assert held.exit_code == 0, held.message
-    assert held.standing["stood"] and held.walking["steps"] >= 6 and held.standing["dx"] > 0.5
+    for walker in ({"adapt_full_error": 0.06, "adapt_freeze_time": 0.1}, {"hip_roll_gain": 4.0, "hip_roll_max": 0.2}):
+        held = deploy(replace(options, walker=walker), model=model, description=g1, out=None)
+        assert held.exit_code == 0, f"{walker}: {held.message}"
+        assert held.standing["stood"] and held.walking["steps"] >= 6 and held.standing["dx"] > 0.5
 
 
 def test_walker_options_reach_the_walk_controller_and_bad_ones_are_refused(g1, walk_policy):
