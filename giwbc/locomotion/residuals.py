@@ -17,6 +17,21 @@ import numpy as np
 from giwbc.locomotion.footsteps import Footstep
 
 
+def error_gate(size: float, start: float, full: float) -> float:
+    """How much of a push-only correction acts at a DCM error of ``size`` m: none up to ``start``,
+    all from ``full`` on, linear between (a policy's residual gate, the walker's hip strategy)."""
+    return min(max((size - start) / (full - start), 0.0), 1.0)
+
+
+def check_error_gate(value: object, name: str) -> tuple[float, float]:
+    """``value`` as an :func:`error_gate`'s ``(start, full)`` m; ``ValueError`` naming ``name`` unless
+    two finite numbers with ``0 <= start < full``."""
+    pair = tuple(float(x) for x in value)  # type: ignore[union-attr]
+    if not (len(pair) == 2 and all(map(math.isfinite, pair)) and 0.0 <= pair[0] < pair[1]):
+        raise ValueError(f"{name} must be (start, full) m of DCM error with 0 <= start < full, got {value}")
+    return pair  # type: ignore[return-value]
+
+
 class Residuals:
     """The walking controller's policy residuals (see the module docstring)."""
 

@@ -16,6 +16,7 @@ import numpy as np
 
 from giwbc.control.balance import BalanceConfig
 from giwbc.locomotion.footsteps import GaitConfig
+from giwbc.locomotion.residuals import check_error_gate
 from giwbc.locomotion.step_adapter import StepAdapterWeights
 
 
@@ -159,9 +160,7 @@ class WalkerConfig:
             raise ValueError(f"recovery_max_crouch must be in [0, 0.5) m, got {self.recovery_max_crouch}")
         if not (math.isfinite(self.hip_roll_gain) and self.hip_roll_gain >= 0.0 and 0.0 < self.hip_roll_max < 0.5):
             raise ValueError(f"need a finite hip_roll_gain >= 0 (rad/m) and 0 < hip_roll_max < 0.5 rad, got {self.hip_roll_gain}, {self.hip_roll_max}")
-        start, full = (float(x) for x in self.hip_gate)
-        if not (math.isfinite(full) and 0.0 <= start < full):
-            raise ValueError(f"hip_gate must be (start, full) m of DCM error with 0 <= start < full, got {self.hip_gate}")
+        check_error_gate(self.hip_gate, "hip_gate")
         if self.recovery_cop not in ("edge", "centre", "auto"):
             raise ValueError(f"recovery_cop must be 'edge', 'centre' or 'auto', got {self.recovery_cop!r}")
         if self.late_touchdown_force is not None and not (0.0 <= self.late_touchdown_force <= 1.0):

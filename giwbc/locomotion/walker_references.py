@@ -19,6 +19,7 @@ import pinocchio as pin
 from giwbc.locomotion.dcm import CopSegment, DcmReference, walking_cop_plan
 from giwbc.locomotion.footsteps import Footstep, VelocityCommand, other_side, wrap_angle
 from giwbc.locomotion.lipm import cop_start_for_dcm
+from giwbc.locomotion.residuals import error_gate
 from giwbc.locomotion.support import clip_to_polygon
 from giwbc.locomotion.walker_config import Phase
 
@@ -99,8 +100,7 @@ class WalkerReferences:
         if cfg.hip_roll_gain == 0.0 or (self._phase is Phase.STAND and not self.state.steps) or not math.isfinite(self._heading):
             return 0.0
         ex, ey = float(xi[0] - xi_ref[0]), float(xi[1] - xi_ref[1])
-        start, full = cfg.hip_gate
-        gate = min(max((math.hypot(ex, ey) - start) / (full - start), 0.0), 1.0)
+        gate = error_gate(math.hypot(ex, ey), *cfg.hip_gate)
         if gate == 0.0:
             return 0.0
         across = -math.sin(self._heading) * ex + math.cos(self._heading) * ey  # left of the heading

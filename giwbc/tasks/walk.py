@@ -47,6 +47,7 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from giwbc.locomotion.residuals import check_error_gate, error_gate
 from giwbc.locomotion.walker import Phase, WalkingController
 from giwbc.locomotion.walker_config import walker_config
 from giwbc.robot.description import RobotDescription
@@ -206,11 +207,7 @@ class G1Walk(FloatingBaseTask):
         self._band_lower = np.where(finite, middle - band, -np.inf)
         self._band_upper = np.where(finite, middle + band, np.inf)
         self._terminated: tuple[float, bool] | None = None
-        self.residual_gate = None if residual_gate is None else tuple(float(x) for x in residual_gate)
-        if self.residual_gate is not None and not (
-            len(self.residual_gate) == 2 and all(map(math.isfinite, self.residual_gate)) and 0.0 <= self.residual_gate[0] < self.residual_gate[1]
-        ):
-            raise ValueError(f"residual_gate must be (start, full) m of DCM error with 0 <= start < full, got {residual_gate}")
+        self.residual_gate = None if residual_gate is None else check_error_gate(residual_gate, "residual_gate")
         config = walker_config(walker)
         if wbc_options:  # the WBC's options (BalanceConfig fields) over the walker's own
             config = replace(config, balance=replace(config.balance, **wbc_options))
@@ -282,8 +279,7 @@ class G1Walk(FloatingBaseTask):
         """How much of the residual acts now (1 without ``residual_gate``)."""
         if self.residual_gate is None:
             return 1.0
-        start, full = self.residual_gate
-        return min(max((float(np.hypot(*self.dcm_error())) - start) / (full - start), 0.0), 1.0)
+        return error_gate(float(np.hypot(*self.dcm_error())), *self.residual_gate)
 
     def set_action(self, action: np.ndarray) -> None:
         self.previous_action = self.last_action
