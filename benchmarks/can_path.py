@@ -23,6 +23,7 @@ import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import giwbc  # noqa: E402,F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
 import numpy as np  # noqa: E402
 
 from giwbc.hal.bus import CanBusLink  # noqa: E402

@@ -59,6 +59,7 @@ from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import giwbc  # noqa: E402,F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
 import numpy as np  # noqa: E402
 
 from giwbc.apps.deploy import make_controller, scene_channels  # noqa: E402

@@ -40,6 +40,7 @@ import platform  # noqa: E402
 import time  # noqa: E402
 from typing import Any  # noqa: E402
 
+import giwbc  # noqa: E402,F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
 import gymnasium  # noqa: E402
 import numpy as np  # noqa: E402
 

@@ -40,6 +40,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from concurrent.futures import ProcessPoolExecutor  # noqa: E402
 
+import giwbc  # noqa: E402,F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
 import numpy as np  # noqa: E402
 
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress  # noqa: E402

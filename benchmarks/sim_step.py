@@ -10,6 +10,7 @@ import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
+import giwbc  # noqa: E402,F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
 import pinocchio as pin  # noqa: E402

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 
+import giwbc  # noqa: F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
 import gymnasium
 import numpy as np
 

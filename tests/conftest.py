@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import giwbc  # noqa: F401  (first: it pins the floating-point kernels before numpy loads, giwbc.numerics)
 import numpy as np
 import pytest
 

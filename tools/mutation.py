@@ -34,6 +34,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import giwbc  # noqa: F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
