@@ -61,3 +61,44 @@ def test_the_hip_strategy_keeps_the_stance_ankle_roll_inside_its_soft_limit():
 def test_bad_hip_strategy_options_are_refused(options):
     with pytest.raises(ValueError, match="hip_"):
         WalkerConfig(**options)
+
+
+def _joint_trajectory(residuals: list[str], action: dict[str, float], walker: dict) -> tuple[np.ndarray, bool]:
+    """Seed 508's episode with a constant action (entries by name, others 0): joint positions per agent step, and whether it fell."""
+    kwargs = {
+        "residuals": residuals, "walker": {**DEPLOYMENT_OPTIONS, **walker}, "initial_joint_noise": 0.0,
+        "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}, "joint_limit_margin": 0.02,
+        "sim2real": {"estimator": True}, "randomization": {"imu_profile": "ahrs", "parameters": []},
+    }  # fmt: skip
+    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=50.0).env_overrides(kwargs, 50.0))
+    task = env.unwrapped.task
+    names = task.action_names()
+    constant = np.array([action.get(name, 0.0) for name in names], dtype=env.action_space.dtype)
+    env.reset(seed=SEED)
+    rows, terminated, truncated = [], False, False
+    while not (terminated or truncated):
+        _, _, terminated, truncated, _ = env.step(constant)
+        rows.append(task.robot.joint_positions().copy())
+    env.close()
+    return np.array(rows), terminated
+
+
+@pytest.mark.slow
+def test_the_hip_residual_is_the_hip_strategy_gain():
+    """The ``hip`` block's action times its scale (8 rad/m) is added to the walker's hip gain: a
+    constant 0.5 is the hip strategy at 4 rad/m bit for bit (so it walks on past seed 508's push),
+    and zero is the walker alone."""
+    hip, hip_fell = _joint_trajectory(["step", "hip"], {"hip/roll_gain": 0.5}, {})
+    strategy, strategy_fell = _joint_trajectory(["step"], {}, {"hip_roll_gain": 4.0})
+    assert np.array_equal(hip, strategy) and not hip_fell and not strategy_fell
+    zero, zero_fell = _joint_trajectory(["step", "hip"], {}, {})
+    alone, alone_fell = _joint_trajectory(["step"], {}, {})
+    assert np.array_equal(zero, alone) and zero_fell and alone_fell
+
+
+def test_the_hip_residual_must_be_finite():
+    from giwbc.locomotion.walker import WalkingController  # noqa: F401  (the mixin's owner)
+    from giwbc.locomotion.residuals import Residuals
+
+    with pytest.raises(ValueError, match="hip residual"):
+        Residuals.set_hip_residual(object.__new__(Residuals), float("nan"))

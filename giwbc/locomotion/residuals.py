@@ -3,7 +3,8 @@
 the controller's state).
 
 A step residual moves where the swinging (or next) foot lands and how long it swings; a reference
-residual offsets the DCM, CoM height and pelvis orientation references the walker gives the WBC.
+residual offsets the DCM, CoM height and pelvis orientation references the walker gives the WBC; a
+hip residual changes the gain of the walker's hip strategy (``WalkerConfig.hip_roll_gain``).
 All zero (the default) leaves every computation of the walker untouched: bit for bit the walker
 alone.
 """
@@ -44,6 +45,15 @@ class Residuals:
         self._height_offset = 0.0  # m
         self._orientation_offset: np.ndarray | None = None  # roll, pitch, yaw, rad
         self._orientation_changed = False
+        self._hip_gain_offset = 0.0  # rad per m of lateral DCM error, added to WalkerConfig.hip_roll_gain
+
+    def set_hip_residual(self, gain: float) -> None:
+        """Add ``gain`` rad/m to the hip strategy's gain (``WalkerConfig.hip_roll_gain``): the pelvis
+        rolls by ``-(hip_roll_gain + gain)`` times the lateral DCM error, every tick, within
+        ``hip_roll_max`` and the ``hip_gate`` (the walker's own gate: none inside its start)."""
+        if not math.isfinite(gain):
+            raise ValueError(f"hip residual must be finite, got {gain}")
+        self._hip_gain_offset = float(gain)
 
     def set_step_residual(self, offset: np.ndarray, duration: float = 0.0) -> None:
         """Shift where the swinging (or next) foot lands by ``offset`` (x, y in the stance sole's

@@ -94,17 +94,18 @@ class WalkerReferences:
         return xi_ref, rate, self.support_polygon((self._stance,))
 
     def _hip_roll_reference(self, xi: np.ndarray, xi_ref: np.ndarray) -> float:
-        """The hip strategy's pelvis roll for this tick (``WalkerConfig.hip_roll_gain``; 0 when off,
-        standing before the first step, or inside the gate)."""
+        """The hip strategy's pelvis roll for this tick (``WalkerConfig.hip_roll_gain`` plus a policy's
+        hip residual; 0 when both are zero, standing before the first step, or inside the gate)."""
         cfg = self.config
-        if cfg.hip_roll_gain == 0.0 or (self._phase is Phase.STAND and not self.state.steps) or not math.isfinite(self._heading):
+        gain = cfg.hip_roll_gain + self._hip_gain_offset
+        if gain == 0.0 or (self._phase is Phase.STAND and not self.state.steps) or not math.isfinite(self._heading):
             return 0.0
         ex, ey = float(xi[0] - xi_ref[0]), float(xi[1] - xi_ref[1])
         gate = error_gate(math.hypot(ex, ey), *cfg.hip_gate)
         if gate == 0.0:
             return 0.0
         across = -math.sin(self._heading) * ex + math.cos(self._heading) * ey  # left of the heading
-        return gate * min(max(-cfg.hip_roll_gain * across, -cfg.hip_roll_max), cfg.hip_roll_max)
+        return gate * min(max(-gain * across, -cfg.hip_roll_max), cfg.hip_roll_max)
 
     def _heading_reference(self, hip_roll: float = 0.0) -> None:
         """Pelvis upright, heading the mean of the feet's (the swing target's while it flies);

@@ -17,12 +17,17 @@ Action blocks (``residuals=``; each entry in [-1, 1] times its scale):
   stays in the step adapter's landing box and the duration in ``[min_swing, max_swing]``;
 - ``com``: offsets of the DCM reference (x, y in the heading frame; a CoM offset in steady state)
   and of the CoM height (m);
-- ``orientation``: pelvis roll, pitch, yaw offsets about the walker's heading (rad).
+- ``orientation``: pelvis roll, pitch, yaw offsets about the walker's heading (rad);
+- ``hip``: one entry, added to the gain of the walker's hip strategy (rad of pelvis roll into the
+  fall per m of lateral DCM error, ``WalkerConfig.hip_roll_gain``): a feedback the walker applies
+  every controller tick, within its ``hip_roll_max`` and its own ``hip_gate``, where a policy's
+  orientation residual is held for an agent step.
 
 The zero action is the walker alone, bit for bit. With ``residual_gate=(start, full)`` (m) the
 residuals act in proportion to ``clip((|ξ − ξ_ref| − start) / (full − start), 0, 1)`` of the
 walker's DCM error: none while the walker tracks its DCM reference (undisturbed walking is the
 walker alone, whatever the policy outputs), in full once a push has moved the DCM by ``full``.
+The ``hip`` gain is not scaled by it: the hip strategy's gate already does that to its roll.
 
 Observation (what the robot and its walker know): gravity in the IMU frame, IMU angular rate,
 joint positions minus the default pose, joint velocities, the base velocity in the heading frame
@@ -55,7 +60,8 @@ from giwbc.robot.interface import BaseState, quat_to_matrix
 from giwbc.tasks.floating_base import ANGULAR_VELOCITY_SCALE, JOINT_VELOCITY_SCALE, FloatingBaseTask
 from giwbc.tasks.task import ActionBlock, ResidualLayout
 
-BLOCKS = ("step", "com", "orientation")
+BLOCKS = ("step", "com", "orientation", "hip")
+_SIZES = {"step": 3, "com": 3, "orientation": 3, "hip": 1}
 _PHASES = (Phase.STAND, Phase.DOUBLE, Phase.SINGLE)
 
 
@@ -140,13 +146,14 @@ class WalkScales:
     step: tuple[float, float, float] = (0.1, 0.08, 0.1)  # m, m, s
     com: tuple[float, float, float] = (0.03, 0.03, 0.02)  # m
     orientation: tuple[float, float, float] = (0.1, 0.1, 0.1)  # rad
+    hip: tuple[float] = (8.0,)  # rad/m of hip-strategy gain
 
     def __post_init__(self) -> None:
         for name in BLOCKS:
-            value = getattr(self, name)
-            values = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else (value,) * 3))
-            if len(values) != 3:
-                raise ValueError(f"scale {name} needs 3 entries, got {value}")
+            value, size = getattr(self, name), _SIZES[name]
+            values = tuple(float(v) for v in (value if isinstance(value, (list, tuple)) else (value,) * size))
+            if len(values) != size:
+                raise ValueError(f"scale {name} needs {size} entries, got {value}")
             object.__setattr__(self, name, values)
 
 
@@ -154,8 +161,8 @@ def _layout(scales: WalkScales, names: Sequence[str]) -> ResidualLayout:
     names = tuple(names)
     if not names or len(set(names)) != len(names) or set(names) - set(BLOCKS):
         raise ValueError(f"residuals must be distinct names among {BLOCKS}, got {list(names)}")
-    labels = {"step": ("x", "y", "duration"), "com": ("x", "y", "z"), "orientation": ("roll", "pitch", "yaw")}
-    return ResidualLayout([ActionBlock(name, 3, getattr(scales, name), labels[name]) for name in BLOCKS if name in names])
+    labels = {"step": ("x", "y", "duration"), "com": ("x", "y", "z"), "orientation": ("roll", "pitch", "yaw"), "hip": ("roll_gain",)}
+    return ResidualLayout([ActionBlock(name, _SIZES[name], getattr(scales, name), labels[name]) for name in BLOCKS if name in names])
 
 
 def _yaw(quaternion: np.ndarray) -> float:
@@ -285,10 +292,12 @@ class G1Walk(FloatingBaseTask):
         self.previous_action = self.last_action
         self.last_action = np.array(action, dtype=float)
         residuals = self.layout.split(self.last_action)
+        walker = self.walker
+        if "hip" in residuals:  # a gain: the hip strategy gates its roll itself (module docstring)
+            walker.set_hip_residual(float(residuals.pop("hip")[0]))
         gate = self.gate()
         if gate != 1.0:
             residuals = {name: gate * value for name, value in residuals.items()}
-        walker = self.walker
         if "step" in residuals:
             step = residuals["step"]
             walker.set_step_residual(step[:2], float(step[2]))
