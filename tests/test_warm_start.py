@@ -96,3 +96,73 @@ def test_resume_and_warm_start_are_one_or_the_other():
 
     with pytest.raises(ValueError, match="give one of them"):
         TrainConfig(resume="a.zip", warm_start="b.zip")
+
+
+def test_a_policy_file_warm_start_acts_as_the_policy_file(tmp_path):
+    """From a policy .onnx alone (a shipped policy): the shared actions are the file's, the new
+    ``hip`` gain is zero, every log std is log_std_init and the critic is PPO's fresh one."""
+    from giwbc.apps.warm_start import warm_start
+    from giwbc.policy import OnnxPolicy
+
+    onnx = _source(tmp_path).with_suffix(".onnx")
+    policy = OnnxPolicy(onnx)
+    model, venv, described = _target({**KWARGS, "residuals": ["step", "hip"]}, log_std_init=-0.7)
+    fresh = {k: v.clone() for k, v in model.policy.state_dict().items() if "value_net" in k}
+    names = described["observation_names"]
+    started = warm_start(model, venv, onnx, names, described["action_names"], log_std_init=-0.7)
+    assert not started.critic and started.new_actions == ("hip/roll_gain",) and started.shared_actions == 3
+    assert venv.obs_rms.count == policy.metadata["training"]["timesteps"]
+    shared = np.array([names.index(n) for n in policy.metadata["observation_names"]])
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        raw = rng.normal(size=len(names)) * 2.0
+        mean, value, std = _act_and_value(model, venv, raw)
+        np.testing.assert_allclose(mean[:3], policy(raw[shared].astype(np.float32)), rtol=1e-4, atol=1e-5)  # (float32 file)
+        assert mean[3] == 0.0
+        np.testing.assert_allclose(std, np.exp(-0.7), rtol=1e-6)
+    assert all(np.array_equal(fresh[k], v) for k, v in model.policy.state_dict().items() if "value_net" in k)  # the critic as PPO made it
+    venv.close()
+
+
+def test_a_policy_file_with_another_activation_is_refused(tmp_path):
+    from giwbc.apps.warm_start import warm_start
+    from giwbc.errors import ConfigError
+
+    onnx = _source(tmp_path).with_suffix(".onnx")
+    model, venv, described = _target({**KWARGS, "residuals": ["step"]})
+    with pytest.raises(ConfigError, match="activation"):
+        warm_start(model, venv, onnx, described["observation_names"], described["action_names"], log_std_init=-1.0, activation="relu")
+    venv.close()
+
+
+def test_the_critic_warmup_trains_the_critic_alone_then_both(tmp_path):
+    """With ``critic_warmup`` 64 steps and 32-step rollouts, the first two updates leave the actor
+    (MLP, mean, log std) bit for bit as the source; the critic moves; from the third, the actor moves too."""
+    import torch
+    from stable_baselines3 import PPO
+
+    from giwbc.apps.training import TrainConfig, train
+
+    onnx = _source(tmp_path).with_suffix(".onnx")
+    common = dict(env_id=WALK, n_envs=1, seed=4, vectorization="dummy", checkpoint_every=32, progress_bar=False, eval_episodes=0,
+                  net_arch=(16, 16), log_std_init=-1.0, env_kwargs={**KWARGS, "residuals": ["step"]}, warm_start=str(onnx),
+                  ppo={"n_steps": 32, "batch_size": 32, "n_epochs": 1}, critic_warmup=64)
+    run = train(TrainConfig(total_timesteps=96, out_dir=str(tmp_path / "run"), **common))
+    params = {path.stem: PPO.load(path.with_suffix(".zip"), device="cpu").policy.state_dict() for path in run.checkpoints}
+    actor = ("mlp_extractor.policy_net", "action_net", "log_std")
+
+    def same(a: str, b: str, part: tuple[str, ...]) -> bool:
+        return all(torch.equal(params[a][k], params[b][k]) for k in params[a] if k.startswith(part))
+
+    critic = ("mlp_extractor.value_net", "value_net")
+    assert same("step_32", "step_64", actor) and not same("step_32", "step_64", critic)  # the second update: critic alone
+    assert not same("step_64", "step_96", actor)  # the third: the actor too
+    first = PPO.load(run.checkpoints[0].with_suffix(".zip"), device="cpu").policy
+    np.testing.assert_allclose(first.log_std.detach().numpy(), -1.0)  # the first update left the actor too
+
+
+def test_a_critic_warmup_must_be_a_step_count():
+    from giwbc.apps.training import TrainConfig
+
+    with pytest.raises(ValueError, match="critic_warmup"):
+        TrainConfig(critic_warmup=-1)

@@ -76,7 +76,8 @@ class TrainConfig:
     progress_bar: bool = True
     eval_episodes: int = 3
     resume: str | None = None  # a checkpoint's .zip (its .vecnormalize.pkl beside it): continue that run to total_timesteps
-    warm_start: str | None = None  # another run's checkpoint .zip: a new run starting from it, matched by names (giwbc.apps.warm_start)
+    warm_start: str | None = None  # another run's checkpoint .zip, or a policy .onnx: a new run starting from it, matched by names (giwbc.apps.warm_start)
+    critic_warmup: int = 0  # environment steps whose updates train the critic alone (the actor frozen): a policy file's warm start has no critic
 
     def __post_init__(self) -> None:
         if self.vectorization not in ("subproc", "dummy", "ray"):
@@ -85,6 +86,8 @@ class TrainConfig:
             raise ValueError("n_envs, total_timesteps and envs_per_worker must be >= 1")
         if self.resume is not None and self.warm_start is not None:
             raise ValueError("resume continues a run, warm_start begins one: give one of them")
+        if self.critic_warmup < 0:
+            raise ValueError(f"critic_warmup must be >= 0 environment steps, got {self.critic_warmup}")
         if self.seed < 0 or self.checkpoint_every < 0:
             raise ValueError(f"seed and checkpoint_every must be >= 0, got {self.seed} and {self.checkpoint_every}")
         try:
@@ -178,7 +181,7 @@ def read_learning_curve(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
 
 # The TrainConfig fields that define a run (with the seed): a resume that changes one starts a new branch.
 RUN_FIELDS = ("env_id", "env_kwargs", "n_envs", "seed", "checkpoint_every", "normalize_observations", "normalize_rewards",
-              "net_arch", "activation", "log_std_init", "ppo")  # (a warm start's source is in config.json: its resume gives none)
+              "net_arch", "activation", "log_std_init", "ppo", "critic_warmup")  # (a warm start's source is in config.json: its resume gives none)
 
 
 def resume_branch(config: TrainConfig) -> list[str]:
@@ -194,7 +197,9 @@ def resume_branch(config: TrainConfig) -> list[str]:
     if not run_config.is_file():
         return [*reasons, f"its run's configuration is not at {run_config}"]
     saved, mine = json.loads(run_config.read_text()), json.loads(json.dumps(asdict(config)))  # tuples as JSON lists
-    return reasons + [f"{key}: {saved.get(key)!r} in the run, {mine[key]!r} now" for key in RUN_FIELDS if saved.get(key) != mine[key]]
+    defaults = json.loads(json.dumps(asdict(TrainConfig())))  # a field newer than the run's config.json: its default
+    saved = {key: saved.get(key, defaults[key]) for key in RUN_FIELDS}
+    return reasons + [f"{key}: {saved[key]!r} in the run, {mine[key]!r} now" for key in RUN_FIELDS if saved[key] != mine[key]]
 
 
 def _activation(name: str) -> Any:
@@ -204,6 +209,15 @@ def _activation(name: str) -> Any:
         return {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU}[name]
     except KeyError:
         raise ValueError(f"activation must be tanh, relu or elu, got {name!r}") from None
+
+
+def freeze_actor(model: "PPO", frozen: bool) -> None:
+    """Whether PPO's updates leave the actor (policy MLP, mean, log std) as it is and train the
+    critic alone: a critic warm-up (``TrainConfig.critic_warmup``). Adam skips a parameter without
+    a gradient, so a frozen actor keeps its weights and optimizer state exactly."""
+    for name, parameter in model.policy.named_parameters():
+        if name.startswith(("mlp_extractor.policy_net.", "action_net.", "log_std")):
+            parameter.requires_grad_(not frozen)
 
 
 def describe_env(env_id: str, env_kwargs: dict[str, Any]) -> dict[str, Any]:
@@ -331,7 +345,7 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
             from giwbc.apps.warm_start import warm_start
 
             started = warm_start(model, venv, config.warm_start, described["observation_names"], described["action_names"],
-                                 config.log_std_init)
+                                 config.log_std_init, config.activation)
             print(started.summary())
     start = model.num_timesteps
     training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
@@ -374,6 +388,7 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
 
         def _on_rollout_end(self) -> None:
             curve.write(self.num_timesteps)
+            freeze_actor(model, self.num_timesteps <= config.critic_warmup)  # for the update that follows
 
         def _on_rollout_start(self) -> None:
             if self._checkpoint():
@@ -416,8 +431,10 @@ def add_train_command(commands: Any) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--resume", default=None, help="continue from a checkpoint .zip of the same run (to --timesteps in all; with the run's "
                         "seed and options it continues exactly as the uninterrupted run: see giwbc.apps.training)")
-    parser.add_argument("--warm-start", default=None, help="begin from another run's checkpoint .zip whose environment differs (e.g. fewer "
-                        "residual blocks): weights matched by observation and action names, new ones zero (see giwbc.apps.warm_start)")
+    parser.add_argument("--warm-start", default=None, help="begin from another run's checkpoint .zip, or a policy .onnx, whose environment may "
+                        "differ (e.g. fewer residual blocks): weights matched by observation and action names, new ones zero (see giwbc.apps.warm_start)")
+    parser.add_argument("--critic-warmup", type=int, default=0, help="environment steps whose updates train the critic alone, the actor "
+                        "frozen (for --warm-start from a policy .onnx, which has no critic)")
     add_ray_argument(parser)
     parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
                         help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
@@ -431,7 +448,7 @@ def run_train_command(args: Any) -> int:
                          ray_address=args.ray, envs_per_worker=args.envs_per_worker,
                          env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
                          net_arch=tuple(args.net_arch), log_std_init=args.log_std_init, resume=args.resume,
-                         warm_start=args.warm_start)
+                         warm_start=args.warm_start, critic_warmup=args.critic_warmup)
     if config.resume is not None:
         branch = resume_branch(config)
         print(f"resuming {config.resume}: " + ("a new branch (" + "; ".join(branch) + ")" if branch else

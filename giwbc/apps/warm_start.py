@@ -11,6 +11,13 @@ is the source's. A new action's exploration starts at ``log_std_init``; the obse
 normalizer keeps the source's statistics for the shared entries and starts the new ones at
 mean 0, variance 1. The optimizer starts afresh (the source's Adam state is for other shapes).
 
+The source is a run's checkpoint (``step_N.zip`` with its ``.onnx`` and ``.vecnormalize.pkl``
+beside it) or a policy file alone (``policy.onnx``, e.g. a shipped one: fine-tuning it). A policy
+file holds the actor and the observation normalizer, not the critic nor the actor's exploration:
+the critic then starts as PPO initializes it (``TrainConfig.critic_warmup`` lets it learn the
+source's values, the actor frozen, before the actor moves), every action's log std is
+``log_std_init``, and the normalizer's statistics count as the source's training steps.
+
 The hidden layers must have the source's sizes and activation. Needs the ``train`` extra.
 """
 
@@ -24,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from giwbc.errors import ConfigError
-from giwbc.policy import OnnxPolicy
+from giwbc.policy import ACTIVATIONS, OnnxPolicy
 
 if TYPE_CHECKING:
     from stable_baselines3 import PPO
@@ -45,9 +52,11 @@ class WarmStart:
     new_actions: tuple[str, ...]
     dropped_observations: tuple[str, ...]
     dropped_actions: tuple[str, ...]
+    critic: bool = True  # the source's critic was taken (False: a policy file, PPO's fresh critic)
 
     def summary(self) -> str:
-        return (f"warm start from {self.source}: {self.shared_observations} observations and {self.shared_actions} actions shared; "
+        return (f"warm start from {self.source}: {self.shared_observations} observations and {self.shared_actions} actions shared"
+                + ("" if self.critic else " (a policy file: the critic starts afresh)") + "; "
                 f"new: observations {list(self.new_observations)}, actions {list(self.new_actions)}"
                 + (f"; the source's {list(self.dropped_observations + self.dropped_actions)} are not used" if self.dropped_observations
                    or self.dropped_actions else ""))
@@ -62,6 +71,32 @@ def name_map(source: list[str] | tuple[str, ...], target: list[str] | tuple[str,
     return np.array([index.get(name, -1) for name in target], dtype=np.int64)
 
 
+def onnx_actor(path: str | Path, activation: str) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, float, dict[str, Any]]:
+    """A giwbc policy file's actor as SB3 ``MlpPolicy`` parameters (``mlp_extractor.policy_net.*``,
+    ``action_net.*``), its normalizer's mean and variance (None without one), the source's training
+    steps (0 if not recorded) and its metadata. ``ConfigError`` unless it is an MLP with ``activation``."""
+    import onnx
+    from onnx import numpy_helper
+
+    policy = OnnxPolicy(path)
+    graph = onnx.load(str(path)).graph
+    values = {tensor.name: numpy_helper.to_array(tensor).astype(np.float64) for tensor in graph.initializer}
+    kinds = {node.op_type for node in graph.node} & set(ACTIVATIONS.values())
+    if kinds != {ACTIVATIONS.get(activation)}:
+        raise ConfigError(f"{path}: its activation is {sorted(kinds)}, this run's {activation!r}")
+    layers = sum(1 for name in values if name.startswith("W"))
+    if layers < 2 or any(f"W{i}" not in values or f"b{i}" not in values for i in range(layers)):
+        raise ConfigError(f"{path}: not a giwbc MLP policy graph (layers W0..W{layers - 1})")
+    actor = {}
+    for i in range(layers - 1):  # SB3's policy_net: Linear, activation, Linear, ... (index 2 i)
+        actor[f"mlp_extractor.policy_net.{2 * i}.weight"], actor[f"mlp_extractor.policy_net.{2 * i}.bias"] = values[f"W{i}"], values[f"b{i}"]
+    actor["action_net.weight"], actor["action_net.bias"] = values[f"W{layers - 1}"], values[f"b{layers - 1}"]
+    mean = values.get("obs_mean")
+    var = None if mean is None else 1.0 / values["obs_inv_std"] ** 2 - 1e-8  # (the exported epsilon)
+    steps = int((policy.metadata.get("training") or {}).get("timesteps", 0))
+    return actor, mean, var, steps, policy.metadata
+
+
 def source_files(checkpoint: str | Path) -> tuple[Path, Path, Path]:
     """The checkpoint ``.zip`` and the ``.onnx`` (its names) and ``.vecnormalize.pkl`` beside it."""
     checkpoint = Path(checkpoint)
@@ -73,27 +108,35 @@ def source_files(checkpoint: str | Path) -> tuple[Path, Path, Path]:
 
 
 def warm_start(model: "PPO", venv: Any, checkpoint: str | Path, observation_names: list[str], action_names: list[str],
-               log_std_init: float) -> WarmStart:
+               log_std_init: float, activation: str = "tanh") -> WarmStart:
     """Overwrite ``model``'s actor-critic (and ``venv``'s normalizer, a ``VecNormalize``) from the
     checkpoint, matching names (module docstring). ``ConfigError`` when nothing is shared or
     the hidden layers differ."""
     import torch
     from stable_baselines3 import PPO
 
-    checkpoint, onnx, normalizer = source_files(checkpoint)
-    metadata = OnnxPolicy(onnx).metadata
+    policy_file = Path(checkpoint).suffix == ".onnx"
+    if policy_file:
+        actor, mean, var, steps, metadata = onnx_actor(checkpoint, activation)
+        source = {key: torch.as_tensor(value, dtype=torch.float32) for key, value in actor.items()}
+    else:
+        checkpoint, onnx, normalizer = source_files(checkpoint)
+        metadata = OnnxPolicy(onnx).metadata
+        source = PPO.load(checkpoint, device="cpu").policy.state_dict()
     source_obs, source_act = list(metadata["observation_names"]), list(metadata["action_names"])
     obs_map, act_map = name_map(source_obs, observation_names), name_map(source_act, action_names)
     if not (obs_map >= 0).any() or not (act_map >= 0).any():
         raise ConfigError(f"{checkpoint}: its policy shares no observation or no action with this run's environment")
-    source = PPO.load(checkpoint, device="cpu").policy.state_dict()
     target = model.policy.state_dict()
-    if set(source) != set(target):
+    if set(source) - set(target) or (not policy_file and set(source) != set(target)):
         raise ConfigError(f"{checkpoint}: another policy architecture ({sorted(set(source) ^ set(target))})")
     obs_shared, act_shared = np.flatnonzero(obs_map >= 0), np.flatnonzero(act_map >= 0)
     new: dict[str, torch.Tensor] = {}
     with torch.no_grad():
         for key, value in target.items():
+            if key not in source:  # a policy file's missing critic and log std: this run's own
+                new[key] = value.clone()
+                continue
             old = source[key]
             if key in _INPUT_LAYERS:  # (hidden, obs): columns by observation name, new ones zero
                 if old.shape[0] != value.shape[0]:
@@ -105,7 +148,7 @@ def warm_start(model: "PPO", venv: Any, checkpoint: str | Path, observation_name
                 layer = torch.zeros_like(value)
                 layer[act_shared] = old[act_map[act_shared]]
                 new[key] = layer
-            elif key == "log_std":
+            elif key == "log_std":  # (only a checkpoint has one: a policy file's run keeps log_std_init everywhere)
                 layer = torch.full_like(value, float(log_std_init))
                 layer[act_shared] = old[act_map[act_shared]]
                 new[key] = layer
@@ -114,12 +157,30 @@ def warm_start(model: "PPO", venv: Any, checkpoint: str | Path, observation_name
             else:
                 new[key] = old.clone()
     model.policy.load_state_dict(new)
-    _warm_normalizer(venv, normalizer, obs_map)
+    if policy_file:
+        _set_normalizer(venv, mean, var, max(steps, 1), obs_map)
+    else:
+        _warm_normalizer(venv, normalizer, obs_map)
     return WarmStart(
-        checkpoint, len(obs_shared), tuple(n for n, i in zip(observation_names, obs_map) if i < 0), len(act_shared),
+        Path(checkpoint), len(obs_shared), tuple(n for n, i in zip(observation_names, obs_map) if i < 0), len(act_shared),
         tuple(n for n, i in zip(action_names, act_map) if i < 0),
         tuple(sorted(set(source_obs) - set(observation_names))), tuple(sorted(set(source_act) - set(action_names))),
+        critic=not policy_file,
     )
+
+
+def _set_normalizer(venv: Any, mean: np.ndarray | None, var: np.ndarray | None, count: float, obs_map: np.ndarray) -> None:
+    """A policy file's observation statistics for the shared entries (mean 0, variance 1 for the new ones)."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if not isinstance(venv, VecNormalize) or not venv.norm_obs:
+        return
+    if mean is None or var is None:
+        raise ConfigError("the policy file normalizes no observation, this run does: train with normalize_observations off")
+    shared = obs_map >= 0
+    venv.obs_rms.mean = np.where(shared, mean[np.maximum(obs_map, 0)], 0.0)
+    venv.obs_rms.var = np.where(shared, var[np.maximum(obs_map, 0)], 1.0)
+    venv.obs_rms.count = float(count)
 
 
 def _warm_normalizer(venv: Any, path: Path, obs_map: np.ndarray) -> None:
