@@ -166,3 +166,37 @@ def test_a_critic_warmup_must_be_a_step_count():
 
     with pytest.raises(ValueError, match="critic_warmup"):
         TrainConfig(critic_warmup=-1)
+
+
+def test_a_new_action_can_start_at_a_chosen_mean(tmp_path):
+    """``new_action_means``: the new ``hip`` gain starts at 0.5 (4 rad/m), the shared actions stay the
+    source's; a shared or unknown name, or a mean outside [-1, 1], is refused."""
+    from giwbc.apps.warm_start import warm_start
+    from giwbc.errors import ConfigError
+    from giwbc.policy import OnnxPolicy
+
+    onnx = _source(tmp_path).with_suffix(".onnx")
+    policy = OnnxPolicy(onnx)
+    model, venv, described = _target({**KWARGS, "residuals": ["step", "hip"]})
+    names, actions = described["observation_names"], described["action_names"]
+    warm_start(model, venv, onnx, names, actions, log_std_init=-1.0, new_action_means={"hip/roll_gain": 0.5})
+    raw = np.random.default_rng(2).normal(size=len(names))
+    mean, _, _ = _act_and_value(model, venv, raw)
+    shared = np.array([names.index(n) for n in policy.metadata["observation_names"]])
+    np.testing.assert_allclose(mean[:3], policy(raw[shared].astype(np.float32)), rtol=1e-4, atol=1e-5)
+    assert mean[3] == np.float32(0.5)
+    for bad in ({"step/x": 0.1}, {"hip/gain": 0.1}, {"hip/roll_gain": 1.5}):
+        with pytest.raises(ConfigError, match="new_action_means"):
+            warm_start(model, venv, onnx, names, actions, log_std_init=-1.0, new_action_means=bad)
+    venv.close()
+
+
+def test_new_action_means_come_from_the_command_line():
+    from giwbc.apps.training import TrainConfig, _name_values
+
+    assert _name_values(["hip/roll_gain=0.5", "a=-1"]) == {"hip/roll_gain": 0.5, "a": -1.0}
+    for bad in (["hip/roll_gain"], ["=0.5"], ["a=b"]):
+        with pytest.raises(ValueError, match="NAME=VALUE"):
+            _name_values(bad)
+    with pytest.raises(ValueError, match="give warm_start"):
+        TrainConfig(new_action_means={"hip/roll_gain": 0.5})

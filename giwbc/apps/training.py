@@ -77,6 +77,7 @@ class TrainConfig:
     eval_episodes: int = 3
     resume: str | None = None  # a checkpoint's .zip (its .vecnormalize.pkl beside it): continue that run to total_timesteps
     warm_start: str | None = None  # another run's checkpoint .zip, or a policy .onnx: a new run starting from it, matched by names (giwbc.apps.warm_start)
+    new_action_means: dict[str, float] = field(default_factory=dict)  # warm start: a new action's initial mean (normalized) other than 0
     critic_warmup: int = 0  # environment steps whose updates train the critic alone (the actor frozen): a policy file's warm start has no critic
 
     def __post_init__(self) -> None:
@@ -86,6 +87,8 @@ class TrainConfig:
             raise ValueError("n_envs, total_timesteps and envs_per_worker must be >= 1")
         if self.resume is not None and self.warm_start is not None:
             raise ValueError("resume continues a run, warm_start begins one: give one of them")
+        if self.new_action_means and self.warm_start is None:
+            raise ValueError("new_action_means sets new actions of a warm start: give warm_start")
         if self.critic_warmup < 0:
             raise ValueError(f"critic_warmup must be >= 0 environment steps, got {self.critic_warmup}")
         if self.seed < 0 or self.checkpoint_every < 0:
@@ -181,7 +184,7 @@ def read_learning_curve(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
 
 # The TrainConfig fields that define a run (with the seed): a resume that changes one starts a new branch.
 RUN_FIELDS = ("env_id", "env_kwargs", "n_envs", "seed", "checkpoint_every", "normalize_observations", "normalize_rewards",
-              "net_arch", "activation", "log_std_init", "ppo", "critic_warmup")  # (a warm start's source is in config.json: its resume gives none)
+              "net_arch", "activation", "log_std_init", "ppo", "critic_warmup", "new_action_means")  # (a warm start's source is in config.json: its resume gives none)
 
 
 def resume_branch(config: TrainConfig) -> list[str]:
@@ -345,7 +348,7 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
             from giwbc.apps.warm_start import warm_start
 
             started = warm_start(model, venv, config.warm_start, described["observation_names"], described["action_names"],
-                                 config.log_std_init, config.activation)
+                                 config.log_std_init, config.activation, config.new_action_means)
             print(started.summary())
     start = model.num_timesteps
     training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
@@ -433,12 +436,28 @@ def add_train_command(commands: Any) -> None:
                         "seed and options it continues exactly as the uninterrupted run: see giwbc.apps.training)")
     parser.add_argument("--warm-start", default=None, help="begin from another run's checkpoint .zip, or a policy .onnx, whose environment may "
                         "differ (e.g. fewer residual blocks): weights matched by observation and action names, new ones zero (see giwbc.apps.warm_start)")
+    parser.add_argument("--new-action-mean", action="append", default=[], metavar="NAME=VALUE",
+                        help="with --warm-start: start a new action's mean at VALUE in [-1, 1] instead of 0 (repeatable)")
     parser.add_argument("--critic-warmup", type=int, default=0, help="environment steps whose updates train the critic alone, the actor "
                         "frozen (for --warm-start from a policy .onnx, which has no critic)")
     add_ray_argument(parser)
     parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
                         help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
     parser.set_defaults(run=run_train_command)
+
+
+def _name_values(items: list[str]) -> dict[str, float]:
+    """``["a/b=0.5", ...]`` as ``{"a/b": 0.5}``; ``ValueError`` on another form."""
+    values = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            values[name] = float(value)
+        except ValueError:
+            sep = ""
+        if not (sep and name):
+            raise ValueError(f"expected NAME=VALUE, got {item!r}")
+    return values
 
 
 def run_train_command(args: Any) -> int:
@@ -448,7 +467,8 @@ def run_train_command(args: Any) -> int:
                          ray_address=args.ray, envs_per_worker=args.envs_per_worker,
                          env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
                          net_arch=tuple(args.net_arch), log_std_init=args.log_std_init, resume=args.resume,
-                         warm_start=args.warm_start, critic_warmup=args.critic_warmup)
+                         warm_start=args.warm_start, critic_warmup=args.critic_warmup,
+                         new_action_means=_name_values(args.new_action_mean))
     if config.resume is not None:
         branch = resume_branch(config)
         print(f"resuming {config.resume}: " + ("a new branch (" + "; ".join(branch) + ")" if branch else

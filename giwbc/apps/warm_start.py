@@ -7,7 +7,8 @@ reading an observation the source also had, and each output of an action the sou
 is the source's; a new observation's input weights and a new action's output weights are zero, so
 the warm-started actor's mean action *is* the source's on the shared actions and zero on the new
 ones (for a residual policy: exactly the source policy at the first step), and the critic's value
-is the source's. A new action's exploration starts at ``log_std_init``; the observation
+is the source's (``new_action_means`` can start a new action's mean elsewhere: a value known to
+help, for the run to improve on). A new action's exploration starts at ``log_std_init``; the observation
 normalizer keeps the source's statistics for the shared entries and starts the new ones at
 mean 0, variance 1. The optimizer starts afresh (the source's Adam state is for other shapes).
 
@@ -23,6 +24,7 @@ The hidden layers must have the source's sizes and activation. Needs the ``train
 
 from __future__ import annotations
 
+import math
 import pickle
 from dataclasses import dataclass
 from pathlib import Path
@@ -108,7 +110,7 @@ def source_files(checkpoint: str | Path) -> tuple[Path, Path, Path]:
 
 
 def warm_start(model: "PPO", venv: Any, checkpoint: str | Path, observation_names: list[str], action_names: list[str],
-               log_std_init: float, activation: str = "tanh") -> WarmStart:
+               log_std_init: float, activation: str = "tanh", new_action_means: dict[str, float] | None = None) -> WarmStart:
     """Overwrite ``model``'s actor-critic (and ``venv``'s normalizer, a ``VecNormalize``) from the
     checkpoint, matching names (module docstring). ``ConfigError`` when nothing is shared or
     the hidden layers differ."""
@@ -156,6 +158,11 @@ def warm_start(model: "PPO", venv: Any, checkpoint: str | Path, observation_name
                 raise ConfigError(f"{checkpoint}: {key} has shape {tuple(old.shape)}, this run {tuple(value.shape)}")
             else:
                 new[key] = old.clone()
+    for name, value in (new_action_means or {}).items():  # a new action's mean other than zero (its output's bias)
+        if name not in action_names or act_map[action_names.index(name)] >= 0 or not (math.isfinite(value) and -1.0 <= value <= 1.0):
+            raise ConfigError(f"new_action_means: {name!r} must be one of the actions new to this run "
+                              f"({[n for n, i in zip(action_names, act_map) if i < 0]}) with a mean in [-1, 1], got {value}")
+        new["action_net.bias"][action_names.index(name)] = float(value)
     model.policy.load_state_dict(new)
     if policy_file:
         _set_normalizer(venv, mean, var, max(steps, 1), obs_map)
