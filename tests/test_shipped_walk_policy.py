@@ -18,8 +18,9 @@ SHIPPED = Path(__file__).resolve().parents[1] / "policies" / "g1_walk_residual.o
 def test_shipped_walk_policy_metadata(g1) -> None:
     metadata = OnnxPolicy(SHIPPED).metadata
     assert metadata["env_id"] == "giwbc/G1Walk-v0" and metadata["joint_names"] == list(g1.joint_names)
-    assert metadata["action_names"] == ["step/x", "step/y", "step/duration", "orientation/roll", "orientation/pitch", "orientation/yaw"]
-    assert metadata["env_kwargs"]["residuals"] == ["step", "orientation"]
+    assert metadata["action_names"] == ["step/x", "step/y", "step/duration", "orientation/roll", "orientation/pitch", "orientation/yaw",
+                                        "hip/roll_gain"]
+    assert metadata["env_kwargs"]["residuals"] == ["step", "orientation", "hip"]
     assert metadata["rates"]["controller_hz"] == 500.0 and metadata["rates"]["agent_hz"] == 50.0
     assert metadata["training"]["seed"] == 0 and metadata["training"]["timesteps"] > 0
 
