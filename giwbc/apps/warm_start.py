@@ -177,7 +177,8 @@ def warm_start(model: "PPO", venv: Any, checkpoint: str | Path, observation_name
 
 
 def _set_normalizer(venv: Any, mean: np.ndarray | None, var: np.ndarray | None, count: float, obs_map: np.ndarray) -> None:
-    """A policy file's observation statistics for the shared entries (mean 0, variance 1 for the new ones)."""
+    """The source's observation statistics (a checkpoint's or a policy file's) for the shared
+    entries, mean 0 and variance 1 for the new ones, counted as ``count`` samples."""
     from stable_baselines3.common.vec_env import VecNormalize
 
     if not isinstance(venv, VecNormalize) or not venv.norm_obs:
@@ -187,7 +188,7 @@ def _set_normalizer(venv: Any, mean: np.ndarray | None, var: np.ndarray | None, 
     shared = obs_map >= 0
     venv.obs_rms.mean = np.where(shared, mean[np.maximum(obs_map, 0)], 0.0)
     venv.obs_rms.var = np.where(shared, var[np.maximum(obs_map, 0)], 1.0)
-    venv.obs_rms.count = float(count)
+    venv.obs_rms.count = count
 
 
 def _warm_normalizer(venv: Any, path: Path, obs_map: np.ndarray) -> None:
@@ -201,11 +202,7 @@ def _warm_normalizer(venv: Any, path: Path, obs_map: np.ndarray) -> None:
         raise FileNotFoundError(f"warm start into a normalized run needs the source's normalizer {path}")
     with path.open("rb") as file:
         source = pickle.load(file)  # (a VecNormalize without its environments)
-    shared = obs_map >= 0
     if venv.norm_obs and source.norm_obs:
-        rms = venv.obs_rms
-        rms.mean = np.where(shared, np.asarray(source.obs_rms.mean)[np.maximum(obs_map, 0)], 0.0)
-        rms.var = np.where(shared, np.asarray(source.obs_rms.var)[np.maximum(obs_map, 0)], 1.0)
-        rms.count = source.obs_rms.count
+        _set_normalizer(venv, np.asarray(source.obs_rms.mean), np.asarray(source.obs_rms.var), source.obs_rms.count, obs_map)
     if venv.norm_reward and source.norm_reward:
         venv.ret_rms = source.ret_rms
