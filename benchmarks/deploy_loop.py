@@ -22,6 +22,11 @@ them. Measured over the running phase only:
   decode, IMU, estimator) and the host's CPU time per CAN frame (one command plus one reply per
   motor and cycle); the emulator's CPU time (its own process, or the loop's thread in lockstep);
 - the bus loads of the hardware plan at that rate;
+- ``work_parts``: the host work split by part, wall time per cycle (p50 / p99 / mean, us): the CAN
+  exchange, the estimator, the safety check, the controller's tick (for the walker also its WBC
+  tick and its own planning), and the rest (the runtime's bookkeeping); and each part's mean over
+  the slowest 1 % of cycles against its mean over all (``slowest_1pct.ratio_to_all_cycles``):
+  every part slower at once in those cycles is the machine, not one code path;
 - with ``--controller walk``, ``walking.contact_switches``: how many of the slowest 1 % of cycles
   are contact-switch cycles (the walker's tick where its phase or stance changed, and the next one:
   a lift-off or touch-down plans and changes the WBC's contacts and tasks), and the host work p99
@@ -121,6 +126,83 @@ class _CpuMeter:
             estimated.update = timed_update  # type: ignore[method-assign]
 
 
+class _WallParts:
+    """Wall time of each part of every cycle's work, recorded at the clock's ``done`` (one row per
+    cycle, aligned with the clock's stats): the CAN exchange, the estimator's update, the safety
+    check, the controller's tick (``controller``) and, for the walker, its WBC tick (``wbc``, inside
+    ``controller``: the rest of it is the walker's own planning). ``rest`` is the cycle's work less
+    the parts (the runtime's own: report, signals, fault bookkeeping). Each wrapper costs about
+    0.2 µs."""
+
+    PARTS = ("exchange", "estimator", "safety", "controller", "wbc")
+
+    def __init__(self) -> None:
+        self._now = dict.fromkeys(self.PARTS, 0.0)
+        self.rows: list[tuple[float, ...]] = []
+
+    def wrap(self, owner: object, name: str, part: str) -> None:
+        method = getattr(owner, name)
+        now, clock = self._now, time.perf_counter
+
+        def timed(*args, **kwargs):
+            start = clock()
+            try:
+                return method(*args, **kwargs)
+            finally:
+                now[part] += clock() - start
+
+        setattr(owner, name, timed)
+
+    def attach(self, clock) -> None:
+        """Count the parts from each cycle's start (work between cycles, such as the controller's
+        first tick at the hand-over, is not a cycle's) and record a row when ``clock`` ends its work."""
+        begin, done, now = clock._begin, clock.done, self._now
+
+        def started(*args) -> None:
+            for part in self.PARTS:
+                now[part] = 0.0
+            begin(*args)
+
+        def recorded() -> tuple[float, bool]:
+            result = done()
+            self.rows.append(tuple(now[part] for part in self.PARTS))
+            return result
+
+        clock._begin = started
+        clock.done = recorded
+
+    def summary(self, work: list[float], first: int, last: int | None) -> dict[str, object]:
+        """p50 / p99 / mean (µs) of each part over the cycles ``first:last``; and each part's mean
+        over the slowest 1 % of those cycles by work against its mean over all of them (``slowest_1pct``):
+        one part far above its mean points at a code path, every part above it at once at the machine."""
+        parts = 1e6 * np.asarray(self.rows[first:last], dtype=float).reshape(-1, len(self.PARTS))
+        work_us = 1e6 * np.asarray(work, dtype=float)
+        n = min(len(parts), len(work_us))
+        if not n:
+            return {}
+        parts, work_us = parts[:n], work_us[:n]
+        table = {name: parts[:, k] for k, name in enumerate(self.PARTS)}
+        if not table["wbc"].any():
+            del table["wbc"]
+        else:
+            table["planning"] = table["controller"] - table["wbc"]  # the walker's own work
+        table["rest"] = work_us - parts[:, :4].sum(axis=1)
+        slowest = np.argsort(work_us)[n - max(1, n // 100):]
+
+        def stats(values: np.ndarray) -> dict[str, float]:
+            return {"p50": round(float(np.median(values)), 1), "p99": round(float(np.percentile(values, 99)), 1), "mean": round(float(values.mean()), 1)}
+
+        return {
+            "parts_us": {name: stats(values) for name, values in table.items()},
+            "slowest_1pct": {
+                "cycles": len(slowest), "work_mean_us": round(float(work_us[slowest].mean()), 1),
+                "part_mean_us": {name: round(float(values[slowest].mean()), 1) for name, values in table.items()},
+                "ratio_to_all_cycles": {name: round(float(values[slowest].mean() / values.mean()), 2) for name, values in table.items() if values.mean() > 0},
+            },
+            "clock": "time.perf_counter, wall",
+        }
+
+
 def _cpu_seconds(pid: int) -> float:
     """User + system CPU time of a process so far (Linux ``/proc/<pid>/stat``)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
@@ -180,7 +262,8 @@ def _free_port() -> int:
 
 
 def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
-             mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False, vx: float = 0.3) -> dict:  # fmt: skip
+             mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False, vx: float = 0.3,
+             cpu_latency: float | None = None) -> dict:  # fmt: skip
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     cpus = sorted(os.sched_getaffinity(0))
     split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
@@ -206,8 +289,18 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     if live and writer is not None:  # a Foxglove viewer on loopback, in a process of its own (not this one's CPU time)
         viewer = subprocess.Popen([sys.executable, "-m", "giwbc.apps.live", str(port), str(seconds + 30.0)],
                                   stdout=subprocess.PIPE, text=True)  # fmt: skip
-    runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, safety=BENCHMARK_SAFETY, recorders=recorders,
+    runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, cpu_latency=cpu_latency,
+                              safety=BENCHMARK_SAFETY, recorders=recorders,
                               startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.1, off_delay=0.05))  # fmt: skip
+    parts = _WallParts()  # (wraps the meter's wrappers: the same calls)
+    parts.wrap(can_robot, "exchange", "exchange")
+    if robot is not can_robot:
+        parts.wrap(robot, "update", "estimator")
+    parts.wrap(runtime.supervisor, "check", "safety")
+    parts.wrap(task, "apply_command", "controller")
+    if hold is not None:
+        parts.wrap(hold.walker.wbc, "update", "wbc")
+    parts.attach(runtime.clock)
     phases: dict[int, tuple[object, object]] = {}  # the walker's (phase, stance) after each tick, by the cycle's index in the clock's stats
     if hold is not None:
         apply = task.apply_command
@@ -273,6 +366,8 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         "rate_hz": rate,
         "seconds": seconds,
         "scheduler": runtime.scheduler,
+        "cpu_latency_us": cpu_latency,
+        "cpu_idle": runtime.cpu_idle,
         "emulator_scheduler": emulator.scheduler if mode == "process" else "the loop's thread",
         "ok": result.ok,
         "fault": None if result.fault is None else str(result.fault),
@@ -281,6 +376,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         "lateness_us": summary["lateness_us"],
         "work_us": summary["work_us"],
         "work_mean_us": 1e6 * float(np.mean(stats.work)) if len(stats.work) else None,
+        "work_parts": parts.summary(stats.work, first if first is not None else 0, last),
         "overruns": summary["overruns"],
         "skipped_slots": summary["skipped_slots"],
         "overrun_causes": _overrun_causes(stats, period),
@@ -323,12 +419,16 @@ def main() -> None:
                         help="each run before (log without the scene) and after (scene logged and streamed live to a viewer)")
     parser.add_argument("--rt-priority", type=int, default=50,
                         help="SCHED_FIFO priority of the loop (the emulator process gets one less); 0: the default scheduler")
+    parser.add_argument("--cpu-latency", type=float, nargs="+", default=[None], metavar="US",
+                        help="hold the CPUs' wake-up latency at most US µs while the motors are on (PM QoS, as giwbc deploy "
+                             "--cpu-latency; 0: idle CPUs poll); several values (-1: none) alternate run by run")
     parser.add_argument("--no-pin", action="store_true", help="do not pin the loop's thread and the emulator process to different CPUs")
     parser.add_argument("--emulator", choices=("process", "lockstep"), default="process",
                         help="the emulator in its own process on giwbc-unix channels (as motors on their own hardware), "
                              "or in the loop's thread on python-can virtual buses (lockstep)")
     args = parser.parse_args()
     seconds = args.seconds if len(args.seconds) == len(args.rates) else [args.seconds[0]] * len(args.rates)
+    latencies = [None if value is None or value < 0 else value for value in args.cpu_latency]
 
     description = load(args.robot)
     model = description.build_mujoco()
@@ -339,10 +439,12 @@ def main() -> None:
         for rate, duration in zip(args.rates, seconds):
             for _ in range(max(1, args.repeat)):
                 for controller in args.controller:
-                    for name, scene_rate, live in variants:  # alternated: slow drifts of the machine hit both
-                        result = run_rate(description, model, rate, duration, controller, Path(tmp), not args.no_log,
-                                          args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live, args.vx)  # fmt: skip
-                        results.append({"variant": name, **result} if name else result)
+                    for latency in latencies:
+                        for name, scene_rate, live in variants:  # alternated: slow drifts of the machine hit both
+                            result = run_rate(description, model, rate, duration, controller, Path(tmp), not args.no_log,
+                                              args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live, args.vx,
+                                              latency)  # fmt: skip
+                            results.append({"variant": name, **result} if name else result)
     effect = None
     if args.foxglove:
         effect = {
@@ -365,6 +467,13 @@ def main() -> None:
                           for c in args.controller}
             for rate in args.rates
         },  # medians over --repeat
+        "work_by_cpu_latency_us": None if len(latencies) < 2 else {
+            f"{rate:g}": {c: {"none" if lat is None else f"{lat:g}": {
+                key: float(np.median([pick(r) for r in results if r["rate_hz"] == rate and r["controller"] == c and r["cpu_latency_us"] == lat]))
+                for key, pick in (("p50", lambda r: r["work_us"]["p50"]), ("p99", lambda r: r["work_us"]["p99"]), ("overruns", lambda r: r["overruns"]))}
+                for lat in latencies} for c in args.controller}
+            for rate in args.rates
+        },  # medians over --repeat of runs alternated with each other
         "log": not args.no_log,
         "transport": ("giwbc-unix channels (AF_UNIX SOCK_SEQPACKET), emulator in its own process" if args.emulator == "process"
                       else "python-can virtual, emulator in the loop thread (lockstep)"),

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 from collections.abc import Sequence
@@ -52,6 +53,9 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--log", default=None, help="run log (.mcap); default runs/deploy-<robot>-<time>.mcap")
     parser.add_argument("--ramp", type=float, default=2.0, help="start-up ramp to the default pose, s")
     parser.add_argument("--rt-priority", type=int, default=None, help="SCHED_FIFO priority of the control loop (needs CAP_SYS_NICE)")
+    parser.add_argument("--cpu-latency", type=float, default=None, metavar="US",
+                        help="while the motors are on, keep the CPUs' wake-up latency at most US microseconds (0: idle CPUs poll; "
+                             "Linux PM QoS, /dev/cpu_dma_latency, needs root): cycles do not start on a CPU waking from a halt")
     parser.add_argument("--json", action="store_true", help="print one JSON summary at the end")
     parser.add_argument("--imu", choices=("emulated", "serial", "can"), default=None,
                         help="with --emulate: the IMU device the emulator imitates, read through the real driver (default: the plan's)")
@@ -85,6 +89,9 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             print(f"giwbc deploy: error: {error}", file=sys.stderr)
             return 2
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
+    if args.cpu_latency is not None and not (math.isfinite(args.cpu_latency) and args.cpu_latency >= 0):
+        print(f"giwbc deploy: error: --cpu-latency must be a finite number of microseconds >= 0, got {args.cpu_latency:g}", file=sys.stderr)
+        return 2
     if args.foxglove:
         require_foxglove()  # before the motors, not after
     try:
@@ -96,7 +103,7 @@ def run_deploy_command(args: argparse.Namespace) -> int:
     options = DeployOptions(
         robot=args.robot, policy=args.policy, task=args.task, controller=args.controller, hardware=args.hardware,
         emulate=args.emulate, emulator_mode=args.emulator, seconds=args.seconds, control_rate=args.rate, log=args.log, realtime=not args.unpaced,
-        startup=startup, rt_priority=args.rt_priority, faults=faults, imu=args.imu, preflight=not args.no_preflight,
+        startup=startup, rt_priority=args.rt_priority, cpu_latency=args.cpu_latency, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
         foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk, walker=walker,
     )  # fmt: skip

@@ -42,6 +42,7 @@ class DeployOptions:
     faults: tuple[FaultInjection, ...] = ()  # injected into the emulator (rehearsals, tests)
     reply_timeout: float = 0.8e-3
     rt_priority: int | None = None  # SCHED_FIFO priority of the control loop (None: the default scheduler)
+    cpu_latency: float | None = None  # hold the CPUs' wake-up latency at most this many µs while the motors are on (PM QoS; None: leave it)
     imu: str | None = None  # with emulate: "emulated", "serial" or "can" (the device the emulator imitates); None: the plan's
     preflight: bool = True  # SocketCAN pre-flight on real buses
     first_run: bool = False  # a robot on a gantry: reduced limits (FirstRunLimits)

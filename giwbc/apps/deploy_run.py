@@ -262,7 +262,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         runtime = RealtimeRuntime(
             task, robot, agent_rate=agent_rate, controller_rate=options.control_rate, safety=safety,
             startup=options.startup, log=log, log_every=options.log_every, realtime=options.realtime,
-            rt_priority=options.rt_priority, recorders=recorders,
+            rt_priority=options.rt_priority, cpu_latency=options.cpu_latency, recorders=recorders,
         )  # fmt: skip
         if metadata is not None:
             check_layout(metadata, task)

@@ -1,28 +1,78 @@
 """Process and thread settings of the real-time loop: ``SCHED_FIFO`` for the loop's thread while
-the motors are on, and the garbage collector's state, both restored at the end
-(:class:`ProcessSettings`, a mixin of :class:`~giwbc.runtimes.realtime.RealtimeRuntime`, whose
-docstring explains ``rt_priority``, ``freeze_gc`` and ``gc_every``)."""
+the motors are on, the CPUs' wake-up latency (a Linux PM QoS request), and the garbage
+collector's state, all restored at the end (:class:`ProcessSettings`, a mixin of
+:class:`~giwbc.runtimes.realtime.RealtimeRuntime`, whose docstring explains ``rt_priority``,
+``cpu_latency``, ``freeze_gc`` and ``gc_every``).
+
+The wake-up latency: between cycles the loop sleeps, and an idle CPU enters an idle state
+whose exit costs time and, on a virtual machine, gives the physical core to other guests (its
+caches come back cold). Writing a latency bound to ``/dev/cpu_dma_latency`` asks the kernel's
+idle governor to keep every CPU in states that wake within it (0: polling) for as long as the
+file stays open, as ``cyclictest`` does; the request ends when it is closed (at the end of the
+run, or when the process dies). Measured on a 2-vCPU KVM guest, walking deploy loop at 500 Hz
+(``benchmarks/deploy_loop.py``): host work per cycle ~15 % lower at the median, fewer overruns."""
 
 from __future__ import annotations
 
 import gc
 import os
+import struct
 from typing import Any
+
+CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"  # Linux PM QoS: the CPUs' wake-up latency bound, µs (int32)
 
 
 class ProcessSettings:
-    """Raise and restore the loop thread's scheduling and the garbage collector (see the module
-    docstring). Expects the runtime's ``rt_priority``, ``scheduler``, ``_schedulers``,
-    ``_gc_was_enabled``, ``_gc_frozen`` attributes and its ``_event`` method (the run log's events)."""
+    """Raise and restore the loop thread's scheduling, the CPUs' wake-up latency and the garbage
+    collector (see the module docstring). Expects the runtime's ``rt_priority``, ``scheduler``,
+    ``_schedulers``, ``cpu_latency``, ``cpu_idle``, ``_cpu_latency_fd``, ``_gc_was_enabled``,
+    ``_gc_frozen`` attributes and its ``_event`` method (the run log's events)."""
 
     rt_priority: int | None
     scheduler: str
     _schedulers: list[tuple[int, tuple[int, Any]]]
+    cpu_latency: float | None
+    cpu_idle: str
+    _cpu_latency_fd: int | None
     _gc_was_enabled: bool | None
     _gc_frozen: bool
+    cpu_latency_device: str = CPU_LATENCY_DEVICE
+
+    def _hold_cpu_latency(self) -> None:
+        """Ask for the CPUs' wake-up latency bound ``cpu_latency`` (µs) until the run ends; where
+        the kernel refuses (no such device, no permission) the run goes on, and says so."""
+        if self.cpu_latency is None or self._cpu_latency_fd is not None:
+            return
+        bound = int(round(self.cpu_latency))
+        try:
+            fd = os.open(self.cpu_latency_device, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0))
+        except OSError as error:
+            self.cpu_idle = f"default (wake-up latency {bound} us refused: {error})"
+            self._event("cpu_latency", {"latency_us": bound, "refused": str(error)})
+            return
+        try:
+            os.write(fd, struct.pack("=i", bound))
+        except OSError as error:
+            os.close(fd)
+            self.cpu_idle = f"default (wake-up latency {bound} us refused: {error})"
+            self._event("cpu_latency", {"latency_us": bound, "refused": str(error)})
+            return
+        self._cpu_latency_fd = fd
+        self.cpu_idle = f"wake-up latency <= {bound} us (PM QoS)"
+        self._event("cpu_latency", {"latency_us": bound, "device": self.cpu_latency_device})
+
+    def _release_cpu_latency(self) -> None:
+        """End the wake-up latency request (closing the file ends it)."""
+        fd, self._cpu_latency_fd = self._cpu_latency_fd, None
+        if fd is not None:
+            try:
+                os.close(fd)
+            except OSError:
+                pass
 
     def _restore_process_state(self) -> None:
-        """The garbage collector as it was before the motors started."""
+        """The CPUs' wake-up latency and the garbage collector as they were before the motors started."""
+        self._release_cpu_latency()
         if self._gc_was_enabled is not None:
             if self._gc_was_enabled:
                 gc.enable()

@@ -102,6 +102,7 @@ class PhaseSequence:
             self._gc_was_enabled = gc.isenabled()
             gc.disable()  # collections happen between cycles: see the class docstring
         self._raise_priority()
+        self._hold_cpu_latency()
         if self.watchdog is None:
             timeout = self.safety.watchdog_periods * self.period
             if not self.clock.realtime:  # an unpaced run (rehearsal, test) may be descheduled for a while: not a stuck loop

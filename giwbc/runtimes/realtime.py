@@ -122,7 +122,11 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
     CAP_SYS_NICE; refused -> logged, run goes on), restored at :meth:`close`; mind Linux RT
     throttling (``kernel.sched_rt_runtime_us``, 95 % by default): a loop thread busy (working or
     spinning) more than that in a second is stopped for the rest of it (~50 ms), so under
-    ``SCHED_FIFO`` every cycle sleeps at least 6 % of the period, late or not. ``spin``: seconds
+    ``SCHED_FIFO`` every cycle sleeps at least 6 % of the period, late or not. ``cpu_latency``:
+    while the motors are on, hold the CPUs' wake-up latency at most this many µs (0: the idle CPUs
+    poll) with a Linux PM QoS request (``/dev/cpu_dma_latency``, needs root; refused -> logged, run
+    goes on; :mod:`giwbc.runtimes.os_settings`): a cycle that follows a sleep then starts on a CPU
+    that did not halt; :attr:`cpu_idle` says what was granted. ``spin``: seconds
     spent spinning before each deadline (default 250 us, 100 us under ``SCHED_FIFO``). ``freeze_gc``: collect
     garbage before the motors start, then ``gc.freeze()`` what exists (a full collection of the whole
     heap costs tens of ms: a stalled loop), ``gc.unfreeze()`` at :meth:`close`. ``gc_every``: while
@@ -149,6 +153,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         realtime: bool = True,
         spin: float | None = None,
         rt_priority: int | None = None,
+        cpu_latency: float | None = None,
         freeze_gc: bool = True,
         gc_every: int | None = 500,
         recorders: Sequence[CycleRecorder] = (),
@@ -176,6 +181,11 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         self.gc_collections, self.gc_seconds_max = 0, 0.0
         self._schedulers: list[tuple[int, tuple[int, Any]]] = []
         self.scheduler = "default"  # the loop thread's scheduling while the motors were on, as granted
+        if cpu_latency is not None and not (math.isfinite(cpu_latency) and cpu_latency >= 0):
+            raise ValueError(f"cpu_latency must be a finite number of µs >= 0 (or None), got {cpu_latency}")
+        self.cpu_latency = cpu_latency
+        self.cpu_idle = "default"  # the CPUs' idle states while the motors were on, as granted
+        self._cpu_latency_fd: int | None = None
         if spin is None:  # under SCHED_FIFO wake-ups are prompt; spinning counts against RT throttling
             spin = 100e-6 if rt_priority is not None else 250e-6
         min_idle = 0.06 / controller_rate if rt_priority is not None else 0.0  # stay under 95 % busy
