@@ -124,3 +124,18 @@ def test_a_bad_bound_is_refused_before_anything_starts(g1, model, tmp_path):
     args = parser.parse_args(["deploy", "--robot", "g1", "--emulate", "--cpu-latency", "-5", "--log", str(tmp_path / "never.mcap")])
     assert args.run(args) == 2
     assert not (tmp_path / "never.mcap").exists()
+
+
+def test_deploy_says_what_the_kernel_granted(tmp_path, capsys):
+    """``giwbc deploy --cpu-latency 0`` prints the loop's scheduling and the CPUs' idle states as
+    granted (a refusal included: the run goes on either way)."""
+    from giwbc.apps.deploy import add_deploy_command
+
+    parser = argparse.ArgumentParser()
+    add_deploy_command(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["deploy", "--robot", "g1", "--emulate", "--unpaced", "--controller", "pd", "--seconds", "0.1",
+                              "--ramp", "0.05", "--cpu-latency", "0", "--scene-rate", "0", "--log", str(tmp_path / "run.mcap")])
+    assert args.run(args) == 0
+    (line,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("control loop:")]
+    granted = os.access(CPU_LATENCY_DEVICE, os.W_OK)
+    assert line.endswith("wake-up latency <= 0 us (PM QoS)") if granted else "refused" in line

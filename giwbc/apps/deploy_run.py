@@ -269,6 +269,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         say(f"running {task_name} ({'walker' if task_name == 'walk' else options.controller}) for {options.seconds:g} s"
             + (" with the policy" if policy else ""))
         result = runtime.run(policy, options.seconds)
+        if options.rt_priority is not None or options.cpu_latency is not None:  # what was asked and what the kernel granted
+            say(f"control loop: {runtime.scheduler}; CPUs' idle: {runtime.cpu_idle}")
         counters = imu_counters(imu)
         if counters is not None:
             say("IMU driver: " + ", ".join(f"{k} {v}" for k, v in counters.items()))
