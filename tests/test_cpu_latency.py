@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import math
 import os
 import struct
 
@@ -117,8 +118,9 @@ def test_the_kernel_holds_the_bound_during_the_run_only(g1, model, tmp_path):
 def test_a_bad_bound_is_refused_before_anything_starts(g1, model, tmp_path):
     from giwbc.apps.deploy import add_deploy_command
 
-    with pytest.raises(ValueError, match="cpu_latency"):
-        _run(g1, model, tmp_path, lambda runtime: None, cpu_latency=-1.0)
+    for bad in (-1.0, math.nan, 3e9):  # (3e9 µs: beyond the kernel's int32 request)
+        with pytest.raises(ValueError, match="cpu_latency"):
+            _run(g1, model, tmp_path, lambda runtime: None, cpu_latency=bad)
     parser = argparse.ArgumentParser()
     add_deploy_command(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["deploy", "--robot", "g1", "--emulate", "--cpu-latency", "-5", "--log", str(tmp_path / "never.mcap")])

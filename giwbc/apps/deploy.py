@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import sys
 from collections.abc import Sequence
@@ -30,6 +29,7 @@ from giwbc.apps.live import DEFAULT_PORT, require_foxglove
 from giwbc.errors import DeployError
 from giwbc.robot.noise import IMU_PROFILES
 from giwbc.runtimes.faults import fault_case
+from giwbc.runtimes.os_settings import check_cpu_latency
 from giwbc.runtimes.phases import StartupConfig
 
 
@@ -89,8 +89,10 @@ def run_deploy_command(args: argparse.Namespace) -> int:
             print(f"giwbc deploy: error: {error}", file=sys.stderr)
             return 2
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
-    if args.cpu_latency is not None and not (math.isfinite(args.cpu_latency) and args.cpu_latency >= 0):
-        print(f"giwbc deploy: error: --cpu-latency must be a finite number of microseconds >= 0, got {args.cpu_latency:g}", file=sys.stderr)
+    try:
+        check_cpu_latency(args.cpu_latency)
+    except ValueError as error:
+        print(f"giwbc deploy: error: --cpu-latency: {error}", file=sys.stderr)
         return 2
     if args.foxglove:
         require_foxglove()  # before the motors, not after

@@ -16,11 +16,23 @@ median host work per cycle lower in 7 (by 14 % at the median of the pairs), its 
 from __future__ import annotations
 
 import gc
+import math
 import os
 import struct
 from typing import Any
 
 CPU_LATENCY_DEVICE = "/dev/cpu_dma_latency"  # Linux PM QoS: the CPUs' wake-up latency bound, µs (int32)
+MAX_CPU_LATENCY_US = 2_000_000_000  # the kernel's own default bound (no request), the most an int32 request may ask
+
+
+def check_cpu_latency(value: float | None) -> float | None:
+    """``value`` (µs) when it is a wake-up latency bound the kernel takes (0 to 2·10⁹), None for
+    none; ``ValueError`` naming it otherwise."""
+    if value is None:
+        return None
+    if not (math.isfinite(value) and 0 <= value <= MAX_CPU_LATENCY_US):
+        raise ValueError(f"cpu_latency must be a number of microseconds from 0 to {MAX_CPU_LATENCY_US} (or None), got {value}")
+    return float(value)
 
 
 class ProcessSettings:
@@ -45,16 +57,13 @@ class ProcessSettings:
         if self.cpu_latency is None or self._cpu_latency_fd is not None:
             return
         bound = int(round(self.cpu_latency))
+        fd = None
         try:
             fd = os.open(self.cpu_latency_device, os.O_WRONLY | getattr(os, "O_CLOEXEC", 0))
-        except OSError as error:
-            self.cpu_idle = f"default (wake-up latency {bound} us refused: {error})"
-            self._event("cpu_latency", {"latency_us": bound, "refused": str(error)})
-            return
-        try:
             os.write(fd, struct.pack("=i", bound))
         except OSError as error:
-            os.close(fd)
+            if fd is not None:
+                os.close(fd)
             self.cpu_idle = f"default (wake-up latency {bound} us refused: {error})"
             self._event("cpu_latency", {"latency_us": bound, "refused": str(error)})
             return

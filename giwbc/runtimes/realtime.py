@@ -59,7 +59,7 @@ from giwbc.robot.interface import ImpedanceCommand, RobotWrapper
 from giwbc.runlog import CycleRecorder, RunLogWriter
 from giwbc.runtimes.clock import DeadlineClock
 from giwbc.runtimes.fault_response import FaultResponse, LoopAbandoned, describe, robot_faults
-from giwbc.runtimes.os_settings import ProcessSettings
+from giwbc.runtimes.os_settings import ProcessSettings, check_cpu_latency
 from giwbc.runtimes.phases import Phase, PhaseSequence, StartupConfig
 from giwbc.runtimes.watchdog import LoopWatchdog
 from giwbc.tasks.rates import Rates
@@ -181,9 +181,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         self.gc_collections, self.gc_seconds_max = 0, 0.0
         self._schedulers: list[tuple[int, tuple[int, Any]]] = []
         self.scheduler = "default"  # the loop thread's scheduling while the motors were on, as granted
-        if cpu_latency is not None and not (math.isfinite(cpu_latency) and cpu_latency >= 0):
-            raise ValueError(f"cpu_latency must be a finite number of µs >= 0 (or None), got {cpu_latency}")
-        self.cpu_latency = cpu_latency
+        self.cpu_latency = check_cpu_latency(cpu_latency)
         self.cpu_idle = "default"  # the CPUs' idle states while the motors were on, as granted
         self._cpu_latency_fd: int | None = None
         if spin is None:  # under SCHED_FIFO wake-ups are prompt; spinning counts against RT throttling
