@@ -87,43 +87,39 @@ from giwbc.tasks.standing import StandingTask  # noqa: E402
 BENCHMARK_SAFETY = SafetyConfig(max_missing_cycles=25, imu_timeout_cycles=50)
 
 
+def _time_calls(owner: object, name: str, clock, totals: dict[str, float], key: str) -> None:
+    """Replace ``owner.name`` by a wrapper adding each call's ``clock()`` seconds to ``totals[key]``."""
+    method = getattr(owner, name)
+
+    def timed(*args, **kwargs):
+        start = clock()
+        try:
+            return method(*args, **kwargs)
+        finally:
+            totals[key] += clock() - start
+
+    setattr(owner, name, timed)
+
+
 class _CpuMeter:
     """Thread CPU time spent inside the emulator's calls and inside the robot's exchanges (with the
     estimator's update after each, when there is one: the host's CAN path)."""
 
     def __init__(self, emulator: ActuatorEmulator | None, robot: CanRobot, estimated: EstimatedRobot | None = None) -> None:
-        self.total = 0.0  # emulator (in this thread: lockstep only)
-        self.exchange = 0.0  # exchanges, emulator included
+        self.seconds = {"emulator": 0.0, "exchange": 0.0}  # emulator (in this thread: lockstep only); exchanges, emulator included
         for name in ("advance", "answer") if emulator is not None else ():
-            method = getattr(emulator, name)
-
-            def timed(now: float, *args, method=method) -> None:
-                start = time.thread_time()
-                method(now, *args)
-                self.total += time.thread_time() - start
-
-            setattr(emulator, name, timed)
-        exchange = robot.exchange
-
-        def timed_exchange(*args, **kwargs):
-            start = time.thread_time()
-            try:
-                return exchange(*args, **kwargs)
-            finally:
-                self.exchange += time.thread_time() - start
-
-        robot.exchange = timed_exchange  # type: ignore[method-assign]
+            _time_calls(emulator, name, time.thread_time, self.seconds, "emulator")
+        _time_calls(robot, "exchange", time.thread_time, self.seconds, "exchange")
         if estimated is not None:
-            update = estimated.update
+            _time_calls(estimated, "update", time.thread_time, self.seconds, "exchange")
 
-            def timed_update(*args, **kwargs):
-                start = time.thread_time()
-                try:
-                    return update(*args, **kwargs)
-                finally:
-                    self.exchange += time.thread_time() - start
+    @property
+    def total(self) -> float:
+        return self.seconds["emulator"]
 
-            estimated.update = timed_update  # type: ignore[method-assign]
+    @property
+    def exchange(self) -> float:
+        return self.seconds["exchange"]
 
 
 class _WallParts:
@@ -141,17 +137,7 @@ class _WallParts:
         self.rows: list[tuple[float, ...]] = []
 
     def wrap(self, owner: object, name: str, part: str) -> None:
-        method = getattr(owner, name)
-        now, clock = self._now, time.perf_counter
-
-        def timed(*args, **kwargs):
-            start = clock()
-            try:
-                return method(*args, **kwargs)
-            finally:
-                now[part] += clock() - start
-
-        setattr(owner, name, timed)
+        _time_calls(owner, name, time.perf_counter, self._now, part)
 
     def attach(self, clock) -> None:
         """Count the parts from each cycle's start (work between cycles, such as the controller's
@@ -186,7 +172,7 @@ class _WallParts:
             del table["wbc"]
         else:
             table["planning"] = table["controller"] - table["wbc"]  # the walker's own work
-        table["rest"] = work_us - parts[:, :4].sum(axis=1)
+        table["rest"] = work_us - sum(table[name] for name in ("exchange", "estimator", "safety", "controller"))  # (wbc: inside controller)
         slowest = np.argsort(work_us)[n - max(1, n // 100):]
 
         def stats(values: np.ndarray) -> dict[str, float]:
