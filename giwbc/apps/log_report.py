@@ -60,9 +60,10 @@ def effort_limits(log: RunLog) -> dict[str, float]:
 
 
 def phases(log: RunLog) -> list[tuple[str, float, float]]:
-    """``(phase, start, end)`` from the phase events, the last ending with the log."""
+    """``(phase, start, end)`` from the phase events, the last ending with the log's last timed message
+    (the scene channels -- ``/robot_description``, ``/tf``, ``/joint_states``, ... -- carry no robot time ``t``)."""
     marks = [(e["detail"]["phase"], float(e["t"])) for e in log.events if e["event"] == "phase"]
-    end = max((float(m["t"]) for topic in log.messages.values() for m in topic[-1:]), default=0.0)
+    end = max((float(m["t"]) for topic in log.messages.values() for m in topic[-1:] if "t" in m), default=0.0)
     return [(name, start, marks[i + 1][1] if i + 1 < len(marks) else end) for i, (name, start) in enumerate(marks)]
 
 
