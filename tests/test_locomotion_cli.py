@@ -25,5 +25,29 @@ def test_walk_clamps_a_command_beyond_the_limits_and_refuses_nan(capsys):
     code = main(["walk", "--vx", "5", "--seconds", "1.0", "--json"])
     result = json.loads(capsys.readouterr().out)
     assert code == 0 and any("vx = 5" in note and "clamped" in note for note in result["notes"])
-    with pytest.raises(SystemExit, match="finite"):
+    assert result["command_clamped"] and result["command"][0] == 5.0 and 0.3 < result["command_followed"][0] < 1.0
+    with pytest.raises(SystemExit) as refused:
         main(["walk", "--vx", "nan", "--seconds", "1.0"])
+    assert refused.value.code == 2 and "finite" in capsys.readouterr().err
+
+
+def test_walk_says_which_command_it_followed_and_no_speed_without_a_step(capsys):
+    assert main(["walk", "--vx", "5", "--seconds", "0.5"]) == 0
+    out = capsys.readouterr().out
+    assert "= (0.6522, 0.0, 0.0) m/s, m/s, rad/s (clamped to the gait's limits from (5.0, 0.0, 0.0))" in out
+    assert "speed n/a (no complete step)" in out and "None" not in out
+
+
+def test_walk_refuses_a_fixed_base_robot_and_a_push_after_the_end(capsys):
+    assert main(["walk", "--robot", "cartpole", "--seconds", "1"]) == 2
+    assert "fixed base" in capsys.readouterr().err
+    assert main(["walk", "--push", "50", "--push-time", "5", "--seconds", "2"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "must end within" in err
+
+
+def test_walk_streamed_to_foxglove_runs_at_real_time(capsys):
+    pytest.importorskip("foxglove")
+    assert main(["walk", "--foxglove", "--foxglove-port", "18731", "--seconds", "1.5", "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["seconds"] == pytest.approx(1.5, abs=0.01) and result["wall_seconds"] >= 1.4  # a viewer can follow

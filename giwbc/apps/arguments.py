@@ -103,4 +103,18 @@ def existing_file(*suffixes: str) -> Callable[[str], str]:
     return parse
 
 
-__all__ = ["HelpFormatter", "add_command", "existing_file", "integer", "number", "seconds"]
+ROBOT_HELP = "robot: a name listed by `giwbc robots`, or a robot folder / robot.toml path"
+SEED_MAX = 2**32 - 1  # numpy's SeedSequence takes any non-negative integer; this keeps seeds printable and portable
+
+
+def seed() -> Callable[[str], int]:
+    """An episode / run seed: an integer in [0, 2**32 - 1]."""
+    return integer(0, SEED_MAX)
+
+
+def port() -> Callable[[str], int]:
+    """A loopback TCP port a user process may listen on: an integer in [1024, 65535]."""
+    return integer(1024, 65535)
+
+
+__all__ = ["ROBOT_HELP", "SEED_MAX", "HelpFormatter", "add_command", "existing_file", "integer", "number", "port", "seconds", "seed"]

@@ -1,15 +1,22 @@
-"""The ``giwbc`` command line: list robots, simulate, run the demo."""
+"""The giwbc command line: list robots, simulate, walk, train, evaluate, play and deploy policies.
+
+Run `giwbc COMMAND --help` for a command's options (units and defaults shown). Bad input ends
+before any work with one line on stderr and exit status 2.
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib.metadata
 import json
 import sys
 import time
 from collections.abc import Sequence
+from typing import NoReturn
 
 import numpy as np
 
+from giwbc.apps.arguments import HelpFormatter, add_command, seconds
 from giwbc.apps.deploy import add_deploy_command
 from giwbc.apps.walk_evaluation import add_evaluate_command
 from giwbc.apps.motors import add_motors_command
@@ -18,12 +25,32 @@ from giwbc.apps.play import add_play_command
 from giwbc.apps.sim_to_sim import add_sim_to_sim_command
 from giwbc.apps.training import add_train_command
 from giwbc.apps.walk import add_walk_command
+from giwbc import __version__
 from giwbc.errors import GiwbcError
 from giwbc.robot import MujocoRobot, available_robots, load
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
 from giwbc.apps.demo import run_demo
 
 GRAVITY = 9.81
+SIM_MAX_SECONDS = 600.0  # giwbc sim: 10 simulated minutes (a few minutes of wall time)
+DEMO_MAX_SECONDS = 60.0  # giwbc demo: the pushes are at 2, 4.5 and 7 s
+ROBOT_HELP = "robot name (see `giwbc robots`) or a robot folder / robot.toml path"
+
+
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line on stderr (``giwbc sim: error: ...``), exit 2.
+    Subcommands' parsers are of the same class (argparse passes the class on)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see `{self.prog} --help`)\n")
+
+
+def version() -> str:
+    """The installed distribution's version (the package's own when not installed)."""
+    try:
+        return importlib.metadata.version("giwbc")
+    except importlib.metadata.PackageNotFoundError:
+        return __version__
 
 
 def cmd_robots(_: argparse.Namespace) -> int:
@@ -89,16 +116,20 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="giwbc", description=__doc__)
-    commands = parser.add_subparsers(dest="command", required=True)
-    commands.add_parser("robots", help=cmd_robots.__doc__).set_defaults(run=cmd_robots)
-    sim = commands.add_parser("sim", help=cmd_sim.__doc__)
-    sim.add_argument("--robot", default="g1")
-    sim.add_argument("--seconds", type=float, default=5.0)
+    """The ``giwbc`` parser and every subcommand's (tests walk it to check every numeric option)."""
+    parser = Parser(prog="giwbc", description=__doc__, formatter_class=HelpFormatter)
+    parser.add_argument("--version", action="version", version=f"giwbc {version()}")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    add_command(commands, "robots", cmd_robots.__doc__ or "").set_defaults(run=cmd_robots)
+    sim = add_command(commands, "sim", cmd_sim.__doc__ or "")
+    sim.add_argument("--robot", default="g1", help=ROBOT_HELP)
+    sim.add_argument("--seconds", type=seconds(SIM_MAX_SECONDS), default=5.0,
+                     help=f"simulated seconds, in (0, {SIM_MAX_SECONDS:g}]")
     sim.add_argument("--json", action="store_true", help="print one JSON object")
     sim.set_defaults(run=cmd_sim)
-    demo = commands.add_parser("demo", help=cmd_demo.__doc__)
-    demo.add_argument("--seconds", type=float, default=10.0)
+    demo = add_command(commands, "demo", cmd_demo.__doc__ or "")
+    demo.add_argument("--seconds", type=seconds(DEMO_MAX_SECONDS), default=10.0,
+                      help=f"simulated seconds of each standing push test (pushes at 2, 4.5 and 7 s), in (0, {DEMO_MAX_SECONDS:g}]")
     demo.add_argument("--video", default="runs/demo_push_recovery.mp4",
                       help="side-by-side video of the push recovery, when an offscreen GL backend is available")
     demo.add_argument("--no-video", action="store_true", help="no video even when GL is available")
@@ -114,12 +145,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(error: BaseException) -> str:
+    """An error's message on one line (a multi-line message joined with "; ")."""
+    return "; ".join(line.strip() for line in str(error).splitlines() if line.strip()) or type(error).__name__
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command. Foreseen bad input (a :class:`GiwbcError`) is one line on stderr and exit 2;
+    anything else is a bug and keeps its traceback."""
     args = build_parser().parse_args(argv)
     try:
-        return args.run(args)
+        return int(args.run(args))
     except GiwbcError as error:
-        print(f"giwbc: error: {error}", file=sys.stderr)
+        print(f"giwbc {args.command}: error: {one_line(error)}", file=sys.stderr)
         return 2
 
 
