@@ -173,6 +173,11 @@ def test_play_command_reports_a_bad_policy(tmp_path, capsys) -> None:
 
     parser = argparse.ArgumentParser(prog="giwbc")
     add_play_command(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["play", "--policy", str(tmp_path / "missing.onnx")])
+    with pytest.raises(SystemExit) as refused:  # refused while parsing, before any environment is built
+        parser.parse_args(["play", "--policy", str(tmp_path / "missing.onnx")])
+    assert refused.value.code == 2 and "no such file" in capsys.readouterr().err
+    corrupted = tmp_path / "corrupted.onnx"
+    corrupted.write_bytes(b"not an onnx graph")
+    args = parser.parse_args(["play", "--policy", str(corrupted)])
     assert args.run(args) == 2
-    assert "no policy file" in capsys.readouterr().err
+    assert "onnxruntime cannot load it" in capsys.readouterr().err

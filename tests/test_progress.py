@@ -80,7 +80,7 @@ def test_walk_shows_progress_on_a_terminal_only():
 
 def test_sim_to_sim_reports_episodes_from_its_workers_without_pybullets_banner():
     args = ["sim-to-sim", "--conditions", "pybullet", "mujoco_nominal", "--episodes", "2", "--seconds", "0.2", "--workers", "2",
-            "--policy", "none.onnx"]  # fmt: skip
+            "--no-policy"]  # fmt: skip
     code, out, err = _cli(args, terminal=True)
     assert code == 0, err
     counts = [(int(a), int(b)) for a, b in BAR.findall(err)]

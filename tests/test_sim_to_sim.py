@@ -47,25 +47,38 @@ def test_both_controllers_on_every_condition(residual_policy, g1_model) -> None:
     assert "| residual_policy | 2/2 (100 %) | 2/2 (100 %) | 2/2 (100 %) |" in table
 
 
-def test_command_without_a_policy_reports_the_missing_column(capsys) -> None:
+def test_command_without_a_policy_runs_the_wbc_alone(capsys) -> None:
     """The ``giwbc sim-to-sim`` subcommand runs the evaluation it was given (episodes, pushes,
-    conditions); without the policy file, the policy row is reported missing."""
+    conditions); with --no-policy, only the WBC row; a table by default, JSON with --json."""
     import argparse
 
     from giwbc.apps.sim_to_sim import add_sim_to_sim_command
 
     parser = argparse.ArgumentParser(prog="giwbc")
     add_sim_to_sim_command(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["sim-to-sim", "--episodes", "2", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet",
-                              "--policy", "no/such/policy.onnx", "--push-force", "50", "--push-interval", "0.02", "0.05"])
+    argv = ["sim-to-sim", "--episodes", "2", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet",
+            "--no-policy", "--push-force", "50", "--push-interval", "0.02", "0.05"]
+    args = parser.parse_args(argv)
     assert args.run(args) == 0
-    captured = capsys.readouterr()
-    assert "the policy row is missing" in captured.err
-    assert "| residual_policy | missing |" in captured.out
-    result = json.loads(captured.out.strip().splitlines()[-1])
-    assert result["policy_missing"] and result["pushes"]["force"] == 50.0 and result["pushes"]["interval"] == [0.02, 0.05]
-    assert list(result["results"]["wbc_only"]) == ["pybullet"]
+    table = capsys.readouterr().out
+    assert "| wbc_only | 2/2 (100 %) |" in table and "residual_policy" not in table and "{" not in table
+    args = parser.parse_args([*argv, "--json"])
+    assert args.run(args) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert not result["policy_missing"] and result["pushes"]["force"] == 50.0 and result["pushes"]["interval"] == [0.02, 0.05]
+    assert list(result["results"]) == ["wbc_only"] and list(result["results"]["wbc_only"]) == ["pybullet"]
     cell = result["results"]["wbc_only"]["pybullet"]
     assert cell["episodes"] == 2 and cell["success_rate"] == 1.0
-    assert main(["--episodes", "1", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet", "--policy", "no/such.onnx"]) == 0
-    assert json.loads(capsys.readouterr().out.strip().splitlines()[-1])["pushes"]["force"] == PushSetting.force
+    assert main(["--episodes", "1", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet", "--no-policy", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["pushes"]["force"] == PushSetting.force
+
+
+def test_command_refuses_a_missing_or_walking_policy_in_one_line(capsys) -> None:
+    from giwbc.apps.cli import main as giwbc_main
+
+    with pytest.raises(SystemExit) as refused:
+        giwbc_main(["sim-to-sim", "--policy", "no/such/policy.onnx"])
+    assert refused.value.code == 2 and capsys.readouterr().err.count("\n") == 1
+    assert giwbc_main(["sim-to-sim", "--policy", "policies/g1_walk_residual.onnx", "--episodes", "1"]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == "" and captured.err.count("\n") == 1 and "G1Walk-v0" in captured.err

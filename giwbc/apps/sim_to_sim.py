@@ -12,7 +12,7 @@ controller -- the WBC alone (zero residual) and, when given, a residual ONNX pol
 Success: the episode ran its full length without terminating (fall or excessive tilt). Episodes
 are grouped in fixed chunks of seeds, each chunk run by one worker process on one environment, so
 the result does not depend on the number of workers, nor on whether the chunks ran as Ray tasks
-on a cluster (``--ray``, see :mod:`giwbc.distributed`). Prints a markdown table and one JSON object::
+on a cluster (``--ray``, see :mod:`giwbc.distributed`). Prints a markdown table (one JSON object with ``--json``)::
 
     python examples/sim_to_sim.py --episodes 50 --seconds 10 --push-force 90 --workers 2
 """
@@ -32,12 +32,14 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.arguments import HelpFormatter, add_command, existing_file, integer, number, seconds, seed
 from giwbc.apps.evaluation import wilson_interval
 from giwbc.apps.plots import check_plot_path, save_figure, sim_to_sim_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
 from giwbc.envs import RUNTIME_OPTIONS
+from giwbc.errors import ConfigError, PolicyFormatError
 from giwbc.policy import OnnxPolicy, check_compatible
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 
@@ -50,6 +52,10 @@ CONDITIONS: dict[str, dict[str, Any]] = {
 }
 CONTROLLERS = ("wbc_only", "residual_policy")
 CHUNK = 5  # episodes per job: one environment build per job
+MAX_EPISODES = 10_000
+MAX_SECONDS = 600.0  # simulated seconds per episode
+MAX_FORCE = 1000.0  # N
+MAX_WORKERS = 256
 
 
 @dataclass(frozen=True)
@@ -212,39 +218,59 @@ def markdown_table(cells: dict[str, dict[str, Cell]], policy_missing: bool) -> s
 
 def add_sim_to_sim_command(commands: Any) -> None:
     """Add ``giwbc sim-to-sim`` to an argparse subparsers object."""
-    parser = commands.add_parser("sim-to-sim", help="WBC and residual policy on MuJoCo nominal, randomized and PyBullet")
+    parser = add_command(commands, "sim-to-sim", "WBC and residual policy on MuJoCo nominal, randomized and PyBullet")
     add_arguments(parser)
     parser.set_defaults(run=run_sim_to_sim_command)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--policy", default=None, help=f"residual ONNX policy (default: {DEFAULT_POLICY} if present)")
-    parser.add_argument("--episodes", type=int, default=50, help="seeded episodes per controller and condition")
-    parser.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per episode")
-    parser.add_argument("--push-force", type=float, default=PushSetting.force, help="push magnitude, N")
-    parser.add_argument("--push-duration", type=float, default=PushSetting.duration, help="push duration, s")
-    parser.add_argument("--push-interval", type=float, nargs=2, default=list(PushSetting.interval), metavar=("MIN", "MAX"),
-                        help="wait between pushes, s")
-    parser.add_argument("--workers", type=int, default=2, help="worker processes (0: in this process)")
-    parser.add_argument("--seed", type=int, default=0, help="first episode seed")
-    parser.add_argument("--conditions", nargs="*", default=list(CONDITIONS), choices=list(CONDITIONS))
+    parser.add_argument("--policy", type=existing_file(".onnx"), default=None,
+                        help=f"residual ONNX policy trained on {ENV_ID} (default: {DEFAULT_POLICY} if present, else the WBC alone)")
+    parser.add_argument("--no-policy", action="store_true", help="evaluate the WBC alone (no policy row)")
+    parser.add_argument("--episodes", type=integer(1, MAX_EPISODES), default=50,
+                        help=f"seeded episodes per controller and condition, in [1, {MAX_EPISODES}]")
+    parser.add_argument("--seconds", type=seconds(MAX_SECONDS), default=10.0,
+                        help=f"simulated seconds per episode, in (0, {MAX_SECONDS:g}]")
+    parser.add_argument("--push-force", type=number(0.0, MAX_FORCE, unit="N"), default=PushSetting.force,
+                        help=f"push magnitude, N, in [0, {MAX_FORCE:g}]")
+    parser.add_argument("--push-duration", type=seconds(1.0), default=PushSetting.duration, help="push duration, s, in (0, 1]")
+    parser.add_argument("--push-interval", type=seconds(MAX_SECONDS), nargs=2, default=list(PushSetting.interval), metavar=("MIN", "MAX"),
+                        help="simulated seconds between pushes, drawn uniformly in [MIN, MAX], 0 < MIN <= MAX")
+    parser.add_argument("--workers", type=integer(0, MAX_WORKERS), default=2, help="worker processes (0: in this process)")
+    parser.add_argument("--seed", type=seed(), default=0, help="first episode seed (the others: seed + 1, ...)")
+    parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=list(CONDITIONS), metavar="CONDITION",
+                        help=f"conditions to run, among {', '.join(CONDITIONS)}")
     parser.add_argument("--plot", default=None, metavar="FILE", help="also draw the table as grouped bars (.png, .svg, .pdf)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object instead of the table")
     add_ray_argument(parser)
     add_progress_argument(parser)
 
 
+def check_policy(path: str) -> None:
+    """ConfigError unless ``path`` is a policy trained on this evaluation's environment (PolicyFormatError if unreadable)."""
+    env_id = OnnxPolicy(path).env_id
+    if env_id != ENV_ID:
+        raise ConfigError(f"{path} is a policy for {env_id}: sim-to-sim evaluates residual policies for {ENV_ID} "
+                          "(for a walking policy use `giwbc evaluate --protocol walk`)")
+
+
 def run_sim_to_sim_command(args: argparse.Namespace) -> int:
-    policy = args.policy
-    if policy is None and DEFAULT_POLICY.is_file():
-        policy = str(DEFAULT_POLICY)
-    missing = policy is None or not Path(policy).is_file()
-    if missing:
-        print(f"no residual policy ({policy or DEFAULT_POLICY} not found): evaluating the WBC alone; the policy row is missing",
-              file=sys.stderr)
-        policy = None
+    policy = None if args.no_policy else args.policy
+    if policy is None and not args.no_policy:
+        if DEFAULT_POLICY.is_file():
+            policy = str(DEFAULT_POLICY)
+        else:
+            print(f"no residual policy ({DEFAULT_POLICY} not found): evaluating the WBC alone; the policy row is missing",
+                  file=sys.stderr)
+    missing = policy is None and not args.no_policy
+    if policy is not None:
+        check_policy(policy)
+    low, high = args.push_interval
+    if low > high:
+        raise ConfigError(f"--push-interval MIN MAX: MIN {low:g} s is above MAX {high:g} s")
     if args.plot:
         check_plot_path(args.plot)  # before the run, not after it
-    pushes = PushSetting(args.push_force, args.push_duration, tuple(args.push_interval))
+    pushes = PushSetting(args.push_force, args.push_duration, (low, high))
     total = args.episodes * len(args.conditions) * (1 if policy is None else len(CONTROLLERS))
     started = time.perf_counter()
     with connect(args.ray) if args.ray else nullcontext() as connection, \
@@ -256,7 +282,12 @@ def run_sim_to_sim_command(args: argparse.Namespace) -> int:
     wall = time.perf_counter() - started
     if args.plot:
         save_figure(sim_to_sim_figure(cells), args.plot)
-    print(markdown_table(cells, missing))
+    if not args.json:
+        print(markdown_table(cells, missing))
+        print(f"each cell: episodes that ran their {args.seconds:g} s without falling / episodes, seeds {args.seed}.."
+              f"{args.seed + args.episodes - 1}; pushes of {pushes.force:g} N for {pushes.duration:g} s every "
+              f"{low:g}-{high:g} s; policy: {policy or 'none'}")
+        return 0
     print(json.dumps({
         "benchmark": "sim_to_sim",
         "env": ENV_ID,
@@ -275,6 +306,11 @@ def run_sim_to_sim_command(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="sim_to_sim", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog="sim_to_sim", description=__doc__, formatter_class=HelpFormatter)
     add_arguments(parser)
-    return run_sim_to_sim_command(parser.parse_args(argv))
+    args = parser.parse_args(argv)
+    try:
+        return run_sim_to_sim_command(args)
+    except (ConfigError, PolicyFormatError) as error:
+        print(f"sim_to_sim: error: {error}", file=sys.stderr)
+        return 2
