@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.arguments import add_command, existing_file, integer, number, seconds, seed
 from giwbc.apps.plots import check_plot_path, evaluation_figure, save_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.apps.workers import map_jobs, quiet_banners
@@ -444,23 +445,36 @@ def format_table(rows: Sequence[ArmResult]) -> str:
 
 
 # --- command line ------------------------------------------------------------------------------
+MAX_EPISODES = 10_000
+MAX_FORCE = 1000.0  # N
+MAX_EPISODE_SECONDS = 600.0  # simulated
+MAX_WORKERS = 256
+
+
 def add_evaluate_command(commands: Any) -> None:
     """Add ``giwbc evaluate`` to an argparse subparsers object."""
-    parser = commands.add_parser("evaluate", help="seeded push-recovery evaluation: a residual policy vs the WBC alone")
-    parser.add_argument("--policy", default=None, help="policy .onnx (default: only the WBC alone, on --env/--env-kwargs)")
-    parser.add_argument("--episodes", type=int, default=50)
-    parser.add_argument("--seed", type=int, default=EVAL_SEED,
+    parser = add_command(commands, "evaluate", "seeded push-recovery evaluation: a residual policy vs the WBC alone")
+    parser.add_argument("--policy", type=existing_file(".onnx"), default=None,
+                        help="policy .onnx trained on the protocol's environment (default: only the WBC alone, on --env/--env-kwargs)")
+    parser.add_argument("--episodes", type=integer(1, MAX_EPISODES), default=50, help=f"seeded episodes per arm and force, in [1, {MAX_EPISODES}]")
+    parser.add_argument("--seed", type=seed(), default=EVAL_SEED,
                         help="episode seeds are seed .. seed+episodes-1, the same in both arms (default: held out from training)")
-    parser.add_argument("--workers", type=int, default=None,
+    parser.add_argument("--workers", type=integer(1, MAX_WORKERS), default=None,
                         help="worker processes (default 2), or with --ray Ray tasks per arm (default: the cluster's CPUs)")
     add_ray_argument(parser)
-    parser.add_argument("--force", type=float, nargs="+", default=[PushProtocol.force], help="push magnitude(s), N")
-    parser.add_argument("--duration", type=float, default=PushProtocol.duration)
-    parser.add_argument("--interval", type=float, nargs=2, default=None, help=f"push start window, s (default {list(PushProtocol.interval)})")
-    parser.add_argument("--episode-seconds", type=float, default=None, help=f"default {PushProtocol.episode_seconds}")
-    parser.add_argument("--upright-tilt", type=float, default=PushProtocol.upright_tilt, help="success: final tilt below this, rad")
-    parser.add_argument("--env", default=None, help=f"environment of the WBC-alone arm when no --policy is given (default {DEFAULT_ENV_ID})")
-    parser.add_argument("--env-kwargs", default=json.dumps(DEFAULT_ENV_KWARGS), help="JSON options of --env")
+    parser.add_argument("--force", type=number(0.0, MAX_FORCE, unit="N"), nargs="+", default=[PushProtocol.force],
+                        help=f"push magnitude(s), N, each in [0, {MAX_FORCE:g}]")
+    parser.add_argument("--duration", type=seconds(1.0), default=PushProtocol.duration, help="push duration, s, in (0, 1]")
+    parser.add_argument("--interval", type=seconds(MAX_EPISODE_SECONDS, allow_zero=True), nargs=2, default=None, metavar=("MIN", "MAX"),
+                        help=f"push start drawn uniformly in [MIN, MAX] simulated s; the push must end within the episode "
+                             f"(default stand {list(PushProtocol.interval)})")
+    parser.add_argument("--episode-seconds", type=seconds(MAX_EPISODE_SECONDS), default=None,
+                        help=f"simulated seconds per episode (default stand {PushProtocol.episode_seconds})")
+    parser.add_argument("--upright-tilt", type=number(0.0, math.pi / 2, unit="rad", low_open=True), default=PushProtocol.upright_tilt,
+                        help="success: final base tilt below this, rad")
+    parser.add_argument("--env", default=None, choices=(DEFAULT_ENV_ID, "giwbc/G1Walk-v0"),
+                        help=f"environment of the WBC-alone arm when no --policy is given (default {DEFAULT_ENV_ID}, walk: giwbc/G1Walk-v0)")
+    parser.add_argument("--env-kwargs", default=json.dumps(DEFAULT_ENV_KWARGS), help="JSON object of --env's gymnasium.make options")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", default=None, metavar="FILE",
                         help="also draw success rate against push impulse per arm, and the paired counts (.png, .svg, .pdf)")

@@ -29,6 +29,7 @@ import numpy as np
 from scipy import stats
 
 from giwbc.apps.evaluation import (
+    DEFAULT_ENV_ID,
     ArmResult,
     Comparison,
     EpisodeResult,
@@ -42,8 +43,10 @@ from giwbc.apps.evaluation import (
     sweep,
 )
 from giwbc.apps.evaluation import add_evaluate_command as add_stand_evaluate_command
+from giwbc.apps.arguments import number
 from giwbc.distributed import RayRunner, connect
-from giwbc.policy import PolicyFormatError
+from giwbc.errors import ConfigError
+from giwbc.policy import OnnxPolicy, PolicyFormatError
 
 WALK_ENV_ID = "giwbc/G1Walk-v0"
 WALK_ENV_KWARGS: dict[str, Any] = {"residuals": ["step"]}  # the zero residual: any blocks give the walker alone
@@ -163,14 +166,49 @@ def add_evaluate_command(commands: Any) -> None:
     parser = commands.choices["evaluate"]
     parser.add_argument("--protocol", choices=("stand", "walk"), default="stand",
                         help=f"stand: the standing push protocol; walk: pushes while walking on commands ({WALK_ENV_ID})")
-    parser.add_argument("--commands", type=float, nargs=6, default=None, metavar=("VX0", "VX1", "VY0", "VY1", "WZ0", "WZ1"),
-                        help=f"walk: command ranges per episode (default {[x for r in WalkProtocol.commands for x in r]})")
+    parser.add_argument("--commands", type=number(-5.0, 5.0, unit="m/s or rad/s"), nargs=6, default=None,
+                        metavar=("VX0", "VX1", "VY0", "VY1", "WZ0", "WZ1"),
+                        help=f"walk: ranges (low high) of vx, vy (m/s) and yaw rate (rad/s) each episode's command is drawn from "
+                             f"(default {[x for r in WalkProtocol.commands for x in r]})")
     parser.add_argument("--cache", default=None, help="walk: keep each arm's episodes in this folder (the walker-alone arm "
                         "is then run once for all policies compared on the same force and seeds)")
     parser.set_defaults(run=run_evaluate)
 
 
+def check_evaluate_args(args: Any) -> None:
+    """ConfigError (PolicyFormatError for an unreadable policy) for options that argparse's types cannot
+    judge alone: the push within the episode, ordered ranges, a policy or environment of the protocol's kind."""
+    walking = getattr(args, "protocol", "stand") == "walk"
+    protocol = WalkProtocol if walking else PushProtocol
+    env_id = WALK_ENV_ID if walking else DEFAULT_ENV_ID
+    episode = args.episode_seconds or protocol.episode_seconds
+    low, high = args.interval or protocol.interval
+    if low > high:
+        raise ConfigError(f"--interval MIN MAX: MIN {low:g} s is above MAX {high:g} s")
+    if high + args.duration > episode:
+        raise ConfigError(f"a push starting as late as {high:g} s for {args.duration:g} s would end after the episode's {episode:g} s "
+                          "(lower --interval or raise --episode-seconds)")
+    if getattr(args, "commands", None) is not None:
+        for name, (lo, hi) in zip(("vx", "vy", "yaw rate"), zip(args.commands[::2], args.commands[1::2])):
+            if lo > hi:
+                raise ConfigError(f"--commands: the {name} range [{lo:g}, {hi:g}] is reversed")
+    if args.policy is not None:
+        trained_on = OnnxPolicy(args.policy).env_id
+        if trained_on != env_id:
+            raise ConfigError(f"{args.policy} is a policy for {trained_on}: the {'walk' if walking else 'stand'} protocol evaluates "
+                              f"policies for {env_id}" + ("" if walking else " (for a walking policy: --protocol walk)"))
+    elif args.env is not None and args.env != env_id:
+        raise ConfigError(f"--env {args.env}: the {'walk' if walking else 'stand'} protocol runs on {env_id}")
+    try:
+        options = json.loads(args.env_kwargs)
+    except json.JSONDecodeError as error:
+        raise ConfigError(f"--env-kwargs is not JSON: {error}") from None
+    if not isinstance(options, dict):
+        raise ConfigError(f"--env-kwargs must be a JSON object, got {args.env_kwargs}")
+
+
 def run_evaluate(args: Any) -> int:
+    check_evaluate_args(args)
     if getattr(args, "protocol", "stand") != "walk":
         return run_evaluate_command(args)
 
