@@ -141,7 +141,9 @@ def test_log_plot_command_writes_the_report_and_refuses_bad_input(run_log, tmp_p
     image = matplotlib.image.imread(out)
     assert image.shape[0] > 1000 and image[..., :3].std() > 0.05
     assert main(["log", "plot", str(run_log), "-o", str(tmp_path / "report.txt")]) == 2
-    assert main(["log", "plot", str(tmp_path / "missing.mcap")]) == 2
+    with pytest.raises(SystemExit) as refused:  # refused while parsing
+        main(["log", "plot", str(tmp_path / "missing.mcap")])
+    assert refused.value.code == 2
     assert main(["log", "plot", str(run_log), "--joints", "elbow_of_nobody", "-o", str(out)]) == 2
     assert "elbow_of_nobody" in capsys.readouterr().err
 

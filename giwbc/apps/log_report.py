@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.arguments import add_command, existing_file
 from giwbc.apps.plots import check_plot_path, new_figure, save_figure
 from giwbc.errors import ConfigError, RobotDescriptionError
 from giwbc.runlog import RunLog, read_log
@@ -155,10 +156,10 @@ def log_report_figure(log: RunLog, joints: Sequence[str] | None = None, limits: 
 # --- command line ------------------------------------------------------------------------------
 def add_log_command(commands: Any) -> None:
     """Add ``giwbc log plot`` to an argparse subparsers object."""
-    parser = commands.add_parser("log", help="look at a deploy run log (.mcap)")
-    actions = parser.add_subparsers(dest="log_command", required=True)
-    plot = actions.add_parser("plot", help="a one-page report of a run: tracking, torques, temperatures, timing, phases, faults")
-    plot.add_argument("log", help="run log (.mcap) written by `giwbc deploy`")
+    parser = add_command(commands, "log", "look at a deploy run log (.mcap)")
+    actions = parser.add_subparsers(dest="log_command", required=True, metavar="ACTION")
+    plot = add_command(actions, "plot", "a one-page report of a run: tracking, torques, temperatures, timing, phases, faults")
+    plot.add_argument("log", type=existing_file(".mcap"), help="run log (.mcap) written by `giwbc deploy`")
     plot.add_argument("-o", "--output", default=None, help="image file (.png, .svg, .pdf); default: the log's name with .png")
     plot.add_argument("--joints", nargs="+", default=None, help=f"joints to show (default: the {DEFAULT_JOINTS} that moved most)")
     plot.set_defaults(run=run_log_plot_command)
@@ -170,8 +171,8 @@ def run_log_plot_command(args: argparse.Namespace) -> int:
         raise ConfigError(f"no run log at {source}")
     output = check_plot_path(args.output or source.with_suffix(".png"))
     log = read_log(source)
-    if not log.messages:
-        raise ConfigError(f"{source} holds no messages")
+    if not log.messages or not log.joint_names:
+        raise ConfigError(f"{source} is not a run log written by `giwbc deploy` (no messages or no joint names)")
     written = save_figure(log_report_figure(log, args.joints), output)
     print(f"report: {written}")
     return 0
