@@ -27,7 +27,8 @@ from giwbc.apps.training import add_train_command
 from giwbc.apps.walk import add_walk_command
 from giwbc import __version__
 from giwbc.errors import GiwbcError
-from giwbc.robot import MujocoRobot, available_robots, load
+from giwbc.robot import MujocoRobot, RobotDescriptionError, load
+from giwbc.robot.description import robot_search_path, scan_robots
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
 from giwbc.apps.demo import run_demo
 
@@ -54,10 +55,18 @@ def version() -> str:
 
 
 def cmd_robots(_: argparse.Namespace) -> int:
-    """List shipped robots with DoF and mass."""
+    """List the robots found (GIWBC_ROBOT_PATH, then the shipped ones) with DoF and mass."""
+    descriptions, broken = scan_robots()
+    for robot in broken:  # one broken robot never hides the others
+        print(f"giwbc robots: warning: skipped robot {robot.name!r}: {robot.error}", file=sys.stderr)
+    if not descriptions:
+        searched = ", ".join(str(folder) for folder in robot_search_path()) or "no folder"
+        found = f"none of the {len(broken)} found loads (see above)" if broken else "none found"
+        raise RobotDescriptionError(f"no robots: {found} in {searched}; "
+                                    "set GIWBC_ROBOT_PATH to folders holding one folder per robot, each with a robot.toml")
     print(f"{'robot':<12}{'dofs':>5}{'actuated':>10}{'mass (kg)':>11}  base      description")
-    for name in available_robots():
-        description = load(name)
+    for description in descriptions:
+        name = description.folder.name  # the name `--robot` takes
         base = "floating" if description.floating_base else "fixed"
         print(
             f"{name:<12}{description.dofs:>5}{int(description.actuated.sum()):>10}"

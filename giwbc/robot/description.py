@@ -1,12 +1,17 @@
 """Robot descriptions: one folder per robot, a ``robot.toml`` naming the model source and what a
 controller and a deployment need. Both the Pinocchio and the MuJoCo model are built from it.
 
-``load("g1")`` looks the name up in the robot search path (``$GIWBC_ROBOT_PATH``, then the
-project's ``robots/`` folder); ``load(path)`` takes a robot folder or its ``robot.toml``.
+``load("g1")`` looks the name up in the robot search path (every folder of ``$GIWBC_ROBOT_PATH``,
+then the shipped robots: the project's ``robots/`` folder, or the wheel's copy of it);
+``load(path)`` takes a robot folder or its ``robot.toml``. A key ``robot.toml`` does not know is
+refused (with the closest known key), never ignored; a ``$GIWBC_ROBOT_PATH`` entry that is not a
+folder is an error; :func:`scan_robots` loads every robot found, and one that does not load is
+reported beside the others, never hides them.
 """
 
 from __future__ import annotations
 
+import difflib
 import importlib.metadata
 import math
 import os
@@ -23,6 +28,7 @@ from giwbc.errors import RobotDescriptionError
 from giwbc.robot.collision import CollisionError, CollisionShape, UrdfGeometry, excluded_pairs, parse_shape
 from giwbc.robot.mujoco_model import build_mujoco_model
 from giwbc.robot.pinocchio_model import build_pinocchio_model
+from giwbc.util.shipped import shipped_folder
 from giwbc.util.toml import TomlPlace, load_toml
 
 if TYPE_CHECKING:
@@ -31,7 +37,14 @@ if TYPE_CHECKING:
 
 CONFIG_NAME = "robot.toml"
 ERD_PREFIX = "erd:"  # a path inside the example-robot-data wheel's share folder
-PROJECT_ROBOTS = Path(__file__).resolve().parents[2] / "robots"
+ROBOT_PATH_VARIABLE = "GIWBC_ROBOT_PATH"
+
+# What robot.toml may hold, per table: anything else is a typo or a key of another version, refused.
+TOP_LEVEL_KEYS = frozenset({"name", "description", "model", "simulation", "joints", "contacts", "collision", "self_collision"})
+MODEL_KEYS = frozenset({"urdf", "floating_base", "base_link", "imu_frame"})
+SIMULATION_KEYS = frozenset({"timestep", "integrator", "floor_friction"})
+JOINT_KEYS = frozenset({"default", "kp", "kd", "armature", "actuated"})
+CONTACT_KEYS = frozenset({"name", "link", "center", "half_length", "half_width"})
 
 
 @dataclass(frozen=True)
@@ -218,18 +231,57 @@ class RobotDescription:
 
 # --- loading ---------------------------------------------------------------------------------
 def robot_search_path() -> list[Path]:
-    """Folders searched for a robot by name: ``$GIWBC_ROBOT_PATH`` (os.pathsep-separated), then the project's."""
-    extra = [Path(p) for p in os.environ.get("GIWBC_ROBOT_PATH", "").split(os.pathsep) if p]
-    return [*extra, PROJECT_ROBOTS]
+    """Folders searched for a robot by name: each entry of ``$GIWBC_ROBOT_PATH`` (``os.pathsep``-separated,
+    first wins), then the shipped robots. An entry that is not a folder is a RobotDescriptionError:
+    whoever set it meant a folder, and a typo there would otherwise only show as an unknown robot."""
+    value = os.environ.get(ROBOT_PATH_VARIABLE, "")
+    folders = []
+    for entry in value.split(os.pathsep):
+        if not entry:
+            continue
+        folder = Path(entry).expanduser()
+        if not folder.is_dir():
+            reason = "is not a folder" if folder.exists() else "does not exist"
+            raise RobotDescriptionError(f"{ROBOT_PATH_VARIABLE} entry {entry!r} {reason} ({ROBOT_PATH_VARIABLE}={value!r}): fix or remove it")
+        folders.append(folder)
+    shipped = shipped_folder("robots")
+    return [*folders, *([shipped] if shipped is not None else [])]
+
+
+def robot_configs() -> dict[str, Path]:
+    """Every robot on the search path: its name (its folder's) and its ``robot.toml``, the first folder's when two share a name."""
+    configs: dict[str, Path] = {}
+    for folder in robot_search_path():
+        for config in sorted(folder.glob(f"*/{CONFIG_NAME}")):
+            configs.setdefault(config.parent.name, config)
+    return configs
 
 
 def available_robots() -> list[str]:
-    names: dict[str, None] = {}
-    for folder in robot_search_path():
-        if folder.is_dir():
-            for config in sorted(folder.glob(f"*/{CONFIG_NAME}")):
-                names.setdefault(config.parent.name)
-    return list(names)
+    """The names of the robots on the search path (whether each loads or not: see :func:`scan_robots`)."""
+    return list(robot_configs())
+
+
+@dataclass(frozen=True)
+class BrokenRobot:
+    """A robot on the search path that does not load: its name, its ``robot.toml`` and why."""
+
+    name: str
+    config: Path
+    error: str
+
+
+def scan_robots() -> tuple[list[RobotDescription], list[BrokenRobot]]:
+    """Load every robot on the search path: the descriptions that load, and those that do not with
+    their error (``load`` of such a name raises that error)."""
+    loaded, broken = [], []
+    for name, config in robot_configs().items():
+        try:
+            loaded.append(load(config))
+        except Exception as error:  # noqa: BLE001 - one broken entry, whatever its defect, must not hide the others
+            message = str(error) if isinstance(error, RobotDescriptionError) else f"{config}: {type(error).__name__}: {error}"
+            broken.append(BrokenRobot(name, config, message))
+    return loaded, broken
 
 
 def load(robot: str | os.PathLike[str]) -> RobotDescription:
@@ -285,6 +337,32 @@ def _resolve_model_path(source: str, config_path: Path) -> Path:
     return path
 
 
+def _refuse_unknown(table: dict[str, Any], allowed: frozenset[str], where: str) -> None:
+    """A RobotDescriptionError naming the first key of ``table`` not in ``allowed``, and the closest known key."""
+    for key in table:
+        if key not in allowed:
+            close = difflib.get_close_matches(key, sorted(allowed), n=1)
+            hint = f"did you mean {close[0]!r}?" if close else f"known keys: {', '.join(sorted(allowed))}"
+            raise RobotDescriptionError(f"{where}: unknown key {key!r} ({hint})")
+
+
+def _table(config: dict[str, Any], key: str, where: str, allowed: frozenset[str]) -> dict[str, Any]:
+    """The optional table ``[key]`` of ``config`` (empty when absent), holding only ``allowed`` keys."""
+    table = config.get(key, {})
+    if not isinstance(table, dict):
+        raise RobotDescriptionError(f"{where}: [{key}] should be a table, got {table!r}")
+    _refuse_unknown(table, allowed, f"{where} [{key}]")
+    return table
+
+
+def _flag(table: dict[str, Any], key: str, default: bool, where: str) -> bool:
+    """``table[key]`` (``default`` when absent), which must be true or false (a string "false" is no flag)."""
+    value = table.get(key, default)
+    if not isinstance(value, bool):
+        raise RobotDescriptionError(f"{where}: {key!r} should be true or false, got {value!r}")
+    return value
+
+
 def _at(where: str) -> TomlPlace:
     """A place in robot.toml (``where``: the file and the table): its errors are RobotDescriptionError."""
     return TomlPlace(where, RobotDescriptionError)
@@ -319,7 +397,13 @@ def _urdf_joint_limits(urdf_path: Path, config_path: Path) -> dict[str, tuple[fl
 
 def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
     where = str(config_path)
+    _refuse_unknown(config, TOP_LEVEL_KEYS, where)
     model = _at(where).require(config, "model", dict)
+    _refuse_unknown(model, MODEL_KEYS, f"{where} [model]")
+    floating_base = _flag(model, "floating_base", False, f"{where} [model]")
+    imu_frame = model.get("imu_frame")
+    if imu_frame is not None and not (isinstance(imu_frame, str) and imu_frame):
+        raise RobotDescriptionError(f"{where} [model]: 'imu_frame' should be a link name, got {imu_frame!r}")
     urdf_path = _resolve_model_path(_at(f"{where} [model]").require(model, "urdf", str), config_path)
     urdf_limits = _urdf_joint_limits(urdf_path, config_path)
 
@@ -334,9 +418,7 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
             raise RobotDescriptionError(
                 f"{where}: joint {name!r} is listed in the config but the model {urdf_path.name} has no such movable joint"
             )
-        unknown = set(spec) - {"default", "kp", "kd", "armature", "actuated"}
-        if unknown:
-            raise RobotDescriptionError(f"{where}: joint {name!r} has unknown keys {sorted(unknown)}")
+        _refuse_unknown(spec, JOINT_KEYS, f"{where} joint {name!r}")
         lower, upper, effort, velocity = urdf_limits[name]
         joint = JointSpec(
             name=name,
@@ -348,7 +430,7 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
             kp=_at(f"{where} joint {name!r}").number(spec, "kp", 0.0),
             kd=_at(f"{where} joint {name!r}").number(spec, "kd", 0.0),
             armature=_at(f"{where} joint {name!r}").number(spec, "armature", 0.0),
-            actuated=bool(spec.get("actuated", True)),
+            actuated=_flag(spec, "actuated", True, f"{where} joint {name!r}"),
         )
         if min(joint.kp, joint.kd, joint.armature) < 0:
             raise RobotDescriptionError(f"{where}: joint {name!r} has a negative gain or armature")
@@ -360,8 +442,12 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
         raise RobotDescriptionError(f"{where}: the model has joints the config does not list: {missing}")
 
     contacts = []
-    for index, table in enumerate(config.get("contacts", [])):
+    contact_tables = config.get("contacts", [])
+    if not isinstance(contact_tables, list) or not all(isinstance(t, dict) for t in contact_tables):
+        raise RobotDescriptionError(f"{where}: 'contacts' should be an array of tables ([[contacts]])")
+    for index, table in enumerate(contact_tables):
         cwhere = f"{where} [[contacts]] #{index}"
+        _refuse_unknown(table, CONTACT_KEYS, cwhere)
         center = _at(cwhere).require(table, "center", list)
         if len(center) != 3:
             raise RobotDescriptionError(f"{cwhere}: 'center' needs 3 numbers, got {center!r}")
@@ -378,7 +464,7 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
 
     collision, self_collision, exclude = _parse_collision(config, where, urdf_path, contacts)
 
-    simulation = config.get("simulation", {})
+    simulation = _table(config, "simulation", where, SIMULATION_KEYS)
     integrator = simulation.get("integrator", "implicitfast")
     if integrator not in ("euler", "implicit", "implicitfast", "rk4"):
         raise RobotDescriptionError(f"{where}: unknown integrator {integrator!r}")
@@ -386,14 +472,14 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
         name=_at(where).require(config, "name", str),
         folder=config_path.parent,
         urdf_path=urdf_path,
-        floating_base=bool(model.get("floating_base", False)),
+        floating_base=floating_base,
         base_link=_at(f"{where} [model]").require(model, "base_link", str),
         joints=tuple(joints),
         contacts=tuple(contacts),
         collision=collision,
         self_collision=self_collision,
         collision_exclude=exclude,
-        imu_frame=model.get("imu_frame"),
+        imu_frame=imu_frame,
         timestep=_at(f"{where} [simulation]").number(simulation, "timestep", 0.002),
         integrator=integrator,
         floor_friction=_at(f"{where} [simulation]").number(simulation, "floor_friction", 1.0),

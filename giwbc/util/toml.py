@@ -27,10 +27,14 @@ def parse_toml(text: str, source: str, error: type[ConfigError]) -> dict[str, An
 
 
 def load_toml(path: Path, error: type[ConfigError]) -> dict[str, Any]:
-    """:func:`parse_toml` of the file at ``path``."""
-    with Path(path).open("rb") as stream:
-        data = stream.read()
-    return parse_toml(data.decode(), str(path), error)
+    """:func:`parse_toml` of the file at ``path`` (``error`` when it cannot be read or is not UTF-8 text)."""
+    try:
+        with Path(path).open("rb") as stream:
+            data = stream.read()
+        text = data.decode()
+    except (OSError, UnicodeDecodeError) as e:
+        raise error(f"{path}: cannot read it as text: {e}") from e
+    return parse_toml(text, str(path), error)
 
 
 @dataclass(frozen=True)
