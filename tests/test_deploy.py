@@ -136,9 +136,11 @@ def test_deploy_refuses_bad_hardware_and_missing_drivers(g1, tmp_path):
     crowded.write_text("\n".join(lines))
     said: list[str] = []
     outcome = deploy(DeployOptions(hardware=str(crowded), emulate=True), description=g1, out=said.append)
-    assert outcome.exit_code == 2 and "over capacity" in outcome.message and said
+    # The error is the outcome's, for the caller to print once (the command line: on stderr), not also said as progress.
+    assert outcome.exit_code == 2 and "over capacity" in outcome.message and not any("over capacity" in line for line in said)
     outcome = deploy(DeployOptions(emulate=False), description=g1, out=None)  # the G1 plan's IMU is emulated
     assert outcome.exit_code == 2 and "--emulate" in outcome.message
+    assert '[imu] source = "emulated"' in outcome.message and '"serial"' in outcome.message and '"can"' in outcome.message
     outcome = deploy(DeployOptions(policy=str(tmp_path / "missing.onnx"), emulate=True), description=g1, out=None)
     assert outcome.exit_code == 2 and "no policy file" in outcome.message
 

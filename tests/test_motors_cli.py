@@ -57,6 +57,9 @@ def test_scan_dry_run_finds_a_missing_and_an_extra_motor(plans, tmp_path):
     assert code == 1
     assert "MISSING 'waist_pitch_joint': no answer from id 9 on can4" in out
     assert "EXTRA id 3 on can4" in out and "EXTRA id 2 on can9" in out
+    assert lines[-1] == "differs from the plan: 1 missing, 2 extra (of 28 planned motors)"
+    code, lines = motors("scan", "--hardware", str(shipped), "--dry-run", "--ids", "1-3")
+    assert code == 0 and lines[-1] == "matches the plan: all 29 planned motors answered, nothing else did"
 
 
 def test_calibrate_recovers_wrong_signs_and_offsets_and_the_plan_then_deploys(g1, model, plans, tmp_path):
@@ -131,3 +134,35 @@ def test_check_reports_missing_interfaces_here(plans):
     if Path("/sys/class/net/can0").exists():
         pytest.skip("this machine has a can0: the verdict depends on its set-up")
     assert code == 1 and "[error] bus 'can0' (can0): interface does not exist" in lines[0]
+
+
+def test_check_dry_run_checks_the_plan_and_prints_the_bring_up_commands(plans, tmp_path):
+    shipped, _ = plans
+    code, lines = motors("check", "--hardware", str(shipped), "--dry-run")
+    assert code == 0 and "is a valid plan for 29 joints on 10 buses at 500 Hz" in lines[0]
+    commands = [line.strip() for line in lines if line.strip().startswith("sudo ip link set")]
+    assert len(commands) == 4 * 10 and "sudo ip link set can3 type can bitrate 1000000 restart-ms 100" in commands
+    # A plan that cannot work is refused, one line on stderr, whatever the interfaces
+    lonely = tmp_path / "lonely.toml"
+    lonely.write_text(re.sub(r'\[\[motors\]\]\nbus = "can9"\nid = 2\n(?:\w+ = .*\n)*', "", shipped.read_text()))
+    errors: list[str] = []
+    parser = argparse.ArgumentParser(prog="giwbc")
+    add_motors_command(parser.add_subparsers(dest="command", required=True))
+    code = run_motors_command(parser.parse_args(["motors", "check", "--hardware", str(lonely), "--dry-run"]), out=print, err=errors.append)
+    assert code == 2 and len(errors) == 1 and "right_wrist_yaw_joint" in errors[0]
+
+
+@pytest.mark.parametrize("argv", [("monitor", "--count", "-1"), ("monitor", "--hz", "0"), ("monitor", "--hz", "nan"),
+                                  ("scan", "--timeout", "-1"), ("scan", "--ids", "x"), ("check", "--rate", "inf"),
+                                  ("zero", "left_knee_joint", "--at", "nan"), ("calibrate", "--min-move", "0")])  # fmt: skip
+def test_bad_numbers_are_refused_before_any_bus(argv, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        motors(*argv)
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert exit_.value.code == 2 and f"argument {argv[1] if argv[1].startswith('--') else argv[2]}:" in err
+
+
+def test_monitor_counts_refreshes(plans):
+    shipped, _ = plans
+    code, lines = motors("monitor", "--hardware", str(shipped), "--dry-run", "--count", "2", "--hz", "50")
+    assert code == 0 and sum(line.startswith("left_knee_joint") for line in "\n".join(lines).splitlines()) == 2

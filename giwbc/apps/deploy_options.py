@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -10,22 +11,29 @@ from typing import Any
 from giwbc.apps.deploy_walk import WalkCommand
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.emulation.process import EmulatorProcess
+from giwbc.errors import ConfigError
 from giwbc.estimation.calibration import CalibrationReport
 from giwbc.hal.safety import SafetyConfig
 from giwbc.runtimes.phases import StartupConfig
+from giwbc.runtimes.os_settings import RT_PRIORITY_RANGE, check_cpu_latency
 from giwbc.runtimes.realtime import RunResult
 
 EMULATOR_MODES = ("lockstep", "process")
+TASKS = ("stand", "balance", "walk")
+CONTROLLERS = ("wbc", "pd", "walk")
+FIRST_RUN_CONTROLLER = "pd"  # on a gantry the feet carry nothing: a joint-level hold (giwbc.apps.deploy_setup.choose_task)
 
 
 @dataclass(frozen=True)
 class DeployOptions:
-    """What ``giwbc deploy`` does (see :mod:`giwbc.apps.deploy_run`)."""
+    """What ``giwbc deploy`` does (see :mod:`giwbc.apps.deploy_run`). Every number is checked when
+    the options are built (:class:`~giwbc.errors.ConfigError` naming the field), so a bad value
+    from Python stops before anything starts, as one from the command line does."""
 
     robot: str = "g1"
     policy: str | None = None
     task: str | None = None  # default: with a policy its own ("walk" for a G1Walk-v0 policy, else "balance"), "stand" without
-    controller: str = "wbc"
+    controller: str = None  # type: ignore[assignment]  # None: "pd" with first_run (a gantry), else "wbc"; a str once built
     hardware: str | None = None  # default: the robot folder's hardware.toml
     emulate: bool = False
     emulator_mode: str = "lockstep"  # or "process": the emulator in its own process (giwbc.apps.deploy_run)
@@ -53,6 +61,51 @@ class DeployOptions:
     walk: WalkCommand | None = None  # the walk controller's command (None: stand)
     walker: Mapping[str, Any] | None = None  # the walk controller's WalkerConfig fields over the deployment walker's
 
+    def __post_init__(self) -> None:
+        if self.controller is None:
+            object.__setattr__(self, "controller", FIRST_RUN_CONTROLLER if self.first_run else "wbc")
+        _check_choice("controller", self.controller, CONTROLLERS)
+        _check_choice("emulator_mode", self.emulator_mode, EMULATOR_MODES)
+        if self.task is not None:
+            _check_choice("task", self.task, TASKS)
+        _check_number("seconds", self.seconds, low=0.0)
+        _check_number("control_rate", self.control_rate, low=0.0, low_open=True, unit="Hz")
+        _check_number("agent_rate", self.agent_rate, low=0.0, low_open=True, high=self.control_rate, unit="Hz")
+        _check_number("reply_timeout", self.reply_timeout, low=0.0, low_open=True, high=1.0, unit="s")
+        _check_number("scene_rate", self.scene_rate, low=0.0, high=self.control_rate, unit="Hz")
+        if not (isinstance(self.log_every, int) and self.log_every >= 1):
+            raise ConfigError(f"log_every must be an integer >= 1, got {self.log_every!r}")
+        low, high = RT_PRIORITY_RANGE
+        if self.rt_priority is not None and not (isinstance(self.rt_priority, int) and low <= self.rt_priority <= high):
+            raise ConfigError(f"rt_priority must be a SCHED_FIFO priority from {low} to {high} (or None), got {self.rt_priority!r}")
+        try:
+            check_cpu_latency(self.cpu_latency)
+        except ValueError as error:
+            raise ConfigError(str(error)) from None
+        if self.foxglove_port is not None and not (isinstance(self.foxglove_port, int) and 1 <= self.foxglove_port <= 65535):
+            raise ConfigError(f"foxglove_port must be a TCP port from 1 to 65535, got {self.foxglove_port!r}")
+
+
+def _check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+    if value not in choices:
+        raise ConfigError(f"{name} must be one of {', '.join(choices)}, got {value!r}")
+
+
+def _check_number(
+    name: str, value: Any, *, low: float | None = None, high: float | None = None, low_open: bool = False, unit: str = "s"
+) -> None:
+    """``value`` is a finite real number within [low, high] (``low_open``: > low); ConfigError naming ``name`` otherwise."""
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    if ok and low is not None:
+        ok = value > low if low_open else value >= low
+    if ok and high is not None:
+        ok = value <= high
+    if not ok:
+        bounds = " ".join(
+            part for part in (f"{'>' if low_open else '>='} {low:g}" if low is not None else "", f"<= {high:g}" if high is not None else "") if part
+        )
+        raise ConfigError(f"{name} must be a finite number {bounds} {unit}, got {value!r}".replace("  ", " "))
+
 
 @dataclass
 class DeployOutcome:
@@ -72,4 +125,4 @@ class DeployOutcome:
     walking: dict[str, Any] | None = None  # the walk controller's counts: steps (touch-downs), single-support ticks
 
 
-__all__ = ["EMULATOR_MODES", "DeployOptions", "DeployOutcome"]
+__all__ = ["CONTROLLERS", "EMULATOR_MODES", "FIRST_RUN_CONTROLLER", "TASKS", "DeployOptions", "DeployOutcome"]

@@ -60,6 +60,7 @@ from __future__ import annotations
 
 import copy
 import math
+import os
 import time
 import traceback
 from collections.abc import Callable, Mapping, Sequence
@@ -69,6 +70,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from giwbc.apps.deploy_diagnosis import fault_summary, load_average, overload_note
 from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
 from giwbc.apps.deploy_options import EMULATOR_MODES, DeployOptions, DeployOutcome
 from giwbc.apps.deploy_setup import build_task, check_layout, check_policy_metadata, choose_task, load_policy, walking_hold, wants_estimator
@@ -77,7 +79,7 @@ from giwbc.apps.live import LiveServer
 from giwbc.apps.scene import SceneChannels
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig
 from giwbc.emulation.process import EmulatorProcess
-from giwbc.errors import DeployError
+from giwbc.errors import ConfigError, DeployError
 from giwbc.estimation.calibration import StandstillConfig
 from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
@@ -89,6 +91,7 @@ from giwbc.robot.description import RobotDescription, RobotDescriptionError, loa
 from giwbc.robot.noise import SensorNoiseConfig
 from giwbc.runlog import RunLogWriter
 from giwbc.runtimes.faults import HostFaults
+from giwbc.runtimes.os_settings import probe_rt_priority
 from giwbc.runtimes.realtime import RealtimeRuntime, RunResult
 
 if TYPE_CHECKING:
@@ -118,13 +121,13 @@ def deploy(
     say = out or (lambda message: None)
     try:
         return _deploy(options, policy, policy_metadata, model, description, say)
-    except DeployError as error:
-        say(f"giwbc deploy: error: {error}")
+    except (DeployError, ConfigError) as error:  # refused before anything started: the caller prints it (once)
         return DeployOutcome(2, str(error))
     except Exception as error:  # noqa: BLE001 - setup bugs: reported, never a traceback at the operator
         message = f"internal error before or after the run: {type(error).__name__}: {error}"
-        say(f"giwbc deploy: {message}\n{traceback.format_exc(limit=6)}")
-        return DeployOutcome(1, message)
+        if os.environ.get("GIWBC_TRACEBACK"):  # for a developer chasing it
+            say(traceback.format_exc(limit=8))
+        return DeployOutcome(1, message + " (a bug: GIWBC_TRACEBACK=1 prints where)")
 
 
 def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, description: Any, say: Callable[[str], None]) -> DeployOutcome:
@@ -156,6 +159,16 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     except HardwareConfigError as error:
         raise DeployError(str(error)) from error
     plan = choose_imu(plan, options.imu, options.emulate, options.emulator_mode)
+    if not options.emulate and plan.imu.source == "emulated":
+        raise DeployError(
+            f"{hardware}: [imu] source = \"emulated\" exists only on the actuator emulator: rehearse with --emulate, or set "
+            "[imu] source to \"serial\" (an Xsens MTi: device, baudrate) or \"can\" (a CAN IMU's frames on a motor bus: bus, "
+            "frames) for the robot (README, IMU)"
+        )
+    if options.rt_priority is not None:  # asked for real time: refused is an error before any bus opens, not a warning
+        refused = probe_rt_priority(options.rt_priority)
+        if refused is not None:
+            raise DeployError(f"--rt-priority {options.rt_priority}: {refused}")
     loads = [str(load_) for load_ in plan.loads.values()]
     say(f"hardware {hardware}: {len(plan.motors)} motors on {len(plan.buses)} buses at {options.control_rate:g} Hz")
     for line in loads:
@@ -268,7 +281,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             check_layout(metadata, task)
         say(f"running {task_name} ({'walker' if task_name == 'walk' else options.controller}) for {options.seconds:g} s"
             + (" with the policy" if policy else ""))
-        result = runtime.run(policy, options.seconds)
+        result = runtime.run(policy, options.seconds, progress=say)
         if options.rt_priority is not None or options.cpu_latency is not None:  # what was asked and what the kernel granted
             say(f"control loop: {runtime.scheduler}; CPUs' idle: {runtime.cpu_idle}")
         counters = imu_counters(imu)
@@ -320,15 +333,20 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         message = "clean run: motors ramped to damping and switched off"
     elif result.fault is not None and result.fault.kind.value == "watchdog":
         unreachable = (runtime.emergency or {}).get("unreachable_buses") or []
-        message = (f"stopped by a fault: {result.fault}; the watchdog switched the motors to damping then off"
+        message = (f"stopped by a fault: {fault_summary(result.fault, plan)}; the watchdog switched the motors to damping then off"
                    + (f" (buses {', '.join(unreachable)} unreachable: their motors are left to their own timeout)" if unreachable else ""))
     else:
-        message = f"stopped by a fault: {result.fault}; motors in damping then off"
+        message = f"stopped by a fault: {fault_summary(result.fault, plan)}; motors in damping then off"
         if result.unconfirmed_off:
             message += f" (not confirmed by {', '.join(result.unconfirmed_off)}: left to their own timeout)"
     if len(result.faults) > 1:
         message += "; also: " + ", ".join(f.kind.value for f in result.faults[1:])
-    say(message)
+    if result.ok:
+        say(message)  # a fault's message is the caller's to print (once, on stderr)
+    else:
+        note = overload_note(options.emulate, result, load_average())
+        if note:
+            message += f". {note}"
     return DeployOutcome(
         result.exit_code, message, result, str(log.path), loads, standing, emulator, dict(host_faults.onsets), counters, calibration, walking
     )

@@ -11,6 +11,12 @@ Refused (:func:`choose_task`): a policy on ``stand``; the ``walk`` task without 
 a walking policy with ``--task balance`` or ``--controller pd``, a balance policy with ``--task
 walk``; the walk controller with a policy that does not walk; walking options for a task that does
 not walk; and the walking policy without the state estimator (or without a floating base).
+
+A first run (``--first-run``: the robot hangs on a gantry, feet clear) runs the joint-PD hold
+(``--controller pd``, its default): the WBC, the walker and every policy balance on the feet's
+ground forces, and the state estimator's start-up calibration waits for both feet to carry the
+robot, which on a gantry never happens (it used to stop after the 15 s calibration timeout, with
+the motors on). Any of them with ``--first-run`` is refused before anything starts.
 """
 
 from __future__ import annotations
@@ -25,7 +31,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from giwbc.apps.deploy_options import DeployOptions
+from giwbc.apps.deploy_options import CONTROLLERS, FIRST_RUN_CONTROLLER, TASKS, DeployOptions
 from giwbc.apps.deploy_walk import WalkCommand, WalkHold, WalkPolicyTask, deploy_walker_config
 from giwbc.control.balance import make_balance_controller
 from giwbc.envs import RUNTIME_OPTIONS
@@ -37,9 +43,7 @@ from giwbc.robot.standing import PdHold
 from giwbc.tasks.balance import G1Balance
 from giwbc.tasks.standing import StandingTask
 
-TASKS = ("stand", "balance", "walk")
 WALK_ENV = "giwbc/G1Walk-v0"  # a walking policy's env_id: the deploy task "walk"
-CONTROLLERS = ("wbc", "pd", "walk")
 
 
 def _runtime_keys() -> frozenset[str]:
@@ -146,6 +150,7 @@ def make_controller(name: str, description: RobotDescription, walk: WalkCommand 
 def choose_task(options: DeployOptions, metadata: Mapping[str, Any] | None, policy: Any, description: RobotDescription) -> str:
     """The task to run (see :class:`~giwbc.apps.deploy_options.DeployOptions`); :class:`DeployError` for combinations that
     cannot run (module docstring)."""
+    _check_first_run(options, metadata is not None or policy is not None)
     env_id = str((metadata or {}).get("env_id") or "").split(":", 1)[-1]
     walking_policy = env_id == WALK_ENV
     if options.task is not None:
@@ -177,6 +182,21 @@ def choose_task(options: DeployOptions, metadata: Mapping[str, Any] | None, poli
         raise DeployError("the walking policy walks on the state estimator's base state: it needs a floating base and the estimator")
     return task_name
 
+
+
+def _check_first_run(options: DeployOptions, has_policy: bool) -> None:
+    """On a gantry (``first_run``) only the joint-level hold runs (module docstring)."""
+    if not options.first_run:
+        return
+    fix = f"on a gantry run the joint PD hold: --controller {FIRST_RUN_CONTROLLER} (the default with --first-run)"
+    if has_policy:
+        raise DeployError(f"--first-run (robot on a gantry, feet clear): a policy balances on the feet, which carry nothing there; {fix}")
+    if options.controller != FIRST_RUN_CONTROLLER:
+        raise DeployError(f"--first-run (robot on a gantry, feet clear): --controller {options.controller} balances on the feet's ground "
+                          f"forces and waits for them to carry the robot before it starts; {fix}")  # fmt: skip
+    if options.estimator:
+        raise DeployError("--first-run (robot on a gantry, feet clear): the state estimator calibrates standing on both feet; "
+                          "leave it off on a gantry (estimator=None or False)")  # fmt: skip
 
 
 def wants_estimator(options: DeployOptions, task_name: str) -> bool:

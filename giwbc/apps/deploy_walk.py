@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from giwbc.apps.arguments import number, seconds
 from giwbc.errors import DeployError
 from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
@@ -185,18 +186,24 @@ class WalkPolicyTask(G1Walk):
         return self.hold.failure()
 
 
+MAX_VX, MAX_VY, MAX_YAW_RATE = 1.5, 1.0, 2.0  # m/s, m/s, rad/s: the commands the command line takes (the walker clamps to its gait)
+
+
 def add_walk_arguments(parser: argparse.ArgumentParser) -> None:
-    """``giwbc deploy``'s walking options."""
-    parser.add_argument("--vx", type=float, default=0.0, help="with --controller walk or a walking policy: forward speed, m/s (body frame)")
-    parser.add_argument("--vy", type=float, default=0.0, help="with --controller walk or a walking policy: lateral speed, m/s")
-    parser.add_argument("--yaw-rate", type=float, default=0.0, help="with --controller walk or a walking policy: turning rate, rad/s")
+    """``giwbc deploy``'s walking options (numbers checked by their argparse types)."""
+    parser.add_argument("--vx", type=number(-MAX_VX, MAX_VX, unit="m/s"), default=0.0,
+                        help=f"with --controller walk or a walking policy: forward speed, m/s (body frame), |vx| <= {MAX_VX:g}")
+    parser.add_argument("--vy", type=number(-MAX_VY, MAX_VY, unit="m/s"), default=0.0,
+                        help=f"with --controller walk or a walking policy: lateral speed, m/s, |vy| <= {MAX_VY:g}")
+    parser.add_argument("--yaw-rate", type=number(-MAX_YAW_RATE, MAX_YAW_RATE, unit="rad/s"), default=0.0,
+                        help=f"with --controller walk or a walking policy: turning rate, rad/s, |yaw rate| <= {MAX_YAW_RATE:g}")
     parser.add_argument("--step-in-place", action="store_true", help="with --controller walk or a walking policy: step with a zero command")
-    parser.add_argument("--walk-delay", type=float, default=WalkCommand.walk_delay,
-                        help="with --controller walk or a walking policy: seconds of standing after the start-up ramp before the command")
+    parser.add_argument("--walk-delay", type=seconds(60.0, allow_zero=True), default=WalkCommand.walk_delay,
+                        help="with --controller walk or a walking policy: s of standing after the start-up ramp before the command")
     parser.add_argument("--walker", default=None, metavar="JSON",
                         help="with --controller walk: WalkerConfig fields over the deployment walker's, e.g. "
                              "'{\"adapt_full_error\": 0.06, \"adapt_freeze_time\": 0.1}' (the lateral-push options, README); "
-                             "a walking policy runs on the walker it was trained on")
+                             "every number finite; a walking policy runs on the walker it was trained on")
 
 
 def walk_command(args: argparse.Namespace) -> WalkCommand | None:
@@ -223,11 +230,27 @@ def walker_overrides(args: argparse.Namespace) -> dict[str, Any] | None:
         raise DeployError(f"--walker must be a JSON object of WalkerConfig fields: {error}") from None
     if not isinstance(overrides, dict):
         raise DeployError(f"--walker must be a JSON object of WalkerConfig fields, got {text!r}")
+    for key, value in overrides.items():
+        bad = _non_finite(value)
+        if bad is not None:
+            raise DeployError(f"--walker: {key} must be finite numbers, got {bad}")
     try:
         walker_config(overrides, base=deploy_walker_config())
     except (TypeError, ValueError) as error:
         raise DeployError(f"--walker: {error}") from None
     return overrides
+
+
+def _non_finite(value: Any) -> str | None:
+    """The first number in a JSON value that is not finite (JSON's NaN, Infinity, or a float
+    overflowing to inf like 1e999), as text, or None."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return repr(value)
+    if isinstance(value, list):
+        return next((bad for bad in map(_non_finite, value) if bad is not None), None)
+    if isinstance(value, dict):
+        return next((bad for bad in map(_non_finite, value.values()) if bad is not None), None)
+    return None
 
 
 __all__ = ["DEPLOY_WALKER_OPTIONS", "WalkCommand", "WalkHold", "WalkPolicyTask", "add_walk_arguments", "walk_command", "walker_overrides"]

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import enum
 import gc
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -68,10 +69,14 @@ class StartupConfig:
     def __post_init__(self) -> None:
         if self.ramp_profile not in PROFILES:
             raise ValueError(f"ramp_profile must be one of {list(PROFILES)}, got {self.ramp_profile!r}")
-        if min(self.settle_time, self.ramp_time, self.shutdown_time, self.off_delay) < 0 or self.enable_attempts < 1:
-            raise ValueError("start-up times must be >= 0 and enable_attempts >= 1")
-        if not self.calibration_timeout > 0:
-            raise ValueError(f"calibration_timeout must be > 0, got {self.calibration_timeout}")
+        times = {"settle_time": self.settle_time, "ramp_time": self.ramp_time, "gain_ramp": self.gain_ramp,
+                 "shutdown_time": self.shutdown_time, "off_delay": self.off_delay}  # fmt: skip
+        bad = {name: value for name, value in times.items() if not (math.isfinite(value) and value >= 0)}
+        if bad or self.enable_attempts < 1 or self.exit_attempts < 1:
+            raise ValueError(f"start-up times must be finite and >= 0, enable_attempts and exit_attempts >= 1; got {bad or ''}"
+                             f"{'' if bad else f'enable_attempts={self.enable_attempts}, exit_attempts={self.exit_attempts}'}")  # fmt: skip
+        if not (math.isfinite(self.calibration_timeout) and self.calibration_timeout > 0):
+            raise ValueError(f"calibration_timeout must be finite and > 0, got {self.calibration_timeout}")
 
 
 class PhaseSequence:

@@ -59,11 +59,14 @@ from giwbc.robot.interface import ImpedanceCommand, RobotWrapper
 from giwbc.runlog import CycleRecorder, RunLogWriter
 from giwbc.runtimes.clock import DeadlineClock
 from giwbc.runtimes.fault_response import FaultResponse, LoopAbandoned, describe, robot_faults
-from giwbc.runtimes.os_settings import ProcessSettings, check_cpu_latency
+from giwbc.runtimes.os_settings import ProcessSettings, check_cpu_latency, check_rt_priority
 from giwbc.runtimes.phases import Phase, PhaseSequence, StartupConfig
 from giwbc.runtimes.watchdog import LoopWatchdog
 from giwbc.tasks.rates import Rates
 from giwbc.tasks.task import Task
+
+STARTUP_PHASES = (Phase.IDLE, Phase.ENABLE, Phase.SETTLE, Phase.RAMP, Phase.CALIBRATE)  # run(progress=...) reports these
+PROGRESS_PERIOD = 1.0  # s between the start-up's progress lines
 
 
 # ----------------------------------------------------------------------------- runtime
@@ -119,7 +122,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
     asked for its record on the same cycles after the cycle's tick (their channels declared in ``log``). ``realtime=False``
     runs cycles back to back (the emulator follows the robot's nominal time, so the run is the same).
     ``rt_priority``: run under ``SCHED_FIFO`` at this priority while the motors are on (Linux, needs
-    CAP_SYS_NICE; refused -> logged, run goes on), restored at :meth:`close`; mind Linux RT
+    CAP_SYS_NICE; 1 to 99, else ValueError; refused here -> logged, run goes on: ``giwbc deploy`` probes it before any bus opens, :func:`~giwbc.runtimes.os_settings.probe_rt_priority`), restored at :meth:`close`; mind Linux RT
     throttling (``kernel.sched_rt_runtime_us``, 95 % by default): a loop thread busy (working or
     spinning) more than that in a second is stopped for the rest of it (~50 ms), so under
     ``SCHED_FIFO`` every cycle sleeps at least 6 % of the period, late or not. ``cpu_latency``:
@@ -173,7 +176,7 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         self.startup = startup or StartupConfig()
         self.supervisor = SafetySupervisor(d, self.safety, bus_names=tuple(b.name for b in can.plan.buses))
         self.signals = SignalWatch()
-        self.rt_priority = rt_priority
+        self.rt_priority = check_rt_priority(rt_priority)
         self.freeze_gc = freeze_gc
         self._gc_frozen = False
         self.gc_every = None if gc_every is None else max(1, int(gc_every))
@@ -320,9 +323,14 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
             self._restore_process_state()
 
     # --- the deploy loop --------------------------------------------------------------------
-    def run(self, policy: Callable[[np.ndarray], np.ndarray] | None = None, seconds: float = 10.0) -> RunResult:
+    def run(
+        self, policy: Callable[[np.ndarray], np.ndarray] | None = None, seconds: float = 10.0, progress: Callable[[str], None] | None = None
+    ) -> RunResult:
         """Start, run ``policy`` (None: zero actions) for ``seconds`` of control, shut down.
-        Never raises: the outcome is in the :class:`RunResult`.
+        Never raises: the outcome is in the :class:`RunResult`. ``progress``: told (from this
+        thread, never the loop's) what the start-up does and waits for: each phase as it begins and,
+        while the state estimator calibrates, once a second what it still waits for
+        (:meth:`startup_status`); silent once running.
 
         The loop runs in a thread of its own ("giwbc-control"); this thread installs the signal
         handlers (only the main thread can) and waits until the loop ended, or until the watchdog
@@ -335,8 +343,17 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         self._loop_thread = thread = threading.Thread(target=self._loop, args=(policy, seconds, done), name="giwbc-control", daemon=True)
         try:
             thread.start()
+            said = ""
             while not done.is_set():
                 try:
+                    starting = progress is not None and self.phase in STARTUP_PHASES and self.fault is None
+                    if starting:
+                        wake.wait(PROGRESS_PERIOD)  # once a second during the start-up only
+                        status = self.startup_status()
+                        if status and (status != said or self.phase == Phase.CALIBRATE):
+                            progress(status)  # type: ignore[misc]
+                            said = status
+                        continue
                     wake.wait()  # (no polling: every wake-up would take the interpreter lock from the loop)
                     if not done.is_set() and self.taken_over.is_set():
                         done.wait(max(0.05, 5 * self.period))  # a last chance for the loop's thread to leave
@@ -378,6 +395,23 @@ class RealtimeRuntime(PhaseSequence, FaultResponse, ProcessSettings, gymnasium.E
         finally:
             done.set()
             self._wake.set()
+
+    def startup_status(self) -> str:
+        """What the start-up is doing and, while calibrating, what it waits for ("" outside the start-up)."""
+        phase, now = self.phase, self._now
+        if phase == Phase.ENABLE:
+            return "enabling the motors"
+        if phase == Phase.SETTLE:
+            return "motors on, damping: reading the pose"
+        if phase == Phase.RAMP:
+            return f"ramping to the default pose ({self.startup.ramp_time:g} s)"
+        if phase == Phase.CALIBRATE:
+            since = now - self.phase_times.get(Phase.CALIBRATE, now)
+            estimator = self.calibrating_estimator
+            waiting = estimator.waiting_for if estimator is not None else ""
+            return (f"calibrating the IMU: hold the robot still, on both feet ({since:.0f} of at most "
+                    f"{self.startup.calibration_timeout:g} s; waiting for {waiting})")  # fmt: skip
+        return ""
 
     def result(self) -> RunResult:
         return RunResult(
