@@ -48,6 +48,10 @@ class RobotDescriptionError(ConfigError):
     """A robot description is missing, malformed or inconsistent with its model."""
 
 
+class PlantMismatchError(RobotDescriptionError):
+    """A simulated plant (an MJCF file, an MjModel, a variant) that does not fit the robot description; the message names the element."""
+
+
 class CollisionError(RobotDescriptionError):
     """A collision table is malformed or cannot be fitted (the description loader re-raises it with the file)."""
 

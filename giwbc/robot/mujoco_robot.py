@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import os
+
 import mujoco
 import numpy as np
 
+from giwbc.robot.actuator_dynamics import ActuatorDynamics
 from giwbc.robot.conventions import pinocchio_to_mujoco, wxyz_to_xyzw
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading, quat_to_matrix
 from giwbc.robot.mujoco_model import imu_sensor_names
+from giwbc.robot.mujoco_plant import adopt_actuators, bind, plant_from_file
 
 _BIAS_POSITION, _BIAS_VELOCITY = 1, 2  # columns of actuator_biasprm (affine bias: b0 + b1*q + b2*qdot)
 
@@ -27,26 +31,49 @@ class MujocoRobot(DescribedRobot):
     motor driver evaluates an impedance command at its own rate. :meth:`step` advances physics.
     """
 
-    def __init__(self, description: RobotDescription, model: mujoco.MjModel | None = None) -> None:
+    def __init__(
+        self,
+        description: RobotDescription,
+        model: mujoco.MjModel | str | os.PathLike[str] | None = None,
+        *,
+        actuator_dynamics: ActuatorDynamics | None = None,
+    ) -> None:
+        """``model``: the plant, an ``MjModel`` or an MJCF file (default: the description's own
+        model). It is checked against the description and bound by name
+        (:mod:`giwbc.robot.mujoco_plant`: one PlantMismatchError line naming what does not fit); an
+        MJCF file gets the sensors, keyframe and floor it lacks. Its torque actuators are turned
+        into giwbc's impedance form in place. ``actuator_dynamics``: lag and torque-speed envelope
+        applied to every command per physics step (:mod:`giwbc.robot.actuator_dynamics`)."""
         self.description = description
-        self.model = model if model is not None else description.build_mujoco()
+        if model is None:
+            model = description.build_mujoco()
+        elif isinstance(model, (str, os.PathLike)):
+            model = plant_from_file(description, model)
+        self.model = model
+        binding = bind(description, model)
+        adopt_actuators(description, model, binding)
+        self.binding = binding
         self.data = mujoco.MjData(self.model)
         m = self.model
-        first = 1 if description.floating_base else 0
-        joint_ids = np.arange(first, first + description.dofs)
-        self._qpos = _as_slice(m.jnt_qposadr[joint_ids])
-        self._qvel = _as_slice(m.jnt_dofadr[joint_ids])
+        self._qpos = _as_slice(binding.qpos)
+        self._qvel = _as_slice(binding.dofs)
+        self._base_qpos, self._base_dof = binding.base_qpos, binding.base_dof
         actuated = description.actuated
         self._actuated = actuated
-        self._actuator_joint = np.array([m.actuator_trnid[a, 0] - first for a in range(m.nu)], dtype=int)
-        if not np.array_equal(self._actuator_joint, np.flatnonzero(actuated)):
-            raise ValueError("MuJoCo actuators do not match the description's actuated joints")
+        self._acts = _as_slice(binding.actuators)
         self._body_ids: dict[str, int] = {}
         self._sensor_slices = {
             m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i])) for i in range(m.nsensor)
         }
         self._impedance_active = True  # biasprm may hold gains until the first torque command clears them
         self._wrench = np.zeros(6)
+        self.actuator_dynamics = actuator_dynamics if actuator_dynamics is not None and actuator_dynamics.active else None
+        if self.actuator_dynamics is not None and len(self.actuator_dynamics.lag) != int(actuated.sum()):
+            raise ValueError(f"actuator dynamics for {len(self.actuator_dynamics.lag)} actuators, the robot has {int(actuated.sum())}")
+        n = int(actuated.sum())
+        self._command = np.zeros(n)  # the torque command, or the impedance's feed-forward part
+        self._kp, self._kd, self._q_ref, self._v_ref = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+        self._delivered = np.zeros(n)  # the torque the lagged actuator delivers
         self.reset()
 
     # --- identity -------------------------------------------------------------------------
@@ -58,19 +85,40 @@ class MujocoRobot(DescribedRobot):
         """Reset to the default standing pose, or to a Pinocchio-convention state ``(q, v)``."""
         mujoco.mj_resetDataKeyframe(self.model, self.data, 0)
         if q is not None:
-            v = np.zeros(self.model.nv) if v is None else v
+            q = np.asarray(q, float)
+            v = np.zeros(len(q) - 1 if self.floating_base else len(q)) if v is None else np.asarray(v, float)
             if self.floating_base:
-                qpos, qvel = pinocchio_to_mujoco(np.asarray(q, float), np.asarray(v, float))
+                qpos, qvel = pinocchio_to_mujoco(q, v)
+                b, d = self._base_qpos, self._base_dof
+                self.data.qpos[b: b + 7] = qpos[:7]
+                self.data.qvel[d: d + 6] = qvel[:6]
+                qpos, qvel = qpos[7:], qvel[6:]
             else:
-                qpos, qvel = np.asarray(q, float), np.asarray(v, float)
-            self.data.qpos[:] = qpos
-            self.data.qvel[:] = qvel
+                qpos, qvel = q, v
+            self.data.qpos[self._qpos] = qpos
+            self.data.qvel[self._qvel] = qvel
+        self._delivered[:] = 0.0
         self.set_joint_torques(np.zeros(self.dofs))
         mujoco.mj_forward(self.model, self.data)
 
     def step(self, n: int = 1) -> None:
-        """Advance physics by ``n`` steps, holding the current command."""
-        mujoco.mj_step(self.model, self.data, nstep=n)
+        """Advance physics by ``n`` steps, holding the current command (through the actuator
+        dynamics, when the plant has them, evaluated at every step)."""
+        if self.actuator_dynamics is None:
+            mujoco.mj_step(self.model, self.data, nstep=n)
+            return
+        dynamics, data = self.actuator_dynamics, self.data
+        kept = dynamics.retention(self.model.opt.timestep)
+        for _ in range(n):
+            speed = data.qvel[self._qvel][self._actuated]
+            command = self._command
+            if self._impedance_active:
+                position = data.qpos[self._qpos][self._actuated]
+                command = command + self._kp * (self._q_ref - position) + self._kd * (self._v_ref - speed)
+            delivered = dynamics.available(kept * self._delivered + (1.0 - kept) * command, speed)
+            self._delivered = delivered
+            data.ctrl[self._acts] = delivered
+            mujoco.mj_step(self.model, data)
 
     def set_external_wrench(self, link: str, force: np.ndarray, torque: np.ndarray | None = None) -> None:
         """World-frame force (at the link's centre of mass) and torque on a link, held until changed."""
@@ -87,7 +135,7 @@ class MujocoRobot(DescribedRobot):
 
     def joint_efforts(self) -> np.ndarray:
         efforts = np.zeros(self.dofs)
-        efforts[self._actuated] = self.data.actuator_force
+        efforts[self._actuated] = self.data.actuator_force[self._acts]
         return efforts
 
     # --- base, links, contacts, sensors -----------------------------------------------------
@@ -96,19 +144,23 @@ class MujocoRobot(DescribedRobot):
             body = self._body_id(self.description.base_link)
             xquat = self.data.xquat[body]
             return BaseState(self.data.xpos[body].copy(), wxyz_to_xyzw(xquat), np.zeros(3), np.zeros(3))
-        qpos, qvel = self.data.qpos, self.data.qvel
+        b, d = self._base_qpos, self._base_dof
+        qpos, qvel = self.data.qpos[b: b + 7], self.data.qvel[d: d + 6]
         quaternion = wxyz_to_xyzw(qpos[3:7])
         return BaseState(qpos[:3].copy(), quaternion, qvel[:3].copy(), quat_to_matrix(quaternion) @ qvel[3:6])
 
     def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
-        qpos, qvel = self.data.qpos, self.data.qvel
+        data = self.data
         if not self.floating_base:
-            return qpos.copy(), qvel.copy()
-        q, v = qpos.copy(), qvel.copy()  # then reorder the quaternion and rotate the base velocity
-        q[3:6], q[6] = qpos[4:7], qpos[3]
+            return data.qpos[self._qpos].copy(), data.qvel[self._qvel].copy()
+        b, d = self._base_qpos, self._base_dof
+        base_q, base_v = data.qpos[b: b + 7], data.qvel[d: d + 6]
+        q = np.concatenate([base_q, data.qpos[self._qpos]])  # then reorder the quaternion and rotate the base velocity
+        v = np.concatenate([base_v, data.qvel[self._qvel]])
+        q[3:6], q[6] = base_q[4:7], base_q[3]
         conjugate = np.empty(4)
-        mujoco.mju_negQuat(conjugate, qpos[3:7])
-        mujoco.mju_rotVecQuat(v[:3], qvel[:3], conjugate)
+        mujoco.mju_negQuat(conjugate, base_q[3:7])
+        mujoco.mju_rotVecQuat(v[:3], base_v[:3], conjugate)
         return q, v
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
@@ -169,19 +221,26 @@ class MujocoRobot(DescribedRobot):
     def _send_joint_torques(self, torques: np.ndarray) -> None:
         if self._impedance_active:  # torque mode: no stiffness or damping in the actuator
             bias = self.model.actuator_biasprm
-            bias[:, _BIAS_POSITION] = 0.0
-            bias[:, _BIAS_VELOCITY] = 0.0
+            bias[self._acts, _BIAS_POSITION] = 0.0
+            bias[self._acts, _BIAS_VELOCITY] = 0.0
             self._impedance_active = False
-        self.data.ctrl[:] = torques[self._actuated]
+        self._command = torques[self._actuated]
+        if self.actuator_dynamics is None:
+            self.data.ctrl[self._acts] = self._command
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
         command.validate(self.dofs)
         actuated = self._actuated
-        bias = self.model.actuator_biasprm
-        bias[:, _BIAS_POSITION] = -command.kp[actuated]
-        bias[:, _BIAS_VELOCITY] = -command.kd[actuated]
         self._impedance_active = True
-        self.data.ctrl[:] = (command.kp * command.q_ref + command.kd * command.v_ref + command.tau_ff)[actuated]
+        if self.actuator_dynamics is not None:  # the PD is evaluated in step(), behind the lag
+            self._kp, self._kd = command.kp[actuated], command.kd[actuated]
+            self._q_ref, self._v_ref = command.q_ref[actuated], command.v_ref[actuated]
+            self._command = np.asarray(command.tau_ff, float)[actuated]
+            return
+        bias = self.model.actuator_biasprm
+        bias[self._acts, _BIAS_POSITION] = -command.kp[actuated]
+        bias[self._acts, _BIAS_VELOCITY] = -command.kd[actuated]
+        self.data.ctrl[self._acts] = (command.kp * command.q_ref + command.kd * command.v_ref + command.tau_ff)[actuated]
 
     # --- helpers --------------------------------------------------------------------------
     def _body_id(self, link: str) -> int:
