@@ -9,6 +9,9 @@ controller.
 **Velocity tracking** (as the issue defines it, cf. mjlab's velocity command metrics): the base
 xy velocity averaged over each step (touch-down to touch-down), expressed in the heading frame,
 against the command; the RMS over the steps after the first two (the start-up transient).
+Beside it, the same span scored **per tick** in the heading frame (:mod:`giwbc.locomotion.tracking`,
+mjlab's ``track_lin_vel_xy``): the instantaneous base velocity at every controller tick, the
+gait's sway within a step included.
 """
 
 from __future__ import annotations
@@ -19,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from giwbc.control.balance import make_balance_controller
+from giwbc.locomotion.tracking import TickTracking, per_tick_tracking
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.mujoco_model import foot_sensor_names
@@ -64,6 +68,8 @@ class WalkRun:
     tracking_rms: float  # RMS over steps of ‖v_step − v_cmd‖ (xy), m/s
     yaw_rate_rms: float
     final_tilt: float  # rad, of the base at the end
+    per_tick: TickTracking = field(default_factory=lambda: per_tick_tracking(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(3)))
+    # ^ the same span as tracking_rms (3rd to last touch-down), every tick, instantaneous velocity in the heading frame
     tick_seconds: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))  # WBC tick wall times
     single_support_ticks: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=bool))
     switch_ticks: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0, dtype=bool))
@@ -126,6 +132,9 @@ def simulate_walk(
     single = np.zeros(ticks, dtype=bool)
     switches = np.zeros(ticks, dtype=bool)
     touchdowns: list[tuple[float, np.ndarray, float]] = []
+    base_velocity = np.zeros((ticks, 2))  # world xy, after each tick's physics step
+    base_yaw = np.zeros(ticks)
+    base_yaw_rate = np.zeros(ticks)  # world z angular velocity: the heading frame's
     start_xy: np.ndarray | None = None
     notes: list[str] = []
     frames: list = []
@@ -161,6 +170,9 @@ def simulate_walk(
         robot.step()
         n = i + 1
         base = robot.base_state()
+        base_velocity[i] = base.linear_velocity[:2]
+        base_yaw[i] = _yaw(base.rotation)
+        base_yaw_rate[i] = base.angular_velocity[2]
         if controller.state.steps != last_steps:
             last_steps = controller.state.steps
             touchdowns.append((t, base.position[:2].copy(), _yaw(base.rotation)))
@@ -188,10 +200,16 @@ def simulate_walk(
         mean_velocity, mean_yaw = steps[:, :2].mean(axis=0), float(steps[:, 2].mean())
     else:
         tracking, yaw_rms, mean_velocity, mean_yaw = math.nan, math.nan, np.full(2, math.nan), math.nan
+    # Per tick over the span of the per-step figure: the ticks after the 3rd touch-down's up to the last's.
+    scored = np.zeros(n, dtype=bool)
+    if len(steps):
+        tick = np.arange(n)
+        scored = (tick > round(touchdowns[2][0] / dt)) & (tick <= round(touchdowns[-1][0] / dt))
+    per_tick = per_tick_tracking(base_velocity[:n][scored], base_yaw[:n][scored], base_yaw_rate[:n][scored], cmd)
     notes.extend(n for n in state.notes if n not in notes)
     return WalkRun(
         n * dt, fell, fall_time, state.steps, state.recovery_steps, state.early_touchdowns, state.late_touchdowns,
         controller.wbc.failures, distance, mean_velocity, mean_yaw, steps, tracking, yaw_rms,
-        math.acos(min(max(float(end.rotation[2, 2]), -1.0), 1.0)),
+        math.acos(min(max(float(end.rotation[2, 2]), -1.0), 1.0)), per_tick,
         timings[:n], single[:n], switches[:n], notes, frames,
     )
