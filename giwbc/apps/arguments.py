@@ -15,6 +15,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from giwbc.util.shipped import shipped_policies, shipped_policy
+
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
     """Descriptions kept as written, defaults shown (``(default: 10.0)``) after every option's help."""
@@ -103,6 +105,30 @@ def existing_file(*suffixes: str) -> Callable[[str], str]:
     return parse
 
 
+def policy_file() -> Callable[[str], str]:
+    """An argparse ``type``: a policy .onnx file, or a shipped policy by name (``g1_balance_residual``,
+    with or without ``.onnx``). ``policies/<name>.onnx``, as the docs write it, is the shipped one
+    when no such file exists here (an installed giwbc run outside the source tree)."""
+    check = existing_file(".onnx")
+
+    def parse(text: str) -> str:
+        path = Path(text)
+        bare_name = len(path.parts) == 1 or (len(path.parts) == 2 and path.parts[0] == "policies")
+        if not path.exists() and bare_name:
+            shipped = shipped_policy(path.name)
+            if shipped is not None:
+                return str(shipped)
+        try:
+            return check(text)
+        except argparse.ArgumentTypeError as error:
+            names = ", ".join(shipped_policies()) or "none"
+            raise argparse.ArgumentTypeError(f"{error}, and not a shipped policy (shipped: {names})") from None
+
+    parse.__name__ = "policy"
+    return parse
+
+
+POLICY_HELP = "policy: a .onnx file written by `giwbc train`, or a shipped policy's name (e.g. g1_balance_residual)"
 ROBOT_HELP = "robot: a name listed by `giwbc robots`, or a robot folder / robot.toml path"
 SEED_MAX = 2**32 - 1  # numpy's SeedSequence takes any non-negative integer; this keeps seeds printable and portable
 
@@ -117,4 +143,4 @@ def port() -> Callable[[str], int]:
     return integer(1024, 65535)
 
 
-__all__ = ["ROBOT_HELP", "SEED_MAX", "HelpFormatter", "add_command", "existing_file", "integer", "number", "port", "seconds", "seed"]
+__all__ = ["POLICY_HELP", "ROBOT_HELP", "SEED_MAX", "HelpFormatter", "add_command", "existing_file", "integer", "number", "policy_file", "port", "seconds", "seed"]

@@ -27,13 +27,14 @@ from typing import Any
 
 import numpy as np
 
-from giwbc.apps.arguments import add_command, existing_file, integer, number, seconds, seed
+from giwbc.apps.arguments import add_command, integer, number, policy_file, seconds, seed
 from giwbc.apps.plots import check_plot_path, evaluation_figure, save_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 from giwbc.policy import OnnxPolicy, PolicyFormatError, check_compatible
+from giwbc.util.shipped import shipped_policy
 
 DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
 # The environment as registered (both WBC solvers give bit-reproducible answers).
@@ -454,8 +455,9 @@ MAX_WORKERS = 256
 def add_evaluate_command(commands: Any) -> None:
     """Add ``giwbc evaluate`` to an argparse subparsers object."""
     parser = add_command(commands, "evaluate", "seeded push-recovery evaluation: a residual policy vs the WBC alone")
-    parser.add_argument("--policy", type=existing_file(".onnx"), default=None,
-                        help="policy .onnx trained on the protocol's environment (default: only the WBC alone, on --env/--env-kwargs)")
+    parser.add_argument("--policy", type=policy_file(), default=None,
+                        help="policy .onnx trained on the protocol's environment, or a shipped policy's name "
+                             "(default: only the WBC alone, on --env/--env-kwargs)")
     parser.add_argument("--episodes", type=integer(1, MAX_EPISODES), default=50, help=f"seeded episodes per arm and force, in [1, {MAX_EPISODES}]")
     parser.add_argument("--seed", type=seed(), default=EVAL_SEED,
                         help="episode seeds are seed .. seed+episodes-1, the same in both arms (default: held out from training)")
@@ -600,7 +602,7 @@ def evaluate_swing_up(
     return UprightResult(os.path.basename(arm), tuple(returns), tuple(fractions))
 
 
-SHIPPED_POLICY = str(Path(__file__).resolve().parents[2] / "policies" / "g1_balance_residual.onnx")
+SHIPPED_POLICY = str(shipped_policy("g1_balance_residual") or "policies/g1_balance_residual.onnx")  # the wheel's or the checkout's
 
 
 def demo_residual(policy_path: str | os.PathLike[str] = SHIPPED_POLICY, *, episodes: int = 12, force: float = 80.0,

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from giwbc.apps.arguments import add_command, existing_file, integer, number, seed
+from giwbc.apps.arguments import POLICY_HELP, add_command, integer, number, policy_file, seed
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.errors import ConfigError, PolicyFormatError, RenderingUnavailableError
 from giwbc.policy import OnnxPolicy
@@ -105,7 +105,7 @@ VIDEO_SUFFIXES = (".mp4", ".gif")
 def add_play_command(commands: Any) -> None:
     """Add ``giwbc play`` to an argparse subparsers object."""
     parser = add_command(commands, "play", "run an exported ONNX policy in simulation (onnxruntime only)")
-    parser.add_argument("--policy", required=True, type=existing_file(".onnx"), help="policy .onnx file written by `giwbc train`")
+    parser.add_argument("--policy", required=True, type=policy_file(), help=POLICY_HELP)
     parser.add_argument("--episodes", type=integer(1, MAX_EPISODES), default=1, help=f"episodes to run, in [1, {MAX_EPISODES}]")
     parser.add_argument("--seed", type=seed(), default=0, help="seed of the first episode (the next ones: seed + 1, ...)")
     parser.add_argument("--max-steps", type=integer(1, MAX_STEPS), default=None,

@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from giwbc.apps.arguments import HelpFormatter, add_command, existing_file, integer, number, seconds, seed
+from giwbc.apps.arguments import HelpFormatter, add_command, integer, number, policy_file, seconds, seed
 from giwbc.apps.evaluation import wilson_interval
 from giwbc.apps.plots import check_plot_path, save_figure, sim_to_sim_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
@@ -41,10 +41,12 @@ from giwbc.distributed import RayRunner, add_ray_argument, connect
 from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import ConfigError, PolicyFormatError
 from giwbc.policy import OnnxPolicy, check_compatible
+from giwbc.util.shipped import shipped_policy
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 
 ENV_ID = "giwbc/G1Balance-v0"
-DEFAULT_POLICY = Path("policies/g1_balance_residual.onnx")
+DEFAULT_POLICY_NAME = "g1_balance_residual"
+DEFAULT_POLICY = shipped_policy(DEFAULT_POLICY_NAME) or Path(f"policies/{DEFAULT_POLICY_NAME}.onnx")  # installed: the wheel's copy
 CONDITIONS: dict[str, dict[str, Any]] = {
     "mujoco_nominal": {"engine": "mujoco"},
     "mujoco_randomized": {"engine": "mujoco", "randomization": "default"},
@@ -224,8 +226,9 @@ def add_sim_to_sim_command(commands: Any) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--policy", type=existing_file(".onnx"), default=None,
-                        help=f"residual ONNX policy trained on {ENV_ID} (default: {DEFAULT_POLICY} if present, else the WBC alone)")
+    parser.add_argument("--policy", type=policy_file(), default=None,
+                        help=f"residual ONNX policy trained on {ENV_ID}, a file or a shipped policy's name "
+                             f"(default: the shipped {DEFAULT_POLICY_NAME} if present, else the WBC alone)")
     parser.add_argument("--no-policy", action="store_true", help="evaluate the WBC alone (no policy row)")
     parser.add_argument("--episodes", type=integer(1, MAX_EPISODES), default=50,
                         help=f"seeded episodes per controller and condition, in [1, {MAX_EPISODES}]")
