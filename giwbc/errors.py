@@ -10,6 +10,7 @@ GiwbcError
 ├── ConfigError (ValueError)          bad input or configuration; the message names the problem
 │   ├── RobotDescriptionError         robot.toml / URDF
 │   │   └── CollisionError            a [[collision]] table
+│   ├── MissingFileError (FileNotFoundError)  a file the user named that does not exist
 │   ├── HardwareConfigError           hardware.toml
 │   │   └── BusCapacityError          a bus plan beyond its bandwidth
 │   ├── RandomizationError            randomization config
@@ -54,6 +55,10 @@ class PlantMismatchError(RobotDescriptionError):
 
 class CollisionError(RobotDescriptionError):
     """A collision table is malformed or cannot be fitted (the description loader re-raises it with the file)."""
+
+
+class MissingFileError(ConfigError, FileNotFoundError):
+    """A file the user named (a checkpoint, a policy, a plan) that does not exist."""
 
 
 class HardwareConfigError(ConfigError):
