@@ -335,7 +335,11 @@ def test_a_truncating_task_truncates_the_episode() -> None:
     assert [env.step([0.0])[3] for _ in range(3)] == [False, True, True]
 
 
-def test_runtime_options_are_kept_and_checked() -> None:
+def test_runtime_options_are_kept_and_checked(monkeypatch) -> None:
+    import giwbc.runtimes.simulated
+
+    # as on a machine with a display (without one "human" is refused: tests/test_render_human.py)
+    monkeypatch.setattr(giwbc.runtimes.simulated, "require_display", lambda: None)
     env = make(real_time_factor=0.5)  # slower than real time is allowed
     assert env.real_time_factor == 0.5 and env.render_mode is None
     assert env.render_size == (480, 640)
@@ -350,6 +354,7 @@ def test_runtime_options_are_kept_and_checked() -> None:
         make(render_mode="movie")
     with pytest.raises(ValueError, match=r"^rendering needs the MuJoCo engine; this runtime runs on \['pybullet'\]$"):
         make(render_mode="rgb_array", engine="pybullet")
+    assert make(engine="pybullet").metadata["render_modes"] == [] and env.metadata["render_modes"] == ["human", "rgb_array"]
     with pytest.raises(TypeError, match=r"^_NotSimulated cannot be simulated: it needs step\(\), reset\(\) and "):
         SimulatedRuntime(CartPoleBalance(), _NotSimulated(), agent_rate=50.0)
 

@@ -8,6 +8,12 @@ a display. giwbc therefore never sets ``MUJOCO_GL`` itself. When a frame is firs
 a child process (a failed GL load leaves PyOpenGL unusable in the process that tried), and
 installs the first that works as MuJoCo's context class. With neither, it raises
 :class:`RenderingUnavailableError` naming the package to install.
+
+``render_mode="human"`` opens MuJoCo's viewer (``mujoco.viewer.launch_passive``, a GLFW window).
+Where GLFW cannot start, MuJoCo prints ``could not initialize GLFW`` and ends the whole process,
+past any ``except``; :func:`require_display` therefore checks first, without touching GLFW in this
+process: no ``DISPLAY`` / ``WAYLAND_DISPLAY`` on Linux, or a child process that cannot initialize
+GLFW and open a hidden OpenGL window, is a :class:`RenderingUnavailableError`.
 """
 
 from __future__ import annotations
@@ -39,6 +45,55 @@ def probe_backend(backend: str, timeout: float = 60.0) -> str | None:
         return None
     lines = result.stderr.strip().splitlines()
     return lines[-1] if lines else f"exit code {result.returncode}"
+
+
+# A hidden GLFW window, as the viewer opens a visible one; exits non-zero with the reason on stderr.
+_WINDOW_PROBE = """
+import sys
+import glfw
+reasons = []
+glfw.set_error_callback(lambda code, text: reasons.append(text.decode(errors="replace")))
+if not glfw.init():
+    sys.exit("GLFW cannot initialize: " + ("; ".join(reasons) or "no reason given"))
+glfw.window_hint(glfw.VISIBLE, glfw.FALSE)
+window = glfw.create_window(16, 16, "giwbc display probe", None, None)
+if not window:
+    glfw.terminate()
+    sys.exit("GLFW cannot open an OpenGL window: " + ("; ".join(reasons) or "no reason given"))
+glfw.destroy_window(window)
+glfw.terminate()
+"""
+_WINDOWED_PLATFORMS = ("linux", "freebsd", "openbsd", "netbsd")  # X11 or Wayland: a display named in the environment
+
+
+def display_problem() -> str | None:
+    """Why no window can open here, as far as the environment tells (no GL touched): ``None`` when one may."""
+    if sys.platform.startswith(_WINDOWED_PLATFORMS) and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
+        return "no display (DISPLAY and WAYLAND_DISPLAY are unset: a headless machine)"
+    return None
+
+
+def probe_window(timeout: float = 30.0) -> str | None:
+    """Initialize GLFW and open a hidden OpenGL window in a child process: ``None`` when it works, else why not."""
+    try:
+        result = subprocess.run([sys.executable, "-c", _WINDOW_PROBE], capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return f"opening a GLFW window timed out after {timeout:.0f} s"
+    if result.returncode == 0:
+        return None
+    lines = result.stderr.strip().splitlines()
+    return lines[-1] if lines else f"the GLFW probe exited with code {result.returncode}"
+
+
+def require_display() -> None:
+    """Raise :class:`RenderingUnavailableError` unless MuJoCo's viewer can open a window here
+    (``render_mode="human"``); MuJoCo itself would end the process instead."""
+    problem = display_problem() or probe_window()
+    if problem is not None:
+        raise RenderingUnavailableError(
+            f"render_mode='human' needs a display for MuJoCo's viewer: {problem}; use render_mode='rgb_array' "
+            "(offscreen frames) or run inside a desktop session (or xvfb-run)"
+        )
 
 
 def find_offscreen_backend() -> str:

@@ -37,7 +37,7 @@ from giwbc.robot.interface import Robot
 from giwbc.runtimes.engines import EnginePool, EngineSpec
 from giwbc.runtimes.estimated import calibrate
 from giwbc.tasks.rates import Rates
-from giwbc.runtimes.rendering import offscreen_renderer
+from giwbc.runtimes.rendering import offscreen_renderer, require_display
 from giwbc.runtimes.sim2real import ActionQueue, SimToReal
 
 if TYPE_CHECKING:
@@ -92,6 +92,10 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     fast as possible; a number paces simulated time to wall time times that factor. Every random draw
     (the engine, the randomization, the task's initial state, observation noise) comes from the
     seeded ``np_random``, so the same seed gives bit-identical episodes.
+
+    ``render_mode``: ``"rgb_array"`` (offscreen frames, EGL or OSMesa) or ``"human"`` (MuJoCo's
+    viewer, paced to real time unless ``real_time_factor`` says otherwise), MuJoCo only; ``"human"``
+    where no window can open (no display) is a RenderingUnavailableError here, at construction.
     """
 
     metadata: dict[str, Any] = {"render_modes": list(RENDER_MODES), "render_fps": 50}
@@ -113,6 +117,8 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
     ) -> None:
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {RENDER_MODES} or None, got {render_mode!r}")
+        if render_mode == "human":
+            require_display()  # refused here: MuJoCo's viewer would end the process where no window can open
         if real_time_factor is not None and not (real_time_factor > 0 and math.isfinite(real_time_factor)):
             raise ValueError(f"real_time_factor must be a positive number or None, got {real_time_factor!r}")
         given = None if isinstance(robot, RobotDescription) else robot
@@ -133,7 +139,8 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         self.render_mode = render_mode
         self.real_time_factor = 1.0 if real_time_factor is None and render_mode == "human" else real_time_factor
         self.render_size = render_size
-        self.metadata = {**type(self).metadata, "render_fps": self.rates.agent}
+        renders = set(self.engines.engines) == {"mujoco"}  # the modes this instance can render: none off MuJoCo
+        self.metadata = {**type(self).metadata, "render_modes": list(RENDER_MODES) if renders else [], "render_fps": self.rates.agent}
 
         self.estimator = self.sim2real.estimator
         if self.estimator is not None and description is None:
