@@ -95,7 +95,8 @@ def make_applier(engine: Robot, config: RandomizationConfig) -> Any:
     """The physics applier of an engine robot (it snapshots the nominal model now)."""
     model = getattr(engine, "model", None)
     if model is not None and hasattr(model, "opt"):
-        return MujocoApplier(model, config.nominal, engine.floating_base)
+        description = getattr(engine, "description", None)
+        return MujocoApplier(model, config.nominal, engine.floating_base, getattr(description, "urdf_path", None))
     from giwbc.robot.pybullet_robot import PybulletRobot  # optional heavy dependency (imports pybullet)
 
     if isinstance(engine, PybulletRobot):

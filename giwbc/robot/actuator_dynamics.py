@@ -59,8 +59,8 @@ class ActuatorDynamics:
 
     def available(self, torque: np.ndarray, speed: np.ndarray) -> np.ndarray:
         """``torque`` clamped to the envelope at joint ``speed`` (rad/s)."""
-        span = self.no_load_speed - self.knee_speed
         with np.errstate(invalid="ignore", divide="ignore"):
+            span = self.no_load_speed - self.knee_speed
             fraction = np.where(np.isfinite(span), np.clip((self.no_load_speed - np.abs(speed)) / span, 0.0, 1.0), 1.0)
         motoring = torque * speed > 0
         limit = np.where(motoring, self.peak_torque * fraction, self.peak_torque)
