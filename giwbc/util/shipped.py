@@ -18,15 +18,13 @@ POLICY_SUFFIX = ".onnx"
 
 def shipped_folder(kind: str) -> Path | None:
     """The folder of shipped ``kind`` ("robots" or "policies"): the wheel's package data, else the
-    source checkout's (a folder beside a ``pyproject.toml``); ``None`` when neither exists."""
+    source tree's (beside the package: a checkout, or a copy of one such as the mutation runs');
+    ``None`` when neither exists."""
     if kind not in DATA_KINDS:
         raise ValueError(f"unknown kind of shipped data {kind!r}; expected one of {DATA_KINDS}")
-    packaged = PACKAGE_DIR / "_data" / kind
-    if packaged.is_dir():
-        return packaged
-    checkout = PACKAGE_DIR.parent
-    if (checkout / "pyproject.toml").is_file() and (checkout / kind).is_dir():
-        return checkout / kind
+    for folder in (PACKAGE_DIR / "_data" / kind, PACKAGE_DIR.parent / kind):
+        if folder.is_dir():
+            return folder
     return None
 
 
