@@ -24,7 +24,9 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-SOURCES = ("giwbc", "robots", "policies", "pyproject.toml", "setup.py", "README.md")
+# Not copied from the source tree: environments, caches, build and run outputs (see .gitignore).
+NOT_SOURCES = shutil.ignore_patterns(".venv", ".git", "runs", "build", "dist", ".mutation", "mutants", ".hypothesis",
+                                     ".pytest_cache", "__pycache__", "*.pyc", "*.egg-info", "*.mcap", "*.mp4")
 DATA_FOLDERS = ("robots", "policies")
 OWN_ENTRY = re.compile(r"^(giwbc([-_.].*)?|__editable__[._]+giwbc.*|_?giwbc.*\.(pth|egg-link))$", re.IGNORECASE)
 
@@ -36,13 +38,7 @@ def run(command: list[str], cwd: Path, env: dict[str, str], timeout: float = 120
 def build_wheel(tmp_path: Path) -> Path:
     """The wheel of a copy of the sources (offline: no build isolation, no index)."""
     source = tmp_path / "src"
-    source.mkdir()
-    for name in SOURCES:
-        path = ROOT / name
-        if path.is_dir():
-            shutil.copytree(path, source / name, ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
-        else:
-            shutil.copy2(path, source / name)
+    shutil.copytree(ROOT, source, ignore=NOT_SOURCES, symlinks=True)
     out = tmp_path / "wheel"
     result = run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-q",
                   "-w", str(out), str(source)], tmp_path, dict(os.environ))
