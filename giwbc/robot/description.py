@@ -280,7 +280,7 @@ def scan_robots() -> tuple[list[RobotDescription], list[BrokenRobot]]:
             loaded.append(load(config))
         except Exception as error:  # noqa: BLE001 - one broken entry, whatever its defect, must not hide the others
             message = str(error) if isinstance(error, RobotDescriptionError) else f"{config}: {type(error).__name__}: {error}"
-            broken.append(BrokenRobot(name, config, message))
+            broken.append(BrokenRobot(name, config, " ".join(message.split())))  # one line
     return loaded, broken
 
 
