@@ -135,3 +135,32 @@ def test_randomizing_a_plant_with_merged_links(g1):
     assert not np.allclose(robot.model.body_ipos[pelvis], com0)  # and moves its centre of mass towards that link
     randomizer.restore(robot)
     assert robot.model.body_mass[pelvis] == pytest.approx(mass0)
+
+
+def test_the_deploy_emulator_takes_a_plant(g1):
+    from giwbc.emulation.emulator import ActuatorEmulator
+    from giwbc.hal.hardware import load_hardware
+
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    with ActuatorEmulator(plan, g1, plant="point_feet") as emulator:
+        assert len([g for g in range(emulator.robot.model.ngeom) if (emulator.robot.model.geom(g).name or "").startswith("left_foot_sole_")]) == 3
+    with pytest.raises(PlantMismatchError, match="unknown plant 'no_such_plant'"):
+        ActuatorEmulator(plan, g1, plant="no_such_plant")
+
+
+def test_the_evaluation_protocols_carry_the_plant_to_the_env():
+    from giwbc.apps.evaluation import PushProtocol
+    from giwbc.apps.walk_evaluation import WalkProtocol
+
+    assert WalkProtocol(plant="point_feet").env_overrides({}, 50.0)["plant"] == "point_feet"
+    assert "plant" not in PushProtocol().env_overrides({}, 50.0)  # the robot's own model by default
+
+
+def test_envs_take_a_plant(g1):
+    env = gymnasium.make("giwbc/G1Balance-v0", plant="lagged_actuators")
+    env.reset(seed=2)
+    robot = env.unwrapped.engine_robot
+    assert robot.actuator_dynamics is not None and robot.actuator_dynamics.lag.max() == pytest.approx(0.004)
+    env.close()
+    with pytest.raises(PlantMismatchError, match="model= or plant="):
+        gymnasium.make("giwbc/G1Walk-v0", plant="point_feet", model=g1.build_mujoco())

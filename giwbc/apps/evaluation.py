@@ -34,6 +34,8 @@ from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 from giwbc.policy import OnnxPolicy, PolicyFormatError, check_compatible
+from giwbc.plants import resolve_plant
+from giwbc.robot import load as load_robot
 from giwbc.util.shipped import shipped_policy
 
 DEFAULT_ENV_ID = "giwbc/G1Balance-v0"
@@ -51,6 +53,7 @@ class PushProtocol:
     interval: tuple[float, float] = (1.2, 1.6)
     episode_seconds: float = 2.6
     upright_tilt: float = 0.35
+    plant: str | None = None  # the simulated plant (giwbc.plants: a variant's name, a .toml or MJCF path); None: the robot's own model
 
     def __post_init__(self) -> None:
         low, high = self.interval
@@ -68,7 +71,8 @@ class PushProtocol:
         """``gymnasium.make`` options: the environment's own, with this protocol's pushes and time limit."""
         sim2real = dict(base_kwargs.get("sim2real") or {})
         sim2real["pushes"] = {"interval": list(self.interval), "duration": self.duration, "force": [self.force, self.force]}
-        return {**base_kwargs, "sim2real": sim2real, "max_episode_steps": int(round(self.episode_seconds * agent_hz))}
+        plant = {} if self.plant is None else {"plant": self.plant}
+        return {**base_kwargs, **plant, "sim2real": sim2real, "max_episode_steps": int(round(self.episode_seconds * agent_hz))}
 
 
 @dataclass(frozen=True)
@@ -477,11 +481,22 @@ def add_evaluate_command(commands: Any) -> None:
     parser.add_argument("--env", default=None, choices=(DEFAULT_ENV_ID, "giwbc/G1Walk-v0"),
                         help=f"environment of the WBC-alone arm when no --policy is given (default {DEFAULT_ENV_ID}, walk: giwbc/G1Walk-v0)")
     parser.add_argument("--env-kwargs", default=json.dumps(DEFAULT_ENV_KWARGS), help="JSON object of --env's gymnasium.make options")
+    parser.add_argument("--plant", default=None, help="the simulated plant of every arm: a variant of robots/<robot>/plants (e.g. "
+                        "point_feet), a variant .toml or a vendor's MJCF file (.xml) of the robot (default: the robot's own model)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", default=None, metavar="FILE",
                         help="also draw success rate against push impulse per arm, and the paired counts (.png, .svg, .pdf)")
     add_progress_argument(parser)
     parser.set_defaults(run=run_evaluate_command)
+
+
+def check_plant(args: Any) -> str | None:
+    """``--plant``, refused here in one line (PlantMismatchError) when the robot cannot run on it."""
+    plant = getattr(args, "plant", None)
+    if plant is not None:
+        robot = json.loads(getattr(args, "env_kwargs", "{}") or "{}").get("robot", "g1")
+        resolve_plant(load_robot(robot), plant)
+    return plant
 
 
 def run_evaluate_command(args: Any) -> int:
@@ -494,7 +509,8 @@ def run_evaluate_command(args: Any) -> int:
         if args.plot:
             check_plot_path(args.plot)  # before the run, not after it
         protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval or PushProtocol.interval),
-                                episode_seconds=args.episode_seconds or PushProtocol.episode_seconds, upright_tilt=args.upright_tilt)
+                                episode_seconds=args.episode_seconds or PushProtocol.episode_seconds, upright_tilt=args.upright_tilt,
+                                plant=check_plant(args))
         connection = connect(args.ray) if getattr(args, "ray", None) else None
         runner = RayRunner(connection) if connection is not None else None
         workers = args.workers or (runner.cpus if runner is not None else 2)

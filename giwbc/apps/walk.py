@@ -13,6 +13,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from giwbc.plants import PlantSpec, resolve_plant
 from giwbc.apps.arguments import ROBOT_HELP, add_command, number, port, seconds, seed
 from giwbc.apps.live import DEFAULT_PORT, HOST, ScenePublisher, require_foxglove
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
@@ -90,10 +91,12 @@ def run_walk(
     seed: int | None = None,
     progress: bool = False,
     foxglove_port: int | None = None,
+    plant: PlantSpec = None,
 ) -> tuple[WalkRun, str | None]:
     """Walk ``robot`` at ``command`` for ``seconds``; an optional push of ``push`` N for 0.2 s.
     ``progress``: a bar of simulated seconds on stderr. ``foxglove_port``: stream the robot to
     Foxglove on this loopback port at 30 Hz, paced to real time, from a publisher process.
+    ``plant``: the simulated plant (:func:`giwbc.plants.resolve_plant`; default the description's model).
     ConfigError for a robot that cannot walk or a push outside the run."""
     description = load(robot)
     check_walker_robot(description)
@@ -106,7 +109,8 @@ def run_walk(
         with Progress(seconds, "walk", unit="sim s", enabled=progress) as bar:
             wanted = camera is not None or bar.enabled or publisher is not None
             hook = _Observer(camera, bar, every * description.timestep, publisher) if wanted else None
-            run = simulate_walk(description, command, seconds, pushes=pushes, render=hook, render_every=every if hook else 0, seed=seed)
+            run = simulate_walk(description, command, seconds, pushes=pushes, render=hook, render_every=every if hook else 0, seed=seed,
+                                plant=plant)
     finally:
         if publisher is not None:
             publisher.close()
@@ -193,6 +197,8 @@ def add_walk_command(commands: Any) -> None:
     parser.add_argument("--push-direction", type=number(-360.0, 360.0, unit="deg"), default=180.0,
                         help="push direction, degrees in the world frame (0: forward, 180: backward)")
     parser.add_argument("--seed", type=seed(), default=None, help="perturb the initial state from this seed (default: no perturbation)")
+    parser.add_argument("--plant", default=None, help="the simulated plant: a variant of robots/<robot>/plants (e.g. point_feet), a "
+                        "variant .toml or a vendor's MJCF file (.xml) of the robot, checked against its description (default: its own model)")
     parser.add_argument("--video", default=None, help="write a video (.mp4 or .gif); needs an offscreen GL library (libegl1 or libosmesa6)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--foxglove", action="store_true",
@@ -211,6 +217,7 @@ def run_walk_command(args: argparse.Namespace) -> int:
     if not all(math.isfinite(x) for x in command):
         raise ConfigError(f"the velocity command must be finite, got {command}")
     check_walker_robot(load(args.robot))  # before a Foxglove server or a video starts
+    plant = resolve_plant(load(args.robot), args.plant) if getattr(args, "plant", None) else None  # refused here, in one line
     check_push(args.push, args.push_time, args.seconds)
     if args.foxglove:
         require_foxglove()
@@ -218,10 +225,13 @@ def run_walk_command(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     run, video = run_walk(args.robot, command, args.seconds, push=args.push, push_time=args.push_time,
                           push_direction_deg=args.push_direction, video=args.video, seed=args.seed,
-                          progress=wants_progress(args), foxglove_port=args.foxglove_port if args.foxglove else None)
+                          progress=wants_progress(args), foxglove_port=args.foxglove_port if args.foxglove else None,
+                          plant=plant)
     result = summary(run, command, time.perf_counter() - started)
     if video:
         result["video"] = video
+    if plant is not None:
+        result["plant"] = plant.name
     if args.json:
         print(json.dumps(result))
     else:

@@ -43,6 +43,7 @@ from giwbc.apps.evaluation import (
     sweep,
 )
 from giwbc.apps.evaluation import add_evaluate_command as add_stand_evaluate_command
+from giwbc.apps.evaluation import check_plant
 from giwbc.apps.arguments import number
 from giwbc.distributed import RayRunner, connect
 from giwbc.errors import ConfigError
@@ -217,7 +218,7 @@ def run_evaluate(args: Any) -> int:
         ranges = WalkProtocol.commands if args.commands is None else tuple(zip(args.commands[::2], args.commands[1::2]))
         protocol = WalkProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval or WalkProtocol.interval),
                                 episode_seconds=args.episode_seconds or WalkProtocol.episode_seconds, upright_tilt=args.upright_tilt,
-                                commands=ranges)  # type: ignore[arg-type]
+                                commands=ranges, plant=check_plant(args))  # type: ignore[arg-type]
         connection = connect(args.ray) if getattr(args, "ray", None) else None
         runner = RayRunner(connection) if connection is not None else None
         workers = args.workers or (runner.cpus if runner is not None else 2)

@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any
 import can
 import numpy as np
 
+from giwbc.errors import PlantMismatchError
 from giwbc.emulation.config import AppliedSnapshot, EmulatorConfig, EmulatorCounters
 from giwbc.emulation.faults import _REPLY_FAULTS, FaultEffects, FaultInjection
 from giwbc.emulation.firmware import MOTOR, OFF, MitFirmwareCodec
@@ -65,6 +66,7 @@ from giwbc.hal.imu import ImuChannel
 from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import ActuatorProtocol, CanProtocolError
 from giwbc.robot.interface import ImpedanceCommand
+from giwbc.plants import PlantSpec, resolve_plant
 from giwbc.robot.mujoco_robot import MujocoRobot
 from giwbc.robot.noise import SensorErrors, SensorModel
 
@@ -80,7 +82,10 @@ class ActuatorEmulator(FaultEffects):
     """The motors of ``plan`` on virtual buses, driving a MuJoCo model of ``description``.
 
     ``model``: an ``MjModel`` to use (it is modified: gains live in actuator parameters), e.g. a
-    copy of a cached one; default: built from the description (slow, ~1 s). ``interface`` and
+    copy of a cached one; default: built from the description (slow, ~1 s). ``plant``: the plant
+    instead (a shipped variant's name, a variant ``.toml``, an MJCF file, an ``MjModel``:
+    :func:`giwbc.plants.resolve_plant`; its actuator lag and torque-speed envelope act behind the
+    firmware's torque). ``interface`` and
     ``bus_options``: the python-can interface of its channels (``"giwbc-unix"`` with
     ``{"serve": True}`` when it runs in its own process, :mod:`giwbc.emulation.process`).
     """
@@ -92,6 +97,7 @@ class ActuatorEmulator(FaultEffects):
         config: EmulatorConfig | None = None,
         *,
         model: mujoco.MjModel | None = None,
+        plant: PlantSpec = None,
         channel_prefix: str | None = None,
         interface: str = "virtual",
         bus_options: dict[str, Any] | None = None,
@@ -110,7 +116,12 @@ class ActuatorEmulator(FaultEffects):
             plan,
             buses=tuple(replace(b, interface=interface, channel=f"{prefix}/{b.name}") for b in plan.buses),
         )
-        self.robot: MujocoRobot = MujocoRobot(description, model)
+        if plant is not None:
+            if model is not None:
+                raise PlantMismatchError("give the emulator's plant once: model= or plant=, not both")
+            self.robot: MujocoRobot = MujocoRobot(description, **resolve_plant(description, plant).robot_options())  # type: ignore[arg-type]
+        else:
+            self.robot = MujocoRobot(description, model)
         period = 1.0 / plan.control_rate
         substeps = max(1, math.ceil(period / description.timestep - 1e-9))
         self.physics_dt = period / substeps

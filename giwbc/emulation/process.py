@@ -40,6 +40,7 @@ import numpy as np
 import can
 
 from giwbc.emulation.config import EmulatorConfig, EmulatorCounters
+from giwbc.plants import resolve_plant
 from giwbc.emulation.emulator import ActuatorEmulator
 from giwbc.emulation.faults import FaultInjection
 from giwbc.hal.can_robot import ENTER, CanRobot
@@ -125,7 +126,8 @@ class EmulatorProcess:
     ``rt_priority``: the child runs under ``SCHED_FIFO`` at this priority (Linux, needs
     CAP_SYS_NICE; refused silently otherwise, see :attr:`scheduler`): motors have hardware of their
     own, and a host loop at real-time priority must not starve them of the CPU. ``cpu``: pin the
-    child to this CPU (keep the control loop on another one).
+    child to this CPU (keep the control loop on another one). ``plant``: the simulated plant
+    (:func:`giwbc.plants.resolve_plant`; default the description's model), checked here, built in the child.
     """
 
     def __init__(
@@ -137,14 +139,17 @@ class EmulatorProcess:
         rt_priority: int | None = None,
         cpu: int | None = None,
         start_timeout: float = 60.0,
+        plant: Any = None,
     ) -> None:
         plan.routing(description.joint_names)  # validates here, with a clear error, before spawning
+        if plant is not None:
+            plant = resolve_plant(description, plant)  # refused here, in one line, not in the child
         self.config = config or EmulatorConfig()
         prefix = f"giwbc-emu-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self._host_plan = replace(plan, buses=tuple(replace(b, interface=INTERFACE, channel=f"{prefix}/{b.name}") for b in plan.buses))
         self.imu_channel = SharedImuChannel()
         self._conn, child = multiprocessing.get_context("fork").Pipe()
-        args = (plan, description, self.config, prefix, self.imu_channel.name, child, rt_priority, cpu)
+        args = (plan, description, self.config, prefix, self.imu_channel.name, child, rt_priority, cpu, plant)
         self._process = children.start(_serve, args, "giwbc-emulator")  # motors do not hear Ctrl-C (see children)
         child.close()
         self.truth = np.zeros((0, 5))
@@ -235,10 +240,10 @@ class EmulatorProcess:
 
 # ----------------------------------------------------------------------------- the child
 def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any,
-           rt_priority: int | None, cpu: int | None) -> None:  # fmt: skip
+           rt_priority: int | None, cpu: int | None, plant: Any = None) -> None:  # fmt: skip
     """The child's main: build the emulator, wait for the host, then run in real time until told to stop."""
     try:
-        _run(plan, description, config, prefix, imu_name, conn, rt_priority, cpu)
+        _run(plan, description, config, prefix, imu_name, conn, rt_priority, cpu, plant)
     except BaseException:  # noqa: BLE001 - reported to the parent, which decides
         try:
             conn.send(("error", traceback.format_exc()))
@@ -247,13 +252,14 @@ def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorCo
 
 
 def _rehearse(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, model: Any, prefix: str,
-              cycles: int = 20) -> None:  # fmt: skip
+              cycles: int = 20, plant: Any = None) -> None:  # fmt: skip
     """A short private lockstep run (enter motor mode, hold the default pose) on a throwaway
     emulator, over giwbc-unix channels of its own (``prefix``): the first passes through numpy,
     MuJoCo, the codecs and the transport cost milliseconds each, which the real run's first
     replies must not pay (they would come cycles late)."""
     quiet = replace(config, faults=(), record=False, record_truth=False)
-    with ActuatorEmulator(plan, description, quiet, model=model, channel_prefix=prefix, interface=INTERFACE, bus_options={"serve": True}) as emulator:
+    with ActuatorEmulator(plan, description, quiet, model=model, plant=plant, channel_prefix=prefix, interface=INTERFACE,
+                          bus_options={"serve": True}) as emulator:
         robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator)
         try:
             period = 1.0 / plan.control_rate
@@ -274,10 +280,11 @@ def _control(conn: Any, emulator: Any) -> bool:
 
 
 def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any,
-         rt_priority: int | None, cpu: int | None) -> None:  # fmt: skip
-    model = description.build_mujoco()
-    _rehearse(plan, description, config, copy.copy(model), f"{prefix}-rehearsal")
-    emulator = ActuatorEmulator(plan, description, config, model=model, channel_prefix=prefix, interface=INTERFACE, bus_options={"serve": True})
+         rt_priority: int | None, cpu: int | None, plant: Any = None) -> None:  # fmt: skip
+    model = description.build_mujoco() if plant is None else None
+    _rehearse(plan, description, config, copy.copy(model) if plant is None else None, f"{prefix}-rehearsal", plant=plant)
+    emulator = ActuatorEmulator(plan, description, config, model=model, plant=plant, channel_prefix=prefix, interface=INTERFACE,
+                                bus_options={"serve": True})
     imu = SharedImuChannel(imu_name)
     emulator.imu_channel = imu
     emulator._publish_imu()  # the first sample, at rest, before the host's first cycle

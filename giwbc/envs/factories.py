@@ -8,6 +8,8 @@ import copy
 from typing import TYPE_CHECKING, Any
 
 from giwbc.envs import RUNTIME_OPTIONS
+from giwbc.errors import PlantMismatchError
+from giwbc.plants import resolve_plant
 from giwbc.randomization import make_randomizer
 from giwbc.robot import RobotDescription, load
 from giwbc.runtimes import PushConfig, SimulatedRuntime
@@ -25,6 +27,7 @@ def simulated_env(
     description: str | RobotDescription,
     *,
     model: mujoco.MjModel | None = None,
+    plant: Any = None,
     agent_rate: float,
     controller_rate: float | None = None,
     real_time_factor: float | None = None,
@@ -35,12 +38,20 @@ def simulated_env(
     engine_options: dict[str, dict[str, Any]] | None = None,
     randomization: Any = None,
 ) -> SimulatedRuntime:
-    """A simulated runtime for ``task`` on the robot ``description`` (a name, a path or a description)."""
+    """A simulated runtime for ``task`` on the robot ``description`` (a name, a path or a description).
+
+    ``plant``: the MuJoCo plant to simulate instead of the description's own model (a shipped variant's
+    name, a variant ``.toml``, an MJCF file, an ``MjModel``: :func:`giwbc.plants.resolve_plant`), bound by
+    name and checked against the description; ``model=`` (an ``MjModel``) is the same as ``plant=model``."""
     if not isinstance(description, RobotDescription):
         description = load(description)
     options = {name: dict(values) for name, values in (engine_options or {}).items()}
+    if model is not None and plant is not None:
+        raise PlantMismatchError("give the plant once: model= or plant=, not both")
     if model is not None:
         options.setdefault("mujoco", {})["model"] = copy.copy(model)
+    elif plant is not None:
+        options.setdefault("mujoco", {}).update(resolve_plant(description, plant).robot_options())
     return SimulatedRuntime(
         task,
         description,

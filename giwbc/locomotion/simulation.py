@@ -17,6 +17,7 @@ gait's sway within a step included.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -24,6 +25,7 @@ import numpy as np
 from giwbc.control.balance import make_balance_controller
 from giwbc.locomotion.tracking import TickTracking, per_tick_tracking
 from giwbc.locomotion.walker import Phase, WalkerConfig, WalkingController
+from giwbc.plants import PlantSpec, plant_robot
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.mujoco_model import foot_sensor_names
 from giwbc.robot.mujoco_robot import MujocoRobot
@@ -106,13 +108,17 @@ def simulate_walk(
     render: object | None = None,
     render_every: int = 0,
     seed: int | None = None,
+    plant: PlantSpec = None,
+    observe: Callable[[MujocoRobot, WalkingController], None] | None = None,
 ) -> WalkRun:
     """Run the walking controller (``stepping=False``: the feet-in-place balance controller of
     :mod:`giwbc.control.balance`, for comparison; the command is then ignored) in MuJoCo; stop at ``seconds`` or at a fall. ``render(robot)`` is called every
-    ``render_every`` ticks when given (video frames are appended to ``WalkRun.frames``)."""
+    ``render_every`` ticks when given (video frames are appended to ``WalkRun.frames``). ``plant``: the
+    simulated plant (:func:`giwbc.plants.resolve_plant`: a variant name, an MJCF file, an MjModel;
+    default the description's own); ``observe(robot, controller)`` is called after every physics step."""
     if not (math.isfinite(seconds) and seconds > 0):
         raise ValueError(f"seconds must be > 0, got {seconds}")
-    robot = MujocoRobot(description)
+    robot = MujocoRobot(description) if plant is None else plant_robot(description, plant)
     if seed is not None:
         robot.reset(*perturbed_initial_state(robot, np.random.default_rng(seed)))
     controller = WalkingController(description, config)
@@ -169,6 +175,8 @@ def simulate_walk(
         previous_phase = phase
         robot.step()
         n = i + 1
+        if observe is not None:
+            observe(robot, controller)
         base = robot.base_state()
         base_velocity[i] = base.linear_velocity[:2]
         base_yaw[i] = _yaw(base.rotation)
