@@ -39,3 +39,17 @@ def test_a_policy_option_takes_a_file_or_a_shipped_name(tmp_path: Path, monkeypa
         (tmp_path / "empty.onnx").write_bytes(b"")
         with pytest.raises(argparse.ArgumentTypeError, match=rf"{reason}, and not a shipped policy \(shipped: g1_balance_residual, g1_walk_residual\)$"):
             parse(wrong)
+
+
+def test_deploy_loads_a_shipped_policy_by_name(tmp_path: Path, monkeypatch) -> None:
+    from giwbc.apps.deploy_setup import load_policy
+    from giwbc.errors import DeployError
+    from giwbc.util.shipped import policy_by_name
+
+    monkeypatch.chdir(tmp_path)
+    assert policy_by_name("policies/g1_walk_residual.onnx") == ROOT / "policies" / "g1_walk_residual.onnx"
+    assert policy_by_name("elsewhere/g1_walk_residual.onnx") is None and policy_by_name("g1_nope") is None
+    _, metadata = load_policy("g1_walk_residual")
+    assert metadata["env_id"] == "giwbc/G1Walk-v0"
+    with pytest.raises(DeployError, match="no policy file at g1_nope.onnx"):
+        load_policy("g1_nope.onnx")

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from giwbc.util.shipped import shipped_policies, shipped_policy
+from giwbc.util.shipped import policy_by_name, shipped_policies
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
@@ -112,12 +112,9 @@ def policy_file() -> Callable[[str], str]:
     check = existing_file(".onnx")
 
     def parse(text: str) -> str:
-        path = Path(text)
-        bare_name = len(path.parts) == 1 or (len(path.parts) == 2 and path.parts[0] == "policies")
-        if not path.exists() and bare_name:
-            shipped = shipped_policy(path.name)
-            if shipped is not None:
-                return str(shipped)
+        shipped = policy_by_name(text)
+        if shipped is not None:
+            return str(shipped)
         try:
             return check(text)
         except argparse.ArgumentTypeError as error:

@@ -38,6 +38,7 @@ from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import DeployError
 from giwbc.locomotion.walker_config import walker_config
 from giwbc.policy import OnnxPolicy, PolicyFormatError
+from giwbc.util.shipped import policy_by_name
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.standing import PdHold
 from giwbc.tasks.balance import G1Balance
@@ -90,8 +91,9 @@ def check_policy_metadata(metadata: Mapping[str, Any], description: RobotDescrip
 
 def load_policy(path: str | Path) -> tuple[Callable[[np.ndarray], np.ndarray], dict[str, Any]]:
     """A policy callable and its metadata: an exported ``.onnx`` (:class:`giwbc.policy.OnnxPolicy`)
-    or a ``.json`` holding metadata only (a rehearsal with zero actions)."""
-    path = Path(path)
+    or a ``.json`` holding metadata only (a rehearsal with zero actions); a shipped policy by name
+    (``g1_walk_residual``, or ``policies/g1_walk_residual.onnx`` where no such file exists)."""
+    path = policy_by_name(str(path)) or Path(path)
     if not path.is_file():
         raise DeployError(f"no policy file at {path}")
     if path.suffix == ".json":

@@ -42,4 +42,14 @@ def shipped_policy(name: str) -> Path | None:
     return shipped_policies().get(stem)
 
 
-__all__ = ["DATA_KINDS", "shipped_folder", "shipped_policies", "shipped_policy"]
+def policy_by_name(text: str) -> Path | None:
+    """The shipped policy ``text`` names when no such file exists: a bare name (``g1_walk_residual``,
+    with or without ``.onnx``) or ``policies/<name>.onnx`` as the docs write it (an installed giwbc
+    run outside the source tree); ``None`` otherwise (an existing file is always taken as given)."""
+    path = Path(text)
+    if path.exists() or not (len(path.parts) == 1 or (len(path.parts) == 2 and path.parts[0] == "policies")):
+        return None
+    return shipped_policy(path.name)
+
+
+__all__ = ["DATA_KINDS", "policy_by_name", "shipped_folder", "shipped_policies", "shipped_policy"]
