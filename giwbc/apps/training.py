@@ -11,6 +11,13 @@ Layout of a run folder::
     out/checkpoints/step_<N>.{zip,vecnormalize.pkl,onnx}  every checkpoint_every steps
     out/policy.{zip,vecnormalize.pkl,onnx}              the final policy (SB3 model, normalizer, ONNX)
 
+PPO trains whole rollouts of ``n_envs × n_steps`` steps, so ``total_timesteps`` is rounded up to
+one: :func:`train` says so on stderr before it starts, and every ONNX file records the steps
+actually trained (metadata ``training.timesteps``; the request is ``config.json``'s
+``total_timesteps``). A folder that already holds a run is refused (nothing of it lost) unless the
+run resumes one of its checkpoints or ``overwrite`` replaces it. Every check is made before any
+work (:mod:`giwbc.apps.training_checks`).
+
 Exact resume. A run is defined by its seed and its configuration, ``checkpoint_every`` included:
 each checkpoint is a *restart boundary*. Right after a checkpoint is saved (at the start of a
 rollout, after the previous PPO update), every environment is reset with seeds derived from
@@ -36,6 +43,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
@@ -45,12 +53,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from giwbc.apps.play import PlayResult, play
+from giwbc.apps.progress import Progress, wants_progress
+from giwbc.apps.training_checks import (check_checkpoint, check_env, check_out, check_ppo, clear_run, describe_env, json_object,
+                                        module_id as _module_id, planned_steps, steps_note)
 from giwbc.distributed import add_ray_argument, connect
+from giwbc.errors import ConfigError
 from giwbc.policy import MlpWeights, ObservationNormalization, export_onnx
 
 if TYPE_CHECKING:
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
+
+
+LOG_STD_RANGE = (-10.0, 2.0)  # initial log std of the actor: exp(-10) ~ 5e-5 (no exploration) to exp(2) ~ 7 (action units)
 
 
 @dataclass
@@ -73,30 +88,37 @@ class TrainConfig:
     log_std_init: float = 0.0  # initial log std of the Gaussian actor: < 0 explores less (residual policies)
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     ppo: dict[str, Any] = field(default_factory=dict)
-    progress_bar: bool = True
+    progress_bar: bool = True  # a bar on stderr (the command line draws one only on a terminal, or with --progress)
     eval_episodes: int = 3
     resume: str | None = None  # a checkpoint's .zip (its .vecnormalize.pkl beside it): continue that run to total_timesteps
     warm_start: str | None = None  # another run's checkpoint .zip, or a policy .onnx: a new run starting from it, matched by names (giwbc.apps.warm_start)
     new_action_means: dict[str, float] = field(default_factory=dict)  # warm start: a new action's initial mean (normalized) other than 0
     critic_warmup: int = 0  # environment steps whose updates train the critic alone (the actor frozen): a policy file's warm start has no critic
+    overwrite: bool = False  # replace the run out_dir already holds (else train refuses it, unless resuming from it)
 
     def __post_init__(self) -> None:
         if self.vectorization not in ("subproc", "dummy", "ray"):
-            raise ValueError(f"vectorization must be 'subproc', 'dummy' or 'ray', got {self.vectorization!r}")
+            raise ConfigError(f"vectorization must be 'subproc', 'dummy' or 'ray', got {self.vectorization!r}")
         if self.n_envs < 1 or self.total_timesteps < 1 or (self.envs_per_worker is not None and self.envs_per_worker < 1):
-            raise ValueError("n_envs, total_timesteps and envs_per_worker must be >= 1")
+            raise ConfigError("n_envs, total_timesteps and envs_per_worker must be >= 1")
         if self.resume is not None and self.warm_start is not None:
-            raise ValueError("resume continues a run, warm_start begins one: give one of them")
+            raise ConfigError("resume continues a run, warm_start begins one: give one of them")
         if self.new_action_means and self.warm_start is None:
-            raise ValueError("new_action_means sets new actions of a warm start: give warm_start")
+            raise ConfigError("new_action_means sets new actions of a warm start: give warm_start")
         if self.critic_warmup < 0:
-            raise ValueError(f"critic_warmup must be >= 0 environment steps, got {self.critic_warmup}")
+            raise ConfigError(f"critic_warmup must be >= 0 environment steps, got {self.critic_warmup}")
         if self.seed < 0 or self.checkpoint_every < 0:
-            raise ValueError(f"seed and checkpoint_every must be >= 0, got {self.seed} and {self.checkpoint_every}")
+            raise ConfigError(f"seed and checkpoint_every must be >= 0, got {self.seed} and {self.checkpoint_every}")
+        if self.activation not in ("tanh", "relu", "elu"):
+            raise ConfigError(f"activation must be tanh, relu or elu, got {self.activation!r}")
+        if not self.net_arch or any(int(size) < 1 for size in self.net_arch):
+            raise ConfigError(f"net_arch must be one or more hidden layer sizes >= 1, got {list(self.net_arch)}")
+        if not (math.isfinite(self.log_std_init) and LOG_STD_RANGE[0] <= self.log_std_init <= LOG_STD_RANGE[1]):
+            raise ConfigError(f"log_std_init must be a finite number in {list(LOG_STD_RANGE)}, got {self.log_std_init}")
         try:
             json.dumps(self.env_kwargs)
         except TypeError as error:
-            raise ValueError(f"env_kwargs must be JSON-serializable (they go into the policy metadata): {error}") from error
+            raise ConfigError(f"env_kwargs must be JSON-serializable (they go into the policy metadata): {error}") from error
 
 
 @dataclass(frozen=True)
@@ -109,11 +131,6 @@ class TrainResult:
     vecnormalize: Path | None
     checkpoints: tuple[Path, ...]
     evaluation: PlayResult | None
-
-
-def _module_id(env_id: str) -> str:
-    """``giwbc.envs:giwbc/X``: worker processes register the ids themselves, whatever the start method."""
-    return env_id if ":" in env_id or not env_id.startswith("giwbc/") else f"giwbc.envs:{env_id}"
 
 
 def boundary_seeds(seed: int, steps: int) -> tuple[int, int]:
@@ -223,17 +240,6 @@ def freeze_actor(model: "PPO", frozen: bool) -> None:
             parameter.requires_grad_(not frozen)
 
 
-def describe_env(env_id: str, env_kwargs: dict[str, Any]) -> dict[str, Any]:
-    """The environment's deployment description (task layout, joints, rates, gains)."""
-    import gymnasium
-
-    env = gymnasium.make(_module_id(env_id), **env_kwargs)
-    try:
-        return env.unwrapped.describe()
-    finally:
-        env.close()
-
-
 def sb3_policy_weights(model: "PPO", activation: str) -> MlpWeights:
     """The deterministic actor of an SB3 ``MlpPolicy``: policy MLP then ``action_net`` (the Gaussian mean)."""
     import torch.nn as nn
@@ -291,20 +297,41 @@ def export_sb3_policy(
 
 
 def train(config: TrainConfig) -> TrainResult:
-    """Train PPO on ``config.env_id``, checkpointing as it goes; export and evaluate the final policy."""
+    """Train PPO on ``config.env_id``, checkpointing as it goes; export and evaluate the final policy.
+
+    Everything is checked before any work (:mod:`giwbc.apps.training_checks`): the environment, the
+    PPO options, the resume or warm-start source, and the run folder (one holding a run is refused
+    unless resuming it or ``config.overwrite``). PPO trains whole rollouts of ``n_envs × n_steps``:
+    the run says on stderr how many steps it will take, and its policies record the count."""
+    out = Path(config.out_dir)
+    earlier = check_out(out, config.resume, config.overwrite)
+    described = check_env(config.env_id, config.env_kwargs)
+    rollout = check_ppo(config.ppo, config.n_envs)
+    normalize = config.normalize_observations or config.normalize_rewards
+    start = 0 if config.resume is None else check_checkpoint(config.resume, described, config.env_id, normalize).num_timesteps
+    if config.warm_start is not None:
+        from giwbc.apps.warm_start import check_source
+
+        check_source(config.warm_start, described["observation_names"], described["action_names"], config.net_arch,
+                     config.activation, normalize)
     import torch
 
     torch.set_num_threads(1)  # small MLPs: one thread is fastest, and leaves the cores to the workers
-    out = Path(config.out_dir)
+    if config.resume is not None:
+        branch = resume_branch(config)
+        print(f"resuming {config.resume}: " + ("a new branch (" + "; ".join(branch) + ")" if branch else
+                                                 "continues its run exactly (same seed and options)"), file=sys.stderr)
+    print(steps_note(config.total_timesteps, start, rollout, config.n_envs, config.resume), file=sys.stderr)
+    clear_run(earlier)  # (--overwrite: none of the earlier run's checkpoints mixes with this one's)
     (out / "checkpoints").mkdir(parents=True, exist_ok=True)
     (out / "config.json").write_text(json.dumps(asdict(config), indent=2))
-    described = describe_env(config.env_id, config.env_kwargs)
     env_id = _module_id(config.env_id)
+    planned = planned_steps(config.total_timesteps, start, rollout)
     with connect(config.ray_address) if config.vectorization == "ray" else nullcontext():
-        return _train(config, described, env_id, out)
+        return _train(config, described, env_id, out, planned)
 
 
-def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Path) -> TrainResult:
+def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Path, planned: int) -> TrainResult:
     """:func:`train` once the run folder exists (and Ray is connected for ``vectorization="ray"``)."""
     import stable_baselines3
     from stable_baselines3 import PPO
@@ -326,8 +353,6 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
     ppo_kwargs = {"gamma": 0.99, **config.ppo}
     normalize = config.normalize_observations or config.normalize_rewards
     resume = Path(config.resume) if config.resume else None
-    if resume is not None and not resume.is_file():
-        raise FileNotFoundError(f"no checkpoint to resume at {resume}")
     if normalize:
         if resume is not None:  # the running statistics of the checkpoint, not fresh ones
             venv = VecNormalize.load(str(resume.with_suffix(".vecnormalize.pkl")), venv)
@@ -349,10 +374,10 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
 
             started = warm_start(model, venv, config.warm_start, described["observation_names"], described["action_names"],
                                  config.log_std_init, config.activation, config.new_action_means)
-            print(started.summary())
+            print(started.summary(), file=sys.stderr)
     start = model.num_timesteps
     training_info = {"algorithm": "PPO", "stable_baselines3": stable_baselines3.__version__, "seed": config.seed,
-                     "n_envs": config.n_envs}
+                     "n_envs": config.n_envs, "n_steps": model.n_steps}  # (+ "timesteps": the steps actually trained)
     checkpoints: list[Path] = []
     curve = LearningCurve(out / "progress.csv", start)
 
@@ -402,77 +427,127 @@ def _train(config: TrainConfig, described: dict[str, Any], env_id: str, out: Pat
 
         def _on_step(self) -> bool:
             curve.record(self.locals["infos"])
+            bar(venv.num_envs)
             return True
 
+    bar = Progress(planned - start, "train", unit="step", enabled=config.progress_bar)  # on stderr, as every giwbc bar
     try:
         model.learn(total_timesteps=max(config.total_timesteps - start, 0), callback=Checkpoints(config.checkpoint_every),
-                    progress_bar=config.progress_bar, reset_num_timesteps=resume is None)
+                    progress_bar=False, reset_num_timesteps=resume is None)
         policy_path = save(out, "policy", model.num_timesteps)
     finally:
+        bar.close()
         venv.close()
+    if model.num_timesteps != planned:  # the note printed before training said `planned`
+        raise RuntimeError(f"PPO trained {model.num_timesteps} steps, {planned} were announced")
     evaluation = play(policy_path, episodes=config.eval_episodes, seed=10_000 + config.seed) if config.eval_episodes else None
     return TrainResult(out, out / "policy.zip", policy_path, out / "policy.vecnormalize.pkl" if normalize else None,
                        tuple(checkpoints), evaluation)
 
 
 # --- command line ------------------------------------------------------------------------------
-def add_train_command(commands: Any) -> None:
-    """Add ``giwbc train`` to an argparse subparsers object."""
-    parser = commands.add_parser("train", help="train a PPO policy and export it to ONNX (needs the train extra)")
-    parser.add_argument("--env", default=TrainConfig.env_id, help="registered id, e.g. giwbc/G1Balance-v0")
-    parser.add_argument("--timesteps", type=int, default=TrainConfig.total_timesteps)
-    parser.add_argument("--n-envs", type=int, default=TrainConfig.n_envs)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default=None, help="run folder (default: runs/<env name>)")
-    parser.add_argument("--checkpoint-every", type=int, default=TrainConfig.checkpoint_every)
-    parser.add_argument("--vectorization", choices=("subproc", "dummy"), default="subproc")
-    parser.add_argument("--env-kwargs", default="{}", help='JSON options for gymnasium.make, e.g. \'{"controller": "pd"}\'')
-    parser.add_argument("--ppo", default="{}", help='JSON PPO overrides, e.g. \'{"n_steps": 1024}\'')
-    parser.add_argument("--net-arch", type=int, nargs="+", default=list(TrainConfig.net_arch), help="hidden layer sizes")
-    parser.add_argument("--log-std-init", type=float, default=TrainConfig.log_std_init,
-                        help="initial log std of the actor (e.g. -1 for residual policies over a working controller)")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--resume", default=None, help="continue from a checkpoint .zip of the same run (to --timesteps in all; with the run's "
-                        "seed and options it continues exactly as the uninterrupted run: see giwbc.apps.training)")
-    parser.add_argument("--warm-start", default=None, help="begin from another run's checkpoint .zip, or a policy .onnx, whose environment may "
-                        "differ (e.g. fewer residual blocks): weights matched by observation and action names, new ones zero (see giwbc.apps.warm_start)")
-    parser.add_argument("--new-action-mean", action="append", default=[], metavar="NAME=VALUE",
-                        help="with --warm-start: start a new action's mean at VALUE in [-1, 1] instead of 0 (repeatable)")
-    parser.add_argument("--critic-warmup", type=int, default=0, help="environment steps whose updates train the critic alone, the actor "
-                        "frozen (for --warm-start from a policy .onnx, which has no critic)")
-    add_ray_argument(parser)
-    parser.add_argument("--envs-per-worker", type=int, default=TrainConfig.envs_per_worker,
-                        help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
-    parser.set_defaults(run=run_train_command)
+MAX_TIMESTEPS = 1_000_000_000  # environment steps of one run (a billion: days of G1 training on a large machine)
+MAX_ENVS = 1024  # parallel environments of one run
+MAX_HIDDEN = 4096  # units of one hidden layer
+TRAIN_DESCRIPTION = """train a PPO policy and export it to ONNX (needs the train extra)
+
+Writes OUT/config.json, OUT/progress.csv, OUT/checkpoints/step_N.{zip,vecnormalize.pkl,onnx} and
+OUT/policy.{zip,vecnormalize.pkl,onnx}. PPO trains whole rollouts of n_envs x n_steps environment
+steps, so --timesteps is rounded up to a multiple of it (said before training starts). An OUT that
+already holds a run is refused unless --resume continues it or --overwrite replaces it."""
+
+
+def _parse_name_value(text: str) -> tuple[str, float]:
+    """``NAME=VALUE`` with a finite VALUE in [-1, 1] (a normalized action mean); ``ValueError`` otherwise."""
+    name, sep, value = text.partition("=")
+    try:
+        number = float(value)
+    except ValueError:
+        sep = ""
+    if not (sep and name) or not (math.isfinite(number) and -1.0 <= number <= 1.0):
+        raise ValueError(f"expected NAME=VALUE with VALUE a finite number in [-1, 1], got {text!r}")
+    return name, number
 
 
 def _name_values(items: list[str]) -> dict[str, float]:
     """``["a/b=0.5", ...]`` as ``{"a/b": 0.5}``; ``ValueError`` on another form."""
-    values = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        try:
-            values[name] = float(value)
-        except ValueError:
-            sep = ""
-        if not (sep and name):
-            raise ValueError(f"expected NAME=VALUE, got {item!r}")
-    return values
+    return dict(_parse_name_value(item) for item in items)
+
+
+def _name_value(text: str) -> tuple[str, float]:
+    """An argparse type: :func:`_parse_name_value`."""
+    import argparse
+
+    try:
+        return _parse_name_value(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
+_name_value.__name__ = "NAME=VALUE"
+
+
+def add_train_command(commands: Any) -> None:
+    """Add ``giwbc train`` to an argparse subparsers object."""
+    from giwbc.apps.arguments import add_command, existing_file, integer, number, seed
+
+    parser = add_command(commands, "train", TRAIN_DESCRIPTION.splitlines()[0], TRAIN_DESCRIPTION)
+    parser.add_argument("--env", default=TrainConfig.env_id, help="registered environment id (giwbc/CartPoleBalance-v0, "
+                        "giwbc/CartPoleSwingUp-v0, giwbc/G1Balance-v0, giwbc/G1Walk-v0)")
+    parser.add_argument("--timesteps", type=integer(1, MAX_TIMESTEPS), default=TrainConfig.total_timesteps,
+                        help=f"environment steps to train, all environments together, in [1, {MAX_TIMESTEPS:.0e}]; "
+                        "rounded up to whole rollouts (n_envs x n_steps)")
+    parser.add_argument("--n-envs", type=integer(1, MAX_ENVS), default=TrainConfig.n_envs,
+                        help=f"environments stepped in parallel, in [1, {MAX_ENVS}]; a rollout is n_envs x n_steps steps")
+    parser.add_argument("--seed", type=seed(), default=TrainConfig.seed,
+                        help="run seed in [0, 2**32-1]: same seed and options, same policy file bit for bit (default: %(default)s)")
+    parser.add_argument("--out", default=None, help="run folder (default: runs/<env name>); refused if it holds a run, "
+                        "unless --resume continues it or --overwrite replaces it")
+    parser.add_argument("--overwrite", action="store_true", help="replace the run --out already holds (its files are deleted)")
+    parser.add_argument("--checkpoint-every", type=integer(0, MAX_TIMESTEPS), default=TrainConfig.checkpoint_every,
+                        help="environment steps between checkpoints (saved at the first rollout boundary after each "
+                        "multiple); 0: no checkpoints")
+    parser.add_argument("--vectorization", choices=("subproc", "dummy"), default="subproc",
+                        help="subproc: one worker process per environment; dummy: all environments in this process "
+                        "(--ray: Ray actors)")
+    parser.add_argument("--env-kwargs", default="{}", help='JSON object of options for gymnasium.make, e.g. \'{"controller": "pd"}\'')
+    parser.add_argument("--ppo", default="{}", help='JSON object of stable-baselines3 PPO options, e.g. \'{"n_steps": 1024, '
+                        '"batch_size": 256}\' (n_steps default 2048)')
+    parser.add_argument("--net-arch", type=integer(1, MAX_HIDDEN), nargs="+", default=list(TrainConfig.net_arch),
+                        help=f"hidden layer sizes (units, each in [1, {MAX_HIDDEN}]) of the actor and the critic")
+    parser.add_argument("--log-std-init", type=number(*LOG_STD_RANGE), default=TrainConfig.log_std_init,
+                        help=f"initial log std of the actor's Gaussian, in {list(LOG_STD_RANGE)} (natural log of normalized "
+                        "action units; e.g. -1 for residual policies over a working controller)")
+    bar = parser.add_mutually_exclusive_group()
+    bar.add_argument("--progress", action="store_true", help="draw the progress bar on stderr even when it is not a terminal")
+    bar.add_argument("--no-progress", action="store_true", help="no progress bar (there is none anyway when stderr is not a terminal)")
+    parser.add_argument("--resume", type=existing_file(".zip"), default=None,
+                        help="continue from a checkpoint .zip of the same run (to --timesteps in all; with the run's "
+                        "seed and options it continues exactly as the uninterrupted run: see giwbc.apps.training)")
+    parser.add_argument("--warm-start", type=existing_file(".zip", ".onnx"), default=None,
+                        help="begin from another run's checkpoint .zip, or a policy .onnx, whose environment may differ (e.g. "
+                        "fewer residual blocks): weights matched by observation and action names, new ones zero (see giwbc.apps.warm_start)")
+    parser.add_argument("--new-action-mean", type=_name_value, action="append", default=[], metavar="NAME=VALUE",
+                        help="with --warm-start: start a new action's mean at VALUE in [-1, 1] (normalized) instead of 0 (repeatable)")
+    parser.add_argument("--critic-warmup", type=integer(0, MAX_TIMESTEPS), default=0,
+                        help="environment steps whose updates train the critic alone, the actor frozen (for --warm-start "
+                        "from a policy .onnx, which has no critic) (default: %(default)s)")
+    add_ray_argument(parser)
+    parser.add_argument("--envs-per-worker", type=integer(1, MAX_ENVS), default=TrainConfig.envs_per_worker,
+                        help="with --ray: environments per Ray actor (default: one per actor, or as few as the cluster's CPUs allow)")
+    parser.set_defaults(run=run_train_command)
 
 
 def run_train_command(args: Any) -> int:
+    """``giwbc train``: every error is one line (a :class:`ConfigError`) before anything is written."""
     out = args.out or f"runs/{args.env.split('/')[-1]}"
     config = TrainConfig(env_id=args.env, total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed, out_dir=out,
                          checkpoint_every=args.checkpoint_every, vectorization="ray" if args.ray else args.vectorization,
                          ray_address=args.ray, envs_per_worker=args.envs_per_worker,
-                         env_kwargs=json.loads(args.env_kwargs), ppo=json.loads(args.ppo), progress_bar=not args.no_progress,
-                         net_arch=tuple(args.net_arch), log_std_init=args.log_std_init, resume=args.resume,
-                         warm_start=args.warm_start, critic_warmup=args.critic_warmup,
-                         new_action_means=_name_values(args.new_action_mean))
-    if config.resume is not None:
-        branch = resume_branch(config)
-        print(f"resuming {config.resume}: " + ("a new branch (" + "; ".join(branch) + ")" if branch else
-                                                 "continues its run exactly (same seed and options)"))
+                         env_kwargs=json_object(args.env_kwargs, "--env-kwargs"), ppo=json_object(args.ppo, "--ppo"),
+                         progress_bar=args.progress or wants_progress(args), net_arch=tuple(args.net_arch),
+                         log_std_init=args.log_std_init, resume=args.resume, warm_start=args.warm_start,
+                         critic_warmup=args.critic_warmup, new_action_means=dict(args.new_action_mean), overwrite=args.overwrite)
     result = train(config)
     print(f"policy: {result.policy}")
     if result.evaluation is not None:

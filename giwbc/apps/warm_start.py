@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import math
 import pickle
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from giwbc.errors import ConfigError
+from giwbc.errors import ConfigError, MissingFileError
 from giwbc.policy import ACTIVATIONS, OnnxPolicy
 
 if TYPE_CHECKING:
@@ -105,8 +106,42 @@ def source_files(checkpoint: str | Path) -> tuple[Path, Path, Path]:
     onnx, normalizer = checkpoint.with_suffix(".onnx"), checkpoint.with_suffix(".vecnormalize.pkl")
     for path in (checkpoint, onnx):
         if not path.is_file():
-            raise FileNotFoundError(f"warm start needs {path} (a run's checkpoint: .zip with its .onnx beside it)")
+            raise MissingFileError(f"warm start needs {path} (a run's checkpoint: .zip with its .onnx beside it)")
     return checkpoint, onnx, normalizer
+
+
+def check_source(source: str | Path, observation_names: list[str], action_names: list[str], net_arch: tuple[int, ...],
+                 activation: str, normalize: bool) -> None:
+    """Refuse, before any work, a warm-start source that :func:`warm_start` could not use: a missing,
+    empty or corrupted file, a checkpoint without its .onnx (or normalizer, for a normalized run),
+    other hidden layers or activation, or no observation or no action shared with this run."""
+    source = Path(source)
+    if not source.is_file():
+        raise MissingFileError(f"--warm-start: no such file {source}")
+    if source.suffix not in (".zip", ".onnx"):
+        raise ConfigError(f"--warm-start: {source} is neither a run's checkpoint .zip nor a policy .onnx")
+    policy = source
+    if source.suffix == ".zip":
+        _, policy, normalizer = source_files(source)
+        try:
+            with zipfile.ZipFile(source) as archive:
+                is_checkpoint = {"data", "policy.pth"} <= set(archive.namelist())
+        except (zipfile.BadZipFile, OSError):
+            is_checkpoint = False
+        if not is_checkpoint:
+            raise ConfigError(f"--warm-start: {source} is not a checkpoint written by giwbc train (a step_N.zip)")
+        if normalize and not normalizer.is_file():
+            raise MissingFileError(f"--warm-start: a normalized run needs the source's normalizer {normalizer}")
+    actor, _, _, _, metadata = onnx_actor(policy, activation)
+    hidden = tuple(int(actor[f"mlp_extractor.policy_net.{2 * i}.weight"].shape[0]) for i in range(len(actor) // 2 - 1))
+    if hidden != tuple(net_arch):
+        raise ConfigError(f"--warm-start: {source} has hidden layers {list(hidden)}, this run {list(net_arch)} (give --net-arch "
+                          f"{' '.join(map(str, hidden))})")
+    shared_obs = set(metadata.get("observation_names", ())) & set(observation_names)
+    shared_act = set(metadata.get("action_names", ())) & set(action_names)
+    if not shared_obs or not shared_act:
+        raise ConfigError(f"--warm-start: {source} ({metadata.get('env_id')}) shares no {'observation' if not shared_obs else 'action'} "
+                          "with this run's environment")
 
 
 def warm_start(model: "PPO", venv: Any, checkpoint: str | Path, observation_names: list[str], action_names: list[str],
