@@ -168,6 +168,8 @@ def load_hardware(
         text = p.read_text(encoding="utf-8")
     except OSError as e:
         raise HardwareConfigError(f"{p}: cannot read hardware file: {e.strerror or e}") from e
+    except UnicodeDecodeError as e:  # a binary or corrupted file
+        raise HardwareConfigError(f"{p}: not a UTF-8 text hardware file: {e}") from e
     return parse_hardware(
         text, control_rate, source=str(p), joint_names=joint_names, effort_limits=effort_limits, interface=interface
     )
