@@ -1,5 +1,6 @@
-"""Scoring on episodes that must fail: a push no controller survives, and an episode that survives
-but does not end upright. Short episodes (well under a second of simulated time) keep them cheap."""
+"""Scoring on episodes that must fail: a push no controller survives, an episode that survives
+but does not end upright, and a fall two seconds after the push. Every episode runs on
+SETTLE_AFTER_PUSH_S (3 s) after its push; the standing environment simulates that in well under a second."""
 
 from __future__ import annotations
 
@@ -12,16 +13,18 @@ from giwbc.apps.evaluation import (
     Comparison,
     EpisodeResult,
     PushProtocol,
+    format_falls,
     mcnemar_exact,
     run_episodes,
     wilson_interval,
 )
 from giwbc.apps.sim_to_sim import Cell, PushSetting, evaluate
+from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S
 
 # 2000 N for 0.2 s is 400 N s on a 33 kg robot (12 m/s): no controller stays up.
-HOPELESS = PushProtocol(force=2000.0, duration=0.2, interval=(0.2, 0.2), episode_seconds=0.6)
+HOPELESS = PushProtocol(force=2000.0, duration=0.2, interval=(0.2, 0.2), episode_seconds=3.4)
 # 30 N for 0.1 s: the WBC stands through it (test_evaluation.py), but never ends *exactly* level.
-GENTLE = PushProtocol(force=30.0, duration=0.1, interval=(0.2, 0.2), episode_seconds=0.5)
+GENTLE = PushProtocol(force=30.0, duration=0.1, interval=(0.6, 0.6), episode_seconds=3.7)
 
 
 @pytest.fixture(scope="module")
@@ -36,6 +39,8 @@ def test_a_push_no_controller_survives_is_scored_as_a_fall() -> None:
     assert episode.survival_time < HOPELESS.episode_seconds - 0.05  # terminated early, not at the time limit
     assert episode.max_tilt > 0.5 or episode.final_tilt > 0.5
     assert math.isfinite(episode.push_time)
+    assert episode.fall_after_push is not None and -0.2 < episode.fall_after_push < 1.0  # s after the push ended
+    assert arm.summary()["falls"] == 1 and arm.summary()["fall_after_push_s"] == [round(episode.fall_after_push, 2)]
     assert arm.success_rate == 0.0 and arm.survival_rate == 0.0 and arm.name == "wbc"
 
 
@@ -50,6 +55,19 @@ def test_an_episode_that_survives_tilted_is_not_a_success() -> None:
     (tilted,) = run_episodes(None, protocol=strict, episodes=1, seed=5, workers=1).episodes
     assert tilted.survived and not tilted.success
     assert tilted.final_tilt == episode.final_tilt  # the same episode, only scored differently
+
+
+def test_a_fall_two_seconds_after_the_push_is_a_failure() -> None:
+    """The WBC alone at 100 N (seed 30016): still up when the old 2.6 s episodes ended, on the ground 2.1 s after the
+    push ended. Scored with the settle window, it is a failure, and its fall is reported with that delay."""
+    arm = run_episodes(None, protocol=PushProtocol(force=100.0), episodes=1, seed=30016, workers=1)
+    (episode,) = arm.episodes
+    assert PushProtocol().episode_seconds == pytest.approx(1.6 + 0.2 + SETTLE_AFTER_PUSH_S)
+    assert not episode.survived and not episode.success
+    assert episode.survival_time > 2.6  # it would have ended upright in the old window
+    assert 1.5 < episode.fall_after_push < SETTLE_AFTER_PUSH_S
+    assert episode.survival_time == pytest.approx(episode.push_time + 0.2 + episode.fall_after_push)
+    assert format_falls([arm]) == f"falls of wbc at 100 N, s after the push ended: {episode.fall_after_push:.2f}"
 
 
 def test_sim_to_sim_scores_a_fall_as_a_failure(g1_model) -> None:
@@ -72,26 +90,29 @@ def test_sim_to_sim_scores_a_standing_episode_as_a_success(g1_model) -> None:
 # --- the arithmetic of the scores, on made-up episodes -------------------------------------------
 def episode(seed: int, survived: bool, success: bool, time: float, tilt: float, force=(80.0, 0.0, 0.0), push_time=1.3,
             ret: float = 10.0) -> EpisodeResult:
-    return EpisodeResult(seed, survived, success, time, tilt, 2 * tilt, push_time, force, ret)
+    fall = None if survived else time - (push_time + 0.2)
+    return EpisodeResult(seed, survived, success, time, tilt, 2 * tilt, push_time, force, ret, fall_after_push=fall)
 
 
 ARM = ArmResult("wbc", PushProtocol(), (
-    episode(1, True, True, 2.6, 0.1, ret=30.0),
-    episode(2, True, False, 2.6, 0.5, ret=20.0),
+    episode(1, True, True, 4.8, 0.1, ret=30.0),
+    episode(2, True, False, 4.8, 0.5, ret=20.0),
     episode(3, False, False, 1.4, 1.0, ret=-5.0),
-    episode(4, False, False, 1.7, 1.2, ret=-5.0),
+    episode(4, False, False, 3.7, 1.2, ret=-5.0),  # fell 2.2 s after the push
 ))
 
 
 def test_arm_scores_count_successes_and_survivals_apart() -> None:
     assert (ARM.n, ARM.successes) == (4, 1)
     assert ARM.success_rate == 0.25 and ARM.survival_rate == 0.5
-    assert ARM.mean_survival_time == pytest.approx((2.6 + 2.6 + 1.4 + 1.7) / 4)
+    assert ARM.mean_survival_time == pytest.approx((4.8 + 4.8 + 1.4 + 3.7) / 4)
     low, high = wilson_interval(1, 4)
     assert ARM.summary() == {
         "arm": "wbc", "episodes": 4, "success_rate": 0.25, "success_rate_95ci": [low, high], "survival_rate": 0.5,
-        "mean_survival_time_s": pytest.approx(2.075), "mean_return": 10.0, "mean_max_tilt_rad": pytest.approx(1.4),
+        "mean_survival_time_s": pytest.approx(3.675), "mean_return": 10.0, "mean_max_tilt_rad": pytest.approx(1.4),
+        "settle_after_push_s": 3.0, "falls": 2, "fall_after_push_s": [-0.1, 2.2],
     }  # fmt: skip
+    assert format_falls([ARM]) == "falls of wbc at 80 N, s after the push ended: -0.10, 2.20"
     empty = ArmResult("none", PushProtocol(), ())
     assert empty.success_rate == 0.0 and empty.survival_rate == 0.0
 
@@ -133,12 +154,12 @@ def test_push_protocol_is_validated() -> None:
     for bad in ({"interval": (0.0, 1.0)}, {"interval": (1.6, 1.2)}, {"duration": 0.0}, {"force": -1.0}):
         with pytest.raises(ValueError, match="bad push protocol"):
             PushProtocol(**bad)
-    PushProtocol(force=0.0, interval=(1.2, 1.2), episode_seconds=2.0)  # the edges that are allowed
-    with pytest.raises(ValueError, match=r"must be <= 2\*interval\[0\] \+ duration = 2\.60 s"):
-        PushProtocol(episode_seconds=2.7)
-    with pytest.raises(ValueError, match=r"^the episode must outlast the latest push$"):
-        PushProtocol(interval=(1.0, 1.5), duration=0.25, episode_seconds=1.75)  # ends as the push ends
-    assert PushProtocol(interval=(1.0, 1.5), duration=0.25, episode_seconds=1.875).episode_seconds == 1.875
+    PushProtocol(force=0.0, interval=(1.2, 1.2), episode_seconds=4.4)  # the edges that are allowed
+    with pytest.raises(ValueError, match=r"episode_seconds must be >= interval\[1\] \+ duration \+ 3 = 4\.80 s"):
+        PushProtocol(episode_seconds=4.7)  # the latest push would end 2.9 s before the end
+    with pytest.raises(ValueError, match=r"interval\[1\] must be < 2\*interval\[0\] \+ duration = 2\.25 s"):
+        PushProtocol(interval=(1.0, 2.25), duration=0.25, episode_seconds=6.0)  # a second push could come first
+    assert PushProtocol(interval=(1.0, 1.5), duration=0.25, episode_seconds=10.0).episode_seconds == 10.0  # longer: fine
 
 
 def test_sim_to_sim_cells_and_their_summary() -> None:

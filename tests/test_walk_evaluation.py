@@ -17,8 +17,8 @@ from giwbc.apps.evaluation import ArmResult, Comparison, EpisodeResult, compare,
 from giwbc.apps.walk_evaluation import WalkProtocol, add_evaluate_command, paired_tracking, tracking_summary  # noqa: E402
 from giwbc.policy import MlpWeights, export_onnx  # noqa: E402
 
-# 0.1 s push in [1.2, 1.3] s of a 2.5 s walking episode, forward commands only.
-SHORT = WalkProtocol(force=30.0, duration=0.1, interval=(1.2, 1.3), episode_seconds=2.5, commands=((0.2, 0.3), (0.0, 0.0), (0.0, 0.0)))
+# 0.1 s push in [1.2, 1.3] s of a walking episode that runs on the 3 s settle window after it, forward commands only.
+SHORT = WalkProtocol(force=30.0, duration=0.1, interval=(1.2, 1.3), episode_seconds=4.4, commands=((0.2, 0.3), (0.0, 0.0), (0.0, 0.0)))
 
 
 def test_tracking_rms_of_known_motions() -> None:
@@ -37,8 +37,12 @@ def test_tracking_rms_of_known_motions() -> None:
 def test_walk_protocol_draws_one_command_per_episode() -> None:
     overrides = SHORT.env_overrides({"residuals": ["step"], "commands": {"vx": [-0.1, 0.1]}}, 50.0)
     assert overrides["commands"]["vx"] == [0.2, 0.3] and overrides["commands"]["standing"] == 0.0
-    assert overrides["commands"]["interval"][0] > SHORT.episode_seconds and overrides["max_episode_steps"] == 125
+    assert overrides["commands"]["interval"][0] > SHORT.episode_seconds and overrides["max_episode_steps"] == 220
     assert overrides["sim2real"]["pushes"]["force"] == [30.0, 30.0]
+    assert overrides["sim2real"]["pushes"]["horizon"] == pytest.approx(2.5)  # no second push: it could start at 2.5 s at the earliest
+    assert WalkProtocol().episode_seconds == pytest.approx(2.0 + 0.2 + 3.0)  # the latest push's end + the settle window
+    with pytest.raises(ValueError, match="judged 3 s after the push ends"):
+        replace(SHORT, episode_seconds=4.3)
     with pytest.raises(ValueError):
         WalkProtocol(commands=((0.3, 0.1), (0.0, 0.0), (0.0, 0.0)))
 
@@ -75,15 +79,22 @@ def test_zero_policy_walks_like_the_walker_and_the_command_reports(tmp_path, cap
     for wbc, residual in zip(comparison.wbc.episodes, comparison.residual.episodes):
         assert wbc == residual and wbc.success and 1.2 <= wbc.push_time <= 1.34
         assert 0.0 < wbc.tracking_rms < 0.3
+        # Per tick, the sway within each step counts: above the 1-s window figure, below a walk's worst.
+        assert wbc.tracking_rms < wbc.tracking_rms_per_tick_heading_xy < 0.4
+        assert wbc.tracking_mean_abs_per_tick_heading_xy < wbc.tracking_rms_per_tick_heading_xy
+        assert 0.0 < wbc.yaw_rate_mean_abs_per_tick < wbc.yaw_rate_rms_per_tick < 0.5
     parser = argparse.ArgumentParser()
     add_evaluate_command(parser.add_subparsers())
     args = parser.parse_args(["evaluate", "--protocol", "walk", "--policy", str(policy), "--episodes", "1", "--workers", "1",
-                              "--force", "30", "--duration", "0.1", "--interval", "1.2", "1.3", "--episode-seconds", "2.5",
+                              "--force", "30", "--duration", "0.1", "--interval", "1.2", "1.3",
                               "--commands", "0.2", "0.3", "0", "0", "0", "0", "--seed", "4", "--json"])
     assert args.run(args) == 0
     (summary,) = json.loads(capsys.readouterr().out)["comparisons"]
     assert summary["paired"]["saved"] == summary["paired"]["lost"] == 0 and summary["tracking"]["n"] == 1
     assert summary["tracking"]["wbc_mean"] == pytest.approx(comparison.wbc.episodes[0].tracking_rms)
+    per_tick = summary["tracking_per_tick"]["wbc"]
+    assert per_tick["tracking_rms_per_tick_heading_xy"] == pytest.approx(comparison.wbc.episodes[0].tracking_rms_per_tick_heading_xy)
+    assert summary["wbc"]["mean_survival_time_s"] == pytest.approx(1.3 + 0.1 + 3.0)  # the default episode: push end + 3 s
 
 
 def test_cached_arms_give_the_same_comparison(tmp_path) -> None:
@@ -92,7 +103,7 @@ def test_cached_arms_give_the_same_comparison(tmp_path) -> None:
     env_kwargs = {"residuals": ["step"], "sim2real": {"pushes": None}}
     policy = _zero_walk_policy(tmp_path, env_kwargs)
     cache = tmp_path / "cache"
-    protocol = WalkProtocol(force=30.0, duration=0.1, interval=(1.2, 1.3), episode_seconds=2.5, commands=((0.2, 0.3), (0.0, 0.0), (0.0, 0.0)))
+    protocol = SHORT
     alone = cached_arm(cache, None, env_id="giwbc.envs:giwbc/G1Walk-v0", env_kwargs=env_kwargs, protocol=protocol, episodes=1, seed=9, workers=1)
     assert len(list(cache.glob("arm_*.json"))) == 1
     first = compare_cached(policy, cache, protocol=protocol, episodes=1, seed=9, workers=1)
@@ -135,9 +146,24 @@ def test_paired_tracking_intervals_belong_to_their_arm_and_a_zero_mean_differenc
     noisy = ArmResult("p", SHORT, tuple(_episode(i, True, b + 0.01 * (-1) ** i) for i, b in enumerate(base)))
     assert paired_tracking(Comparison(wbc, noisy, "giwbc/G1Walk-v0")).wilcoxon_p > 0.05  # +-0.01 alternately: no shift
     summary = tracking_summary(wbc)
-    assert summary["tracking_episodes"] == 40 and summary["mean_tracking_rms"] == pytest.approx(base.mean())
-    low, high = summary["mean_tracking_rms_95ci"]
+    assert summary["tracking_episodes"] == 40 and summary["mean_tracking_rms_window_1s"] == pytest.approx(base.mean())
+    low, high = summary["mean_tracking_rms_window_1s_95ci"]
     assert low < base.mean() < high
     assert tracking_summary(wbc) == summary  # a seeded bootstrap: the same interval every time
     fallen = ArmResult("wbc", SHORT, wbc.episodes + (_episode(40, False, 5.0),))  # fell, though its tracking is finite
     assert tracking_summary(fallen) == summary
+
+
+def test_per_tick_figures_pool_over_the_surviving_episodes() -> None:
+    """Two survivors with per-tick RMS 0.1 and 0.2 (equal lengths): pooled RMS sqrt((0.01 + 0.04) / 2), mean absolute the
+    mean; a fallen episode does not count."""
+    def with_ticks(seed: int, survived: bool, rms: float, mean_abs: float) -> EpisodeResult:
+        return replace(_episode(seed, survived, 0.05), tracking_rms_per_tick_heading_xy=rms, tracking_mean_abs_per_tick_heading_xy=mean_abs,
+                       yaw_rate_rms_per_tick=2 * rms, yaw_rate_mean_abs_per_tick=2 * mean_abs)
+
+    arm = ArmResult("wbc", SHORT, (with_ticks(0, True, 0.1, 0.08), with_ticks(1, True, 0.2, 0.12), with_ticks(2, False, 3.0, 3.0)))
+    summary = tracking_summary(arm)
+    assert summary["tracking_rms_per_tick_heading_xy"] == pytest.approx(math.sqrt(0.025))
+    assert summary["tracking_mean_abs_per_tick_heading_xy"] == pytest.approx(0.1)
+    assert summary["yaw_rate_rms_per_tick"] == pytest.approx(2 * math.sqrt(0.025))
+    assert summary["yaw_rate_mean_abs_per_tick"] == pytest.approx(0.2)

@@ -5,10 +5,14 @@ the same seeds, so each episode has the same initial state and the same push (ti
 magnitude) in both arms; :attr:`Comparison.same_pushes` checks that from what the runtime reports.
 The push protocol (:class:`PushProtocol`) replaces the environment's pushes: one push of ``force``
 N in a uniform random horizontal direction for ``duration`` s, starting at a uniform time in
-``interval`` s, in an episode of ``episode_seconds`` (short enough that a second push cannot start).
+``interval`` s (the push schedule ends before a second push could start), in an episode of
+``episode_seconds``: at least :data:`~giwbc.locomotion.push_scoring.SETTLE_AFTER_PUSH_S` (3 s)
+past the latest push's end, so that a robot toppling slowly after the push falls inside the episode.
 An episode *survives* if it is not terminated (pelvis too low or tilted past the task's limit) before
 the time limit, and *succeeds* if it survives with the pelvis tilt at the end under ``upright_tilt``
-(a robot falling over at the time limit is not a success).
+(a robot falling over at the time limit is not a success), as
+:func:`~giwbc.locomotion.push_scoring.judge_push` judges it; each fall is reported with its time
+after the push ended.
 
 Episodes are split over worker processes (fork), or over Ray tasks on a cluster (``runner``, see
 :mod:`giwbc.distributed`); results do not depend on the number of workers nor on where they ran.
@@ -32,6 +36,8 @@ from giwbc.apps.plots import check_plot_path, evaluation_figure, save_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
+from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S, fall_times_summary, judge_push
+from giwbc.locomotion.tracking import per_tick_tracking
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 from giwbc.policy import OnnxPolicy, PolicyFormatError, check_compatible
 from giwbc.plants import resolve_plant
@@ -51,7 +57,7 @@ class PushProtocol:
     force: float = 80.0
     duration: float = 0.2
     interval: tuple[float, float] = (1.2, 1.6)
-    episode_seconds: float = 2.6
+    episode_seconds: float = round(1.6 + 0.2 + SETTLE_AFTER_PUSH_S, 6)  # the latest push's end + the settle window
     upright_tilt: float = 0.35
     plant: str | None = None  # the simulated plant (giwbc.plants: a variant's name, a .toml or MJCF path); None: the robot's own model
 
@@ -59,20 +65,31 @@ class PushProtocol:
         low, high = self.interval
         if not (0 < low <= high) or self.duration <= 0 or self.force < 0:
             raise ValueError(f"bad push protocol {self}")
-        if self.episode_seconds <= high + self.duration:
-            raise ValueError("the episode must outlast the latest push")
-        if self.episode_seconds > 2 * low + self.duration + 1e-9:
-            raise ValueError(
-                f"a second push could start before the end of the episode: episode_seconds must be <= 2*interval[0] + duration "
-                f"= {2 * low + self.duration:.2f} s"
-            )
+        if high >= self.push_horizon:
+            raise ValueError(f"one push per episode: interval[1] must be < 2*interval[0] + duration = {self.push_horizon:.2f} s "
+                             "(a second push could start before the latest first one)")
+        if self.episode_seconds < settled_episode_seconds(self.interval, self.duration) - 1e-9:
+            raise ValueError(f"success is judged {SETTLE_AFTER_PUSH_S:g} s after the push ends: episode_seconds must be >= "
+                             f"interval[1] + duration + {SETTLE_AFTER_PUSH_S:g} = {settled_episode_seconds(self.interval, self.duration):.2f} s")
+
+    @property
+    def push_horizon(self) -> float:
+        """s: pushes are drawn for this much of the episode, after the latest first push and before any second one."""
+        return 2 * self.interval[0] + self.duration
 
     def env_overrides(self, base_kwargs: dict[str, Any], agent_hz: float) -> dict[str, Any]:
         """``gymnasium.make`` options: the environment's own, with this protocol's pushes and time limit."""
         sim2real = dict(base_kwargs.get("sim2real") or {})
-        sim2real["pushes"] = {"interval": list(self.interval), "duration": self.duration, "force": [self.force, self.force]}
+        sim2real["pushes"] = {"interval": list(self.interval), "duration": self.duration, "force": [self.force, self.force],
+                              "horizon": self.push_horizon}
         plant = {} if self.plant is None else {"plant": self.plant}
         return {**base_kwargs, **plant, "sim2real": sim2real, "max_episode_steps": int(round(self.episode_seconds * agent_hz))}
+
+
+def settled_episode_seconds(interval: tuple[float, float], duration: float) -> float:
+    """The shortest episode that judges a push starting in ``interval`` for ``duration`` s:
+    its latest end plus :data:`~giwbc.locomotion.push_scoring.SETTLE_AFTER_PUSH_S`."""
+    return round(interval[1] + duration + SETTLE_AFTER_PUSH_S, 6)
 
 
 @dataclass(frozen=True)
@@ -86,11 +103,20 @@ class EpisodeResult:
     push_time: float  # s, first agent step at which the push was on (nan: none)
     push_force: tuple[float, float, float]
     episode_return: float
-    tracking_rms: float | None = None  # m/s, walking tasks (see velocity_tracking_rms); None otherwise or when no window fits
+    tracking_rms: float | None = None  # m/s, walking tasks: 1-s window averages (velocity_tracking_rms); None otherwise or when no window fits
+    fall_after_push: float | None = None  # s from the push's end to the fall (terminated episodes; < 0: during the push); None: no fall
+    # Walking tasks: per-tick (agent step) heading-frame errors from 1 s on (giwbc.locomotion.tracking); None otherwise.
+    tracking_rms_per_tick_heading_xy: float | None = None  # m/s
+    tracking_mean_abs_per_tick_heading_xy: float | None = None  # m/s
+    yaw_rate_rms_per_tick: float | None = None  # rad/s
+    yaw_rate_mean_abs_per_tick: float | None = None  # rad/s
+
+
+TRACKING_START = 1.0  # s: walking tasks' tracking figures (windows and ticks) from here (the gait is established)
 
 
 def velocity_tracking_rms(times: np.ndarray, xy: np.ndarray, yaw: np.ndarray, commands: np.ndarray,
-                          window: float = 1.0, start: float = 1.0) -> float:
+                          window: float = 1.0, start: float = TRACKING_START) -> float:
     """RMS over consecutive ``window``-s windows from ``start`` s of ``‖v̄ − v_cmd‖`` (xy, m/s): the
     base displacement over the window in the heading frame of its start, divided by its duration
     (a window average: the gait's sway averages out), against the command held over the window
@@ -165,6 +191,8 @@ class ArmResult:
             "mean_survival_time_s": self.mean_survival_time,
             "mean_return": float(np.mean([e.episode_return for e in self.episodes])),
             "mean_max_tilt_rad": float(np.mean([e.max_tilt for e in self.episodes])),
+            "settle_after_push_s": SETTLE_AFTER_PUSH_S,
+            **fall_times_summary([e.fall_after_push for e in self.episodes if e.fall_after_push is not None]),
         }
 
 
@@ -259,28 +287,40 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
             total, max_tilt, push_time, push_force = 0.0, 0.0, math.nan, (0.0, 0.0, 0.0)
             terminated = truncated = False
             info: dict[str, Any] = {}
-            trace: list[tuple[float, np.ndarray, float, np.ndarray]] = []  # walking tasks: time, base xy, yaw, command
+            # Walking tasks: time, base xy, yaw, command, base xy velocity (world), yaw rate, at every agent step.
+            trace: list[tuple[float, np.ndarray, float, np.ndarray, np.ndarray, float]] = []
             while not (terminated or truncated):
                 action = policy(observation) if policy is not None else zero
                 observation, reward, terminated, truncated, info = env.step(action)
                 total += float(reward)
                 max_tilt = max(max_tilt, _tilt(env))
                 if "command" in info:
-                    trace.append((float(info["time"]), info["base_xy"], float(info["base_yaw"]), info["command"]))
+                    trace.append((float(info["time"]), info["base_xy"], float(info["base_yaw"]), info["command"],
+                                  info["base_velocity_xy"], float(info["base_yaw_rate"])))
                 if math.isnan(push_time) and info.get("pushes", 0) > 0:
                     push_time = float(info["time"])
                     push_force = tuple(float(f) for f in info["push_force"])
             final_tilt = _tilt(env)
             survived = not terminated
-            tracking = None
+            end_time = float(info.get("time", 0.0))
+            # push_time ends the agent step the push started in: the push ended at most at this (within one agent step).
+            push_end = min(push_time, protocol.interval[1]) + protocol.duration if math.isfinite(push_time) else math.nan
+            outcome = judge_push(fell=terminated, fall_time=end_time, end_time=end_time, push_end=push_end,
+                                 final_tilt=final_tilt, upright_tilt=protocol.upright_tilt)
+            tracking: dict[str, Any] = {}
             if trace:
-                times, xy, yaw, commands = (np.array(column) for column in zip(*trace))
+                times, xy, yaw, commands, velocity, yaw_rate = (np.array(column) for column in zip(*trace))
                 rms = velocity_tracking_rms(times, xy, yaw, commands)
-                tracking = rms if math.isfinite(rms) else None
+                tracking["tracking_rms"] = rms if math.isfinite(rms) else None
+                scored = times >= TRACKING_START - 1e-9
+                if scored.any():
+                    per_tick = per_tick_tracking(velocity[scored], yaw[scored], yaw_rate[scored], commands[scored]).summary()
+                    tracking |= {key: value for key, value in per_tick.items() if key != "ticks"}
             results.append(EpisodeResult(
-                seed=seed, survived=survived, success=survived and final_tilt < protocol.upright_tilt,
-                survival_time=float(info.get("time", 0.0)), final_tilt=final_tilt, max_tilt=max_tilt,
-                push_time=push_time, push_force=push_force, episode_return=total, tracking_rms=tracking,
+                seed=seed, survived=survived, success=outcome.success,
+                survival_time=end_time, final_tilt=final_tilt, max_tilt=max_tilt,
+                push_time=push_time, push_force=push_force, episode_return=total, fall_after_push=outcome.fall_after_push,
+                **tracking,
             ))
             if tick is not None:
                 tick(1)
@@ -449,6 +489,23 @@ def format_table(rows: Sequence[ArmResult]) -> str:
     return "\n".join(lines)
 
 
+def success_rule(protocol: PushProtocol) -> str:
+    """The success criterion in words, for the printed reports."""
+    return (f"success = no fall and tilt < {protocol.upright_tilt} rad at the end, the end at least {SETTLE_AFTER_PUSH_S:g} s "
+            "after the push ends")
+
+
+def format_falls(rows: Sequence[ArmResult]) -> str:
+    """When each arm's robots fell, in s after the push ended (negative: during the push)."""
+    lines = []
+    for arm in rows:
+        falls = sorted(e.fall_after_push for e in arm.episodes if e.fall_after_push is not None)
+        if falls:
+            lines.append(f"falls of {arm.name} at {arm.protocol.force:g} N, s after the push ended: "
+                         + ", ".join(f"{f:.2f}" for f in falls))
+    return "\n".join(lines) if lines else "no fall after a push"
+
+
 # --- command line ------------------------------------------------------------------------------
 MAX_EPISODES = 10_000
 MAX_FORCE = 1000.0  # N
@@ -508,9 +565,10 @@ def run_evaluate_command(args: Any) -> int:
     try:
         if args.plot:
             check_plot_path(args.plot)  # before the run, not after it
-        protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval or PushProtocol.interval),
-                                episode_seconds=args.episode_seconds or PushProtocol.episode_seconds, upright_tilt=args.upright_tilt,
-                                plant=check_plant(args))
+        interval = tuple(args.interval or PushProtocol.interval)
+        protocol = PushProtocol(force=args.force[0], duration=args.duration, interval=interval,  # type: ignore[arg-type]
+                                episode_seconds=args.episode_seconds or settled_episode_seconds(interval, args.duration),  # type: ignore[arg-type]
+                                upright_tilt=args.upright_tilt, plant=check_plant(args))
         connection = connect(args.ray) if getattr(args, "ray", None) else None
         runner = RayRunner(connection) if connection is not None else None
         workers = args.workers or (runner.cpus if runner is not None else 2)
@@ -548,9 +606,10 @@ def run_evaluate_command(args: Any) -> int:
         print(json.dumps(summary))
     else:
         print(f"one push per episode: {protocol.duration} s, random horizontal direction, start uniform in "
-              f"{list(protocol.interval)} s; episodes of {protocol.episode_seconds} s; success = standing with tilt < "
-              f"{protocol.upright_tilt} rad at the end; seeds {args.seed}..{args.seed + args.episodes - 1}")
+              f"{list(protocol.interval)} s; episodes of {protocol.episode_seconds:g} s; {success_rule(protocol)}; "
+              f"seeds {args.seed}..{args.seed + args.episodes - 1}")
         print(format_table(rows))
+        print(format_falls(rows))
         if args.policy is not None:
             print("same pushes in both arms: " + ", ".join(str(c.same_pushes) for c in comparisons))
             for c in comparisons:

@@ -4,11 +4,15 @@ The protocol (:class:`WalkProtocol`) is :mod:`giwbc.apps.evaluation`'s with a wa
 velocity command drawn per episode (seeded, the same in both arms) and held from the start, one
 push of ``force`` N in a uniform random horizontal direction for ``duration`` s at a uniform time
 in ``interval`` (the gait is established by then). Success as there (not fallen, tilt at the end
-under ``upright_tilt``), compared with the exact McNemar test on the discordant pairs. Velocity
-tracking: each episode's RMS of the 1-s window-averaged base velocity against the command
-(:func:`~giwbc.apps.evaluation.velocity_tracking_rms`, the push included), compared on the
-episodes both arms survive with the Wilcoxon signed-rank test (scipy) and a bootstrap 95 %
-interval of the mean paired difference.
+under ``upright_tilt``, the episode running on at least
+:data:`~giwbc.locomotion.push_scoring.SETTLE_AFTER_PUSH_S` after the push ends), compared with the
+exact McNemar test on the discordant pairs. Velocity tracking, two ways, from 1 s on, the push
+included: each episode's RMS of the 1-s **window-averaged** base velocity against the command
+(:func:`~giwbc.apps.evaluation.velocity_tracking_rms`: the gait's sway averages out), compared on
+the episodes both arms survive with the Wilcoxon signed-rank test (scipy) and a bootstrap 95 %
+interval of the mean paired difference; and **per tick** (every agent step, 50 Hz: mjlab's
+``track_lin_vel_xy``, the instantaneous base velocity in the heading frame,
+:mod:`giwbc.locomotion.tracking`), RMS and mean absolute, xy and yaw rate.
 
 ``giwbc evaluate --protocol walk [--policy P]`` runs it (``--protocol stand``, the default, is the
 standing protocol of :mod:`giwbc.apps.evaluation`).
@@ -34,6 +38,9 @@ from giwbc.apps.evaluation import (
     Comparison,
     EpisodeResult,
     PushProtocol,
+    format_falls,
+    settled_episode_seconds,
+    success_rule,
     compare,
     compare_forces,
     format_table,
@@ -47,6 +54,7 @@ from giwbc.apps.evaluation import check_plant
 from giwbc.apps.arguments import number
 from giwbc.distributed import RayRunner, connect
 from giwbc.errors import ConfigError
+from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S
 from giwbc.policy import OnnxPolicy, PolicyFormatError
 
 WALK_ENV_ID = "giwbc/G1Walk-v0"
@@ -60,7 +68,7 @@ class WalkProtocol(PushProtocol):
 
     force: float = 80.0
     interval: tuple[float, float] = (1.8, 2.0)  # from the 4th step on (start-up: 0.3 s weight shift, 0.46 s steps)
-    episode_seconds: float = 3.8  # 1.6 s or more after the push; two 1-s tracking windows
+    episode_seconds: float = round(2.0 + 0.2 + SETTLE_AFTER_PUSH_S, 6)  # the latest push's end + the settle window
     commands: tuple[tuple[float, float], tuple[float, float], tuple[float, float]] = ((0.1, 0.4), (-0.1, 0.1), (-0.3, 0.3))
 
     def __post_init__(self) -> None:
@@ -113,14 +121,41 @@ def paired_tracking(comparison: Comparison, resamples: int = 10_000, seed: int =
                               _bootstrap_mean(difference, resamples, rng), p)
 
 
+PER_TICK_KEYS = ("tracking_rms_per_tick_heading_xy", "tracking_mean_abs_per_tick_heading_xy", "yaw_rate_rms_per_tick",
+                 "yaw_rate_mean_abs_per_tick")
+
+
 def tracking_summary(arm: ArmResult) -> dict[str, Any]:
-    values = np.array([e.tracking_rms for e in arm.episodes if e.survived and _finite(e.tracking_rms)])
-    return {"tracking_episodes": len(values), "mean_tracking_rms": float(values.mean()) if len(values) else math.nan,
-            "mean_tracking_rms_95ci": list(_bootstrap_mean(values, 10_000, np.random.default_rng(0)))}
+    """Tracking over the surviving episodes: the mean of their 1-s window RMS (``mean_tracking_rms_window_1s``, with a
+    bootstrap 95 % interval), and the per-tick heading-frame figures pooled over their agent steps
+    (episodes of equal length: the RMS of the RMS, the mean of the means)."""
+    survivors = [e for e in arm.episodes if e.survived]
+    values = np.array([e.tracking_rms for e in survivors if _finite(e.tracking_rms)])
+    per_tick: dict[str, float] = {}
+    for key in PER_TICK_KEYS:
+        figures = np.array([getattr(e, key) for e in survivors if _finite(getattr(e, key))])
+        pooled = (np.sqrt(np.mean(figures**2)) if "rms" in key else np.mean(figures)) if len(figures) else math.nan
+        per_tick[key] = float(pooled)
+    return {"tracking_episodes": len(values), "mean_tracking_rms_window_1s": float(values.mean()) if len(values) else math.nan,
+            "mean_tracking_rms_window_1s_95ci": list(_bootstrap_mean(values, 10_000, np.random.default_rng(0))), **per_tick}
 
 
 def walk_summary(comparison: Comparison) -> dict[str, Any]:
-    return {**comparison.summary(), "tracking": asdict(paired_tracking(comparison))}
+    return {**comparison.summary(), "tracking": asdict(paired_tracking(comparison)),
+            "tracking_per_tick": {"wbc": _per_tick(comparison.wbc), "residual": _per_tick(comparison.residual)}}
+
+
+def _per_tick(arm: ArmResult) -> dict[str, float]:
+    summary = tracking_summary(arm)
+    return {key: summary[key] for key in PER_TICK_KEYS}
+
+
+def format_per_tick(arm: ArmResult) -> str:
+    """The per-tick heading-frame figures of an arm, one line."""
+    t = tracking_summary(arm)
+    return (f"{arm.name} at {arm.protocol.force:g} N, per tick (heading frame, 50 Hz): xy RMS "
+            f"{t['tracking_rms_per_tick_heading_xy']:.3f}, mean abs {t['tracking_mean_abs_per_tick_heading_xy']:.3f} m/s; "
+            f"yaw rate RMS {t['yaw_rate_rms_per_tick']:.3f}, mean abs {t['yaw_rate_mean_abs_per_tick']:.3f} rad/s")
 
 
 # --- arms kept on disk ----------------------------------------------------------------------------
@@ -182,13 +217,14 @@ def check_evaluate_args(args: Any) -> None:
     walking = getattr(args, "protocol", "stand") == "walk"
     protocol = WalkProtocol if walking else PushProtocol
     env_id = WALK_ENV_ID if walking else DEFAULT_ENV_ID
-    episode = args.episode_seconds or protocol.episode_seconds
     low, high = args.interval or protocol.interval
+    episode = args.episode_seconds or settled_episode_seconds((low, high), args.duration)
     if low > high:
         raise ConfigError(f"--interval MIN MAX: MIN {low:g} s is above MAX {high:g} s")
-    if high + args.duration > episode:
-        raise ConfigError(f"a push starting as late as {high:g} s for {args.duration:g} s would end after the episode's {episode:g} s "
-                          "(lower --interval or raise --episode-seconds)")
+    if episode < settled_episode_seconds((low, high), args.duration) - 1e-9:
+        raise ConfigError(f"a push starting as late as {high:g} s for {args.duration:g} s needs an episode of at least "
+                          f"{settled_episode_seconds((low, high), args.duration):g} s (success is judged {SETTLE_AFTER_PUSH_S:g} s "
+                          f"after the push ends), not {episode:g} s (lower --interval or raise --episode-seconds)")
     if getattr(args, "commands", None) is not None:
         for name, (lo, hi) in zip(("vx", "vy", "yaw rate"), zip(args.commands[::2], args.commands[1::2])):
             if lo > hi:
@@ -216,8 +252,10 @@ def run_evaluate(args: Any) -> int:
     connection = None
     try:
         ranges = WalkProtocol.commands if args.commands is None else tuple(zip(args.commands[::2], args.commands[1::2]))
-        protocol = WalkProtocol(force=args.force[0], duration=args.duration, interval=tuple(args.interval or WalkProtocol.interval),
-                                episode_seconds=args.episode_seconds or WalkProtocol.episode_seconds, upright_tilt=args.upright_tilt,
+        interval = tuple(args.interval or WalkProtocol.interval)
+        protocol = WalkProtocol(force=args.force[0], duration=args.duration, interval=interval,  # type: ignore[arg-type]
+                                episode_seconds=args.episode_seconds or settled_episode_seconds(interval, args.duration),  # type: ignore[arg-type]
+                                upright_tilt=args.upright_tilt,
                                 commands=ranges, plant=check_plant(args))  # type: ignore[arg-type]
         connection = connect(args.ray) if getattr(args, "ray", None) else None
         runner = RayRunner(connection) if connection is not None else None
@@ -255,21 +293,24 @@ def run_evaluate(args: Any) -> int:
         return 0
     print(f"walking on a command drawn per episode from vx, vy, yaw rate in {[list(r) for r in protocol.commands]}; one push "
           f"per episode: {protocol.duration} s, random horizontal direction, start uniform in {list(protocol.interval)} s; "
-          f"episodes of {protocol.episode_seconds} s; success = standing with tilt < {protocol.upright_tilt} rad at the end; "
+          f"episodes of {protocol.episode_seconds:g} s; {success_rule(protocol)}; "
           f"seeds {args.seed}..{args.seed + args.episodes - 1}")
     print(format_table(rows))
+    print(format_falls(rows))
+    for row in rows:
+        print(format_per_tick(row))
     if args.policy is None:
         for row in rows:
             t = tracking_summary(row)
-            low, high = t["mean_tracking_rms_95ci"]
-            print(f"tracking at {row.protocol.force:g} N: RMS {t['mean_tracking_rms']:.3f} m/s [{low:.3f}, {high:.3f}] over "
-                  f"{t['tracking_episodes']} surviving episodes")
+            low, high = t["mean_tracking_rms_window_1s_95ci"]
+            print(f"tracking at {row.protocol.force:g} N, 1-s window averages: RMS {t['mean_tracking_rms_window_1s']:.3f} m/s "
+                  f"[{low:.3f}, {high:.3f}] over {t['tracking_episodes']} surviving episodes")
         return 0
     print("same pushes in both arms: " + ", ".join(str(c.same_pushes) for c in comparisons))
     for c in comparisons:
         t = paired_tracking(c)
         print(f"paired at {c.wbc.protocol.force:g} N: the residual saves {c.saved}, loses {c.lost} (exact McNemar p = "
-              f"{c.paired_p_value:.3g}); tracking RMS over the {t.n} episodes both survive: walker alone {t.wbc_mean:.3f} "
+              f"{c.paired_p_value:.3g}); tracking RMS of 1-s window averages over the {t.n} episodes both survive: walker alone {t.wbc_mean:.3f} "
               f"[{t.wbc_ci[0]:.3f}, {t.wbc_ci[1]:.3f}], residual {t.residual_mean:.3f} [{t.residual_ci[0]:.3f}, "
               f"{t.residual_ci[1]:.3f}] m/s, difference {t.mean_difference:+.3f} [{t.difference_ci[0]:+.3f}, "
               f"{t.difference_ci[1]:+.3f}] (Wilcoxon p = {t.wilcoxon_p:.3g})")

@@ -403,6 +403,8 @@ class G1Walk(FloatingBaseTask):
             "tilt": self.tilt(),
             "base_xy": base.position[:2].copy(),
             "base_yaw": _yaw(base.quaternion),
+            "base_velocity_xy": base.linear_velocity[:2].copy(),  # world frame, true: for per-tick tracking
+            "base_yaw_rate": float(base.angular_velocity[2]),  # world z, rad/s
             "command": self.command.copy(),
             "phase": self.walker.phase.value,
             "steps": state.steps,
