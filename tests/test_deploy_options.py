@@ -32,7 +32,7 @@ def parse(*argv: str) -> argparse.Namespace:
 @pytest.mark.parametrize("argv", [
     ("--ramp", "nan"), ("--ramp", "-1"), ("--ramp", "0"), ("--fault-at", "nan"), ("--seconds", "nan"), ("--seconds", "-1"),
     ("--seconds", "inf"), ("--seconds", "1e12"), ("--rt-priority", "500"), ("--rt-priority", "0"), ("--scene-rate", "-1"),
-    ("--rate", "0"), ("--rate", "nan"), ("--cpu-latency", "-1"), ("--foxglove-port", "70000"), ("--vx", "nan"), ("--vx", "5"),
+    ("--rate", "0"), ("--rate", "nan"), ("--cpu-latency", "-1"), ("--foxglove-port", "70000"), ("--foxglove-port", "80"), ("--vx", "nan"), ("--vx", "5"),
     ("--walk-delay", "-1"), ("--yaw-rate", "inf"),
 ])  # fmt: skip
 def test_bad_numbers_are_refused_by_argparse(argv, capsys):

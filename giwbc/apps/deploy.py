@@ -19,7 +19,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
-from giwbc.apps.arguments import HelpFormatter, add_command, integer, number, seconds
+from giwbc.apps.arguments import ROBOT_HELP, HelpFormatter, add_command, integer, number, port, seconds
 from giwbc.apps.deploy_options import CONTROLLERS, EMULATOR_MODES, FIRST_RUN_CONTROLLER, TASKS, DeployOptions, DeployOutcome
 from giwbc.apps.deploy_run import deploy, scene_channels
 from giwbc.apps.deploy_setup import (
@@ -57,7 +57,7 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     (finite, within its physical range) and every option and combination before a bus is opened."""
     parser = add_command(commands, "deploy", "run on CAN actuators, or rehearse on the emulator (--emulate)",
                          description=DESCRIPTION)  # fmt: skip
-    parser.add_argument("--robot", default="g1", help="robot name (giwbc robots lists them) or a robot folder")
+    parser.add_argument("--robot", default="g1", help=ROBOT_HELP)
     parser.add_argument("--policy", default=None, help="policy .onnx (or its metadata .json); optional")
     parser.add_argument("--task", choices=TASKS, default=None,
                         help="with a policy: its own (walk for a G1Walk-v0 policy, else balance); stand without")
@@ -96,7 +96,7 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
                              "tighter fall and limit thresholds")  # fmt: skip
     parser.add_argument("--foxglove", action="store_true",
                         help="stream the robot in 3D to Foxglove over a loopback WebSocket (needs foxglove-sdk)")
-    parser.add_argument("--foxglove-port", type=integer(1, 65535), default=DEFAULT_PORT, help="with --foxglove: the WebSocket's TCP port")
+    parser.add_argument("--foxglove-port", type=port(), default=DEFAULT_PORT, help="with --foxglove: the WebSocket's loopback TCP port")
     parser.add_argument("--scene-rate", type=number(0, MAX_SCENE_RATE, unit="Hz"), default=DeployOptions.scene_rate,
                         help=f"Hz of the 3D scene (transforms, joint states, contact forces) in the log, 0 to {MAX_SCENE_RATE:g}; 0: none")
     parser.add_argument("--fault", default=None, metavar="KIND",
@@ -119,7 +119,11 @@ def run_deploy_command(args: argparse.Namespace) -> int:
     except GiwbcError as error:
         print(f"giwbc deploy: error: {error}", file=sys.stderr)
         return 2
-    outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr, flush=True)) if args.json else (lambda m: print(m, flush=True)))
+    try:
+        outcome = deploy(options, out=(lambda m: print(m, file=sys.stderr, flush=True)) if args.json else (lambda m: print(m, flush=True)))
+    except KeyboardInterrupt:  # Ctrl-C while setting up (the run itself turns it into damping, motors off, exit 130)
+        print("giwbc deploy: interrupted before the motors started", file=sys.stderr)
+        return 130
     if args.json:
         result = outcome.result
         print(json.dumps({

@@ -38,10 +38,10 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from giwbc.apps.arguments import HelpFormatter, add_command, integer, number
+from giwbc.apps.arguments import ROBOT_HELP, HelpFormatter, add_command, integer, number
 from giwbc.errors import GiwbcError, HardwareConfigError
 
-EXIT_OK, EXIT_PROBLEM, EXIT_CONFIG = 0, 1, 2
+EXIT_OK, EXIT_PROBLEM, EXIT_CONFIG, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 class Session:
@@ -281,10 +281,15 @@ def run_motors_command(
             return COMMANDS[args.action](session, args, out, ask)
         finally:
             session.close()
-    except (GiwbcError, KeyError, OSError) as error:
+    except (GiwbcError, KeyError, OSError, UnicodeDecodeError) as error:
         text = str(error.args[0]) if isinstance(error, KeyError) and error.args else str(error)
+        if isinstance(error, UnicodeDecodeError):
+            text = f"{getattr(args, 'dry_run_plan', None) or args.hardware or 'the plan'}: not a text (TOML) file"
         err(f"giwbc motors {args.action}: error: {' '.join(text.split())}")
         return EXIT_CONFIG
+    except KeyboardInterrupt:  # Ctrl-C before or between the steps (monitor's own loop ends on it cleanly): nothing half-written
+        err(f"giwbc motors {args.action}: interrupted")
+        return EXIT_INTERRUPTED
 
 
 def _ids(text: str) -> tuple[int, int]:
@@ -308,7 +313,7 @@ def add_motors_command(commands: Any) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
 
     def plan_options(p: argparse.ArgumentParser) -> None:
-        p.add_argument("--robot", default="g1", help="robot name (giwbc robots lists them) or a robot folder")
+        p.add_argument("--robot", default="g1", help=ROBOT_HELP)
         p.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")
         p.add_argument("--rate", type=number(50.0, MAX_RATE, unit="Hz"), default=500.0,
                        help=f"control rate the plan's bus loads are checked at, Hz (50 to {MAX_RATE:g})")
