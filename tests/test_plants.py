@@ -174,3 +174,31 @@ def test_the_g1_ships_its_variants_and_each_builds(g1):
         robot = MujocoRobot(g1, **plant.robot_options())
         robot.step(5)
         assert np.all(np.isfinite(robot.generalized_state()[0]))
+
+
+def test_engine_level_plant_parameters_are_randomized_per_episode(g1):
+    from giwbc.randomization import DomainRandomizer
+
+    robot = MujocoRobot(g1)
+    floor = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_GEOM, "floor")
+
+    def entry(parameter, low, high, **extra):
+        return {"parameter": parameter, "distribution": "uniform", "low": low, "high": high, "operation": "absolute", **extra}
+
+    randomizer = DomainRandomizer({"parameters": [entry("contact_timeconst", 0.03, 0.05), entry("solver_iterations", 10, 30),
+                                                  entry("actuator_lag", 0.004, 0.004, joints=["left_elbow_joint"])]}, g1)
+    rng = np.random.default_rng(7)
+    drawn = [randomizer.randomize(robot, rng).physics for _ in range(2)]
+    timeconst = drawn[-1].scalar("contact_timeconst")
+    assert 0.03 <= timeconst <= 0.05 and drawn[0].scalar("contact_timeconst") != timeconst  # a new draw per episode
+    assert robot.model.geom_solref[floor, 0] == timeconst
+    assert robot.model.opt.iterations == int(drawn[-1].scalar("solver_iterations"))
+    robot.reset()
+    elbow = g1.joint_names.index("left_elbow_joint")
+    command = np.zeros(g1.dofs)
+    command[elbow] = 1.0
+    robot.set_joint_torques(command)
+    robot.step(2)
+    assert robot.joint_efforts()[elbow] == pytest.approx(1 - math.exp(-2 * g1.timestep / 0.004))
+    randomizer.restore(robot)
+    assert robot.model.geom_solref[floor, 0] == 0.02 and robot.model.opt.iterations == 100 and robot.actuator_dynamics is None

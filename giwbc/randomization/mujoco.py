@@ -16,6 +16,8 @@ mass); a link missing for any other reason is refused with one line naming it.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -23,6 +25,7 @@ import numpy as np
 from giwbc.randomization.distributions import RandomizationError
 from giwbc.randomization.parameters import Nominal
 from giwbc.randomization.sampling import Sample
+from giwbc.robot.actuator_dynamics import ActuatorDynamics, no_dynamics
 from giwbc.robot.fixed_links import carrier
 
 _SNAPSHOT = (
@@ -59,9 +62,14 @@ def dampratio_for_restitution(restitution: float) -> float:
 class MujocoApplier:
     """Writes physics samples into one ``MjModel`` (the model a :class:`MujocoRobot` steps)."""
 
-    def __init__(self, model: mujoco.MjModel, nominal: Nominal, floating_base: bool, urdf_path: str | None = None) -> None:
-        """``urdf_path``: the description's URDF, to place links the plant merged into their parents."""
+    def __init__(self, model: mujoco.MjModel, nominal: Nominal, floating_base: bool, urdf_path: str | None = None,
+                 robot: Any = None) -> None:
+        """``urdf_path``: the description's URDF, to place links the plant merged into their parents;
+        ``robot``: the MujocoRobot stepping ``model`` (its actuator dynamics carry ``actuator_lag``)."""
         self.model = model
+        self.robot = robot
+        self._dynamics = getattr(robot, "actuator_dynamics", None)  # the plant's own (a variant's lag and envelope)
+        self._iterations = int(model.opt.iterations)
         self._scratch = mujoco.MjData(model)
         self._nominal = {name: getattr(model, name).copy() for name in _SNAPSHOT}
         self._gravity = model.opt.gravity.copy()
@@ -112,6 +120,9 @@ class MujocoApplier:
         for name, value in self._nominal.items():
             getattr(self.model, name)[:] = value
         self.model.opt.gravity[:] = self._gravity
+        self.model.opt.iterations = self._iterations
+        if self.robot is not None:
+            self.robot.set_actuator_dynamics(self._dynamics)
         self._set_const()
         self._dirty = False
 
@@ -121,6 +132,7 @@ class MujocoApplier:
         for name, value in nominal.items():
             getattr(m, name)[:] = value
         m.opt.gravity[:] = self._gravity
+        m.opt.iterations = self._iterations
         touched = sample.randomized
         bodies, present = self._bodies, self._present
         if "link_mass" in touched:
@@ -154,6 +166,16 @@ class MujocoApplier:
             m.geom_solref[geoms, 1] = dampratio_for_restitution(sample.scalar("ground_restitution"))
         if "gravity" in touched:
             m.opt.gravity[:] = sample["gravity"]
+        if "contact_timeconst" in touched:
+            m.geom_solref[geoms, 0] = sample.scalar("contact_timeconst")
+        if "contact_dampratio" in touched:
+            m.geom_solref[geoms, 1] = sample.scalar("contact_dampratio")
+        if "solver_iterations" in touched:
+            m.opt.iterations = int(sample.scalar("solver_iterations"))
+        if self.robot is not None:
+            self.robot.set_actuator_dynamics(self._lagged(sample["actuator_lag"]) if "actuator_lag" in touched else self._dynamics)
+        elif "actuator_lag" in touched:
+            raise RandomizationError("actuator_lag needs the MujocoRobot of this model (DomainRandomizer passes it)")
         if touched & _MASS_PROPERTIES or self._dirty:
             self._set_const()
         self._dirty = bool(touched & _MASS_PROPERTIES)
@@ -175,6 +197,12 @@ class MujocoApplier:
             m.body_mass[body] = total
             m.body_ipos[body] = moment / total
             m.body_sameframe[body] = 0
+
+    def _lagged(self, lag: np.ndarray) -> ActuatorDynamics:
+        """The plant's actuator dynamics (ideal: none) with ``lag`` (per joint, description order)."""
+        by_joint = np.argsort(self._actuator_joint)  # actuators in the description's order of actuated joints
+        base = self._dynamics or no_dynamics(self.model.actuator_forcerange[by_joint, 1].copy())
+        return replace(base, lag=lag[self._actuator_joint[by_joint]])
 
     def _set_const(self) -> None:
         mujoco.mj_setConst(self.model, self._scratch)

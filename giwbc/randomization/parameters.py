@@ -60,6 +60,10 @@ PARAMETERS: dict[str, ParameterSpec] = {
         ParameterSpec("ground_friction", "global", 1, "physics", _NONZERO, "floor-foot sliding friction", lower=0.0),
         ParameterSpec("ground_restitution", "global", 1, "physics", _ZERO, "floor-foot restitution", lower=0.0, upper=1.0),
         ParameterSpec("gravity", "global", 3, "physics", _NONZERO, "gravity vector, m/s^2"),
+        ParameterSpec("contact_timeconst", "global", 1, "physics", _NONZERO, "contact softness: solref time constant, s (MuJoCo)", lower=1e-4),
+        ParameterSpec("contact_dampratio", "global", 1, "physics", _NONZERO, "contact damping ratio, solref[1] (MuJoCo)", lower=1e-3),
+        ParameterSpec("solver_iterations", "global", 1, "physics", _NONZERO, "constraint solver iterations (MuJoCo)", lower=1, integer=True),
+        ParameterSpec("actuator_lag", "joint", 1, "physics", _ZERO, "first-order lag of the delivered torque, s (MuJoCo)", lower=0.0),
         ParameterSpec("joint_position_noise", "joint", 1, "episode", _ZERO, "encoder noise std, rad", lower=0.0),
         ParameterSpec("joint_position_bias", "joint", 1, "episode", _ZERO, "encoder offset, rad"),
         ParameterSpec("joint_velocity_noise", "joint", 1, "episode", _ZERO, "joint velocity noise std, rad/s", lower=0.0),
@@ -81,6 +85,7 @@ PARAMETERS: dict[str, ParameterSpec] = {
     ]
 }
 PUSH_PARAMETERS = ("push_interval", "push_force", "push_duration")
+MUJOCO_ONLY = frozenset({"contact_timeconst", "contact_dampratio", "solver_iterations", "actuator_lag"})  # engine-level, MuJoCo's
 
 
 @dataclass(frozen=True)
@@ -111,6 +116,10 @@ class Nominal:
             "ground_friction": np.array([description.floor_friction]),
             "ground_restitution": np.zeros(1),
             "gravity": np.array(STANDARD_GRAVITY),
+            "contact_timeconst": np.array([0.02]),  # MuJoCo's default solref
+            "contact_dampratio": np.array([1.0]),
+            "solver_iterations": np.array([100.0]),  # MuJoCo's default
+            "actuator_lag": zeros_j,
             "joint_position_noise": zeros_j,
             "joint_position_bias": zeros_j,
             "joint_velocity_noise": zeros_j,

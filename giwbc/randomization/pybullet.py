@@ -14,7 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from giwbc.randomization.parameters import Nominal
+from giwbc.randomization.distributions import RandomizationError
+from giwbc.randomization.parameters import MUJOCO_ONLY, Nominal
 from giwbc.randomization.sampling import Sample
 from giwbc.robot.pybullet_model import LinkInertial
 from giwbc.robot.pybullet_robot import PybulletRobot
@@ -39,6 +40,8 @@ class PybulletApplier:
     def apply(self, sample: Sample | None) -> None:
         robot, nominal = self.robot, self.nominal.values
         touched = sample.randomized if sample is not None else frozenset()
+        if touched & MUJOCO_ONLY:
+            raise RandomizationError(f"{sorted(touched & MUJOCO_ONLY)} are MuJoCo's (engine-level) parameters; this episode runs on PyBullet")
 
         def value(name: str) -> np.ndarray:
             return sample[name] if name in touched else nominal[name]

@@ -96,7 +96,8 @@ def make_applier(engine: Robot, config: RandomizationConfig) -> Any:
     model = getattr(engine, "model", None)
     if model is not None and hasattr(model, "opt"):
         description = getattr(engine, "description", None)
-        return MujocoApplier(model, config.nominal, engine.floating_base, getattr(description, "urdf_path", None))
+        return MujocoApplier(model, config.nominal, engine.floating_base, getattr(description, "urdf_path", None),
+                             engine if hasattr(engine, "set_actuator_dynamics") else None)
     from giwbc.robot.pybullet_robot import PybulletRobot  # optional heavy dependency (imports pybullet)
 
     if isinstance(engine, PybulletRobot):

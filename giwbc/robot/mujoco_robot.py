@@ -232,15 +232,37 @@ class MujocoRobot(DescribedRobot):
         command.validate(self.dofs)
         actuated = self._actuated
         self._impedance_active = True
+        self._kp, self._kd = command.kp[actuated], command.kd[actuated]
+        self._q_ref, self._v_ref = command.q_ref[actuated], command.v_ref[actuated]
+        self._command = np.asarray(command.tau_ff, float)[actuated]
         if self.actuator_dynamics is not None:  # the PD is evaluated in step(), behind the lag
-            self._kp, self._kd = command.kp[actuated], command.kd[actuated]
-            self._q_ref, self._v_ref = command.q_ref[actuated], command.v_ref[actuated]
-            self._command = np.asarray(command.tau_ff, float)[actuated]
             return
         bias = self.model.actuator_biasprm
         bias[self._acts, _BIAS_POSITION] = -command.kp[actuated]
         bias[self._acts, _BIAS_VELOCITY] = -command.kd[actuated]
         self.data.ctrl[self._acts] = (command.kp * command.q_ref + command.kd * command.v_ref + command.tau_ff)[actuated]
+
+    def set_actuator_dynamics(self, dynamics: ActuatorDynamics | None) -> None:
+        """Change the actuators' lag and envelope (per-episode randomization); the command in force is kept."""
+        dynamics = dynamics if dynamics is not None and dynamics.active else None
+        if dynamics is not None and len(dynamics.lag) != len(self._command):
+            raise ValueError(f"actuator dynamics for {len(dynamics.lag)} actuators, the robot has {len(self._command)}")
+        was = self.actuator_dynamics
+        self.actuator_dynamics = dynamics
+        if was is None and dynamics is not None:
+            self._delivered = self.data.actuator_force[self._acts].copy()  # the lag starts from the torque delivered now
+        if (was is None) == (dynamics is None) or not self._impedance_active:
+            if dynamics is None and not self._impedance_active:
+                self.data.ctrl[self._acts] = self._command
+            return
+        bias = self.model.actuator_biasprm
+        if dynamics is not None:  # the PD moves from MuJoCo's bias into step()
+            bias[self._acts, _BIAS_POSITION] = 0.0
+            bias[self._acts, _BIAS_VELOCITY] = 0.0
+        else:
+            bias[self._acts, _BIAS_POSITION] = -self._kp
+            bias[self._acts, _BIAS_VELOCITY] = -self._kd
+            self.data.ctrl[self._acts] = self._kp * self._q_ref + self._kd * self._v_ref + self._command
 
     # --- helpers --------------------------------------------------------------------------
     def _body_id(self, link: str) -> int:
