@@ -33,7 +33,7 @@ VALUES = ("nan", "inf", "-inf", "-1", "0", "1e12")
 RUN_TIMEOUT_S = 120  # one accepted-value run, wall clock (each takes a few seconds)
 SUBPROCESS = ("deploy", "motors", "train")  # spawn processes or own signals: run as `python -m giwbc.apps.cli`
 OTHER_HELPERS = ("deploy", "motors", "train")  # validated by their own modules (giwbc.apps.deploy*, motors, training)
-PENDING = ("train",)  # their validation is being fixed concurrently: xfail(strict=False) until it lands
+PENDING: tuple[str, ...] = ()  # their validation is being fixed concurrently: xfail(strict=False) until it lands
 
 # Cheap base arguments per command: a value the parser accepts runs with these (the swept option's
 # value comes last, so it wins over a base value of the same option). {tmp}: the case's folder.
@@ -83,7 +83,7 @@ def _commands(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()) -> It
 
 
 def _is_file_type(kind: object) -> bool:
-    return getattr(kind, "__module__", "") == "giwbc.apps.arguments" and getattr(kind, "__qualname__", "").startswith("existing_file")
+    return getattr(kind, "__module__", "") == "giwbc.apps.arguments" and getattr(kind, "__qualname__", "").startswith(("existing_file", "policy_file"))
 
 
 def _is_number_type(kind: object) -> bool:
@@ -97,7 +97,7 @@ TYPED = [(path, action) for path, parser in COMMANDS.items() for action in parse
 NUMERIC = [(path, action) for path, action in TYPED if action.option_strings]
 FILES = {**{(path, action.option_strings[0] if action.option_strings else action.dest): "log" if path == ("log", "plot") else "policy"
             for path, parser in COMMANDS.items() for action in parser._actions if _is_file_type(action.type)},
-         **{key: kind for key, kind in FILE_OPTIONS.items() if key[0] in COMMANDS}}
+         **{key: kind for key, kind in FILE_OPTIONS.items() if key[0] in COMMANDS and key[1] in COMMANDS[key[0]]._option_string_actions}}
 
 
 def _marks(path: tuple[str, ...]) -> list[pytest.MarkDecorator]:
@@ -165,9 +165,10 @@ def _prepare(tmp: Path) -> None:
     shutil.copy(ROOT / "robots" / "g1" / "hardware.toml", tmp / "hardware.toml")
 
 
-def _run(path: tuple[str, ...], argv: list[str], tmp: Path) -> tuple[int, str, str]:
+def _run(path: tuple[str, ...], argv: list[str], tmp: Path, isolated: bool = True) -> tuple[int, str, str]:
+    """Run a command: in a subprocess for those in SUBPROCESS when ``isolated``, else in this process."""
     _prepare(tmp)
-    if path[0] in SUBPROCESS:
+    if isolated and path[0] in SUBPROCESS:
         return _subprocess(argv, tmp)
     cwd = Path.cwd()
     os.chdir(tmp)  # anything written by default (runs/, videos) lands in the case's folder
@@ -220,6 +221,7 @@ def _base(path: tuple[str, ...], tmp: Path, real_log: Path | None = None) -> lis
 def test_every_command_has_cheap_base_arguments():
     assert set(COMMANDS) <= set(BASE), f"add base arguments for {sorted(set(COMMANDS) - set(BASE))}"
     assert len(NUMERIC) > 40  # the walk found the options (every command has some)
+    assert (("play",), "--policy") in FILES and (("log", "plot"), "log") in FILES and (("deploy",), "--hardware") in FILES
 
 
 @pytest.mark.parametrize("path, action", [pytest.param(p, a, marks=_marks(p), id=f"{' '.join(p)} {_name(a)}") for p, a in TYPED])
@@ -341,7 +343,7 @@ def test_a_bad_file_is_refused_in_one_line(path, option, kind, case, tmp_path, w
         argv = [*path, str(file), "-o", str(tmp_path / "report.png")]
     code, err = _parse(argv)
     if code is None:
-        code, out, err = _run(path, argv, tmp_path)
+        code, out, err = _run(path, argv, tmp_path, isolated=False)  # refused before any work: no process to isolate
         _check_outcome(path, argv, code, out, err, tmp_path)
     assert code == 2, f"{argv}: a {case} {kind} file must be refused (exit 2), got {code}: {err}"
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
