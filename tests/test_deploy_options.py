@@ -49,6 +49,8 @@ def test_options_from_python_are_checked_when_built():
                          ("log_every", 0), ("controller", "fast"), ("emulator_mode", "remote"), ("foxglove_port", 0)]:  # fmt: skip
         with pytest.raises(ConfigError, match=field):
             DeployOptions(**{field: value})
+    with pytest.raises(ConfigError, match="walker: hip_roll_gain"):
+        DeployOptions(controller="walk", walker={"hip_roll_gain": math.nan})
     assert DeployOptions().controller == "wbc" and DeployOptions(first_run=True).controller == "pd"
 
 

@@ -38,6 +38,7 @@ def _joints_by_bus(joints: Sequence[str], plan: HardwarePlan | None) -> str:
             bus = "?"
         groups.setdefault(bus, []).append(joint)
     sizes = {b.name: len(b.motors) for b in plan.buses}
+    groups = {bus: groups[bus] for bus in [*sizes, "?"] if bus in groups}  # the plan's bus order
     whole = [bus for bus, names in groups.items() if len(names) == sizes.get(bus, -1)]
     parts = [f"every motor on {', '.join(whole)}"] if whole else []
     parts += [f"{bus} {more(names)}" for bus, names in groups.items() if bus not in whole]

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-from giwbc.apps.deploy_walk import WalkCommand
+from giwbc.apps.deploy_walk import WalkCommand, non_finite
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig, FaultInjection
 from giwbc.emulation.process import EmulatorProcess
 from giwbc.errors import ConfigError
@@ -82,6 +82,10 @@ class DeployOptions:
             check_cpu_latency(self.cpu_latency)
         except ValueError as error:
             raise ConfigError(str(error)) from None
+        for key, value in dict(self.walker or {}).items():
+            bad = non_finite(value)
+            if bad is not None:
+                raise ConfigError(f"walker: {key} must be finite numbers, got {bad}")
         if self.foxglove_port is not None and not (isinstance(self.foxglove_port, int) and 1 <= self.foxglove_port <= 65535):
             raise ConfigError(f"foxglove_port must be a TCP port from 1 to 65535, got {self.foxglove_port!r}")
 

@@ -231,7 +231,7 @@ def walker_overrides(args: argparse.Namespace) -> dict[str, Any] | None:
     if not isinstance(overrides, dict):
         raise DeployError(f"--walker must be a JSON object of WalkerConfig fields, got {text!r}")
     for key, value in overrides.items():
-        bad = _non_finite(value)
+        bad = non_finite(value)
         if bad is not None:
             raise DeployError(f"--walker: {key} must be finite numbers, got {bad}")
     try:
@@ -241,16 +241,16 @@ def walker_overrides(args: argparse.Namespace) -> dict[str, Any] | None:
     return overrides
 
 
-def _non_finite(value: Any) -> str | None:
+def non_finite(value: Any) -> str | None:
     """The first number in a JSON value that is not finite (JSON's NaN, Infinity, or a float
     overflowing to inf like 1e999), as text, or None."""
     if isinstance(value, float) and not math.isfinite(value):
         return repr(value)
     if isinstance(value, list):
-        return next((bad for bad in map(_non_finite, value) if bad is not None), None)
+        return next((bad for bad in map(non_finite, value) if bad is not None), None)
     if isinstance(value, dict):
-        return next((bad for bad in map(_non_finite, value.values()) if bad is not None), None)
+        return next((bad for bad in map(non_finite, value.values()) if bad is not None), None)
     return None
 
 
-__all__ = ["DEPLOY_WALKER_OPTIONS", "WalkCommand", "WalkHold", "WalkPolicyTask", "add_walk_arguments", "walk_command", "walker_overrides"]
+__all__ = ["DEPLOY_WALKER_OPTIONS", "WalkCommand", "WalkHold", "WalkPolicyTask", "add_walk_arguments", "non_finite", "walk_command", "walker_overrides"]

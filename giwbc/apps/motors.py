@@ -12,7 +12,7 @@
   order with the plan's sign and zero offset applied; joints outside their limits flagged.
 - ``zero JOINT``: make that joint's motor read 0 where it stands and record the joint angle
   there (``--at``, default 0) as its ``zero_offset`` in the plan (backup kept).
-- ``calibrate``: the guided procedure of :mod:`giwbc.hal.bringup`: robot in the model's default
+- ``calibrate``: the guided procedure of ``giwbc.hal.bringup``: robot in the model's default
   posture (or zero posture), each joint moved by hand in its positive direction; sign and
   zero_offset written to the plan (backup kept); joints that read outside their limits after it
   are named and the command fails.
@@ -309,7 +309,7 @@ MAX_RATE = 2000.0  # Hz: the control rates a plan is checked at (as giwbc deploy
 
 def add_motors_command(commands: Any) -> argparse.ArgumentParser:
     """Add ``giwbc motors`` and its actions to an argparse subparsers object."""
-    parser = add_command(commands, "motors", "bring-up: check interfaces, scan, monitor, zero, calibrate (no torque)", description=__doc__)
+    parser = add_command(commands, "motors", "bring-up: check interfaces, scan, monitor, zero, calibrate (no torque)", description=(__doc__ or "").replace("``", ""))
     sub = parser.add_subparsers(dest="action", required=True, metavar="ACTION")
 
     def plan_options(p: argparse.ArgumentParser) -> None:
