@@ -46,6 +46,9 @@ def test_dry_run_holds_g1_standing_with_the_wbc_in_real_time(g1, model, tmp_path
     result = outcome.result
     calibrating = result.phase_times["running"] - result.phase_times["calibrate"]  # held still until the IMU calibrated
     assert outcome.calibration is not None and 0.75 <= calibrating < StartupConfig().calibration_timeout
+    # The start-up says what it waits for, once a second while the IMU calibrates (paced: robot time is wall time).
+    waits = [line for line in lines if line.startswith("calibrating the IMU: hold the robot still")]
+    assert len(waits) >= int(calibrating) // 2 and all("waiting for" in line for line in waits)  # once a second (half, on a loaded machine)
     assert result.ok and result.robot_time == pytest.approx(2.95 + calibrating, abs=0.1)
     # Paced by the wall clock, not run as fast as possible: the run never got ahead of wall time
     # (its own robot time, less one period, at most), and no logged cycle started before its slot.
