@@ -164,3 +164,30 @@ def test_envs_take_a_plant(g1):
     env.close()
     with pytest.raises(PlantMismatchError, match="model= or plant="):
         gymnasium.make("giwbc/G1Walk-v0", plant="point_feet", model=g1.build_mujoco())
+
+
+def test_walk_and_evaluate_refuse_an_unknown_plant_in_one_line(capsys):
+    from giwbc.apps.cli import main
+
+    assert main(["walk", "--plant", "no_such_plant", "--seconds", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "unknown plant 'no_such_plant'" in err and "point_feet" in err
+    assert main(["evaluate", "--protocol", "walk", "--plant", "missing.xml", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "missing.xml: no such MJCF file" in err
+
+
+def test_a_vendor_motor_is_adopted_with_its_control_range_as_force_limit(g1):
+    spec = build_mujoco_spec(g1)
+    knee = spec.actuator("left_knee_joint")
+    knee.forcelimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    knee.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    knee.ctrlrange = [-100.0, 100.0]  # as a vendor's <motor ctrlrange="-100 100"/>
+    robot = MujocoRobot(g1, spec.compile())
+    index = mujoco.mj_name2id(robot.model, mujoco.mjtObj.mjOBJ_ACTUATOR, "left_knee_joint")
+    assert robot.model.actuator_forcerange[index] == pytest.approx([-100.0, 100.0]) and robot.model.actuator_ctrllimited[index] == 0
+    command = np.zeros(g1.dofs)
+    command[g1.joint_names.index("left_knee_joint")] = 500.0
+    robot.set_joint_torques(command)
+    robot.step()
+    assert robot.joint_efforts()[g1.joint_names.index("left_knee_joint")] == pytest.approx(100.0)

@@ -19,6 +19,12 @@ Use::
     robot = plant_robot(description, "point_feet")    # a MujocoRobot on that plant (lag and envelope applied per step)
     plant.variant.feet.shape, sole_points(description, plant.variant, "left_foot")  # (n, 3) sole points, foot link frame
     MujocoRobot(description, **plant.robot_options())  # the same, by hand (or engine_options={"mujoco": ...})
+
+Per episode (engine level, in place, from a seeded generator): the randomization parameters
+``joint_friction``, ``joint_damping``, ``joint_armature``, ``actuator_strength``, ``ground_friction``,
+``contact_timeconst``, ``contact_dampratio``, ``solver_iterations``, ``actuator_lag`` and ``imu_mounting``
+(:data:`giwbc.randomization.PARAMETERS`) vary a plant around any of these; the foot shape changes
+the model's geometry, so it is a plant (a variant) rather than a per-episode draw.
 """
 
 from __future__ import annotations
