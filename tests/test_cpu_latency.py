@@ -123,8 +123,9 @@ def test_a_bad_bound_is_refused_before_anything_starts(g1, model, tmp_path):
             _run(g1, model, tmp_path, lambda runtime: None, cpu_latency=bad)
     parser = argparse.ArgumentParser()
     add_deploy_command(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["deploy", "--robot", "g1", "--emulate", "--cpu-latency", "-5", "--log", str(tmp_path / "never.mcap")])
-    assert args.run(args) == 2
+    with pytest.raises(SystemExit) as exit_:  # refused by the option's type, before anything runs
+        parser.parse_args(["deploy", "--robot", "g1", "--emulate", "--cpu-latency", "-5", "--log", str(tmp_path / "never.mcap")])
+    assert exit_.value.code == 2
     assert not (tmp_path / "never.mcap").exists()
 
 
@@ -136,7 +137,7 @@ def test_deploy_says_what_the_kernel_granted(tmp_path, capsys):
     parser = argparse.ArgumentParser()
     add_deploy_command(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(["deploy", "--robot", "g1", "--emulate", "--unpaced", "--controller", "pd", "--seconds", "0.1",
-                              "--ramp", "0.05", "--cpu-latency", "0", "--scene-rate", "0", "--log", str(tmp_path / "run.mcap")])
+                              "--ramp", "0.2", "--cpu-latency", "0", "--scene-rate", "0", "--log", str(tmp_path / "run.mcap")])
     assert args.run(args) == 0
     (line,) = [line for line in capsys.readouterr().out.splitlines() if line.startswith("control loop:")]
     granted = os.access(CPU_LATENCY_DEVICE, os.W_OK)
