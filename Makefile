@@ -14,7 +14,7 @@ export OPENBLAS_NUM_THREADS ?= 1
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[dev,train,video,ray,plot,foxglove]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,train,video,ray,plot,foxglove,dds]'
 	touch $(STAMP)
 
 install: $(STAMP)
