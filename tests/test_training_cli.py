@@ -83,6 +83,7 @@ BAD = [
     (["--env-kwargs", '{"no_such_option": 1}'], "--env-kwargs: giwbc/CartPoleBalance-v0 refuses"),
     (["--new-action-mean", "a=nan"], "--new-action-mean: expected NAME=VALUE"),
     (["--new-action-mean", "a=0.5"], "give warm_start"),
+    (["--envs-per-worker", "2"], "--envs-per-worker sets how many environments each Ray actor steps: give --ray too"),
 ]
 
 
@@ -119,6 +120,15 @@ def test_a_bad_warm_start_file_is_refused(case, tmp_path, capsys):
     line = refused(capsys, "--timesteps", "16", "--out", str(tmp_path / "run"), "--warm-start", str(path))
     assert {"missing": "no such file", "empty": "empty file", "corrupted": "onnxruntime cannot load it"}[case] in line, line
     assert not (tmp_path / "run").exists()
+
+
+def test_an_out_that_cannot_be_a_run_folder_is_refused(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    assert f"--out: {blocker} is a file, not a run folder" in refused(capsys, "--timesteps", "16", "--out", str(blocker))
+    line = refused(capsys, "--timesteps", "16", "--out", str(blocker / "run"))  # a folder inside a file: mkdir fails
+    assert f"--out: cannot write the run folder {blocker / 'run'}" in line, line
+    assert blocker.read_text() == "not a folder"
 
 
 def test_a_checkpoint_of_another_environment_is_refused(first_run, tmp_path, capsys):
@@ -174,6 +184,10 @@ def test_a_resume_into_its_own_folder_continues_the_run_exactly(first_run, tmp_p
     assert ("training 16 steps: whole rollouts of n_envs × n_steps = 1 × 16 = 16, from step 16 of "
             f"{out / 'checkpoints' / 'step_16.zip'} to step 32 (--timesteps 20 rounded up to 32)") in err
     assert (out / "policy.onnx").read_bytes() == uninterrupted  # exact resume: the same policy, bit for bit
+    code, stdout, err = train(capsys, "--timesteps", "20", "--checkpoint-every", "16", "--out", str(out),
+                              "--resume", str(out / "checkpoints" / "step_16.zip"), "--seed", "6")
+    assert code == 0 and "a new branch (seed: 5 in the run, 6 now)" in err, err
+    assert (out / "policy.onnx").read_bytes() != uninterrupted
 
 
 # --- rounding, metadata, progress -------------------------------------------------------------------

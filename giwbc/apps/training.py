@@ -317,14 +317,17 @@ def train(config: TrainConfig) -> TrainResult:
     import torch
 
     torch.set_num_threads(1)  # small MLPs: one thread is fastest, and leaves the cores to the workers
+    branch = resume_branch(config) if config.resume is not None else []  # (read before config.json is rewritten)
+    try:
+        clear_run(earlier)  # (--overwrite: none of the earlier run's checkpoints mixes with this one's)
+        (out / "checkpoints").mkdir(parents=True, exist_ok=True)
+        (out / "config.json").write_text(json.dumps(asdict(config), indent=2))
+    except OSError as error:
+        raise ConfigError(f"--out: cannot write the run folder {out}: {error.strerror or error}") from None
     if config.resume is not None:
-        branch = resume_branch(config)
         print(f"resuming {config.resume}: " + ("a new branch (" + "; ".join(branch) + ")" if branch else
                                                  "continues its run exactly (same seed and options)"), file=sys.stderr)
     print(steps_note(config.total_timesteps, start, rollout, config.n_envs, config.resume), file=sys.stderr)
-    clear_run(earlier)  # (--overwrite: none of the earlier run's checkpoints mixes with this one's)
-    (out / "checkpoints").mkdir(parents=True, exist_ok=True)
-    (out / "config.json").write_text(json.dumps(asdict(config), indent=2))
     env_id = _module_id(config.env_id)
     planned = planned_steps(config.total_timesteps, start, rollout)
     with connect(config.ray_address) if config.vectorization == "ray" else nullcontext():
@@ -541,6 +544,8 @@ def add_train_command(commands: Any) -> None:
 def run_train_command(args: Any) -> int:
     """``giwbc train``: every error is one line (a :class:`ConfigError`) before anything is written."""
     out = args.out or f"runs/{args.env.split('/')[-1]}"
+    if args.envs_per_worker is not None and not args.ray:
+        raise ConfigError("--envs-per-worker sets how many environments each Ray actor steps: give --ray too")
     config = TrainConfig(env_id=args.env, total_timesteps=args.timesteps, n_envs=args.n_envs, seed=args.seed, out_dir=out,
                          checkpoint_every=args.checkpoint_every, vectorization="ray" if args.ray else args.vectorization,
                          ray_address=args.ray, envs_per_worker=args.envs_per_worker,
