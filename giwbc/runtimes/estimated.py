@@ -104,7 +104,11 @@ def calibrate(
 
     ``damping``: ``(N s/m, N m s)`` of a gantry's damper on the base (a world-frame wrench against
     the true base velocity, zero at rest, so the feet carry the weight): the PD-held G1 rocks
-    for seconds before it is still enough to calibrate on; damped, it settles within about one."""
+    for seconds before it is still enough to calibrate on; damped, it settles within about one.
+    The damper is re-evaluated at every physics step, as a physical damper acts: held over a
+    whole control period (2 or more physics steps below 500 Hz) its explicit update overshoots
+    on the light pelvis and diverges. The timeout counts the physics steps taken here, not the
+    engine's clock (which MuJoCo restarts when a state diverges), so the wait is bounded."""
     robot = estimated.robot
     estimator = estimated.estimator
     estimator.reset()
@@ -113,24 +117,29 @@ def calibrate(
                             description.kd.copy(), np.zeros(description.dofs))
     linear, angular = damping
     gantry = linear > 0 or angular > 0
-    start = robot.time()
+    dt = description.timestep
+    steps, limit = 0, math.ceil(timeout / dt - 1e-9)  # physics steps taken, and the most allowed
     estimated.update()
     try:
         while not estimator.ready:
-            if robot.time() - start >= timeout:
+            if steps >= limit:
                 raise EstimatorCalibrationError(
                     f"the state estimator did not calibrate within {timeout:g} s of simulated standing: waiting for "
                     f"{estimator.waiting_for}. A robot reset with its joints off the default pose creeps for seconds while "
                     "held there: start it at the default pose (e.g. G1Walk(initial_joint_noise=0)), or raise calibration_timeout"
                 )
-            if gantry:
-                base = robot.base_state()  # the simulation's truth: the gantry is part of the world, not of the robot
-                robot.set_external_wrench(description.base_link, -linear * base.linear_velocity,  # type: ignore[attr-defined]
-                                          -angular * base.angular_velocity)
             robot.set_joint_impedance(hold)
-            robot.step(physics_per_controller)  # type: ignore[attr-defined]
+            if gantry:
+                for _ in range(physics_per_controller):
+                    base = robot.base_state()  # the simulation's truth: the gantry is part of the world, not of the robot
+                    robot.set_external_wrench(description.base_link, -linear * base.linear_velocity,  # type: ignore[attr-defined]
+                                              -angular * base.angular_velocity)
+                    robot.step(1)  # type: ignore[attr-defined]
+            else:
+                robot.step(physics_per_controller)  # type: ignore[attr-defined]
+            steps += physics_per_controller
             estimated.update()
     finally:
         if gantry:
             robot.set_external_wrench(description.base_link, np.zeros(3), np.zeros(3))  # type: ignore[attr-defined]
-    return robot.time() - start
+    return steps * dt
