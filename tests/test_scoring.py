@@ -77,14 +77,16 @@ def test_sim_to_sim_scores_a_fall_as_a_failure(g1_model) -> None:
     assert cell.episodes == 1 and cell.successes == 0 and cell.success_rate == 0.0
     assert cell.failed_seeds == [4]
     assert cell.simulated_s < 0.55  # it stopped at the fall, not at the end
+    assert cell.summary()["falls"] == 1 and -0.2 < cell.fall_after_push_s[0] < 0.2  # s after the push ended
 
 
 def test_sim_to_sim_scores_a_standing_episode_as_a_success(g1_model) -> None:
-    cells = evaluate(episodes=1, seconds=0.3, pushes=PushSetting(force=30.0, duration=0.1, interval=(0.1, 0.2)),
+    """Pushes start within the first 0.8 s; the episode runs on 3 s past the latest possible end of the last one."""
+    cells = evaluate(episodes=1, seconds=0.8, pushes=PushSetting(force=30.0, duration=0.1, interval=(0.6, 0.7)),
                      workers=0, seed=4, conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})
     cell = cells["wbc_only"]["mujoco_nominal"]
-    assert (cell.episodes, cell.successes, cell.failed_seeds) == (1, 1, [])
-    assert cell.simulated_s == pytest.approx(0.3)
+    assert (cell.episodes, cell.successes, cell.failed_seeds, cell.fall_after_push_s) == (1, 1, [], [])
+    assert cell.simulated_s == pytest.approx(0.8 + 0.1 + SETTLE_AFTER_PUSH_S)
 
 
 # --- the arithmetic of the scores, on made-up episodes -------------------------------------------
@@ -163,15 +165,16 @@ def test_push_protocol_is_validated() -> None:
 
 
 def test_sim_to_sim_cells_and_their_summary() -> None:
-    cell = Cell(episodes=4, successes=3, simulated_s=30.0, wall_s=8.0, failed_seeds=[7, 2])
+    cell = Cell(episodes=4, successes=3, simulated_s=30.0, wall_s=8.0, failed_seeds=[7, 2], fall_after_push_s=[2.5])
     assert cell.success_rate == 0.75
     assert cell.summary() == {"episodes": 4, "successes": 3, "success_rate": 0.75, "mean_survival_s": 7.5,
-                              "wall_s_per_episode": 2.0, "failed_seeds": [2, 7]}  # fmt: skip
+                              "wall_s_per_episode": 2.0, "failed_seeds": [2, 7], "falls": 1, "fall_after_push_s": [2.5]}  # fmt: skip
     empty = Cell()
     assert math.isnan(empty.success_rate) and empty.summary()["mean_survival_s"] is None
     assert empty.summary()["wall_s_per_episode"] is None
-    assert PushSetting(force=50.0, duration=0.1, interval=(1.0, 2.0)).sim2real() == {
-        "pushes": {"force": [50.0, 50.0], "duration": 0.1, "interval": [1.0, 2.0]}}
+    setting = PushSetting(force=50.0, duration=0.1, interval=(1.0, 2.0))
+    assert setting.sim2real(10.0) == {"pushes": {"force": [50.0, 50.0], "duration": 0.1, "interval": [1.0, 2.0], "horizon": 10.0}}
+    assert setting.episode_seconds(10.0) == pytest.approx(10.0 + 0.1 + SETTLE_AFTER_PUSH_S)
 
 
 def test_sim_to_sim_refuses_bad_requests() -> None:
@@ -184,8 +187,8 @@ def test_sim_to_sim_refuses_bad_requests() -> None:
 
 
 def test_sim_to_sim_chunks_and_workers_do_not_change_the_result(g1_model) -> None:
-    """Seven episodes: two chunks of seeds (5 + 2); in this process or on two workers, the same cells."""
-    kwargs = dict(episodes=7, seconds=0.1, pushes=PushSetting(force=30.0, duration=0.05, interval=(0.05, 0.06)), seed=11,
+    """Six episodes: two chunks of seeds (5 + 1); in this process or on two workers, the same cells."""
+    kwargs = dict(episodes=6, seconds=0.7, pushes=PushSetting(force=30.0, duration=0.1, interval=(0.6, 0.65)), seed=11,
                   conditions=("mujoco_nominal",), env_kwargs={"model": g1_model})  # fmt: skip
     import time
 
@@ -194,8 +197,8 @@ def test_sim_to_sim_chunks_and_workers_do_not_change_the_result(g1_model) -> Non
     elapsed = time.perf_counter() - before
     assert 0.0 < here.wall_s <= elapsed  # the episodes' own wall time, measured inside the call
     pooled = evaluate(workers=2, **kwargs)["wbc_only"]["mujoco_nominal"]
-    assert (here.episodes, here.successes, here.failed_seeds) == (7, 7, [])
-    assert here.simulated_s == pytest.approx(0.7)
+    assert (here.episodes, here.successes, here.failed_seeds) == (6, 6, [])
+    assert here.simulated_s == pytest.approx(6 * (0.7 + 0.1 + SETTLE_AFTER_PUSH_S))
     assert (pooled.episodes, pooled.successes, pooled.simulated_s) == (here.episodes, here.successes, here.simulated_s)
 
 

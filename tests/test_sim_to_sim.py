@@ -35,16 +35,16 @@ def residual_policy(tmp_path, g1_model):
 
 
 def test_both_controllers_on_every_condition(residual_policy, g1_model) -> None:
-    cells = evaluate(policy=residual_policy, episodes=2, seconds=0.3, pushes=PushSetting(force=60.0, interval=(0.1, 0.2)),
+    cells = evaluate(policy=residual_policy, episodes=1, seconds=0.8, pushes=PushSetting(force=60.0, interval=(0.6, 0.7)),
                      workers=0, env_kwargs={"model": g1_model})
     assert set(cells) == {"wbc_only", "residual_policy"}
     for row in cells.values():
         assert list(row) == list(CONDITIONS)
-        for cell in row.values():
-            assert cell.episodes == 2 and cell.successes == 2 and cell.simulated_s == pytest.approx(0.6)
+        for cell in row.values():  # pushed within 0.8 s, then on to 3 s after the last push's latest end
+            assert cell.episodes == 1 and cell.successes == 1 and cell.simulated_s == pytest.approx(0.8 + 0.1 + 3.0)
     table = markdown_table(cells, policy_missing=False)
     assert table.splitlines()[0] == "| controller | mujoco_nominal | mujoco_randomized | pybullet |"
-    assert "| residual_policy | 2/2 (100 %) | 2/2 (100 %) | 2/2 (100 %) |" in table
+    assert "| residual_policy | 1/1 (100 %) | 1/1 (100 %) | 1/1 (100 %) |" in table
 
 
 def test_command_without_a_policy_runs_the_wbc_alone(capsys) -> None:
@@ -56,8 +56,8 @@ def test_command_without_a_policy_runs_the_wbc_alone(capsys) -> None:
 
     parser = argparse.ArgumentParser(prog="giwbc")
     add_sim_to_sim_command(parser.add_subparsers(dest="command", required=True))
-    argv = ["sim-to-sim", "--episodes", "2", "--seconds", "0.1", "--workers", "0", "--conditions", "pybullet",
-            "--no-policy", "--push-force", "50", "--push-interval", "0.02", "0.05"]
+    argv = ["sim-to-sim", "--episodes", "2", "--seconds", "0.7", "--workers", "0", "--conditions", "pybullet",
+            "--no-policy", "--push-force", "50", "--push-interval", "0.6", "0.65"]
     args = parser.parse_args(argv)
     assert args.run(args) == 0
     table = capsys.readouterr().out
@@ -65,7 +65,8 @@ def test_command_without_a_policy_runs_the_wbc_alone(capsys) -> None:
     args = parser.parse_args([*argv, "--json"])
     assert args.run(args) == 0
     result = json.loads(capsys.readouterr().out)
-    assert not result["policy_missing"] and result["pushes"]["force"] == 50.0 and result["pushes"]["interval"] == [0.02, 0.05]
+    assert not result["policy_missing"] and result["pushes"]["force"] == 50.0 and result["pushes"]["interval"] == [0.6, 0.65]
+    assert result["episode_seconds"] == pytest.approx(0.7 + 0.1 + 3.0) and result["settle_after_push_s"] == 3.0
     assert list(result["results"]) == ["wbc_only"] and list(result["results"]["wbc_only"]) == ["pybullet"]
     cell = result["results"]["wbc_only"]["pybullet"]
     assert cell["episodes"] == 2 and cell["success_rate"] == 1.0

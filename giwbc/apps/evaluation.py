@@ -83,7 +83,7 @@ class PushProtocol:
         sim2real["pushes"] = {"interval": list(self.interval), "duration": self.duration, "force": [self.force, self.force],
                               "horizon": self.push_horizon}
         plant = {} if self.plant is None else {"plant": self.plant}
-        return {**base_kwargs, **plant, "sim2real": sim2real, "max_episode_steps": int(round(self.episode_seconds * agent_hz))}
+        return {**base_kwargs, **plant, "sim2real": sim2real, "max_episode_steps": math.ceil(self.episode_seconds * agent_hz - 1e-9)}  # never short of the settle window
 
 
 def settled_episode_seconds(interval: tuple[float, float], duration: float) -> float:

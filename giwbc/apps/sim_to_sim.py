@@ -9,7 +9,11 @@ controller -- the WBC alone (zero residual) and, when given, a residual ONNX pol
 * ``mujoco_randomized``: the robot's shipped domain randomization (``robots/g1/randomization.toml``);
 * ``pybullet``: the other engine, nominal parameters.
 
-Success: the episode ran its full length without terminating (fall or excessive tilt). Episodes
+Pushes start during the first ``seconds`` of an episode; the episode then runs on, unpushed,
+until :data:`~giwbc.locomotion.push_scoring.SETTLE_AFTER_PUSH_S` (3 s) after the last push can
+have ended (``seconds + duration + 3`` s in all), so that a slow topple after a late push is seen.
+Success: the episode ran its full length without terminating (fall or excessive tilt); each fall
+is reported with its time after the last push ended. Episodes
 are grouped in fixed chunks of seeds, each chunk run by one worker process on one environment, so
 the result does not depend on the number of workers, nor on whether the chunks ran as Ray tasks
 on a cluster (``--ray``, see :mod:`giwbc.distributed`). Prints a markdown table (one JSON object with ``--json``)::
@@ -21,6 +25,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
@@ -40,6 +45,7 @@ from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
 from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import ConfigError, PolicyFormatError
+from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S, fall_times_summary, judge_push
 from giwbc.policy import OnnxPolicy, check_compatible
 from giwbc.util.shipped import shipped_policy
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
@@ -68,8 +74,14 @@ class PushSetting:
     duration: float = 0.1
     interval: tuple[float, float] = (1.0, 2.0)
 
-    def sim2real(self) -> dict[str, Any]:
-        return {"pushes": {"force": [self.force, self.force], "duration": self.duration, "interval": list(self.interval)}}
+    def sim2real(self, horizon: float) -> dict[str, Any]:
+        """The runtime's pushes, starting only within the first ``horizon`` s of an episode."""
+        return {"pushes": {"force": [self.force, self.force], "duration": self.duration, "interval": list(self.interval),
+                           "horizon": horizon}}
+
+    def episode_seconds(self, seconds: float) -> float:
+        """An episode pushed for ``seconds``: on until the settle window after the latest push's end."""
+        return seconds + self.duration + SETTLE_AFTER_PUSH_S
 
 
 @dataclass(frozen=True)
@@ -94,6 +106,7 @@ class Cell:
     simulated_s: float = 0.0
     wall_s: float = 0.0
     failed_seeds: list[int] = field(default_factory=list)
+    fall_after_push_s: list[float] = field(default_factory=list)  # s from the last push's end to each fall
 
     @property
     def success_rate(self) -> float:
@@ -112,6 +125,7 @@ class Cell:
             "mean_survival_s": self.simulated_s / self.episodes if self.episodes else None,
             "wall_s_per_episode": self.wall_s / self.episodes if self.episodes else None,
             "failed_seeds": sorted(self.failed_seeds),
+            **fall_times_summary(self.fall_after_push_s),
         }
 
 
@@ -123,31 +137,36 @@ def _task_kwargs(policy: Any) -> dict[str, Any]:
     return {key: value for key, value in kwargs.items() if key not in RUNTIME_OPTIONS and key not in ("robot", "agent_rate")}
 
 
-def run_job(job: Job, tick: Callable[[int], None] | None = None) -> tuple[Job, list[tuple[int, bool, float]], float]:
-    """Run one chunk: ``[(seed, success, simulated seconds)]`` and the wall time of its episodes; ``tick(1)`` after each."""
+def run_job(job: Job, tick: Callable[[int], None] | None = None) -> tuple[Job, list[tuple[int, bool, float, float | None]], float]:
+    """Run one chunk: ``[(seed, success, simulated seconds, fall after the last push or None)]`` and the wall time of
+    its episodes; ``tick(1)`` after each."""
     import gymnasium
 
     policy = OnnxPolicy(job.policy) if job.controller == "residual_policy" else None
     task_policy = OnnxPolicy(job.policy) if job.policy is not None else None
-    kwargs = {**_task_kwargs(task_policy), **CONDITIONS[job.condition], "sim2real": job.pushes.sim2real(), **job.env_kwargs}
+    kwargs = {**_task_kwargs(task_policy), **CONDITIONS[job.condition], "sim2real": job.pushes.sim2real(job.seconds), **job.env_kwargs}
     with quiet_banners():  # PyBullet prints its build time at connect
         env = gymnasium.make(ENV_ID, **kwargs).unwrapped
     try:
         if policy is not None:
             check_compatible(policy.metadata, env.describe())
         zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
-        steps = int(round(job.seconds * env.rates.agent))
+        steps = math.ceil(job.pushes.episode_seconds(job.seconds) * env.rates.agent - 1e-9)  # never short of the settle window
         results = []
         started = time.perf_counter()
         for seed in job.seeds:
             observation, _ = env.reset(seed=seed)
             terminated = False
+            pushes, push_end = 0, math.nan
             for _ in range(steps):
                 action = zero if policy is None else policy(observation)
-                observation, _, terminated, _, _ = env.step(action)
+                observation, _, terminated, _, info = env.step(action)
+                if info.get("pushes", 0) > pushes:  # a push started within this agent step: it ends at most duration later
+                    pushes, push_end = info["pushes"], min(env.time, job.seconds) + job.pushes.duration
                 if terminated:
                     break
-            results.append((seed, not terminated, env.time))
+            outcome = judge_push(fell=terminated, fall_time=env.time, end_time=env.time, push_end=push_end)
+            results.append((seed, outcome.success, env.time, outcome.fall_after_push))
             if tick is not None:
                 tick(1)
         return job, results, time.perf_counter() - started
@@ -194,12 +213,14 @@ def evaluate(
     for job, results, wall in outcomes:
         cell = cells[job.controller][job.condition]
         cell.wall_s += wall
-        for episode_seed, success, survived in results:
+        for episode_seed, success, survived, fall_after_push in results:
             cell.episodes += 1
             cell.successes += success
             cell.simulated_s += survived
             if not success:
                 cell.failed_seeds.append(episode_seed)
+            if fall_after_push is not None:
+                cell.fall_after_push_s.append(fall_after_push)
     return cells
 
 
@@ -287,8 +308,9 @@ def run_sim_to_sim_command(args: argparse.Namespace) -> int:
         save_figure(sim_to_sim_figure(cells), args.plot)
     if not args.json:
         print(markdown_table(cells, missing))
-        print(f"each cell: episodes that ran their {args.seconds:g} s without falling / episodes, seeds {args.seed}.."
-              f"{args.seed + args.episodes - 1}; pushes of {pushes.force:g} N for {pushes.duration:g} s every "
+        print(f"each cell: episodes that ran their {pushes.episode_seconds(args.seconds):g} s without falling / episodes (pushes "
+              f"starting in the first {args.seconds:g} s, then {SETTLE_AFTER_PUSH_S:g} s after the last push's end), seeds "
+              f"{args.seed}..{args.seed + args.episodes - 1}; pushes of {pushes.force:g} N for {pushes.duration:g} s every "
               f"{low:g}-{high:g} s; policy: {policy or 'none'}")
         return 0
     print(json.dumps({
@@ -297,7 +319,9 @@ def run_sim_to_sim_command(args: argparse.Namespace) -> int:
         "policy": policy,
         "policy_missing": missing,
         "episodes": args.episodes,
-        "seconds_per_episode": args.seconds,
+        "seconds_per_episode": args.seconds,  # pushes start within these; the episode runs on to the settle window
+        "episode_seconds": pushes.episode_seconds(args.seconds),
+        "settle_after_push_s": SETTLE_AFTER_PUSH_S,
         "pushes": asdict(pushes),
         "workers": workers,
         "ray": args.ray,
