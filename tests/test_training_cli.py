@@ -171,6 +171,8 @@ def test_a_run_folder_is_never_silently_replaced(first_run, tmp_path, capsys):
     assert code == 0, err
     assert not list((out / "checkpoints").iterdir())  # the earlier run's checkpoints went with it
     assert OnnxPolicy(out / "policy.onnx").metadata["training"]["timesteps"] == 16
+    line = refused(capsys, "--timesteps", "16", "--out", str(out))  # a run without checkpoints: no --resume to suggest
+    assert "already holds a run" in line and "(it has no checkpoint to --resume) another --out, or --overwrite" in line, line
 
 
 def test_a_resume_into_its_own_folder_continues_the_run_exactly(first_run, tmp_path, capsys):

@@ -256,8 +256,8 @@ def check_out(out: Path, resume: str | None, overwrite: bool) -> list[Path]:
     if not files or overwrite:
         return files
     latest = latest_checkpoint(out)
-    hint = f"--resume {latest} to continue it" if latest is not None else "--resume <checkpoint> to continue it"
-    raise ConfigError(f"--out: {out} already holds a run ({len(files)} files, e.g. {files[0].name}): give {hint}, "
+    hint = f"--resume {latest} to continue it, " if latest is not None else "(it has no checkpoint to --resume) "
+    raise ConfigError(f"--out: {out} already holds a run ({len(files)} files, e.g. {files[0].name}): give {hint}"
                       "another --out, or --overwrite to replace it")
 
 
