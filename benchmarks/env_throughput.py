@@ -1,5 +1,24 @@
-"""Environment throughput on MuJoCo and PyBullet: steps/s, real-time factor, where the time goes, and
-2-process scaling (one JSON object).
+"""Environment throughput: agent steps per CPU-second against a plain MuJoCo G1 env, and (on request)
+steps/s on MuJoCo and PyBullet, where the time goes, and 2-process scaling (one JSON object).
+
+Relative throughput (always; ``"relative"`` in the output): agent steps per CPU-second (this
+process's thread time, so a busy machine does not lower it) of
+
+* ``plain_g1``: a plain MuJoCo G1 env, what an mjlab-style env costs on CPU: joint PD in the
+  actuators (the description's gains, position targets = default pose + 0.25 x action), ``mj_step``
+  with ``nstep=10`` (500 Hz physics, 50 Hz agent), an observation (projected gravity, base twist,
+  joint positions and velocities, last action), a reward and a fall check in numpy;
+* ``g1_balance``: ``G1Balance-v0`` as registered; ``g1_walk``: ``G1Walk-v0`` as registered;
+* ``g1_walk_policy``: ``G1Walk-v0`` with the shipped walking policy's training kwargs (read from
+  ``policies/g1_walk_residual.onnx``: estimator in the loop, AHRS IMU model, pushes),
+
+all stepped with zero actions (episodes reset on termination, resets counted), interleaved: each
+of ``--rounds`` rounds runs every configuration for ``--seconds`` CPU-seconds in turn; the medians
+over rounds and the median of the per-round ratios to ``plain_g1`` are reported. Each tree runs in
+a worker process of its own (the same script; the envs built once, before the first round);
+``--baseline DIR`` adds a second worker importing giwbc from another source tree (e.g. a
+``git worktree`` of an older commit) and alternates the two workers round by round, so both are
+measured under the same load; ``current_over_baseline`` divides their medians.
 
 Each environment steps with zero actions (episodes reset on termination) in this process, pinned
 to one thread; the share of wall time in the physics engine, in the controller (the WBC for
@@ -37,7 +56,10 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import multiprocessing as mp  # noqa: E402
 import platform  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import giwbc  # noqa: E402,F401  (before numpy: it pins the floating-point kernels, giwbc.numerics)
@@ -148,23 +170,189 @@ def scaling(env_id: str, kwargs: dict[str, Any], total_steps: int, workers: int,
     return steps / wall, float(np.mean([cpu / own_wall for own_wall, cpu in times])), steps / sum(cpu for _, cpu in times)
 
 
+# --- relative throughput: steps per CPU-second against a plain MuJoCo G1 env -------------------------
+RELATIVE = ("plain_g1", "g1_balance", "g1_walk", "g1_walk_policy")
+SHIPPED_WALK_POLICY = "g1_walk_residual.onnx"
+
+
+class PlainG1:
+    """A plain MuJoCo G1 env (module doc): joint PD in the actuators, ``nstep=10``, numpy observation and reward."""
+
+    def __init__(self, nstep: int = 10, action_scale: float = 0.25) -> None:
+        import mujoco
+        from giwbc.robot import load
+
+        description = load("g1")
+        self.mujoco, self.model = mujoco, description.build_mujoco()
+        self.data = mujoco.MjData(self.model)
+        model, n = self.model, self.model.nu
+        joints = [mujoco.mj_id2name(model, mujoco.mjtObj.mjOBJ_JOINT, model.actuator_trnid[i, 0]) for i in range(n)]
+        order = [list(description.joint_names).index(name) for name in joints]
+        kp, kd = description.kp[order], description.kd[order]
+        model.actuator_gaintype[:] = mujoco.mjtGain.mjGAIN_FIXED
+        model.actuator_biastype[:] = mujoco.mjtBias.mjBIAS_AFFINE
+        model.actuator_gainprm[:, 0] = kp
+        model.actuator_biasprm[:, :3] = np.stack([np.zeros(n), -kp, -kd], axis=1)
+        self.default = description.default_positions[order].copy()
+        self.nstep, self.scale = nstep, action_scale
+        self.action_space = gymnasium.spaces.Box(-1.0, 1.0, (n,), np.float32)
+        self.last_action = np.zeros(n)
+
+    def reset(self, seed: int | None = None) -> np.ndarray:
+        self.mujoco.mj_resetDataKeyframe(self.model, self.data, 0)
+        self.last_action[:] = 0.0
+        self.mujoco.mj_forward(self.model, self.data)
+        return self._observe()
+
+    def _observe(self) -> np.ndarray:
+        data = self.data
+        w, x, y, z = data.qpos[3:7]
+        gravity = np.array([2 * (w * y - x * z), -2 * (w * x + y * z), -(w * w - x * x - y * y + z * z)])  # projected
+        return np.concatenate([gravity, data.qvel[:6], data.qpos[7:] - self.default, data.qvel[6:], self.last_action])
+
+    def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
+        data = self.data
+        data.ctrl[:] = self.default + self.scale * action
+        self.mujoco.mj_step(self.model, data, nstep=self.nstep)
+        observation = self._observe()
+        height = data.qpos[2]
+        reward = float(np.exp(-((height - 0.78) / 0.1) ** 2) - 0.01 * np.sum(np.square(action - self.last_action))
+                       - 1e-4 * np.sum(np.square(data.qvel[6:])))
+        self.last_action[:] = action
+        return observation, reward, bool(height < 0.5), False, {}
+
+
+def relative_envs() -> dict[str, Any]:
+    """The four configurations of the relative measurement, reset with seed 0."""
+    from giwbc.policy import OnnxPolicy
+
+    policy = Path(giwbc.__file__).resolve().parents[1] / "policies" / SHIPPED_WALK_POLICY  # the source tree's
+    walk_kwargs = OnnxPolicy(policy).metadata["env_kwargs"]
+    envs: dict[str, Any] = {
+        "plain_g1": PlainG1(),
+        "g1_balance": gymnasium.make(giwbc.envs.G1_BALANCE).unwrapped,
+        "g1_walk": gymnasium.make(giwbc.envs.G1_WALK).unwrapped,
+        "g1_walk_policy": gymnasium.make(giwbc.envs.G1_WALK, **walk_kwargs).unwrapped,
+    }
+    for env in envs.values():
+        env.reset(seed=0)
+    return envs
+
+
+def _steps_per_cpu_second(env: Any, seconds: float) -> float:
+    """Step ``env`` with zero actions (resetting on termination) for at least ``seconds`` of this
+    thread's CPU time; its agent steps per CPU-second."""
+    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    steps, started = 0, time.thread_time()
+    while True:
+        for _ in range(10):
+            _, _, terminated, truncated, _ = env.step(action)
+            if terminated or truncated:
+                env.reset()
+        steps += 10
+        spent = time.thread_time() - started
+        if spent >= seconds:
+            return steps / spent
+
+
+def _worker_loop(seconds: float) -> None:
+    """The worker's side: build the envs, warm them up, say ``ready``; then one JSON line of steps per
+    CPU-second per configuration for every ``run`` read on stdin, until ``quit``."""
+    envs = relative_envs()
+    for env in envs.values():
+        _steps_per_cpu_second(env, 0.2 * seconds)
+    print(json.dumps({"ready": True, "giwbc": str(Path(giwbc.__file__).resolve().parent)}), flush=True)
+    for line in sys.stdin:
+        if line.strip() != "run":
+            break
+        print(json.dumps({name: _steps_per_cpu_second(env, seconds) for name, env in envs.items()}), flush=True)
+
+
+class _Worker:
+    """A worker process importing giwbc from ``tree`` (this script with ``--worker``)."""
+
+    def __init__(self, tree: Path, seconds: float) -> None:
+        environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+        self.process = subprocess.Popen([sys.executable, str(Path(__file__).resolve()), "--worker", "--seconds", str(seconds)],
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=environment, cwd=str(tree))
+        self.hello = self._read()
+
+    def _read(self) -> dict[str, Any]:
+        assert self.process.stdout is not None
+        line = self.process.stdout.readline()
+        if not line:
+            raise RuntimeError(f"benchmark worker exited with {self.process.wait()}")
+        return json.loads(line)
+
+    def run(self) -> dict[str, float]:
+        assert self.process.stdin is not None
+        self.process.stdin.write("run\n")
+        self.process.stdin.flush()
+        return self._read()
+
+    def close(self) -> None:
+        assert self.process.stdin is not None
+        self.process.stdin.write("quit\n")
+        self.process.stdin.close()
+        self.process.wait()
+
+
+def relative(rounds: int, seconds: float, baseline: Path | None) -> dict[str, Any]:
+    """Steps per CPU-second of every configuration in this tree (and ``baseline``'s), interleaved (module doc)."""
+    trees = {"current": Path(__file__).resolve().parents[1]}
+    if baseline is not None:
+        trees["baseline"] = baseline.resolve()
+    workers = {name: _Worker(tree, seconds) for name, tree in trees.items()}
+    measured: dict[str, list[dict[str, float]]] = {name: [] for name in trees}
+    try:
+        for _ in range(rounds):
+            for name, worker in workers.items():
+                measured[name].append(worker.run())
+    finally:
+        for worker in workers.values():
+            worker.close()
+    result: dict[str, Any] = {"rounds": rounds, "cpu_seconds_per_configuration_and_round": seconds,
+                              "unit": "agent steps per CPU-second (zero actions, resets included)"}
+    for name, runs in measured.items():
+        result[name] = {
+            "giwbc": workers[name].hello["giwbc"],
+            "steps_per_cpu_s": {c: float(np.median([run[c] for run in runs])) for c in RELATIVE},
+            "over_plain_g1": {c: float(np.median([run[c] / run["plain_g1"] for run in runs])) for c in RELATIVE},
+            "rounds": {c: [round(run[c], 1) for run in runs] for c in RELATIVE},
+        }
+    if baseline is not None:
+        result["current_over_baseline"] = {
+            c: float(np.median([now[c] / then[c] for now, then in zip(measured["current"], measured["baseline"])])) for c in RELATIVE
+        }
+    return result
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--steps", type=int, default=2000, help="agent steps per measurement")
-    parser.add_argument("--cases", nargs="*", default=list(CASES), choices=list(CASES))
-    parser.add_argument("--scaling-cases", nargs="*", default=["g1_balance_wbc", "g1_walk"], choices=list(CASES))
+    parser.add_argument("--rounds", type=int, default=5, help="interleaved rounds of the relative measurement")
+    parser.add_argument("--seconds", type=float, default=1.0, help="CPU-seconds per configuration and round")
+    parser.add_argument("--baseline", type=Path, default=None, help="another source tree to measure alongside (its giwbc/)")
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--steps", type=int, default=2000, help="agent steps per measurement of --cases")
+    parser.add_argument("--cases", nargs="*", default=[], choices=list(CASES), help="absolute steps/s and time shares (e.g. all of them)")
+    parser.add_argument("--scaling-cases", nargs="*", default=[], choices=list(CASES), help="1-vs-2-process scaling")
     parser.add_argument("--scaling-steps", type=int, default=2000, help="total agent steps of the scaling test")
     parser.add_argument("--scaling-repeats", type=int, default=3, help="1-vs-2-process measurements (median reported)")
     args = parser.parse_args()
+    if args.worker:
+        _worker_loop(args.seconds)
+        return
 
     result: dict[str, Any] = {
         "benchmark": "env_throughput",
         "machine": {"cpus": os.cpu_count(), "load_average_1min": os.getloadavg()[0], "python": platform.python_version()},
     }
+    if args.rounds > 0:
+        result["relative"] = relative(args.rounds, args.seconds, args.baseline)
     for name in args.cases:
         env_id, kwargs = CASES[name]
         result[name] = measure(env_id, kwargs, args.steps)
-    result["pybullet_vs_mujoco"] = {
+    comparison = {
         name: {
             "mujoco_steps_per_s": result[name]["steps_per_s"],
             "pybullet_steps_per_s": result[f"{name}_pybullet"]["steps_per_s"],
@@ -173,7 +361,10 @@ def main() -> None:
         for name in BASE_CASES
         if name in result and f"{name}_pybullet" in result
     }
-    result["scaling"] = {name: measure_scaling(*CASES[name], args.scaling_steps, args.scaling_repeats) for name in args.scaling_cases}
+    if comparison:
+        result["pybullet_vs_mujoco"] = comparison
+    if args.scaling_cases:
+        result["scaling"] = {name: measure_scaling(*CASES[name], args.scaling_steps, args.scaling_repeats) for name in args.scaling_cases}
     print(json.dumps(result))
 
 
