@@ -150,6 +150,28 @@ def test_a_checkpoint_of_another_environment_is_refused(first_run, tmp_path, cap
     assert not (tmp_path / "g1").exists()
 
 
+def _damage(path: Path) -> None:
+    """Flip one byte in the middle of a file (inside a zip's compressed member: its checksum fails)."""
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("option", ["--resume", "--warm-start"])
+def test_a_damaged_checkpoint_or_normalizer_is_refused(option, first_run, tmp_path, capsys):
+    source = tmp_path / "source"
+    shutil.copytree(first_run, source)
+    checkpoint = source / "checkpoints" / "step_16.zip"
+    _damage(checkpoint)
+    line = refused(capsys, "--timesteps", "48", "--out", str(tmp_path / "run"), option, str(checkpoint))
+    assert "corrupted" in line or "not an intact checkpoint" in line, line
+    shutil.copy(first_run / "checkpoints" / "step_16.zip", checkpoint)
+    (source / "checkpoints" / "step_16.vecnormalize.pkl").write_bytes(b"\x80\x04not a pickle")
+    line = refused(capsys, "--timesteps", "48", "--out", str(tmp_path / "run"), option, str(checkpoint))
+    assert "normalizer" in line and "is corrupted" in line, line
+    assert not (tmp_path / "run").exists()
+
+
 def test_a_warm_start_of_other_hidden_layers_is_refused(first_run, tmp_path, capsys):
     line = refused(capsys, "--timesteps", "16", "--out", str(tmp_path / "run"), "--warm-start", str(first_run / "policy.onnx"),
                    "--net-arch", "16", "16")

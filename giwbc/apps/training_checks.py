@@ -14,6 +14,7 @@ import math
 import pickle
 import shutil
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -191,10 +192,13 @@ def check_checkpoint(path: str | Path, described: dict[str, Any], env_id: str, n
         with zipfile.ZipFile(path) as archive:
             if not {"data", "policy.pth"} <= set(archive.namelist()):
                 raise ConfigError(not_checkpoint)
+            damaged = archive.testzip()  # every member's CRC: a truncated or altered checkpoint
+            if damaged is not None:
+                raise ConfigError(f"--resume: {path} is corrupted ({damaged} fails its checksum)")
             data = json.loads(archive.read("data"))
         observation, action = data["observation_space"]["_shape"], data["action_space"]["_shape"]
         steps = int(data["num_timesteps"])
-    except (zipfile.BadZipFile, json.JSONDecodeError, KeyError, TypeError, ValueError, OSError) as error:
+    except (zipfile.BadZipFile, zlib.error, json.JSONDecodeError, KeyError, TypeError, ValueError, OSError) as error:
         if isinstance(error, GiwbcError):
             raise
         raise ConfigError(not_checkpoint) from None

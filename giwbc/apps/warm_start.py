@@ -27,6 +27,7 @@ from __future__ import annotations
 import math
 import pickle
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -125,13 +126,19 @@ def check_source(source: str | Path, observation_names: list[str], action_names:
         _, policy, normalizer = source_files(source)
         try:
             with zipfile.ZipFile(source) as archive:
-                is_checkpoint = {"data", "policy.pth"} <= set(archive.namelist())
-        except (zipfile.BadZipFile, OSError):
+                is_checkpoint = {"data", "policy.pth"} <= set(archive.namelist()) and archive.testzip() is None  # (CRCs)
+        except (zipfile.BadZipFile, zlib.error, OSError):
             is_checkpoint = False
         if not is_checkpoint:
-            raise ConfigError(f"--warm-start: {source} is not a checkpoint written by giwbc train (a step_N.zip)")
+            raise ConfigError(f"--warm-start: {source} is not an intact checkpoint written by giwbc train (a step_N.zip)")
         if normalize and not normalizer.is_file():
             raise MissingFileError(f"--warm-start: a normalized run needs the source's normalizer {normalizer}")
+        if normalize:
+            try:
+                with normalizer.open("rb") as file:
+                    pickle.load(file)
+            except Exception:  # a truncated or foreign pickle raises any of a dozen types
+                raise ConfigError(f"--warm-start: the source's normalizer {normalizer} is corrupted") from None
     actor, _, _, _, metadata = onnx_actor(policy, activation)
     hidden = tuple(int(actor[f"mlp_extractor.policy_net.{2 * i}.weight"].shape[0]) for i in range(len(actor) // 2 - 1))
     if hidden != tuple(net_arch):
