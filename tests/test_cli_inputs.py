@@ -43,7 +43,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("demo",): ["--no-video"],  # every value --seconds accepts runs the whole demo: none of VALUES is accepted
     ("walk",): ["--seconds", "0.1"],
     ("play",): ["--policy", str(BALANCE_POLICY), "--max-steps", "2"],
-    ("evaluate",): ["--episodes", "1", "--episode-seconds", "0.5", "--interval", "0.2", "0.25", "--workers", "1"],
+    ("evaluate",): ["--episodes", "1", "--interval", "0.6", "0.65", "--workers", "1"],  # episodes: the push's end + 3 s
     ("sim-to-sim",): ["--episodes", "1", "--seconds", "0.1", "--workers", "0", "--conditions", "mujoco_nominal", "--no-policy"],
     ("deploy",): ["--robot", "g1", "--emulate", "--seconds", "0.1", "--unpaced", "--controller", "pd", "--ramp", "0.2",
                   "--scene-rate", "0", "--log", "{tmp}/run.mcap"],
@@ -53,7 +53,7 @@ BASE: dict[tuple[str, ...], list[str]] = {
     ("motors", "zero"): ["left_knee_joint", "--dry-run", "--yes", "--hardware", "{tmp}/hardware.toml"],
     ("motors", "calibrate"): ["--dry-run", "--yes", "--joints", "left_knee_joint", "--hardware", "{tmp}/hardware.toml"],
     ("train",): ["--env", "giwbc/CartPoleBalance-v0", "--timesteps", "64", "--n-envs", "1", "--vectorization", "dummy",
-                 "--out", "{tmp}/train", "--no-progress"],
+                 "--ppo", '{"n_steps": 32, "batch_size": 32, "n_epochs": 1}', "--out", "{tmp}/train", "--no-progress"],
     ("log", "plot"): ["{tmp}/missing.mcap"],  # replaced by a real log when the option under test is not the log itself
 }
 # Values that mean "until Ctrl-C": run, interrupted after a few seconds, they must end cleanly (0 or 130).
@@ -210,6 +210,10 @@ def _parse(argv: list[str]) -> tuple[int | None, str]:
     return None, ""
 
 
+def _namespace(argv: list[str]) -> dict[str, object]:
+    return {key: value for key, value in vars(build_parser().parse_args(argv)).items() if key != "run"}
+
+
 def _base(path: tuple[str, ...], tmp: Path, real_log: Path | None = None) -> list[str]:
     base = [arg.replace("{tmp}", str(tmp)) for arg in BASE[path]]
     if path == ("log", "plot") and real_log is not None:
@@ -233,6 +237,17 @@ def test_every_numeric_option_is_typed_by_the_shared_argument_types(path, action
         assert action.help and action.help.strip(), f"giwbc {' '.join(path)} {_name(action)} has no help (unit, range)"
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("path", [pytest.param(p, marks=_marks(p), id=" ".join(p)) for p in COMMANDS if p != ("demo",)])
+def test_the_base_arguments_run_clean(path, tmp_path, real_log):
+    """The sweep's base arguments are valid and cheap: otherwise every accepted value would exit 2 for
+    the base's sake and the sweep would prove nothing. (demo: its base runs the whole demo, and no swept
+    value reaches a run.)"""
+    argv = [*path, *_base(path, tmp_path, real_log)]
+    code, out, err = _run(path, argv, tmp_path)
+    assert code == 0, f"{argv}: exit {code}\n{out[-2000:]}\n{err[-2000:]}"
+
+
 CASES = [pytest.param(p, a, v, marks=_marks(p), id=f"{' '.join(p)} {_name(a)} {v}") for p, a in NUMERIC for v in VALUES]
 
 
@@ -246,6 +261,8 @@ def test_a_bad_number_is_refused_in_one_line_or_runs_and_ends(path, action, valu
         assert len(err.strip().splitlines()) == 1, f"{argv}: {err}"
         assert action.option_strings[0] in err or _name(action) in err, err
         return
+    if _namespace(argv) == _namespace([*path, *_base(path, tmp_path, real_log)]):
+        return  # the value is the option's default: the base run (test_the_base_arguments_run_clean) is this run
     if (path, action.option_strings[0], value) in OPEN_ENDED:
         _prepare(tmp_path)
         _check_outcome(path, argv, *_interrupted(argv, tmp_path), tmp_path)

@@ -241,8 +241,8 @@ def residual_policy(tmp_path_factory) -> Path:
 
 
 def test_evaluate_on_ray_prints_the_same_table(ray_cluster, residual_policy, capsys) -> None:
-    argv = ["evaluate", "--policy", str(residual_policy), "--episodes", "2", "--seed", "21", "--force", "40", "70", "--duration", "0.1",
-            "--interval", "0.2", "0.3", "--episode-seconds", "0.5"]
+    argv = ["evaluate", "--policy", str(residual_policy), "--episodes", "1", "--seed", "21", "--force", "40", "70", "--duration", "0.1",
+            "--interval", "0.6", "0.7"]  # episodes of 0.7 + 0.1 + 3 s (the settle window after the push)
     assert giwbc_main(argv) == 0
     local = capsys.readouterr().out
     assert giwbc_main([*argv, "--ray"]) == 0
@@ -255,8 +255,8 @@ def test_evaluate_on_ray_prints_the_same_table(ray_cluster, residual_policy, cap
 def test_sim_to_sim_on_ray_gives_the_same_results(ray_cluster, capsys) -> None:
     import json
 
-    argv = ["sim-to-sim", "--no-policy", "--episodes", "6", "--seconds", "0.3", "--conditions", "mujoco_nominal",
-            "--push-force", "60", "--push-interval", "0.1", "0.2", "--json"]
+    argv = ["sim-to-sim", "--no-policy", "--episodes", "6", "--seconds", "0.8", "--conditions", "mujoco_nominal",
+            "--push-force", "60", "--push-interval", "0.6", "0.7", "--json"]
     assert giwbc_main([*argv, "--workers", "0"]) == 0
     local = capsys.readouterr().out
     assert giwbc_main([*argv, "--ray"]) == 0
