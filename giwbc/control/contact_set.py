@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pinocchio as pin
 
-from giwbc.control.contacts import Contact
+from giwbc.control.contacts import Contact, WrenchConeContact
 from giwbc.control.kinodynamics import LOCAL, Kinodynamics
 from giwbc.control.qp import QpProblem
 from giwbc.control.tasks import ContactForceRegularization
@@ -82,6 +82,8 @@ class ContactSlot:
     xy_of: object = None  # the reference placement xy was read from
     unit_value: np.ndarray | None = None  # their share of 1 N of normal force
     last_normal: float = 0.0  # N: the normal force of the last solution
+    friction_version: int = -1  # the contact's friction_version its rows in C were written for
+    watching: bool = False  # its contact watches for a rolling foot (WrenchConeContact with a detector)
     added_ramp_time: float = 0.0  # the ramp of its last add_contact (what reset() restarts)
     # Views of the problem buffers (set by the layout): motion rows of A, of b, columns of D.
     a_rows: np.ndarray | None = field(default=None, repr=False)
@@ -152,6 +154,9 @@ class ContactSet:
             slot.in_problem = False
             if self._problem is not None:
                 self._problem.C[slot.friction_rows, slot.columns] = contact.friction_matrix()
+                slot.friction_version = contact.friction_version
+        if isinstance(contact, WrenchConeContact):
+            contact.reset_support()  # a contact made again stands on its whole sole
         if slot.activation == 0.0:
             contact.reference = None  # re-anchored at the next tick
         slot.ramp_force = self.weight_force
@@ -219,6 +224,9 @@ class ContactSet:
         """The constant friction matrices into the inequality rows ``C``."""
         for slot in self.slots.values():
             C[slot.friction_rows, slot.columns] = slot.contact.friction_matrix()
+            slot.friction_version = slot.contact.friction_version
+            c = slot.contact
+            slot.watching = isinstance(c, WrenchConeContact) and c.roll is not None
 
     def bind(self, problem: QpProblem, D: np.ndarray, reg_f: np.ndarray, nv: int) -> None:
         """Views of the laid-out problem: each slot's motion rows (``A``, ``b``), its columns of
@@ -257,7 +265,7 @@ class ContactSet:
                 ac_pattern[slot.motion_rows, slot.columns] = np.eye(slot.contact.n_force, dtype=bool)
             ac_pattern[d_rows, slot.columns] = cols[d_source][:, None]
             rows = slice(n_eq + slot.friction_rows.start, n_eq + slot.friction_rows.stop)
-            ac_pattern[rows, slot.columns] = slot.contact.friction_matrix() != 0
+            ac_pattern[rows, slot.columns] = slot.contact.friction_pattern()
 
     # --- the tick ----------------------------------------------------------------------------------
     def assemble(self, t: float, reg: ContactForceRegularization | None) -> None:
@@ -285,6 +293,11 @@ class ContactSet:
                     self.reengage(slot)
                 if c.reference is None:
                     c.reference = c.placement_in_world(kin)
+                elif slot.watching and slot.ramp_to > 0.0:
+                    c.watch(kin, t)  # type: ignore[attr-defined]
+                if c.friction_version != slot.friction_version:
+                    self._rewrite_friction(slot)
+                    force_changed = True
                 if batch is not None and (c.kd != batch[3] or c.kp != 0.0):
                     batch = None
             else:
@@ -307,6 +320,17 @@ class ContactSet:
             self._lever = None
         if force_changed or (reg is not None and reg.version != self.force_version) or (reg is None and self.force_version != -1):
             self.update_force_regularization(reg)
+
+    def _rewrite_friction(self, slot: ContactSlot) -> None:
+        """A contact's friction rows after its support changed (a rolling foot): the matrix and
+        the bounds, in place (same rows)."""
+        p = self._problem
+        c = slot.contact
+        rows = slot.friction_rows
+        p.C[rows, slot.columns] = c.friction_matrix()  # type: ignore[union-attr]
+        c.friction_bounds(p.l[rows], p.u[rows], slot.normal_limit())  # type: ignore[union-attr]
+        slot.bounds_activation = slot.activation
+        slot.friction_version = c.friction_version
 
     def disengage(self, slot: ContactSlot) -> None:
         """A broken contact keeps its slot: its motion rows no longer constrain the robot and,

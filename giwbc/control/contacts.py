@@ -45,6 +45,7 @@ import pinocchio as pin
 from scipy.optimize import nnls
 
 from giwbc.control.kinodynamics import LOCAL, Kinodynamics
+from giwbc.control.sole import FULL, RollDetector, SoleSupport, hull_2d, scale_polygon
 
 _frame_jacobian = pin.getFrameJacobian
 _classical_acceleration = pin.getFrameClassicalAcceleration
@@ -170,6 +171,10 @@ class Contact(abc.ABC):
         self._bound: tuple | None = None  # (kin, link, offset matrix) of the last bind
         self.jacobian = np.zeros((6, 0))
         self.drift = np.zeros(6)
+        if not hasattr(self, "support"):
+            self.support: SoleSupport | None = None  # a sole with reduced supports (WrenchConeContact)
+        self.support_mode = FULL
+        self.friction_version = 0  # bumped when the friction rows' matrix changes (a support switch)
         self._friction = self.friction_matrix()
         self.phi = self.wrench_map()  # constant: None (identity) or (6, n_force)
         self._twist = np.zeros(6)
@@ -204,6 +209,14 @@ class Contact(abc.ABC):
     @property
     def n_ineq(self) -> int:
         return self._friction.shape[0]
+
+    def friction_pattern(self) -> np.ndarray:
+        """Structural non-zeros of the friction rows over every support they may switch to."""
+        return self.friction_matrix() != 0
+
+    def support_polygon(self) -> np.ndarray | None:
+        """(k, 2) polygon the CoP must stay in now (contact frame); None for a contact without a sole."""
+        return None
 
     # --- binding and per-tick terms -----------------------------------------------------------
     def bind(self, kin: Kinodynamics) -> None:
@@ -317,25 +330,66 @@ class RectangleContact(Contact):
         raise NotImplementedError
 
 
-class SurfaceContact(RectangleContact):
-    """Flat foot with the 6D wrench as variables, inside the contact wrench cone (16 rows) and
-    with the total normal force in ``[min_normal_force, activation · max_normal_force]``."""
+class WrenchConeContact(Contact):
+    """A sole with the 6D wrench as variables, inside the contact wrench cone of its support
+    polygon (:class:`~giwbc.control.sole.SoleSupport`) and with the total normal force in
+    ``[min_normal_force, activation · max_normal_force]``.
+
+    The support is the whole polygon until :meth:`watch` finds the foot rolling: then it is the
+    edge or corner the foot stands on (the friction rows switch in place, same row count), the
+    CoP constrained there, and the motion rows get pose feedback ``roll_kp`` back towards the
+    placement the contact was made at (the foot is not pushed further over)."""
+
+    def __init__(
+        self,
+        name: str,
+        link: str,
+        vertices: np.ndarray,
+        *,
+        full_rows: np.ndarray | None = None,
+        roll: RollDetector | None = None,
+        roll_kp: float = 0.0,
+        **kwargs: object,
+    ) -> None:
+        mu = float(kwargs.get("mu", DEFAULT_FRICTION))  # type: ignore[arg-type]
+        if not (math.isfinite(mu) and mu > 0):
+            raise ValueError(f"contact {name!r}: friction coefficient mu must be > 0, got {mu}")
+        if not (math.isfinite(roll_kp) and roll_kp >= 0.0):
+            raise ValueError(f"contact {name!r}: roll_kp must be >= 0, got {roll_kp}")
+        self.support = SoleSupport(vertices, mu, full_rows=full_rows)
+        self.roll = roll
+        self.roll_kp = float(roll_kp)
+        self._released_at: float | None = None
+        self._base_kp: float | None = None
+        Contact.__init__(self, name, link, **kwargs)  # type: ignore[arg-type]  (not the rectangle's: a SurfaceContact sets its sizes itself)
 
     @property
     def n_force(self) -> int:
         return 6
 
     def friction_matrix(self) -> np.ndarray:
-        rows = np.zeros((17, 6))
-        rows[:16] = wrench_cone_matrix(self.half_length, self.half_width, self.mu)
-        rows[16, 2] = 1.0
+        support = self.support
+        rows = np.zeros((support.n_rows + 1, 6))  # type: ignore[union-attr]
+        rows[:-1] = support.matrices[self.support_mode]  # type: ignore[union-attr]
+        rows[-1, 2] = 1.0
         return rows
 
+    def friction_pattern(self) -> np.ndarray:
+        if self.roll is None:  # never switches support
+            return self.friction_matrix() != 0
+        pattern = np.zeros((self.support.n_rows + 1, 6), dtype=bool)  # type: ignore[union-attr]
+        pattern[:-1] = self.support.pattern  # type: ignore[union-attr]
+        pattern[-1, 2] = True
+        return pattern
+
     def friction_bounds(self, lower: np.ndarray, upper: np.ndarray, limit: float | None = None) -> None:
-        lower[:16] = -np.inf
-        upper[:16] = 0.0
-        upper[16] = self.max_normal_force if limit is None else min(max(limit, 0.0), self.max_normal_force)
-        lower[16] = min(self.min_normal_force, upper[16])
+        n = self.support.n_rows  # type: ignore[union-attr]
+        count = self.support.counts[self.support_mode]  # type: ignore[union-attr]
+        lower[:n] = -np.inf
+        upper[:count] = 0.0
+        upper[count:n] = np.inf  # padding rows of a support with fewer faces
+        upper[n] = self.max_normal_force if limit is None else min(max(limit, 0.0), self.max_normal_force)
+        lower[n] = min(self.min_normal_force, upper[n])
 
     def wrench_map(self) -> None:
         return None
@@ -345,31 +399,127 @@ class SurfaceContact(RectangleContact):
         force[2] = normal_force
         return force
 
+    def support_polygon(self) -> np.ndarray:
+        return self.support.modes[self.support_mode].polygon  # type: ignore[union-attr]
+
+    def set_support_mode(self, mode: int) -> bool:
+        """Stand on support ``mode`` (:attr:`SoleSupport.modes`); True when it changed (the
+        friction rows must be written again: :attr:`friction_version` moved)."""
+        if mode == self.support_mode:
+            return False
+        if not 0 <= mode < len(self.support.modes):  # type: ignore[union-attr]
+            raise ValueError(f"contact {self.name!r}: no support mode {mode}")
+        if self._base_kp is None:
+            self._base_kp = self.kp
+        self.support_mode = mode
+        self.kp = self._base_kp if mode == FULL else max(self._base_kp, self.roll_kp)
+        self.friction_version += 1
+        self._friction = self.friction_matrix()
+        return True
+
+    def watch(self, kin: Kinodynamics, t: float) -> bool:
+        """Roll detection at time ``t`` (see :class:`~giwbc.control.sole.RollDetector`), from the
+        contact frame's rotation since the contact was made and its angular velocity; True when
+        the support changed. No-op without a detector or before the contact's reference is set."""
+        roll, reference = self.roll, self.reference
+        if roll is None or reference is None:
+            return False
+        placement = self.placement_in_world(kin)
+        relative = reference.rotation.T @ placement.rotation
+        omega = pin.getFrameVelocity(kin.model, kin.data, self.joint_id, self.placement, LOCAL).angular
+        gradient = roll.tilt(relative, omega, roll.lookahead)
+        tilt = math.hypot(float(gradient[0]), float(gradient[1]))
+        if tilt > roll.tilt_on:
+            self._released_at = None
+            return self.set_support_mode(self.support.mode_for_tilt(gradient))  # type: ignore[union-attr]
+        if self.support_mode != FULL and tilt < roll.tilt_off:
+            if self._released_at is None:
+                self._released_at = t
+            if t - self._released_at >= roll.release_time:
+                self._released_at = None
+                return self.set_support_mode(FULL)
+        elif self.support_mode != FULL:
+            self._released_at = None
+        return False
+
+    def reset_support(self) -> bool:
+        """Back to the whole sole (a contact made again)."""
+        self._released_at = None
+        return self.set_support_mode(FULL)
+
+
+class PolygonContact(WrenchConeContact):
+    """A sole given by its points (robot.toml ``sole``): the wrench cone of their convex hull."""
+
+    @classmethod
+    def from_sole(cls, rectangle: object, *, scale: float = 1.0, **kwargs: object) -> "PolygonContact":
+        """Build from a :class:`giwbc.robot.description.ContactRectangle`'s sole points (offset:
+        its centre), the hull shrunk about its centroid by ``scale``."""
+        offset = pin.SE3(np.eye(3), np.asarray(rectangle.center, dtype=float))  # type: ignore[attr-defined]
+        vertices = scale_polygon(hull_2d(rectangle.sole_points), scale)  # type: ignore[attr-defined]
+        return cls(rectangle.name, rectangle.link, vertices, offset=offset, **kwargs)  # type: ignore[attr-defined]
+
+    def corner_forces(self, forces: np.ndarray) -> np.ndarray:
+        """(k, 3) forces at the polygon's vertices (contact frame) reproducing the wrench."""
+        vertices = np.c_[self.support.polygon, np.zeros(len(self.support.polygon))]  # type: ignore[union-attr]
+        generators = pyramid_generators(vertices, self.mu)
+        scale = max(1.0, float(np.abs(forces).max()))
+        weights, _ = nnls(generators, np.asarray(forces, dtype=float) / scale)
+        return np.array([generators[:3, 4 * i : 4 * i + 4] @ weights[4 * i : 4 * i + 4] * scale for i in range(len(vertices))])
+
+
+class SurfaceContact(WrenchConeContact, RectangleContact):
+    """Flat rectangular foot with the 6D wrench as variables, inside the contact wrench cone of the
+    rectangle (16 rows, closed form) and with the total normal force in
+    ``[min_normal_force, activation · max_normal_force]``; rolls onto its edges and corners as a
+    :class:`WrenchConeContact`."""
+
+    def __init__(self, name: str, link: str, half_length: float, half_width: float, **kwargs: object) -> None:
+        if not (half_length > 0 and half_width > 0):
+            raise ValueError(f"contact {name!r}: half_length and half_width must be > 0")
+        self.half_length = float(half_length)
+        self.half_width = float(half_width)
+        mu = float(kwargs.get("mu", DEFAULT_FRICTION))  # type: ignore[arg-type]
+        vertices = rectangle_corners(half_length, half_width)[:, :2]
+        full = wrench_cone_matrix(half_length, half_width, mu) if mu > 0 else None
+        WrenchConeContact.__init__(self, name, link, vertices, full_rows=full, **kwargs)
+
     def corner_forces(self, forces: np.ndarray) -> np.ndarray:
         return corner_forces_from_wrench(forces, self.half_length, self.half_width, self.mu)[0]
 
 
 class CornerContact(RectangleContact):
     """Flat foot with one 3D force per corner (12 variables, contact frame), each inside its
-    friction pyramid, with ``min_normal_force ≤ f_n ≤ activation · max_normal_force`` per corner."""
+    friction pyramid, with ``min_normal_force ≤ f_n ≤ activation · max_normal_force`` per corner;
+    with ``vertices`` ((k, 2), a sole polygon), one force per vertex instead."""
 
+    def __init__(self, name: str, link: str, half_length: float, half_width: float, *, vertices: np.ndarray | None = None, **kwargs: object) -> None:
+        self._vertices = None if vertices is None else np.c_[np.asarray(vertices, dtype=float).reshape(-1, 2), np.zeros(len(vertices))]
+        super().__init__(name, link, half_length, half_width, **kwargs)
+
+    @property
+    def corners(self) -> np.ndarray:
+        """(k, 3) force points in the contact frame (the rectangle's 4 corners by default)."""
+        return rectangle_corners(self.half_length, self.half_width) if self._vertices is None else self._vertices
 
     @property
     def n_force(self) -> int:
-        return 12
+        return 3 * len(self.corners)
 
     def friction_matrix(self) -> np.ndarray:
-        rows = np.zeros((20, 12))
+        k = len(self.corners)
+        rows = np.zeros((5 * k, 3 * k))
         pyramid = pyramid_matrix(self.mu)
-        for i in range(4):
+        for i in range(k):
             rows[5 * i : 5 * i + 4, 3 * i : 3 * i + 3] = pyramid
             rows[5 * i + 4, 3 * i + 2] = 1.0
         return rows
 
     def friction_bounds(self, lower: np.ndarray, upper: np.ndarray, limit: float | None = None) -> None:
-        maximum = self.max_normal_force if limit is None else min(max(limit, 0.0) / 4.0, self.max_normal_force)
+        k = len(self.corners)
+        maximum = self.max_normal_force if limit is None else min(max(limit, 0.0) / k, self.max_normal_force)
         minimum = min(self.min_normal_force, maximum)
-        for i in range(4):
+        for i in range(k):
             lower[5 * i : 5 * i + 4] = -np.inf
             upper[5 * i : 5 * i + 4] = 0.0
             lower[5 * i + 4] = minimum
@@ -381,23 +531,47 @@ class CornerContact(RectangleContact):
 
 
     def nominal_force(self, normal_force: float) -> np.ndarray:
-        force = np.zeros(12)
-        force[2::3] = normal_force / 4.0
+        k = len(self.corners)
+        force = np.zeros(3 * k)
+        force[2::3] = normal_force / k
         return force
 
+    def support_polygon(self) -> np.ndarray:
+        return hull_2d(self.corners[:, :2])
+
     def corner_forces(self, forces: np.ndarray) -> np.ndarray:
-        return np.asarray(forces, dtype=float).reshape(4, 3).copy()
+        return np.asarray(forces, dtype=float).reshape(-1, 3).copy()
 
 
-def foot_contacts(description: object, model: str = "surface", *, scale: float = 1.0, **kwargs: object) -> list[RectangleContact]:
+def foot_contacts(
+    description: object, model: str = "surface", *, scale: float = 1.0, roll: RollDetector | None = None, roll_kp: float = 0.0, **kwargs: object
+) -> list[Contact]:
     """One contact per ``ContactRectangle`` of a robot description (``model``: surface | corners).
 
-    ``scale`` (0, 1] shrinks the rectangles about their centres: a margin that keeps the centre
-    of pressure off the very edge of the real sole, where any model error rolls the foot.
+    A contact whose description gives ``sole`` points stands on their convex hull (a
+    :class:`PolygonContact`, or corner forces at the hull's vertices); otherwise on its rectangle.
+    ``scale`` (0, 1] shrinks the support about its centre: a margin that keeps the centre of
+    pressure off the very edge of the real sole, where any model error rolls the foot. ``roll``
+    (surface model): watch the feet for rolling and stand a rolled foot on its edge or corner,
+    with pose feedback ``roll_kp`` (:class:`WrenchConeContact`).
     """
-    kinds = {"surface": SurfaceContact, "corners": CornerContact}
-    if model not in kinds:
-        raise ValueError(f"unknown contact model {model!r}; choose from {sorted(kinds)}")
+    if model not in ("surface", "corners"):
+        raise ValueError(f"unknown contact model {model!r}; choose from ['corners', 'surface']")
     if not 0.0 < scale <= 1.0:
         raise ValueError(f"scale must be in (0, 1], got {scale}")
-    return [kinds[model].from_rectangle(rectangle, scale=scale, **kwargs) for rectangle in description.contacts]  # type: ignore[attr-defined]
+    contacts: list[Contact] = []
+    for rectangle in description.contacts:  # type: ignore[attr-defined]
+        sole = bool(getattr(rectangle, "sole", ()))
+        if model == "corners":
+            contact: Contact = CornerContact.from_rectangle(rectangle, scale=scale, **kwargs)
+            if sole:
+                contact = CornerContact(
+                    rectangle.name, rectangle.link, rectangle.half_length, rectangle.half_width, offset=contact.offset,
+                    vertices=scale_polygon(hull_2d(rectangle.sole_points), scale), **kwargs,
+                )
+        elif sole:
+            contact = PolygonContact.from_sole(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, **kwargs)
+        else:
+            contact = SurfaceContact.from_rectangle(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, **kwargs)
+        contacts.append(contact)
+    return contacts

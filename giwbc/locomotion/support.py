@@ -47,6 +47,13 @@ def sole_corners(center: np.ndarray, yaw: float, half_length: float, half_width:
     return np.asarray(center, dtype=float)[:2] + local @ np.array([[c, s], [-s, c]])
 
 
+def sole_polygon(center: np.ndarray, yaw: float, polygon: np.ndarray) -> np.ndarray:
+    """(k, 2) ground vertices of a sole polygon (k, 2), given in its contact frame, placed at
+    ``center`` (x, y) with heading ``yaw``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.asarray(center, dtype=float)[:2] + np.asarray(polygon, dtype=float) @ np.array([[c, s], [-s, c]])
+
+
 def _edges(hull: np.ndarray) -> list[tuple[float, float, float, float]]:
     """``(x, y, e_x, e_y)`` per vertex: the vertex and its edge to the next one (CCW)."""
     vertices = hull.tolist()

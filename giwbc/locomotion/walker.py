@@ -49,7 +49,7 @@ from giwbc.locomotion.lipm import natural_frequency
 from giwbc.locomotion.push_recovery import PushRecovery
 from giwbc.locomotion.residuals import Residuals
 from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter
-from giwbc.locomotion.support import convex_hull, sole_corners
+from giwbc.locomotion.support import convex_hull, sole_corners, sole_polygon
 from giwbc.locomotion.swing import SwingTrajectory
 from giwbc.locomotion.swing_control import SwingControl
 from giwbc.locomotion.walker_config import Phase, WalkerConfig, WalkerState
@@ -136,7 +136,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self.balance.reset(q)
         for task in self.swing_tasks.values():
             self._remove_swing_task(task)
-        self._polygons: dict[tuple[str, ...], np.ndarray] = {}
+        self._polygons: dict[tuple, np.ndarray] = {}
         self._heading = math.nan
         self._hip_roll = 0.0
         self._com_kp = self.config.com_height_kp
@@ -206,17 +206,24 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         return plans[self.state.stance] if self._phase is Phase.SINGLE else None
 
     def support_polygon(self, sides: tuple[str, ...] | None = None) -> np.ndarray:
-        """CCW hull of the soles in contact (both in double support) at their planned holds."""
+        """CCW hull of the soles in contact (both in double support) at their planned holds: each
+        sole's support polygon as its contact has it now (the description's sole with the WBC's
+        margin; the edge or corner a rolled foot stands on)."""
         sides = tuple(self.contacts) if sides is None else sides
-        cached = self._polygons.get(sides)
+        key = (sides, tuple(self.contacts[side].support_mode for side in sides))
+        cached = self._polygons.get(key)
         if cached is not None:
             return cached
         corners = []
         for side in sides:
             contact = self.contacts[side]
             foot = self.feet[side]
-            corners.append(sole_corners(foot.position, foot.yaw, contact.half_length, contact.half_width))  # type: ignore[attr-defined]
-        hull = self._polygons[sides] = convex_hull(np.vstack(corners))
+            polygon = contact.support_polygon()
+            if polygon is None:
+                corners.append(sole_corners(foot.position, foot.yaw, contact.half_length, contact.half_width))  # type: ignore[attr-defined]
+            else:
+                corners.append(sole_polygon(foot.position, foot.yaw, polygon))
+        hull = self._polygons[key] = convex_hull(np.vstack(corners))
         return hull
 
     # --- the tick ----------------------------------------------------------------------------------

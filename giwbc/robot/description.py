@@ -16,7 +16,7 @@ import importlib.metadata
 import math
 import os
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -44,7 +44,7 @@ TOP_LEVEL_KEYS = frozenset({"name", "description", "model", "simulation", "joint
 MODEL_KEYS = frozenset({"urdf", "floating_base", "base_link", "imu_frame"})
 SIMULATION_KEYS = frozenset({"timestep", "integrator", "floor_friction"})
 JOINT_KEYS = frozenset({"default", "kp", "kd", "armature", "actuated"})
-CONTACT_KEYS = frozenset({"name", "link", "center", "half_length", "half_width"})
+CONTACT_KEYS = frozenset({"name", "link", "center", "half_length", "half_width", "sole"})
 
 
 @dataclass(frozen=True)
@@ -79,6 +79,17 @@ class ContactRectangle:
     center: tuple[float, float, float]
     half_length: float
     half_width: float
+    sole: tuple[tuple[float, float], ...] = ()  # (x, y) m from ``center``: where the sole touches; () = the 4 corners
+
+    @property
+    def sole_points(self) -> np.ndarray:
+        """(n, 2) points of the sole plane that touch a flat floor, from ``center`` (m): the
+        ``sole`` given in robot.toml (points or a polygon's vertices), else the rectangle's 4
+        corners. The support region is their convex hull."""
+        if self.sole:
+            return np.array(self.sole, dtype=float).reshape(-1, 2)
+        x, y = self.half_length, self.half_width
+        return np.array([[x, y], [x, -y], [-x, y], [-x, -y]])
 
     @property
     def corners(self) -> np.ndarray:
@@ -337,6 +348,25 @@ def _resolve_model_path(source: str, config_path: Path) -> Path:
     return path
 
 
+def _sole_points(value: Any, contact: ContactRectangle, where: str) -> tuple[tuple[float, float], ...]:
+    """A contact's ``sole``: at least 3 finite (x, y) points (m, from its centre) inside its
+    rectangle, not all on one line (the support region is their hull)."""
+    if not (isinstance(value, list) and len(value) >= 3 and all(isinstance(p, list) and len(p) == 2 for p in value)):
+        raise RobotDescriptionError(f"{where}: 'sole' needs at least 3 points [x, y] (m, from 'center'), got {value!r}")
+    if not all(isinstance(c, (int, float)) and not isinstance(c, bool) and math.isfinite(c) for p in value for c in p):
+        raise RobotDescriptionError(f"{where}: 'sole' points must be finite numbers, got {value!r}")
+    points = np.array(value, dtype=float)
+    outside = (np.abs(points[:, 0]) > contact.half_length + 1e-9) | (np.abs(points[:, 1]) > contact.half_width + 1e-9)
+    if outside.any():
+        raise RobotDescriptionError(
+            f"{where}: 'sole' point {value[int(np.argmax(outside))]} lies outside the sole rectangle (half_length {contact.half_length}, half_width {contact.half_width})"
+        )
+    edges = points[1:] - points[0]
+    if np.abs(edges[:, 0, None] * edges[None, :, 1] - edges[:, 1, None] * edges[None, :, 0]).max() < 1e-8:
+        raise RobotDescriptionError(f"{where}: 'sole' points all lie on one line: no support area")
+    return tuple((float(x), float(y)) for x, y in points)
+
+
 def _refuse_unknown(table: dict[str, Any], allowed: frozenset[str], where: str) -> None:
     """A RobotDescriptionError naming the first key of ``table`` not in ``allowed``, and the closest known key."""
     for key in table:
@@ -460,6 +490,8 @@ def _parse(config: dict[str, Any], config_path: Path) -> RobotDescription:
         )
         if contact.half_length <= 0 or contact.half_width <= 0:
             raise RobotDescriptionError(f"{cwhere}: half_length and half_width must be > 0")
+        if "sole" in table:
+            contact = replace(contact, sole=_sole_points(table["sole"], contact, cwhere))
         contacts.append(contact)
 
     collision, self_collision, exclude = _parse_collision(config, where, urdf_path, contacts)

@@ -1,0 +1,103 @@
+"""The support region from the robot description's sole geometry: the hull of point / polygon /
+box soles, the wrench cone of that hull, and a WBC whose solved CoP stays inside it."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from giwbc.control.balance import BalanceConfig, BalanceController
+from giwbc.control.contacts import PolygonContact, SurfaceContact, foot_contacts, pyramid_generators, wrench_cone_matrix
+from giwbc.control.sole import SoleSupport, hull_2d, polygon_wrench_cone, scale_polygon
+from giwbc.errors import RobotDescriptionError
+from giwbc.robot.description import load
+
+TRIANGLE = ((0.080, 0.025), (0.080, -0.025), (-0.080, 0.0))  # two toe points, one heel point on the centreline
+
+
+@pytest.fixture(scope="module")
+def g1():
+    return load("g1")
+
+
+def with_sole(description, sole):
+    contacts = tuple(dataclasses.replace(c, sole=sole) for c in description.contacts)
+    return dataclasses.replace(description, contacts=contacts)
+
+
+def inside(point, polygon, tol=1e-9):
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    rel = point - polygon
+    return bool(np.all(edges[:, 0] * rel[:, 1] - edges[:, 1] * rel[:, 0] >= -tol))
+
+
+def test_box_sole_is_the_rectangle_and_its_cone_the_closed_form(g1):
+    contact = g1.contacts[0]
+    assert contact.sole == ()
+    np.testing.assert_array_equal(np.sort(contact.sole_points, axis=0), np.sort(contact.corners[:, :2] - contact.center[:2], axis=0))
+    faces = polygon_wrench_cone(contact.sole_points, 0.8)
+    closed = wrench_cone_matrix(contact.half_length, contact.half_width, 0.8)
+    closed /= np.linalg.norm(closed, axis=1, keepdims=True)
+    assert len(faces) == 16
+    for row in closed:  # the same 16 faces
+        assert np.abs(faces - row).max(axis=1).min() < 1e-9
+
+
+def test_point_sole_hull_and_cone(g1):
+    points = np.array([*TRIANGLE, (0.0, 0.0), (0.05, 0.01)])  # interior points drop out of the hull
+    hull = hull_2d(points)
+    assert len(hull) == 3 and {tuple(p) for p in hull} == set(TRIANGLE)
+    faces = polygon_wrench_cone(points, 0.7)
+    generators = pyramid_generators(np.c_[hull, np.zeros(3)], 0.7)
+    assert (faces @ generators).max() < 1e-12  # every pyramid edge at a sole point is inside
+    # a CoP at a heel corner of the rectangle is outside this sole's cone
+    heel_corner = np.array([0.0, 0.0, 1.0, -0.02, 0.07, 0.0])  # f_z = 1 N at (-0.07, -0.02): tau = p x f
+    assert (faces @ heel_corner).max() > 0.0
+    centre = np.array([0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    assert (faces @ centre).max() < 0.0
+
+
+def test_polygon_sole_in_robot_toml_and_refusals(tmp_path, g1):
+    folder = tmp_path / "g1poly"
+    folder.mkdir()
+    text = (g1.folder / "robot.toml").read_text().replace('erd:', 'erd:', 1)
+    text = text.replace('half_width = 0.03     # along the link y axis', 'half_width = 0.03\nsole = [[0.08, 0.025], [0.08, -0.025], [-0.08, 0.0]]', 1)
+    (folder / "robot.toml").write_text(text)
+    robot = load(folder / "robot.toml")
+    assert robot.contacts[0].sole == TRIANGLE and robot.contacts[1].sole == ()
+    contacts = foot_contacts(robot, scale=0.85)
+    assert isinstance(contacts[0], PolygonContact) and isinstance(contacts[1], SurfaceContact)
+    np.testing.assert_allclose(np.sort(contacts[0].support_polygon(), axis=0), np.sort(scale_polygon(hull_2d(np.array(TRIANGLE)), 0.85), axis=0))
+    for bad, message in (("[[0.08, 0.025], [0.08, -0.025]]", "at least 3"), ("[[0.2, 0.0], [0.08, -0.025], [-0.08, 0.0]]", "outside"),
+                         ("[[0.0, 0.0], [0.01, 0.0], [0.02, 0.0]]", "one line")):
+        (folder / "robot.toml").write_text(text.replace("[[0.08, 0.025], [0.08, -0.025], [-0.08, 0.0]]", bad))
+        with pytest.raises(RobotDescriptionError, match=message):
+            load(folder / "robot.toml")
+
+
+def test_reduced_supports_lie_inside_the_sole():
+    support = SoleSupport(np.array(TRIANGLE), 0.8)
+    assert support.modes[0].kind == "full" and len(support.modes) == 1 + 3 + 3
+    for mode, count in zip(support.modes, support.counts):
+        assert count <= support.n_rows
+        assert all(inside(p, support.polygon, 1e-12) for p in mode.polygon), mode
+
+
+@pytest.mark.parametrize("sole", [(), TRIANGLE], ids=["box", "points"])
+def test_the_solved_cop_stays_in_the_hull(g1, sole):
+    """A CoM target far to the side and back: the QP's CoP of each foot stays inside its (margined) hull."""
+    robot = with_sole(g1, sole)
+    controller = BalanceController(robot, BalanceConfig(support_scale=0.85))
+    q = robot.default_configuration()
+    v = np.zeros(robot.pinocchio_model.nv)
+    controller.reset(q)
+    controller.set_com_target(controller.nominal_com + np.array([-0.06, -0.12, 0.0]))
+    for i in range(3):
+        result = controller.update(q, v, 0.002 * i)
+    for contact in controller.contacts:
+        wrench = result.contact_wrenches[contact.name]
+        assert wrench[2] > 1.0
+        cop = np.array([-wrench[4], wrench[3]]) / wrench[2]  # contact frame, about the sole centre
+        assert inside(cop, contact.support_polygon(), 1e-6), (contact.name, cop)
