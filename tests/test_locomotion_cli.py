@@ -19,6 +19,10 @@ def test_walk_prints_a_summary_and_moves_forward(capsys):
     assert result["steps"] >= 5 and result["distance"][0] > 0.4
     assert result["mean_velocity"][0] == pytest.approx(0.3, abs=0.1)
     assert result["wbc_tick_single_support_median_us"] > 0
+    # Tracking both ways over the same steps: every tick's instantaneous velocity carries the sway that per-step averages remove.
+    assert 0 < result["tracking_rms_per_step"] < result["tracking_rms_per_tick_heading_xy"] < 0.4
+    assert 0 < result["tracking_mean_abs_per_tick_heading_xy"] <= result["tracking_rms_per_tick_heading_xy"]
+    assert 0 < result["yaw_rate_mean_abs_per_tick"] <= result["yaw_rate_rms_per_tick"]
 
 
 def test_walk_clamps_a_command_beyond_the_limits_and_refuses_nan(capsys):

@@ -164,7 +164,8 @@ def run_walking_demo(video: str | None = None) -> bool:
     print(f"walking at (vx, vy, yaw rate) = {WALK_COMMAND} for {WALK_SECONDS:.0f} s (model-based stepping on the same WBC):")
     print(_walk_line("walk", walk))
     print(f"  speed {np.round(walk.mean_velocity, 3).tolist()} m/s (per-step averages), RMS velocity tracking error "
-          f"{walk.tracking_rms:.3f} m/s, distance {np.round(walk.distance, 2).tolist()} m")
+          f"{walk.tracking_rms:.3f} m/s per step, {walk.per_tick.tracking_rms_per_tick_heading_xy:.3f} m/s per tick (heading frame), "
+          f"distance {np.round(walk.distance, 2).tolist()} m")
     cameras: dict[str, Any] = {}
     every = max(1, int(round(1.0 / (VIDEO_FPS * description.timestep))))
     if video:

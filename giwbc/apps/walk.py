@@ -19,6 +19,7 @@ from giwbc.apps.live import DEFAULT_PORT, HOST, ScenePublisher, require_foxglove
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.errors import ConfigError
 from giwbc.locomotion.footsteps import FootstepPlanner, VelocityCommand
+from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S
 from giwbc.locomotion.simulation import Push, WalkRun, simulate_walk
 from giwbc.locomotion.walker_config import WalkerConfig
 from giwbc.robot import RobotDescription, load
@@ -168,7 +169,11 @@ def summary(run: WalkRun, command: tuple[float, float, float], wall: float) -> d
         "recovery_steps": run.recovery_steps,
         "mean_velocity": [_number(x) for x in run.mean_velocity],
         "mean_yaw_rate": _number(run.mean_yaw_rate),
-        "tracking_rms": _number(run.tracking_rms),
+        # Two definitions (giwbc.locomotion.tracking): per-step averages (touch-down to touch-down) and every tick's
+        # instantaneous base velocity in the heading frame (mjlab's track_lin_vel_xy), over the same span.
+        "tracking_rms_per_step": _number(run.tracking_rms),
+        "yaw_rate_rms_per_step": _number(run.yaw_rate_rms),
+        **{key: _number(value) for key, value in run.per_tick.summary().items() if key != "ticks"},
         "distance": [round(float(x), 3) for x in run.distance],
         "early_touchdowns": run.early_touchdowns,
         "late_touchdowns": run.late_touchdowns,
@@ -208,6 +213,10 @@ def add_walk_command(commands: Any) -> None:
     parser.set_defaults(run=run_walk_command)
 
 
+def _figure(value: float | None, unit: str) -> str:
+    return "n/a" if value is None else f"{value} {unit}"
+
+
 def _speed_text(values: list[float | None]) -> str:
     return "n/a (no complete step)" if any(v is None for v in values) else f"{values} m/s"
 
@@ -242,9 +251,16 @@ def run_walk_command(args: argparse.Namespace) -> int:
         asked = f" (clamped to the gait's limits from {command})" if result["command_clamped"] else ""
         print(f"{args.robot}: walked {run.seconds:.1f} s at command (vx, vy, yaw rate) = {followed} m/s, m/s, rad/s{asked}: {state}")
         yaw = result["mean_yaw_rate"]
-        tracking = result["tracking_rms"]
         print(f"  speed {_speed_text(result['mean_velocity'])} (heading frame, per-step averages), yaw rate "
-              f"{'n/a' if yaw is None else f'{yaw} rad/s'}, RMS velocity tracking error {'n/a' if tracking is None else f'{tracking} m/s'}")
+              f"{'n/a' if yaw is None else f'{yaw} rad/s'}")
+        print(f"  tracking error, per-step averages: xy RMS {_figure(result['tracking_rms_per_step'], 'm/s')}, yaw rate RMS "
+              f"{_figure(result['yaw_rate_rms_per_step'], 'rad/s')}; per tick (instantaneous, heading frame): xy RMS "
+              f"{_figure(result['tracking_rms_per_tick_heading_xy'], 'm/s')}, mean abs "
+              f"{_figure(result['tracking_mean_abs_per_tick_heading_xy'], 'm/s')}, yaw rate RMS "
+              f"{_figure(result['yaw_rate_rms_per_tick'], 'rad/s')}, mean abs {_figure(result['yaw_rate_mean_abs_per_tick'], 'rad/s')}")
+        if args.push > 0 and not run.fell and run.seconds < args.push_time + PUSH_SECONDS + SETTLE_AFTER_PUSH_S - 1e-9:
+            print(f"  note: the run ended {run.seconds - args.push_time - PUSH_SECONDS:.2f} s after the push: not judged a recovery "
+                  f"(that takes {SETTLE_AFTER_PUSH_S:g} s up after the push)")
         print(f"  {run.steps} steps ({run.recovery_steps} for push recovery), distance {result['distance']} m, "
               f"WBC failures {run.wbc_failures}, WBC tick median {result['wbc_tick_median_us']} µs")
         if video:
