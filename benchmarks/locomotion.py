@@ -8,15 +8,18 @@ seeds 1000-1999).
 
 * **walking**: commanded 0.3 / 0.5 / 0.7 m/s forward, 0.2 m/s lateral, 0.5 rad/s turning; per
   seeded run (initial joint angles and base velocity perturbed from the seed) the mean per-step
-  velocity (heading frame), the RMS velocity-tracking error (base xy velocity averaged over each
-  step vs the command, steps after the first two), falls. Commands beyond the gait limits are
-  clamped (reported).
-* **push**: standing, one push of 0.2 s on the pelvis per 2.6 s episode, start uniform in
-  [1.2, 1.6] s, random horizontal direction (the ``giwbc evaluate`` protocol's push; success:
-  no fall and final tilt below 0.35 rad), stepping vs the feet-in-place balance controller on the
-  same seeds; and 60 N straight backward.
+  velocity (heading frame), the velocity-tracking error two ways over the same steps (after the
+  first two): ``tracking_rms_per_step`` (base xy velocity averaged over each step vs the command)
+  and per tick in the heading frame (``tracking_rms_per_tick_heading_xy`` and mean absolute, yaw
+  rate likewise: every 2 ms tick's instantaneous velocity, mjlab's ``track_lin_vel_xy``), falls.
+  Commands beyond the gait limits are clamped (reported).
+* **push**: standing, one push of 0.2 s on the pelvis, start uniform in [1.2, 1.6] s, random
+  horizontal direction (the ``giwbc evaluate`` protocol's push), the episode running on
+  ``SETTLE_AFTER_PUSH_S`` (3 s) after the push ends; success: no fall and final tilt below
+  0.35 rad; stepping vs the feet-in-place balance controller on the same seeds; and 60 N straight
+  backward. Each fall is reported in s after the push ended.
 * **walking_push**: at 0.3 m/s, one push of 0.2 s at a random time in [2, 3] s, random
-  direction, 5 s episodes: success = no fall.
+  direction, the episode running on 3 s after the push ends: success = no fall.
 * **tick**: the WBC tick (wall clock, one thread) in single support, in double support and at
   contact switches while walking, beside the standing (feet-in-place) double-support tick of the
   same process.
@@ -44,6 +47,7 @@ import giwbc  # noqa: E402,F401  (before numpy: it pins the floating-point kerne
 import numpy as np  # noqa: E402
 
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress  # noqa: E402
+from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S, fall_times_summary, judge_push  # noqa: E402
 from giwbc.locomotion.simulation import Push, simulate_walk  # noqa: E402
 from giwbc.locomotion.walker import WalkerConfig  # noqa: E402
 from giwbc.robot import load  # noqa: E402
@@ -51,6 +55,8 @@ from giwbc.robot import load  # noqa: E402
 COMMANDS = {"forward_0.3": (0.3, 0.0, 0.0), "forward_0.5": (0.5, 0.0, 0.0), "forward_0.7": (0.7, 0.0, 0.0), "lateral_0.2": (0.0, 0.2, 0.0), "turn_0.5": (0.0, 0.0, 0.5)}
 SEED_BASE = 2000  # every part's seeds start here (tuning used seeds < 1000; 1000-1999 are kept fresh)
 UPRIGHT_TILT = 0.35
+PUSH_SECONDS = 0.2
+PER_TICK = ("tracking_rms_per_tick_heading_xy", "tracking_mean_abs_per_tick_heading_xy", "yaw_rate_rms_per_tick", "yaw_rate_mean_abs_per_tick")
 
 
 def _walk(job: tuple[str, tuple[float, float, float], float, int]) -> dict:
@@ -59,7 +65,8 @@ def _walk(job: tuple[str, tuple[float, float, float], float, int]) -> dict:
     return {
         "command": name, "seed": seed, "fell": run.fell, "fall_time": run.fall_time, "steps": run.steps,
         "mean_velocity": [round(float(x), 4) for x in run.mean_velocity], "mean_yaw_rate": round(run.mean_yaw_rate, 4),
-        "tracking_rms": round(run.tracking_rms, 4), "yaw_rate_rms": round(run.yaw_rate_rms, 4), "wbc_failures": run.wbc_failures,
+        "tracking_rms_per_step": round(run.tracking_rms, 4), "yaw_rate_rms_per_step": round(run.yaw_rate_rms, 4),
+        **{key: round(getattr(run.per_tick, key), 4) for key in PER_TICK}, "wbc_failures": run.wbc_failures,
         "notes": run.notes, "ticks": _tick_split(run),
     }
 
@@ -75,15 +82,21 @@ def _push_episode(job: tuple[float, int, bool, float | None, bool]) -> dict:
     rng = np.random.default_rng(seed)
     if walking:
         start, angle = float(rng.uniform(2.0, 3.0)), float(rng.uniform(-math.pi, math.pi))
-        seconds, command, command_start = 5.0, (0.3, 0.0, 0.0), 0.5
+        command, command_start = (0.3, 0.0, 0.0), 0.5
     else:
         start, angle = float(rng.uniform(1.2, 1.6)), float(rng.uniform(-math.pi, math.pi))
-        seconds, command, command_start = 2.6, (0.0, 0.0, 0.0), None
+        command, command_start = (0.0, 0.0, 0.0), None
     if direction is not None:
         angle = direction
-    run = simulate_walk(load("g1"), command, seconds, pushes=(Push(start, force, angle),), command_start=command_start, stepping=stepping, seed=seed)
-    success = (not run.fell) and (walking or run.final_tilt < UPRIGHT_TILT)
-    return {"force": force, "seed": seed, "stepping": stepping, "success": success, "fell": run.fell, "steps": run.steps, "push_start": round(start, 3), "direction": round(angle, 3)}
+    push_end = start + PUSH_SECONDS
+    seconds = push_end + SETTLE_AFTER_PUSH_S + 0.005  # a few ticks over: the run's tick count is rounded
+    run = simulate_walk(load("g1"), command, seconds, pushes=(Push(start, force, angle, PUSH_SECONDS),), command_start=command_start,
+                        stepping=stepping, seed=seed)
+    outcome = judge_push(fell=run.fell, fall_time=run.fall_time, end_time=run.seconds, push_end=push_end, final_tilt=run.final_tilt,
+                         upright_tilt=math.inf if walking else UPRIGHT_TILT)
+    return {"force": force, "seed": seed, "stepping": stepping, "success": outcome.success, "fell": run.fell,
+            "fall_after_push": None if outcome.fall_after_push is None else round(outcome.fall_after_push, 3), "steps": run.steps,
+            "push_start": round(start, 3), "direction": round(angle, 3)}
 
 
 def _map(function, jobs: list, workers: int, progress: bool = False) -> list:
@@ -157,25 +170,31 @@ def main(argv: list[str] | None = None) -> int:
                 "falls": sum(r["fell"] for r in runs),
                 "mean_velocity": [round(float(x), 3) for x in np.nanmean(velocities, axis=0)] if len(runs) else None,
                 "mean_yaw_rate": round(float(np.nanmean([r["mean_yaw_rate"] for r in runs])), 3),
-                "tracking_rms": round(float(np.sqrt(np.nanmean([r["tracking_rms"] ** 2 for r in runs]))), 4),
-                "yaw_rate_rms": round(float(np.sqrt(np.nanmean([r["yaw_rate_rms"] ** 2 for r in runs]))), 4),
+                "tracking_rms_per_step": round(float(np.sqrt(np.nanmean([r["tracking_rms_per_step"] ** 2 for r in runs]))), 4),
+                "yaw_rate_rms_per_step": round(float(np.sqrt(np.nanmean([r["yaw_rate_rms_per_step"] ** 2 for r in runs]))), 4),
+                # per tick, pooled over the runs (RMS of the runs' RMS, mean of their means: runs of equal length)
+                **{key: round(float(np.sqrt(np.nanmean([r[key] ** 2 for r in runs])) if "rms" in key else np.nanmean([r[key] for r in runs])), 4)
+                   for key in PER_TICK},
                 "wbc_failures": sum(r["wbc_failures"] for r in runs),
                 "clamped": sorted({n for r in runs for n in r["notes"]}),
-                "runs": [{k: r[k] for k in ("seed", "fell", "fall_time", "steps", "mean_velocity", "mean_yaw_rate", "tracking_rms")} for r in runs],
+                "runs": [{k: r[k] for k in ("seed", "fell", "fall_time", "steps", "mean_velocity", "mean_yaw_rate", "tracking_rms_per_step",
+                                            "tracking_rms_per_tick_heading_xy")} for r in runs],
             }
         out["walking"] = walking
     if "push" in parts:
         jobs = [(force, base + i, stepping, None, False) for force in args.forces for stepping in (True, False) for i in range(episodes)]
         jobs += [(60.0, base + i, stepping, math.pi, False) for stepping in (True, False) for i in range(max(1, min(episodes, 10)))]
         results = _map(_push_episode, jobs, args.workers, progress)
-        push: dict = {"protocol": {"duration": 0.2, "start": [1.2, 1.6], "episode_seconds": 2.6, "upright_tilt": UPRIGHT_TILT, "direction": "uniform"}}
+        push: dict = {"protocol": {"duration": PUSH_SECONDS, "start": [1.2, 1.6], "settle_after_push_s": SETTLE_AFTER_PUSH_S,
+                                   "upright_tilt": UPRIGHT_TILT, "direction": "uniform"}}
         for force in args.forces + [60.0]:
             label = f"{force:g}N" if force != 60.0 or 60.0 in args.forces else "60N_backward"
             row = {}
             for stepping in (True, False):
                 rs = [r for r in results if r["force"] == force and r["stepping"] == stepping and (label != "60N_backward" or r["direction"] == round(math.pi, 3))]
                 wins = sum(r["success"] for r in rs)
-                row["stepping" if stepping else "feet_in_place"] = {"success": wins, "episodes": len(rs), "rate": round(wins / len(rs), 3) if rs else None, "ci95": _wilson(wins, len(rs)), "mean_steps": round(float(np.mean([r["steps"] for r in rs])), 2) if rs else None}
+                row["stepping" if stepping else "feet_in_place"] = {"success": wins, "episodes": len(rs), "rate": round(wins / len(rs), 3) if rs else None, "ci95": _wilson(wins, len(rs)), "mean_steps": round(float(np.mean([r["steps"] for r in rs])), 2) if rs else None,
+                                                                    **fall_times_summary([r["fall_after_push"] for r in rs if r["fall_after_push"] is not None])}
             row["seeds"] = [base, base + (episodes if label != "60N_backward" else max(1, min(episodes, 10))) - 1]
             push[label] = row
         out["push_standing"] = push
@@ -183,7 +202,8 @@ def main(argv: list[str] | None = None) -> int:
         jobs = [(80.0, base + i, True, None, True) for i in range(episodes)]
         results = _map(_push_episode, jobs, args.workers, progress)
         wins = sum(r["success"] for r in results)
-        out["push_walking"] = {"speed": 0.3, "force": 80.0, "duration": 0.2, "success": wins, "episodes": len(results), "rate": round(wins / len(results), 3), "ci95": _wilson(wins, len(results)), "seeds": [base, base + episodes - 1]}
+        out["push_walking"] = {"speed": 0.3, "force": 80.0, "duration": PUSH_SECONDS, "settle_after_push_s": SETTLE_AFTER_PUSH_S, "success": wins, "episodes": len(results), "rate": round(wins / len(results), 3), "ci95": _wilson(wins, len(results)), "seeds": [base, base + episodes - 1],
+                               **fall_times_summary([r["fall_after_push"] for r in results if r["fall_after_push"] is not None])}
     if "tick" in parts:
         single = [x for r in walk_results for x in r["ticks"]["single"]]
         double = [x for r in walk_results for x in r["ticks"]["double"]]
