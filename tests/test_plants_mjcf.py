@@ -191,3 +191,10 @@ def test_a_vendor_motor_is_adopted_with_its_control_range_as_force_limit(g1):
     robot.set_joint_torques(command)
     robot.step()
     assert robot.joint_efforts()[g1.joint_names.index("left_knee_joint")] == pytest.approx(100.0)
+
+
+def test_a_merged_link_keeps_its_pose(g1):
+    nominal, fused = MujocoRobot(g1), MujocoRobot(g1, _fused_g1(g1))
+    for link in ("imu_in_pelvis", "pelvis_contour_link"):
+        (p0, r0), (p1, r1) = nominal.link_pose(link), fused.link_pose(link)
+        assert np.allclose(p1, p0, atol=1e-9) and np.allclose(r1, r0, atol=1e-9)

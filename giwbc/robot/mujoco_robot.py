@@ -10,6 +10,7 @@ import numpy as np
 from giwbc.robot.actuator_dynamics import ActuatorDynamics
 from giwbc.robot.conventions import pinocchio_to_mujoco, wxyz_to_xyzw
 from giwbc.robot.description import RobotDescription
+from giwbc.robot.fixed_links import Carrier, carrier, fixed_parents
 from giwbc.robot.interface import BaseState, ContactWrench, ImpedanceCommand, DescribedRobot, ImuReading, quat_to_matrix
 from giwbc.robot.mujoco_model import imu_sensor_names
 from giwbc.robot.mujoco_plant import adopt_actuators, bind, plant_from_file
@@ -62,6 +63,7 @@ class MujocoRobot(DescribedRobot):
         self._actuated = actuated
         self._acts = _as_slice(binding.actuators)
         self._body_ids: dict[str, int] = {}
+        self._merged: dict[str, Carrier] = {}  # links the plant merged into a parent, and where they sit in it
         self._sensor_slices = {
             m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i])) for i in range(m.nsensor)
         }
@@ -164,8 +166,13 @@ class MujocoRobot(DescribedRobot):
         return q, v
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
+        """World pose of a link's frame (a link the plant merged into its parent: from the body carrying it)."""
         body = self._body_id(link)
-        return self.data.xpos[body].copy(), self.data.xmat[body].reshape(3, 3).copy()
+        position, rotation = self.data.xpos[body].copy(), self.data.xmat[body].reshape(3, 3).copy()
+        held = self._merged.get(link)
+        if held is None:
+            return position, rotation
+        return position + rotation @ held.position, rotation @ held.rotation
 
     def contact_wrench(self, link: str) -> ContactWrench:
         body = self._body_id(link)
@@ -265,10 +272,17 @@ class MujocoRobot(DescribedRobot):
             self.data.ctrl[self._acts] = self._kp * self._q_ref + self._kd * self._v_ref + self._command
 
     # --- helpers --------------------------------------------------------------------------
+    def _urdf_links(self) -> set[str]:
+        return set(fixed_parents(self.description.urdf_path))
+
     def _body_id(self, link: str) -> int:
         body = self._body_ids.get(link)
         if body is None:
             body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, link)
+            if body < 0 and link in self._urdf_links():  # merged by the plant into the body that carries it
+                held = carrier(self.description.urdf_path, frozenset(self.model.body(i).name for i in range(self.model.nbody)), link)
+                self._merged[link] = held
+                body = mujoco.mj_name2id(self.model, mujoco.mjtObj.mjOBJ_BODY, held.body)
             if body < 0:
                 raise KeyError(f"robot {self.name!r} has no link {link!r}")
             self._body_ids[link] = body
