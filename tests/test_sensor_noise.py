@@ -242,3 +242,49 @@ def test_one_sensor_model_takes_per_joint_errors_too() -> None:
     np.testing.assert_allclose(np.mean(errors, axis=0), bias, atol=2e-3)
     np.testing.assert_allclose(np.std(errors, axis=0), std, rtol=0.1, atol=1e-12)
     np.testing.assert_array_equal(model.imu().angular_velocity, truth.imu().angular_velocity)  # imu=False: the robot's own
+
+
+def _reference_measure_imu(errors: SensorErrors, gyro_bias: np.ndarray, accel_bias: np.ndarray, truth: ImuReading,
+                           elapsed: float, draws: np.ndarray, jitter: float) -> tuple[ImuReading, np.ndarray, np.ndarray]:
+    """The IMU model as first written on numpy arrays (before it moved to Python floats): the reference."""
+    from giwbc.robot.so3 import exp, matrix_to_quat, quat_multiply
+
+    e, walk = errors, math.sqrt(max(elapsed, 0.0))
+    mounting = exp(np.broadcast_to(np.asarray(e.mounting, float), (3,)))
+    truth = ImuReading(quat_multiply(truth.quaternion, matrix_to_quat(mounting)), mounting.T @ truth.angular_velocity,
+                       mounting.T @ truth.linear_acceleration, truth.time)
+    gyro_bias = gyro_bias + e.gyro_bias_walk * walk * draws[3:6]
+    accel_bias = accel_bias + e.accel_bias_walk * walk * draws[9:12]
+    gyro = np.minimum(np.maximum(truth.angular_velocity + gyro_bias + e.gyro_noise * draws[0:3], -e.gyro_range), e.gyro_range)
+    accel = np.minimum(np.maximum(truth.linear_acceleration + accel_bias + e.accel_noise * draws[6:9], -e.accel_range), e.accel_range)
+    error = np.asarray(e.orientation_bias, float).copy()
+    error[2] += e.heading_drift * float(truth.time)
+    quaternion = quat_multiply(matrix_to_quat(exp(error)), truth.quaternion)
+    rotation_vector = e.orientation_noise * draws[12:15]
+    angle = float(np.linalg.norm(rotation_vector))
+    delta = np.concatenate([math.sin(0.5 * angle) / angle * rotation_vector, [math.cos(0.5 * angle)]])
+    return ImuReading(quat_multiply(quaternion, delta), gyro, accel, truth.time + jitter), gyro_bias, accel_bias
+
+
+def test_the_imu_model_on_floats_matches_its_numpy_reference(rng) -> None:
+    """Every IMU error on (mounting, orientation tilt and heading drift, noise, bias walks, saturation):
+    the per-sample model computes what its numpy reference does, to rounding, on random truths."""
+    errors = SensorErrors(gyro_noise=0.02, gyro_bias=np.array([0.01, -0.02, 0.005]), gyro_bias_walk=1e-3, accel_noise=0.05,
+                          accel_bias=np.array([0.1, 0.0, -0.2]), accel_bias_walk=1e-2, orientation_noise=0.01,
+                          orientation_bias=np.array([0.004, -0.006, 0.0]), heading_drift=2e-3, mounting=np.array([0.003, -0.002, 0.004]),
+                          gyro_range=3.0, accel_range=40.0)
+    model = SensorModel(ScriptedRobot(), errors, np.random.default_rng(0))
+    gyro_bias, accel_bias = model.gyro_bias, model.accel_bias
+    for _ in range(200):
+        quaternion = rng.standard_normal(4)
+        truth = ImuReading(quaternion / np.linalg.norm(quaternion), 2.0 * rng.standard_normal(3), 15.0 * rng.standard_normal(3),
+                           float(rng.uniform(0.0, 100.0)))
+        draws, elapsed, jitter = rng.standard_normal(15), float(rng.uniform(0.0, 0.01)), float(rng.uniform(-1e-4, 1e-4))
+        expected, gyro_bias, accel_bias = _reference_measure_imu(errors, gyro_bias, accel_bias, truth, elapsed, draws, jitter)
+        got = model._measure_imu(truth, elapsed, draws.tolist(), jitter)
+        for name in ("quaternion", "angular_velocity", "linear_acceleration"):
+            np.testing.assert_allclose(getattr(got, name), getattr(expected, name), rtol=0, atol=1e-13, err_msg=name)
+        assert got.time == expected.time
+        np.testing.assert_allclose(model.gyro_bias, gyro_bias, rtol=0, atol=1e-15)
+        np.testing.assert_allclose(model.accel_bias, accel_bias, rtol=0, atol=1e-15)
+    assert np.abs(got.angular_velocity).max() <= 3.0 and np.abs(got.linear_acceleration).max() <= 40.0

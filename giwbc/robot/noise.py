@@ -29,11 +29,12 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from giwbc.robot.so3 import exp, matrix_to_quat, quat_multiply
+from giwbc.robot.so3 import as_floats, exp, matrix_to_quat, quat_multiply, quat_multiply_floats, rotate_back
 from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
 from giwbc.errors import NotMeasuredError
 
@@ -260,15 +261,40 @@ class SensorModel:
         self._rng = rng
         self._imu = imu
         self._dofs = robot.dofs
-        self.gyro_bias = np.broadcast_to(np.asarray(errors.gyro_bias, dtype=float), (3,)).copy()
-        self.accel_bias = np.broadcast_to(np.asarray(errors.accel_bias, dtype=float), (3,)).copy()
+        # IMU state and constants as Python floats: one sample per physics step, where numpy's
+        # per-call overhead on 3-vectors would cost more than the arithmetic.
+        self._gyro_bias = np.broadcast_to(np.asarray(errors.gyro_bias, dtype=float), (3,)).tolist()
+        self._accel_bias = np.broadcast_to(np.asarray(errors.accel_bias, dtype=float), (3,)).tolist()
         mounting = np.broadcast_to(np.asarray(errors.mounting, dtype=float), (3,))
         self._mounting = exp(mounting) if mounting.any() else None  # actual IMU frame in the nominal one
         self._mounting_quaternion = matrix_to_quat(self._mounting) if self._mounting is not None else None
+        self._mounting_rows = tuple(self._mounting.ravel().tolist()) if self._mounting is not None else None
+        self._mounting_floats = tuple(self._mounting_quaternion.tolist()) if self._mounting_quaternion is not None else None
         self._orientation_bias = np.broadcast_to(np.asarray(errors.orientation_bias, dtype=float), (3,)).copy()
         self._orientation_error = bool(self._orientation_bias.any() or errors.heading_drift)
+        self._bias_floats = tuple(self._orientation_bias.tolist())
+        self._joint_bias = np.broadcast_to(np.asarray(errors.joint_position_bias, dtype=float), (self._dofs,)).copy()
+        self._joint_bias_any = bool(self._joint_bias.any())
         self._buffer: deque[_Sample] = deque(maxlen=errors.latency + 1)
         self._sample_time: float | None = None
+
+    @property
+    def gyro_bias(self) -> np.ndarray:
+        """The gyro's bias now (rad/s, IMU frame): the turn-on bias plus its random walk so far."""
+        return np.array(self._gyro_bias)
+
+    @gyro_bias.setter
+    def gyro_bias(self, value: np.ndarray) -> None:
+        self._gyro_bias = np.broadcast_to(np.asarray(value, dtype=float), (3,)).tolist()
+
+    @property
+    def accel_bias(self) -> np.ndarray:
+        """The accelerometer's bias now (m/s^2, IMU frame)."""
+        return np.array(self._accel_bias)
+
+    @accel_bias.setter
+    def accel_bias(self, value: np.ndarray) -> None:
+        self._accel_bias = np.broadcast_to(np.asarray(value, dtype=float), (3,)).tolist()
 
     def restart(self) -> None:
         """Forget the buffered samples (the robot was reset)."""
@@ -312,55 +338,74 @@ class SensorModel:
 
     def _sample(self, elapsed: float) -> _Sample:
         robot, e, n = self.robot, self.errors, self._dofs
-        draws = self._rng.standard_normal(15 + 3 * n)  # fixed order: IMU (15), positions, velocities, efforts
-        dropped = self._rng.random() < e.imu_dropout
+        rng = self._rng
+        draws = rng.standard_normal(15 + 3 * n)  # fixed order: IMU (15), positions, velocities, efforts
+        dropped = rng.random() < e.imu_dropout
         jitter = 0.0
         if e.sample_jitter:
             bound = 0.4 * e.sample_period
-            jitter = min(bound, max(-bound, e.sample_jitter * float(self._rng.standard_normal())))
+            jitter = min(bound, max(-bound, e.sample_jitter * float(rng.standard_normal())))
         imu = None
         if self._imu:
-            imu = self._measure_imu(robot.imu(), elapsed, draws[:15], jitter)
+            imu = self._measure_imu(robot.imu(), elapsed, draws[:15].tolist(), jitter)
             if dropped and self._buffer:
                 imu = self._buffer[-1].imu
-        positions = robot.joint_positions() + e.joint_position_bias + e.joint_position_noise * draws[15 : 15 + n]
+        positions = robot.joint_positions()
+        if self._joint_bias_any:
+            positions = positions + self._joint_bias
+        positions = positions + e.joint_position_noise * draws[15 : 15 + n]
         if e.encoder_resolution > 0:
             positions = np.round(positions / e.encoder_resolution) * e.encoder_resolution
         velocities = robot.joint_velocities() + e.joint_velocity_noise * draws[15 + n : 15 + 2 * n]
         efforts = robot.joint_efforts() + e.joint_effort_noise * draws[15 + 2 * n :]
         return _Sample(imu, positions, velocities, efforts)
 
-    def _measure_imu(self, truth: ImuReading, elapsed: float, draws: np.ndarray, jitter: float = 0.0) -> ImuReading:
+    def _measure_imu(self, truth: ImuReading, elapsed: float, draws: Sequence[float], jitter: float = 0.0) -> ImuReading:
         """``draws``: 15 standard normals (gyro, gyro walk, accel, accel walk, orientation);
-        ``jitter``: the timestamp's error (s)."""
+        ``jitter``: the timestamp's error (s). On Python floats (3-vectors and quaternions), the
+        same arithmetic as the numpy reference in tests/test_sensor_noise.py."""
         e, walk = self.errors, math.sqrt(max(elapsed, 0.0))
-        if self._mounting is not None:  # the IMU's actual frame is rotated in its nominal one
-            truth = ImuReading(
-                quat_multiply(np.asarray(truth.quaternion, float), self._mounting_quaternion),
-                self._mounting.T @ np.asarray(truth.angular_velocity, float),
-                self._mounting.T @ np.asarray(truth.linear_acceleration, float),
-                truth.time,
-            )
+        quaternion = as_floats(truth.quaternion)
+        gyro_true, accel_true = as_floats(truth.angular_velocity), as_floats(truth.linear_acceleration)
+        if self._mounting_rows is not None:  # the IMU's actual frame is rotated in its nominal one
+            quaternion = quat_multiply_floats(quaternion, self._mounting_floats)
+            gyro_true = rotate_back(self._mounting_rows, gyro_true)
+            accel_true = rotate_back(self._mounting_rows, accel_true)
+        gb, ab = self._gyro_bias, self._accel_bias
         if e.gyro_bias_walk:
-            self.gyro_bias = self.gyro_bias + e.gyro_bias_walk * walk * draws[3:6]
+            k = e.gyro_bias_walk * walk
+            gb = self._gyro_bias = [gb[0] + k * draws[3], gb[1] + k * draws[4], gb[2] + k * draws[5]]
         if e.accel_bias_walk:
-            self.accel_bias = self.accel_bias + e.accel_bias_walk * walk * draws[9:12]
-        gyro = np.asarray(truth.angular_velocity, float) + self.gyro_bias + e.gyro_noise * draws[0:3]
-        accel = np.asarray(truth.linear_acceleration, float) + self.accel_bias + e.accel_noise * draws[6:9]
+            k = e.accel_bias_walk * walk
+            ab = self._accel_bias = [ab[0] + k * draws[9], ab[1] + k * draws[10], ab[2] + k * draws[11]]
+        sg, sa = e.gyro_noise, e.accel_noise
+        gyro = [gyro_true[i] + gb[i] + sg * draws[i] for i in range(3)]
+        accel = [accel_true[i] + ab[i] + sa * draws[6 + i] for i in range(3)]
         if e.gyro_range < math.inf:
-            gyro = np.minimum(np.maximum(gyro, -e.gyro_range), e.gyro_range)
+            r = e.gyro_range
+            gyro = [min(max(g, -r), r) for g in gyro]
         if e.accel_range < math.inf:
-            accel = np.minimum(np.maximum(accel, -e.accel_range), e.accel_range)
+            r = e.accel_range
+            accel = [min(max(a, -r), r) for a in accel]
         if not e.orientation_output:
-            return ImuReading(np.full(4, np.nan), gyro, accel, truth.time + jitter)
-        quaternion = np.asarray(truth.quaternion, float)
+            return ImuReading(np.full(4, np.nan), np.array(gyro), np.array(accel), truth.time + jitter)
         if self._orientation_error:  # world-frame error: constant tilt, heading drifting with time
-            error = self._orientation_bias.copy()
-            error[2] += e.heading_drift * float(truth.time)
-            quaternion = quat_multiply(matrix_to_quat(exp(error)), quaternion)
+            bx, by, bz = self._bias_floats
+            quaternion = quat_multiply_floats(_rotation_quaternion(bx, by, bz + e.heading_drift * float(truth.time)), quaternion)
         if e.orientation_noise:
-            quaternion = _perturb(quaternion, e.orientation_noise * draws[12:15])
-        return ImuReading(quaternion, gyro, accel, truth.time + jitter)
+            o = e.orientation_noise
+            quaternion = quat_multiply_floats(quaternion, _rotation_quaternion(o * draws[12], o * draws[13], o * draws[14]))
+        return ImuReading(np.array(quaternion, dtype=float), np.array(gyro), np.array(accel), truth.time + jitter)
+
+
+def _rotation_quaternion(x: float, y: float, z: float) -> tuple[float, float, float, float]:
+    """The unit quaternion ``(x, y, z, w)`` (``w >= 0`` for angles up to pi) of the rotation vector ``(x, y, z)``."""
+    angle = math.sqrt(x * x + y * y + z * z)
+    if angle == 0.0:
+        return (0.0, 0.0, 0.0, 1.0)
+    half = 0.5 * angle
+    k = math.sin(half) / angle
+    return (k * x, k * y, k * z, math.cos(half))
 
 
 class NoisyRobot(RobotWrapper):
