@@ -529,10 +529,11 @@ def add_evaluate_command(commands: Any) -> None:
                         help=f"push magnitude(s), N, each in [0, {MAX_FORCE:g}]")
     parser.add_argument("--duration", type=seconds(1.0), default=PushProtocol.duration, help="push duration, s, in (0, 1]")
     parser.add_argument("--interval", type=seconds(MAX_EPISODE_SECONDS, allow_zero=True), nargs=2, default=None, metavar=("MIN", "MAX"),
-                        help=f"push start drawn uniformly in [MIN, MAX] simulated s; the push must end within the episode "
-                             f"(default stand {list(PushProtocol.interval)})")
+                        help=f"push start drawn uniformly in [MIN, MAX] simulated s; the push must end {SETTLE_AFTER_PUSH_S:g} s before "
+                             f"the episode does (default stand {list(PushProtocol.interval)})")
     parser.add_argument("--episode-seconds", type=seconds(MAX_EPISODE_SECONDS), default=None,
-                        help=f"simulated seconds per episode (default stand {PushProtocol.episode_seconds})")
+                        help=f"simulated seconds per episode, at least the latest push's end + {SETTLE_AFTER_PUSH_S:g} s (success is "
+                             f"judged then; default: exactly that, stand {PushProtocol.episode_seconds:g})")
     parser.add_argument("--upright-tilt", type=number(0.0, math.pi / 2, unit="rad", low_open=True), default=PushProtocol.upright_tilt,
                         help="success: final base tilt below this, rad")
     parser.add_argument("--env", default=None, choices=(DEFAULT_ENV_ID, "giwbc/G1Walk-v0"),
