@@ -12,6 +12,7 @@ import json
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import NoReturn
 
 import numpy as np
@@ -26,7 +27,7 @@ from giwbc.apps.sim_to_sim import add_sim_to_sim_command
 from giwbc.apps.training import add_train_command
 from giwbc.apps.walk import add_walk_command
 from giwbc import __version__
-from giwbc.errors import GiwbcError
+from giwbc.errors import ConfigError, GiwbcError
 from giwbc.robot import MujocoRobot, RobotDescriptionError, load
 from giwbc.robot.description import robot_search_path, scan_robots
 from giwbc.robot.standing import StandingSummary, base_tilt_deg, pd_hold_command
@@ -121,7 +122,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """The main job: what giwbc can do today, end to end."""
-    return run_demo(seconds=args.seconds, video=None if args.no_video else args.video)
+    video = None if args.no_video else args.video
+    if video is not None and Path(video).suffix.lower() not in (".mp4", ".gif"):
+        raise ConfigError(f"--video {video}: expected a .mp4 or .gif file")  # before minutes of simulation, not after
+    return run_demo(seconds=args.seconds, video=video)
 
 
 def build_parser() -> argparse.ArgumentParser:
