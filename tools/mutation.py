@@ -80,8 +80,10 @@ GROUPS: tuple[Group, ...] = (
            "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_observe*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_pace*",
            "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁtime*", "giwbc.runtimes.simulated.xǁSimulatedRuntimeǁ_info*",
            "giwbc.runtimes.simulated.xǁStepTimings*", "giwbc.runtimes.simulated.x_timestep*")),
-    Group("scoring", ("giwbc/apps/evaluation.py", "giwbc/apps/sim_to_sim.py", "giwbc/apps/walk_evaluation.py"),
-          ("tests/test_scoring.py", "tests/test_evaluation.py", "tests/test_sim_to_sim.py", "tests/test_walk_evaluation.py",
+    Group("scoring", ("giwbc/apps/evaluation.py", "giwbc/apps/sim_to_sim.py", "giwbc/apps/walk_evaluation.py",
+                      "giwbc/locomotion/push_scoring.py", "giwbc/locomotion/tracking.py"),
+          ("tests/test_push_scoring.py", "tests/test_tracking_per_tick.py",
+           "tests/test_scoring.py", "tests/test_evaluation.py", "tests/test_sim_to_sim.py", "tests/test_walk_evaluation.py",
            "-k", "not training and not zero_policy_walks and not cached_arms"), 900,
           ("giwbc.apps.evaluation.x_run_chunk*", "giwbc.apps.evaluation.x_run_episodes*", "giwbc.apps.evaluation.xǁArmResultǁ*",
            "giwbc.apps.evaluation.x_velocity_tracking_rms*", "giwbc.apps.walk_evaluation.x_paired_tracking*",
@@ -89,7 +91,9 @@ GROUPS: tuple[Group, ...] = (
            "giwbc.apps.walk_evaluation.x__finite*", "giwbc.apps.walk_evaluation.xǁWalkProtocolǁ*",
            "giwbc.apps.evaluation.xǁComparisonǁ*", "giwbc.apps.evaluation.x_wilson_interval*", "giwbc.apps.evaluation.x_mcnemar_exact*",
            "giwbc.apps.evaluation.xǁPushProtocolǁ*", "giwbc.apps.sim_to_sim.x_run_job*", "giwbc.apps.sim_to_sim.x_evaluate*",
-           "giwbc.apps.sim_to_sim.xǁCellǁ*", "giwbc.apps.sim_to_sim.xǁPushSettingǁ*")),
+           "giwbc.apps.sim_to_sim.xǁCellǁ*", "giwbc.apps.sim_to_sim.xǁPushSettingǁ*",
+           "giwbc.locomotion.push_scoring.x_judge_push*", "giwbc.locomotion.push_scoring.x_fall_times_summary*",
+           "giwbc.locomotion.tracking.x_heading_frame_velocity*", "giwbc.locomotion.tracking.x_per_tick_tracking*")),
     # control/, split so that every mutant runs within its budget: each part with the fast tests that
     # reach it (the closed-loop runs, marked slow, stay out). The globs are fnmatch patterns, where
     # "*" also matches "/": "wbc" takes every module of giwbc/control/ that no other part takes.
