@@ -119,6 +119,7 @@ def calibrate(
     gantry = linear > 0 or angular > 0
     dt = description.timestep
     steps, limit = 0, math.ceil(timeout / dt - 1e-9)  # physics steps taken, and the most allowed
+    robot.set_joint_impedance(hold)  # held: the backend evaluates it at every physics step (Robot.set_joint_impedance)
     estimated.update()
     try:
         while not estimator.ready:
@@ -128,7 +129,6 @@ def calibrate(
                     f"{estimator.waiting_for}. A robot reset with its joints off the default pose creeps for seconds while "
                     "held there: start it at the default pose (e.g. G1Walk(initial_joint_noise=0)), or raise calibration_timeout"
                 )
-            robot.set_joint_impedance(hold)
             if gantry:
                 for _ in range(physics_per_controller):
                     base = robot.base_state()  # the simulation's truth: the gantry is part of the world, not of the robot
