@@ -23,7 +23,7 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefau
 
     def _get_help_string(self, action: argparse.Action) -> str | None:
         help_text = action.help or ""
-        if action.default in (None, False, argparse.SUPPRESS) or "%(default)" in help_text:
+        if action.default is None or action.default is False or action.default is argparse.SUPPRESS or "%(default)" in help_text:
             return help_text
         if action.option_strings or action.nargs in (argparse.OPTIONAL, argparse.ZERO_OR_MORE):
             return f"{help_text} (default: %(default)s)" if help_text else "(default: %(default)s)"
@@ -35,13 +35,18 @@ def add_command(commands: Any, name: str, help: str, description: str | None = N
     return commands.add_parser(name, help=help, description=description or help, formatter_class=HelpFormatter)
 
 
+def _bound(value: float) -> str:
+    """A bound as a person writes it: integers in full (4294967295, not 4.29497e+09)."""
+    return str(int(value)) if float(value).is_integer() and abs(value) < 1e15 else f"{value:g}"
+
+
 def _interval(low: float | None, high: float | None, low_open: bool, high_open: bool) -> str:
     if low is not None and high is not None:
-        return f"in {'(' if low_open else '['}{low:g}, {high:g}{')' if high_open else ']'}"
+        return f"in {'(' if low_open else '['}{_bound(low)}, {_bound(high)}{')' if high_open else ']'}"
     if low is not None:
-        return f"{'>' if low_open else '>='} {low:g}"
+        return f"{'>' if low_open else '>='} {_bound(low)}"
     if high is not None:
-        return f"{'<' if high_open else '<='} {high:g}"
+        return f"{'<' if high_open else '<='} {_bound(high)}"
     return ""
 
 
