@@ -28,7 +28,8 @@ GiwbcError
 │   └── RenderingUnavailableError     no offscreen OpenGL library
 ├── WorkerLostError (RuntimeError)    a distributed worker died and its work could not be retried
 ├── EstimatorCalibrationError (RuntimeError)  a simulated start-up calibration that never saw a standstill
-└── DeployError (RuntimeError)        a deployment that cannot start (exit code 2)
+├── DeployError (RuntimeError)        a deployment that cannot start (exit code 2)
+└── DdsLinkError (RuntimeError)       the DDS link cannot carry commands to the robot (no reader, another writer)
 ```
 """
 
@@ -139,3 +140,8 @@ class EstimatorCalibrationError(GiwbcError, RuntimeError):
 
 class DeployError(GiwbcError, RuntimeError):
     """A deployment that cannot start: configuration, policy or hardware mismatch (exit code 2)."""
+
+
+class DdsLinkError(GiwbcError, RuntimeError):
+    """The DDS link cannot carry giwbc's commands to the robot: no reader of rt/lowcmd matched, or
+    another writer (the robot's own locomotion service) commands it too."""

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from giwbc.apps.arguments import ROBOT_HELP, HelpFormatter, add_command, integer, number, port, seconds
+from giwbc.apps.deploy_dds import DDS_FAULT_CASES
 from giwbc.apps.deploy_options import CONTROLLERS, EMULATOR_MODES, FIRST_RUN_CONTROLLER, TASKS, DeployOptions, DeployOutcome
 from giwbc.apps.deploy_run import deploy, scene_channels
 from giwbc.apps.deploy_setup import (
@@ -65,7 +66,9 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
                         help=f"wbc: whole-body QP; pd: joint-PD hold; walk: the walking WBC (default: wbc; "
                              f"{FIRST_RUN_CONTROLLER} with --first-run, the only one a gantry runs)")  # fmt: skip
     add_walk_arguments(parser)
-    parser.add_argument("--hardware", default=None, help="hardware.toml (default: the robot folder's)")
+    parser.add_argument("--hardware", default=None, help="hardware plan (default: the robot folder's hardware.toml, hardware_dds.toml with --transport dds)")
+    parser.add_argument("--transport", choices=("can", "dds"), default="can",
+                        help="can: the plan's CAN buses; dds: Unitree's low-level DDS interface (rt/lowcmd, rt/lowstate: a G1 as Unitree builds it)")
     parser.add_argument("--emulate", action="store_true", help="rehearse on the actuator emulator instead of the configured buses")
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
                         help="with --emulate: in the control loop's thread on virtual buses (lockstep), or in its own process (real time)")
@@ -154,10 +157,13 @@ def deploy_options(args: argparse.Namespace) -> DeployOptions:
     if getattr(args, "fault", None):
         if not args.emulate:
             raise DeployError("--fault injects a fault into the emulator: it needs --emulate")
+        dds_case = DDS_FAULT_CASES.get(args.fault)
+        if dds_case is not None and getattr(args, "transport", "can") != "dds":
+            raise DeployError(f"--fault {args.fault} is a DDS fault: it needs --transport dds")
         try:
-            case = fault_case(args.fault)
+            case = dds_case or fault_case(args.fault)
         except ValueError as error:
-            raise DeployError(str(error)) from None
+            raise DeployError(f"{error}; with --transport dds also: {', '.join(DDS_FAULT_CASES)}") from None
         faults = case.injections(startup.settle_time + startup.ramp_time + args.fault_at)
     if args.foxglove:
         require_foxglove()  # before the motors, not after
@@ -169,6 +175,7 @@ def deploy_options(args: argparse.Namespace) -> DeployOptions:
         startup=startup, rt_priority=args.rt_priority, cpu_latency=args.cpu_latency, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
         foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk, walker=walker,
+        transport=getattr(args, "transport", "can"),
     )  # fmt: skip
 
 

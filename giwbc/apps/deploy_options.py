@@ -60,12 +60,14 @@ class DeployOptions:
     imu_profile: str | None = None  # the IMU's class (giwbc.robot.noise.IMU_PROFILES): the emulated IMU's errors, the estimator's setup
     walk: WalkCommand | None = None  # the walk controller's command (None: stand)
     walker: Mapping[str, Any] | None = None  # the walk controller's WalkerConfig fields over the deployment walker's
+    transport: str = "can"  # "can": the plan's CAN buses; "dds": Unitree's low-level DDS interface (giwbc.apps.deploy_dds)
 
     def __post_init__(self) -> None:
         if self.controller is None:
             object.__setattr__(self, "controller", FIRST_RUN_CONTROLLER if self.first_run else "wbc")
         _check_choice("controller", self.controller, CONTROLLERS)
         _check_choice("emulator_mode", self.emulator_mode, EMULATOR_MODES)
+        _check_choice("transport", self.transport, ("can", "dds"))
         if self.task is not None:
             _check_choice("task", self.task, TASKS)
         _check_number("seconds", self.seconds, low=0.0)

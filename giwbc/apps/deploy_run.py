@@ -70,6 +70,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from giwbc.apps.deploy_dds import check_transport, default_hardware, open_dds, split_faults
 from giwbc.apps.deploy_diagnosis import fault_summary, load_average, overload_note
 from giwbc.apps.deploy_hardware import check_interfaces, choose_imu, first_run_settings, imu_counters, on_channels, with_gantry
 from giwbc.apps.deploy_options import EMULATOR_MODES, DeployOptions, DeployOutcome
@@ -84,6 +85,7 @@ from giwbc.estimation.calibration import StandstillConfig
 from giwbc.estimation.estimated_robot import EstimatedRobot
 from giwbc.estimation.estimator import EstimatorConfig, StateEstimator
 from giwbc.hal.can_robot import CanRobot
+from giwbc.hal.dds.plan import DdsPlan
 from giwbc.hal.hardware import HardwareConfigError, load_hardware
 from giwbc.hal.imu import imu_source_for
 from giwbc.apps.deploy_walk_log import WalkerRecorder
@@ -149,7 +151,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         agent_rate = check_policy_metadata(metadata, description, options.control_rate)
     task_name = choose_task(options, metadata, policy, description)
 
-    hardware = Path(options.hardware) if options.hardware else description.folder / "hardware.toml"
+    hardware = Path(options.hardware) if options.hardware else default_hardware(description, options.transport)
     names = description.joint_names
     try:
         plan = load_hardware(
@@ -158,7 +160,10 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         )  # fmt: skip
     except HardwareConfigError as error:
         raise DeployError(str(error)) from error
-    plan = choose_imu(plan, options.imu, options.emulate, options.emulator_mode)
+    check_transport(plan, options.transport, hardware)
+    dds = isinstance(plan, DdsPlan)
+    if not dds:
+        plan = choose_imu(plan, options.imu, options.emulate, options.emulator_mode)
     if not options.emulate and plan.imu.source == "emulated":
         raise DeployError(
             f"{hardware}: [imu] source = \"emulated\" exists only on the actuator emulator: rehearse with --emulate, or set "
@@ -170,12 +175,16 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         if refused is not None:
             raise DeployError(f"--rt-priority {options.rt_priority}: {refused}")
     loads = [str(load_) for load_ in plan.loads.values()]
-    say(f"hardware {hardware}: {len(plan.motors)} motors on {len(plan.buses)} buses at {options.control_rate:g} Hz")
+    if dds:
+        say(f"hardware {hardware}: {len(plan.motors)} joints over DDS (domain {plan.domain} on {plan.interface!r}) at {options.control_rate:g} Hz")
+    else:
+        say(f"hardware {hardware}: {len(plan.motors)} motors on {len(plan.buses)} buses at {options.control_rate:g} Hz")
     for line in loads:
         say(f"  {line}")
 
     sensors = _imu_profile(options)
-    host_faults = HostFaults(options.faults)
+    motor_faults, dds_faults = split_faults(options.faults)
+    host_faults = HostFaults(motor_faults)
     if host_faults and not options.emulate:
         raise DeployError("injected faults are for rehearsals: they need --emulate")
     emulator = None
@@ -193,9 +202,11 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 config = replace(config, imu=sensors)
             if first_run is not None:
                 config = with_gantry(config)
-            if options.faults:
-                config = replace(config, faults=tuple(config.faults) + tuple(options.faults))
-            if options.emulator_mode == "process":
+            if motor_faults:
+                config = replace(config, faults=tuple(config.faults) + tuple(motor_faults))
+            if dds:
+                pass  # the DDS emulator starts with the robot (below, open_dds)
+            elif options.emulator_mode == "process":
                 rt = None if options.rt_priority is None else max(1, options.rt_priority - 1)  # just below the loop
                 emulator = EmulatorProcess(plan, description, config, rt_priority=rt)
                 host_plan, peer = emulator.host_plan(), None
@@ -213,7 +224,10 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None else None, **unpaced)
                 host_plan, peer = on_channels(plan, emulator.host_plan()), emulator
                 say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
-            imu = imu_source_for(host_plan.imu, emulator.imu_channel)
+            if not dds:
+                imu = imu_source_for(host_plan.imu, emulator.imu_channel)
+        elif dds:
+            host_plan, config = plan, None
         else:
             host_plan, peer = plan, None
             try:
@@ -222,7 +236,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 raise DeployError(str(error)) from error
             if options.preflight:
                 check_interfaces(plan, say)
-        if plan.imu.source != "emulated":
+        if dds:
+            can_robot, emulator = open_dds(plan, description, options, config if options.emulate else None, dds_faults, say)
+        elif plan.imu.source != "emulated":
             say(f"IMU: {plan.imu.source} ({host_plan.imu.device if plan.imu.source == 'serial' else 'bus ' + str(plan.imu.bus)}), "
                 "read through its driver")  # fmt: skip
         estimator = None
@@ -235,17 +251,18 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         clock: list[Callable[[], float]] = []  # robot time for host-side faults (set once the robot exists)
         if isinstance(emulator, ActuatorEmulator):
             clock.append(lambda: emulator.time)  # lockstep: the emulator is at the cycle's time when the host sends
-        links = host_faults.links(host_plan, lambda: clock[0]() if clock else 0.0)
-        try:
-            # Unpaced (lockstep, simulated time): no wall-clock budget on the sends. With one, a loaded
-            # machine preempting the loop for > 5 ms mid-send dropped command frames, and the same
-            # run ended clean or on a soft limit by the machine's load (measured: 26-98 frames dropped
-            # per 10 s run beside 4 busy processes, none when idle).
-            budget = {} if options.realtime else {"send_budget": math.inf}
-            can_robot = CanRobot(description, host_plan, imu=imu, peer=peer, reply_timeout=options.reply_timeout,
-                                 wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links, **budget)
-        except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
-            raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
+        links = None if dds else host_faults.links(host_plan, lambda: clock[0]() if clock else 0.0)
+        if not dds:  # (the DDS robot is open: above)
+            try:
+                # Unpaced (lockstep, simulated time): no wall-clock budget on the sends. With one, a loaded
+                # machine preempting the loop for > 5 ms mid-send dropped command frames, and the same
+                # run ended clean or on a soft limit by the machine's load (measured: 26-98 frames dropped
+                # per 10 s run beside 4 busy processes, none when idle).
+                budget = {} if options.realtime else {"send_budget": math.inf}
+                can_robot = CanRobot(description, host_plan, imu=imu, peer=peer, reply_timeout=options.reply_timeout,
+                                     wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links, **budget)
+            except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
+                raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
         if first_run is not None:
             can_robot.reduce_limits(first_run.torque_fraction, first_run.gain_fraction)
         robot = can_robot if estimator is None else EstimatedRobot(can_robot, estimator)

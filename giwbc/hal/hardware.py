@@ -32,6 +32,9 @@ Schema::
                                    # or "can": bus = "can4", rate = 500.0 and [[imu.frames]]
                                    # (ids, byte layout, scales), see giwbc.hal.can_imu
 
+A file with a ``[transport]`` table (``kind = "dds"``) is a robot on Unitree's low-level DDS
+interface instead: :func:`load_hardware` returns a :class:`giwbc.hal.dds.plan.DdsPlan`.
+
 Validation names the file and the problem: unknown keys, unknown bus, duplicate CAN id on a bus,
 duplicate joint, unknown model preset, bad ranges, ambiguous replies, and buses over capacity at
 the control rate. :func:`validate_joints` checks the plan against the robot's joint names (and
@@ -186,6 +189,13 @@ def parse_hardware(
 ) -> HardwarePlan:
     """:func:`load_hardware` for TOML text; ``source`` names it in error messages."""
     data = parse_toml(text, source, HardwareConfigError)
+    if "transport" in data:  # a robot on Unitree's low-level DDS interface (giwbc.hal.dds.plan), not on CAN buses
+        from giwbc.hal.dds.plan import parse_dds_plan
+
+        dds = parse_dds_plan(data, float(control_rate), source)
+        if joint_names is not None:
+            dds.validate_joints(joint_names)
+        return dds  # type: ignore[return-value]
     plan = _build(data, float(control_rate), source, interface)
     if joint_names is not None:
         validate_joints(plan, joint_names, effort_limits)

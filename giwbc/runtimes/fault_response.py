@@ -94,7 +94,8 @@ class FaultResponse:
         # A loop still cycling (a stop that overran) finishes its exchange first; one stuck in it does not.
         held = self._exchange_lock.acquire(timeout=2 * self.period)
         try:
-            stop = EmergencyStop(self.robot, self.damping)
+            own = getattr(self.robot, "emergency_stop", None)  # a robot with a stop of its own (DDS: giwbc.hal.dds.robot)
+            stop = own(self.damping) if own is not None else EmergencyStop(self.robot, self.damping)
             self.emergency = stop.run(self._now, self.period, self.safety.damping_time, self.startup.exit_attempts,
                                       realtime=self.clock.realtime)  # fmt: skip
             self._now = self.emergency["time"]

@@ -40,9 +40,12 @@ def _cyclone() -> Any:
 class DdsTransport:
     """A participant on ``domain`` over ``interface`` writing ``publish`` and reading ``subscribe``
     (topic names; their types from :data:`TYPES`). ``listen``: also read the ``publish`` topic
-    (to see another writer's messages there; the emulator uses it for the locomotion service)."""
+    (another participant's messages there: the robot's locomotion service still commanding it).
+    ``subscribe`` None: no reader (a second writer only: the emulated locomotion service)."""
 
-    def __init__(self, domain: int, interface: str, *, publish: str, subscribe: str, depth: int = 1, source: str = "dds") -> None:
+    def __init__(self, domain: int, interface: str, *, publish: str, subscribe: str | None, depth: int = 1, listen: bool = False,
+                 source: str = "dds") -> None:  # fmt: skip
+        self.participant: Any = None
         check_domain(domain, source)
         check_interface(interface, source)
         cyclonedds = _cyclone()
@@ -56,7 +59,7 @@ class DdsTransport:
         from giwbc.hal.dds.idl import LowCmd_, LowState_
 
         types = {LOWCMD_TOPIC: LowCmd_, LOWSTATE_TOPIC: LowState_}
-        for name in (publish, subscribe):
+        for name in (publish, subscribe or publish):
             if name not in types:
                 raise HardwareConfigError(f"{source}: unknown DDS topic {name!r}; giwbc speaks {', '.join(types)}")
         self.domain, self.interface = domain, interface
@@ -66,10 +69,16 @@ class DdsTransport:
             Policy.DataRepresentation(use_cdrv0_representation=True),
         )  # fmt: skip
         try:
-            self._domain = Domain(domain, cyclone_config(domain, interface))
+            try:
+                self._domain = Domain(domain, cyclone_config(domain, interface))
+            except DDSException:  # this process already created the domain (a second participant): it has its configuration
+                self._domain = None
             self.participant = DomainParticipant(domain)
-            self.writer = DataWriter(self.participant, Topic(self.participant, publish, types[publish]), qos=qos)
-            self.reader = DataReader(self.participant, Topic(self.participant, subscribe, types[subscribe]), qos=qos)
+            published = Topic(self.participant, publish, types[publish])
+            self.writer = DataWriter(self.participant, published, qos=qos)
+            self.reader = None if subscribe is None else DataReader(self.participant, Topic(self.participant, subscribe, types[subscribe]), qos=qos)
+            # Another participant's messages on the published topic (never our own: IgnoreLocal).
+            self.listener = DataReader(self.participant, published, qos=Qos(*qos, Policy.IgnoreLocal.Participant)) if listen else None
         except DDSException as error:
             raise HardwareConfigError(
                 f"{source}: cannot open DDS domain {domain} on interface {interface!r} ({error}); is the interface up and is it this "
@@ -88,14 +97,22 @@ class DdsTransport:
         self.written += 1
         return True
 
-    def take(self, limit: int = 64) -> list[bytes]:
-        """The serialized messages waiting (at most ``limit``), oldest first."""
-        got = self._take(self.reader._ref, _ANY, limit)
+    def take(self, limit: int = 64, reader: Any = None) -> list[bytes]:
+        """The serialized messages waiting (at most ``limit``), oldest first (on ``reader``, default the subscribed topic's)."""
+        reader = reader or self.reader
+        if reader is None:
+            return []
+        got = self._take(reader._ref, _ANY, limit)
         if isinstance(got, int):
             return []
         out = [data for data, info in got if info.valid_data]
-        self.taken += len(out)
+        if reader is self.reader:
+            self.taken += len(out)
         return out
+
+    def foreign(self, limit: int = 64) -> int:
+        """How many messages another participant published on our topic since the last call (``listen``)."""
+        return 0 if self.listener is None else len(self.take(limit, self.listener))
 
     def matched_readers(self) -> int:
         """Readers of the published topic that discovery matched (the robot listening)."""
@@ -103,7 +120,7 @@ class DdsTransport:
 
     def writers(self) -> int:
         """Writers of the subscribed topic that discovery matched."""
-        return len(self.reader.get_matched_publications())
+        return 0 if self.reader is None else len(self.reader.get_matched_publications())
 
     def wait_matched(self, timeout: float, readers: int = 1) -> bool:
         """Wait up to ``timeout`` s until at least ``readers`` readers of the published topic match."""
@@ -114,13 +131,24 @@ class DdsTransport:
             time.sleep(0.01)
         return True
 
+    def drop_reader(self) -> None:
+        """Delete the reader of the subscribed topic (discovery tells the writers: they lose a match)."""
+        if self.reader is not None:
+            self.reader.__del__()  # cyclonedds deletes the C entity here (idempotent)
+            self.reader = None
+
     def close(self) -> None:
-        """Delete the participant (and with it the writer and reader)."""
+        """Delete the participant (and with it the writer and readers); idempotent."""
         participant = getattr(self, "participant", None)
         if participant is not None:
             self.participant = None
-            del self.writer, self.reader
-            del participant
+            self.writer = self.reader = self.listener = None
+            participant.__del__()
+        domain, self._domain = getattr(self, "_domain", None), None
+        if domain is not None:
+            # The last entity gone, Cyclone stops its threads: a process forked later (the emulator)
+            # does not inherit a domain whose threads did not come along.
+            domain.__del__()
 
 
 __all__ = ["LOWCMD_TOPIC", "LOWSTATE_TOPIC", "DdsTransport"]
