@@ -43,9 +43,11 @@ class EstimatorInLoop:
     ``startup_blocks``: the calibration's standstill window in 0.25-s blocks (``giwbc deploy``
     takes 16, 4 s, to average the gyro's noise; fewer cost less simulated time per episode and
     leave a larger gyro-bias error, ~0.6 mrad/s per axis at 3 blocks for a 0.5 mrad/s/sqrt(Hz)
-    gyro); ``calibration_timeout``: simulated seconds of holding still before giving up;
-    ``gantry_damping``: ``(N s/m, N m s)`` of a damper on the base while the robot is held
-    (:func:`calibrate`; ``(0, 0)``: the joints' PD alone, which takes several seconds to settle);
+    gyro); ``calibration_timeout``: simulated seconds of holding still before giving up (counted
+    in the calibration's own physics steps: bounded whatever the engine's clock does);
+    ``gantry_damping``: ``(N s/m, N m s)`` of a damper on the base while the robot is held, applied
+    at every physics step whatever the controller rate (:func:`calibrate`; ``(0, 0)``: the joints'
+    PD alone, which takes several seconds to settle);
     ``config``: :class:`EstimatorConfig` fields over the defaults.
     """
 
