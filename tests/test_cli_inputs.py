@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
+import json
 import os
 import shutil
 import signal
@@ -383,3 +384,25 @@ def test_top_level_help_is_plain_text_and_there_is_a_version(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["--version"])
     assert stop.value.code == 0 and capsys.readouterr().out.strip().startswith("giwbc 0.")
+
+
+# --- what a run says ------------------------------------------------------------------------------
+def test_play_says_how_each_episode_ended(tmp_path, capsys):
+    """A fall (CartPole with a zero force: the pole drops), the environment's time limit (the shipped
+    balance policy stands its 200 steps) and --max-steps are told apart, per episode."""
+    from giwbc.apps.training import describe_env
+    from giwbc.policy import MlpWeights, export_onnx
+
+    env_id = "giwbc/CartPoleBalance-v0"
+    metadata = {**describe_env(env_id, {}), "env_id": env_id, "env_kwargs": {}}
+    n_obs, n_act = len(metadata["observation_names"]), len(metadata["action_names"])
+    zero = export_onnx(tmp_path / "zero.onnx", MlpWeights(((np.zeros((n_act, n_obs)), np.zeros(n_act)),)), metadata)
+    assert main(["play", "--policy", str(zero), "--episodes", "2", "--seed", "3"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert len(lines) == 2 and all(line.endswith(": terminated (fell)") for line in lines), lines
+    assert main(["play", "--policy", str(BALANCE_POLICY), "--json"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["endings"] == ["time limit"] and result["lengths"] == [200]
+    assert main(["play", "--policy", str(BALANCE_POLICY), "--max-steps", "3"]) == 0
+    out = capsys.readouterr().out.strip()
+    assert out.startswith("episode 0: return ") and out.endswith(" over 3 steps: stopped at --max-steps"), out
