@@ -146,9 +146,17 @@ def _subprocess(argv: list[str], cwd: Path) -> tuple[int, str, str]:
 
 def _interrupted(argv: list[str], cwd: Path) -> tuple[int, str, str]:
     """Run an open-ended command, Ctrl-C it after INTERRUPT_AFTER_S: 130 (or 0) is a clean end, reported as 0."""
+    code, out, err = _interrupted_raw(argv, cwd)
+    assert code in (0, 2, 130), f"{argv}: Ctrl-C gave exit {code}: {err[-2000:]}"
+    return (0 if code == 130 else code), out, err
+
+
+def _interrupted_raw(argv: list[str], cwd: Path) -> tuple[int, str, str]:
+    """Run ``giwbc argv`` (SIGINT at its default, whatever the caller ignores) and Ctrl-C it after INTERRUPT_AFTER_S."""
     environment = {**os.environ, "MPLBACKEND": "Agg", "PYTHONPATH": str(ROOT)}
     process = subprocess.Popen([sys.executable, "-m", "giwbc.apps.cli", *argv], cwd=cwd, stdout=subprocess.PIPE,
-                               stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, env=environment)
+                               stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, env=environment,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         out, err = process.communicate(timeout=INTERRUPT_AFTER_S)
     except subprocess.TimeoutExpired:
@@ -157,8 +165,7 @@ def _interrupted(argv: list[str], cwd: Path) -> tuple[int, str, str]:
             out, err = process.communicate(timeout=30)
         finally:
             process.kill()
-    assert process.returncode in (0, 2, 130), f"{argv}: Ctrl-C gave exit {process.returncode}: {err[-2000:]}"
-    return (0 if process.returncode == 130 else process.returncode), out, err
+    return process.returncode, out, err
 
 
 def _prepare(tmp: Path) -> None:
@@ -406,3 +413,8 @@ def test_play_says_how_each_episode_ended(tmp_path, capsys):
     assert main(["play", "--policy", str(BALANCE_POLICY), "--max-steps", "3"]) == 0
     out = capsys.readouterr().out.strip()
     assert out.startswith("episode 0: return ") and out.endswith(" over 3 steps: stopped at --max-steps"), out
+
+
+def test_ctrl_c_ends_a_simulation_in_one_line_with_exit_130(tmp_path):
+    code, out, err = _interrupted_raw(["walk", "--seconds", "600", "--no-progress"], tmp_path)
+    assert code == 130 and err.strip().splitlines() == ["giwbc walk: interrupted"], err

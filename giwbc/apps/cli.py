@@ -165,13 +165,16 @@ def one_line(error: BaseException) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command. Foreseen bad input (a :class:`GiwbcError`) is one line on stderr and exit 2;
-    anything else is a bug and keeps its traceback."""
+    Ctrl-C one line and exit 130; anything else is a bug and keeps its traceback."""
     args = build_parser().parse_args(argv)
     try:
         return int(args.run(args))
     except GiwbcError as error:
         print(f"giwbc {args.command}: error: {one_line(error)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C: the user's choice, not a bug (deploy handles its own, with motors off first)
+        print(f"giwbc {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
