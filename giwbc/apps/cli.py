@@ -17,7 +17,7 @@ from typing import NoReturn
 
 import numpy as np
 
-from giwbc.apps.arguments import HelpFormatter, add_command, seconds
+from giwbc.apps.arguments import ROBOT_HELP, HelpFormatter, add_command, seconds
 from giwbc.apps.deploy import add_deploy_command
 from giwbc.apps.walk_evaluation import add_evaluate_command
 from giwbc.apps.motors import add_motors_command
@@ -36,7 +36,6 @@ from giwbc.apps.demo import run_demo
 GRAVITY = 9.81
 SIM_MAX_SECONDS = 600.0  # giwbc sim: 10 simulated minutes (a few minutes of wall time)
 DEMO_MAX_SECONDS = 60.0  # giwbc demo: the pushes are at 2, 4.5 and 7 s
-ROBOT_HELP = "robot name (see `giwbc robots`) or a robot folder / robot.toml path"
 
 
 class Parser(argparse.ArgumentParser):
