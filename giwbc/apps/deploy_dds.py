@@ -76,9 +76,26 @@ def check_transport(plan: Any, transport: str, hardware: Path) -> None:
                           f"([transport] kind = \"dds\", e.g. robots/g1/{PLAN_FILES['dds']})")  # fmt: skip
 
 
-def split_faults(faults: tuple[Any, ...]) -> tuple[tuple[Any, ...], tuple[DdsFault, ...]]:
-    """(the firmware's and the host's faults, the DDS emulator's)."""
-    return tuple(f for f in faults if not isinstance(f, DdsFault)), tuple(f for f in faults if isinstance(f, DdsFault))
+# The injected faults that mean something behind DDS: the firmware's and physics' (the emulator's
+# CAN-frame faults and the host's bus-driver faults act on CAN buses a DDS robot does not have).
+DDS_MOTOR_FAULTS = frozenset({"error", "overheat", "push", "encoder"})
+DDS_HOST_FAULTS = frozenset({"policy_nan", "controller_nan", "controller_raise", "qp_infeasible", "keyboard_interrupt", "sigint", "sigterm",
+                             "sighup"})  # fmt: skip
+
+
+def split_faults(faults: tuple[Any, ...], dds: bool = True) -> tuple[tuple[Any, ...], tuple[DdsFault, ...]]:
+    """(the firmware's and the host's faults, the DDS emulator's); a fault the transport cannot
+    carry is a DeployError (one line)."""
+    mine = tuple(f for f in faults if isinstance(f, DdsFault))
+    others = tuple(f for f in faults if not isinstance(f, DdsFault))
+    if not dds and mine:
+        raise DeployError(f"DDS faults ({', '.join(f.kind for f in mine)}) need --transport dds")
+    if dds:
+        can_only = sorted({f.kind for f in others} - DDS_MOTOR_FAULTS - DDS_HOST_FAULTS)
+        if can_only:
+            raise DeployError(f"fault(s) {', '.join(can_only)} act on CAN buses; over DDS inject {', '.join(DDS_FAULT_CASES)} "
+                              f"or {', '.join(sorted(DDS_MOTOR_FAULTS | DDS_HOST_FAULTS))}")  # fmt: skip
+    return others, mine
 
 
 def open_dds(plan: DdsPlan, description: RobotDescription, options: Any, config: EmulatorConfig | None, dds_faults: tuple[DdsFault, ...],

@@ -183,7 +183,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
         say(f"  {line}")
 
     sensors = _imu_profile(options)
-    motor_faults, dds_faults = split_faults(options.faults)
+    motor_faults, dds_faults = split_faults(options.faults, dds)
     host_faults = HostFaults(motor_faults)
     if host_faults and not options.emulate:
         raise DeployError("injected faults are for rehearsals: they need --emulate")

@@ -4,8 +4,8 @@ reader, exchanging serialized messages as bytes (no per-message Python objects).
 :class:`DdsTransport` creates the domain with giwbc's own configuration
 (:func:`~giwbc.hal.dds.config.cyclone_config`: the interface pinned), the topics with the
 ``unitree_hg`` types (:mod:`giwbc.hal.dds.idl`, XCDR1 as Unitree's robot speaks it), a best-effort
-keep-last-1 writer on ``publish`` and reader on ``subscribe`` (a late state is worth nothing:
-the newest one counts). :meth:`write` hands Cyclone the bytes the caller built in place;
+volatile writer on ``publish`` and reader on ``subscribe`` (a late state is worth nothing: the
+newest one counts; the reader keeps the last ``depth`` so each one is checked and counted). :meth:`write` hands Cyclone the bytes the caller built in place;
 :meth:`take` returns the bytes waiting, oldest first. :meth:`matched_readers` /
 :meth:`writers` count the peers discovery matched (a robot that does not listen, or a second
 writer on the command topic: the robot's own locomotion service).
@@ -16,6 +16,7 @@ Errors: cyclonedds missing, an interface Cyclone cannot use, a domain it cannot 
 
 from __future__ import annotations
 
+import socket
 import time
 from typing import Any
 
@@ -43,7 +44,7 @@ class DdsTransport:
     (another participant's messages there: the robot's locomotion service still commanding it).
     ``subscribe`` None: no reader (a second writer only: the emulated locomotion service)."""
 
-    def __init__(self, domain: int, interface: str, *, publish: str, subscribe: str | None, depth: int = 1, listen: bool = False,
+    def __init__(self, domain: int, interface: str, *, publish: str, subscribe: str | None, depth: int = 8, listen: bool = False,
                  source: str = "dds") -> None:  # fmt: skip
         self.participant: Any = None
         check_domain(domain, source)
@@ -62,6 +63,9 @@ class DdsTransport:
         for name in (publish, subscribe or publish):
             if name not in types:
                 raise HardwareConfigError(f"{source}: unknown DDS topic {name!r}; giwbc speaks {', '.join(types)}")
+        known = [name for _, name in socket.if_nameindex()]
+        if interface not in known:
+            raise HardwareConfigError(f"{source}: network interface {interface!r} does not exist on this machine (interfaces: {', '.join(known)})")
         self.domain, self.interface = domain, interface
         self._write, self._take = ddspy_write, ddspy_take
         qos = Qos(
