@@ -190,13 +190,13 @@ def add_walk_command(commands: Any) -> None:
     parser = add_command(commands, "walk", "walk the robot in MuJoCo from a velocity command (model-based stepping on the WBC)")
     speed = number(-MAX_SPEED, MAX_SPEED, unit="m/s")
     parser.add_argument("--robot", default="g1", help=ROBOT_HELP + "; it must have a floating base and two feet")
-    parser.add_argument("--vx", type=speed, default=0.4, help="forward velocity, m/s (clamped to the gait's limits, and said so)")
-    parser.add_argument("--vy", type=speed, default=0.0, help="lateral velocity, m/s (clamped to the gait's limits)")
+    parser.add_argument("--vx", type=speed, default=0.4, help=f"forward velocity, m/s, in [-{MAX_SPEED:g}, {MAX_SPEED:g}] (clamped to the gait's limits, and said so)")
+    parser.add_argument("--vy", type=speed, default=0.0, help=f"lateral velocity, m/s, in [-{MAX_SPEED:g}, {MAX_SPEED:g}] (clamped to the gait's limits)")
     parser.add_argument("--yaw-rate", type=number(-MAX_SPEED, MAX_SPEED, unit="rad/s"), default=0.0,
-                        help="turning rate, rad/s (clamped to the gait's limits)")
+                        help=f"turning rate, rad/s, in [-{MAX_SPEED:g}, {MAX_SPEED:g}] (clamped to the gait's limits)")
     parser.add_argument("--seconds", type=seconds(MAX_SECONDS), default=20.0, help=f"simulated seconds, in (0, {MAX_SECONDS:g}]")
     parser.add_argument("--push", type=number(0.0, MAX_PUSH, unit="N"), default=0.0,
-                        help=f"push the pelvis with this force, N, for {PUSH_SECONDS} s (0: no push)")
+                        help=f"push the pelvis with this force, N, in [0, {MAX_PUSH:g}], for {PUSH_SECONDS} s (0: no push)")
     parser.add_argument("--push-time", type=seconds(MAX_SECONDS, allow_zero=True), default=3.0,
                         help="when the push starts, simulated s (the push must end within --seconds)")
     parser.add_argument("--push-direction", type=number(-360.0, 360.0, unit="deg"), default=180.0,
@@ -228,6 +228,8 @@ def run_walk_command(args: argparse.Namespace) -> int:
     check_walker_robot(load(args.robot))  # before a Foxglove server or a video starts
     plant = resolve_plant(load(args.robot), args.plant) if getattr(args, "plant", None) else None  # refused here, in one line
     check_push(args.push, args.push_time, args.seconds)
+    if args.video is not None and not args.video.lower().endswith((".mp4", ".gif")):
+        raise ConfigError(f"--video {args.video}: expected a .mp4 or .gif file")  # before the walk, not after it
     if args.foxglove:
         require_foxglove()
         print(f"Foxglove: open a connection to ws://{HOST}:{args.foxglove_port}", file=sys.stderr)
