@@ -130,7 +130,7 @@ def _wilson(successes: int, n: int) -> list[float]:
     p = successes / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return [round(centre - half, 3), round(centre + half, 3)]
+    return [round(max(0.0, centre - half), 3), round(min(1.0, centre + half), 3)]  # no -0.0 from rounding
 
 
 def main(argv: list[str] | None = None) -> int:
