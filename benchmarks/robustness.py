@@ -53,6 +53,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from giwbc.apps.evaluation import wilson_interval  # noqa: E402
+from giwbc.errors import EstimatorCalibrationError  # noqa: E402
 from giwbc.locomotion.simulation import Push, simulate_walk  # noqa: E402
 from giwbc.plants import NOMINAL, available_variants  # noqa: E402
 from giwbc.robot import load  # noqa: E402
@@ -83,6 +84,7 @@ ENV_DEFINITIONS = {
     "estimator_velocity_error_rms": "RMS of the base xy velocity error of the estimate (world frame), m/s",
     "estimator_height_error_max_m": "max |true - estimated base height|, m",
     "push_directions": "seeded random (the environment's pushes), --directions pushes per seed",
+    "calibration_failures": "episodes whose start-up IMU calibration never saw a standstill (counted as falls)",
 }
 
 
@@ -187,6 +189,7 @@ class EnvMonitor(Monitor):
         self.tilt_error = 0.0
         self.velocity_errors: list[float] = []
         self.height_error = 0.0
+        self.calibration_failed = False
 
     def observe_env(self, env) -> None:
         runtime = env.unwrapped
@@ -224,7 +227,11 @@ def run_env_episode(description, plant: str, command, seconds: float, seed: int,
     monitor = EnvMonitor(description, command)
     touchdowns = []
     try:
-        observation, _ = env.reset(seed=seed)
+        try:
+            observation, _ = env.reset(seed=seed)
+        except EstimatorCalibrationError:  # the start-up never saw a standstill on this plant: counted, not a crash
+            monitor.calibration_failed = True
+            return True, monitor, math.nan
         zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
         walker = env.unwrapped.task.walker
         terminated = truncated = False
@@ -250,10 +257,11 @@ def run_env_episode(description, plant: str, command, seconds: float, seed: int,
 
 def run_env_cell(description, plant: str, command, seconds: float, seeds: list[int], conditions: dict, policy) -> dict:
     falls, tilt, slip, step_rms, tick_xy, tick_yaw = 0, 0.0, 0.0, [], [], []
-    est_tilt, est_velocity, est_height = 0.0, [], 0.0
+    est_tilt, est_velocity, est_height, uncalibrated = 0.0, [], 0.0, 0
     for seed in seeds:
         fell, monitor, rms = run_env_episode(description, plant, command, seconds, seed, conditions, policy)
         falls += fell
+        uncalibrated += monitor.calibration_failed
         tilt, slip = max(tilt, monitor.max_tilt), max(slip, monitor.max_slip)
         est_tilt, est_height = max(est_tilt, monitor.tilt_error), max(est_height, monitor.height_error)
         est_velocity.extend(monitor.velocity_errors)
@@ -266,7 +274,7 @@ def run_env_cell(description, plant: str, command, seconds: float, seeds: list[i
     return {"runs": len(seeds), "falls": falls, "max_foot_tilt_deg": round(tilt, 2), "max_foot_slip_mm": round(1000 * slip, 1),
             "step_tracking_rms": _rms(step_rms), "tick_tracking_rms": _rms(tick_xy), "tick_yaw_rate_rms": _rms(tick_yaw),
             "estimator_tilt_error_deg": round(est_tilt, 3), "estimator_velocity_error_rms": _rms(est_velocity),
-            "estimator_height_error_max_m": round(est_height, 4)}
+            "estimator_height_error_max_m": round(est_height, 4), "calibration_failures": uncalibrated}
 
 
 def run_env_pushes(description, plant: str, force: float, pushes: int, seeds: list[int], judge_after: float, conditions: dict,
