@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S
 from giwbc.locomotion.simulation import Push, simulate_walk
 from giwbc.control import WbcStatus
 from giwbc.locomotion.walker import Phase, WalkingController
@@ -35,6 +36,8 @@ def test_walks_ten_steps_forward_at_the_commanded_speed(g1):
     assert run.mean_velocity[0] == pytest.approx(0.3, abs=0.06)
     assert abs(run.mean_velocity[1]) < 0.05
     assert run.tracking_rms < 0.1
+    # Per tick (instantaneous velocity, heading frame) the gait's sway within each step counts: well above the per-step figure.
+    assert 2 * run.tracking_rms < run.per_tick.tracking_rms_per_tick_heading_xy < 0.25 and run.per_tick.ticks > 1000
     assert run.distance[0] > 0.3 * 6.0 * 0.7 and abs(run.distance[1]) < 0.15
 
 
@@ -47,8 +50,9 @@ def test_turns_in_place(g1):
 
 def test_a_100_newton_backward_push_is_recovered_by_stepping_and_lost_feet_in_place(g1):
     push = (Push(1.0, 100.0, math.pi),)  # 20 N·s straight backward on the pelvis
-    stepping = simulate_walk(g1, (0.0, 0.0, 0.0), 3.0, pushes=push, command_start=None)
-    in_place = simulate_walk(g1, (0.0, 0.0, 0.0), 3.0, pushes=push, command_start=None, stepping=False)
+    seconds = 1.2 + SETTLE_AFTER_PUSH_S + 0.005  # recovered: still up 3 s after the push ended
+    stepping = simulate_walk(g1, (0.0, 0.0, 0.0), seconds, pushes=push, command_start=None)
+    in_place = simulate_walk(g1, (0.0, 0.0, 0.0), seconds, pushes=push, command_start=None, stepping=False)
     assert in_place.fell
     assert not stepping.fell and stepping.steps >= 1 and stepping.recovery_steps >= 1
 
@@ -60,13 +64,14 @@ def test_a_100_newton_diagonal_push_is_recovered_upright(g1, seed, start, direct
     where the DCM goes with the CoP on the stance sole's edge, and the robot ends upright. (With
     the CoP predicted at the sole's centre the foot landed up to 0.18 m beyond the DCM, the feet
     0.6-0.75 m apart, and the pelvis rolled over: tilts 0.77, 0.43 rad, a fall.)"""
-    run = simulate_walk(g1, (0.0, 0.0, 0.0), 2.6, pushes=(Push(start, 100.0, direction),), command_start=None, seed=seed)
+    seconds = start + 0.2 + SETTLE_AFTER_PUSH_S + 0.005  # judged 3 s after the push ends
+    run = simulate_walk(g1, (0.0, 0.0, 0.0), seconds, pushes=(Push(start, 100.0, direction),), command_start=None, seed=seed)
     assert not run.fell and run.recovery_steps >= 1
     assert run.final_tilt < 0.15
 
 def test_a_small_push_is_absorbed_without_a_step(g1):
     """The capture point stays inside the feet: the DCM controller moves the CoP, no step."""
-    run = simulate_walk(g1, (0.0, 0.0, 0.0), 2.5, pushes=(Push(1.0, 40.0, 0.5),), command_start=None)
+    run = simulate_walk(g1, (0.0, 0.0, 0.0), 1.2 + SETTLE_AFTER_PUSH_S + 0.005, pushes=(Push(1.0, 40.0, 0.5),), command_start=None)
     assert not run.fell and run.steps == 0 and run.recovery_steps == 0 and run.final_tilt < 0.05
 
 
