@@ -1,4 +1,4 @@
-"""The real-time deploy loop over the emulated CAN buses, all 29 G1 joints (one JSON object).
+"""The real-time deploy loop over the emulated CAN buses (or, ``--transport dds``, the G1's DDS interface), all 29 G1 joints (one JSON object).
 
 For each control rate (500 Hz for 60 s and 1 kHz for 10 s by default): the actuator emulator, the
 CAN robot, the real-time runtime paced by absolute deadlines under ``SCHED_FIFO`` (as granted: see
@@ -74,6 +74,8 @@ from giwbc.estimation.estimated_robot import EstimatedRobot  # noqa: E402
 from giwbc.estimation.estimator import StateEstimator  # noqa: E402
 from giwbc.hal.can_robot import CanRobot  # noqa: E402
 from giwbc.emulation import ActuatorEmulator, EmulatorConfig  # noqa: E402
+from giwbc.emulation.dds_emulator import DdsEmulatorProcess  # noqa: E402
+from giwbc.hal.dds.robot import DdsRobot  # noqa: E402
 from giwbc.emulation.process import EmulatorProcess  # noqa: E402
 from giwbc.hal.hardware import load_hardware  # noqa: E402
 from giwbc.apps.deploy_walk_log import WalkerRecorder  # noqa: E402
@@ -249,11 +251,16 @@ def _free_port() -> int:
 
 def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
              mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False, vx: float = 0.3,
-             cpu_latency: float | None = None) -> dict:  # fmt: skip
+             cpu_latency: float | None = None, transport: str = "can") -> dict:  # fmt: skip
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     cpus = sorted(os.sched_getaffinity(0))
     split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
-    if mode == "process":
+    if transport == "dds":  # the G1's low-level DDS interface (rt/lowcmd, rt/lowstate) on loopback; the emulator in its own process
+        dds_plan = load_hardware(description.folder / "hardware_dds.toml", rate, joint_names=description.joint_names)
+        emulator = DdsEmulatorProcess(dds_plan, plan, description, EmulatorConfig(), cpu=cpus[-1] if split else None)
+        can_robot = DdsRobot(description, emulator.host_plan())
+        mode = "process"
+    elif mode == "process":
         emulator = EmulatorProcess(plan, description, EmulatorConfig(), rt_priority=None if rt_priority is None else max(1, rt_priority - 1),
                                    cpu=cpus[-1] if split else None)  # fmt: skip
         can_robot = CanRobot(description, emulator.host_plan(), imu=emulator.imu_channel, wait_for_replies=False)
@@ -337,8 +344,8 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     total_cpu = float(np.mean(stats.cpu)) if stats.cpu else float("nan")
     host_cpu = total_cpu - (emulator_cpu if mode == "lockstep" else 0.0)
     steal_start, steal_end = start.get("steal", {}), end.get("steal", {})
-    frames = 2 * len(plan.motors)
-    loads = list(plan.loads.values())
+    frames = 2 * len(plan.motors) if transport == "can" else 2  # DDS: one LowCmd_ and one LowState_ per cycle
+    loads = list(plan.loads.values()) if transport == "can" else []
     walking = None
     if controller == "walk":
         truth = emulator.truth_between(runtime.phase_times.get("running", 0.0), runtime.phase_times.get("shutdown", math.inf))
@@ -347,6 +354,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
                    "max_tilt_deg": float(np.degrees(truth[:, 2].max())) if len(truth) else None,
                    "contact_switches": _switch_share(stats.work, phases, first if first is not None else 0)}  # fmt: skip
     return {
+        "transport": transport,
         "controller": controller,
         "walking": walking,
         "rate_hz": rate,
@@ -380,7 +388,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         "frames_per_cycle": frames,
         "log_records_dropped": None if writer is None else writer.dropped,
         "scene": {"log_hz": scene_rate if writer is not None and scene_rate > 0 else 0, "live": live, "viewer_received": received},
-        "bus_load": {
+        "bus_load": None if not loads else {
             "buses": len(loads),
             "max_nominal_pct": round(100 * max(b.nominal for b in loads), 1),
             "max_worst_case_pct": round(100 * max(b.worst_case for b in loads), 1),
@@ -409,6 +417,9 @@ def main() -> None:
                         help="hold the CPUs' wake-up latency at most US µs while the motors are on (PM QoS, as giwbc deploy "
                              "--cpu-latency; 0: idle CPUs poll); several values (-1: none) alternate run by run")
     parser.add_argument("--no-pin", action="store_true", help="do not pin the loop's thread and the emulator process to different CPUs")
+    parser.add_argument("--transport", choices=("can", "dds"), nargs="+", default=["can"],
+                        help="can: the emulated CAN buses; dds: the G1's rt/lowcmd / rt/lowstate on loopback (emulator in its own process); "
+                             "both alternate in one run")  # fmt: skip
     parser.add_argument("--emulator", choices=("process", "lockstep"), default="process",
                         help="the emulator in its own process on giwbc-unix channels (as motors on their own hardware), "
                              "or in the loop's thread on python-can virtual buses (lockstep)")
@@ -427,10 +438,11 @@ def main() -> None:
                 for controller in args.controller:
                     for latency in latencies:
                         for name, scene_rate, live in variants:  # alternated: slow drifts of the machine hit both
-                            result = run_rate(description, model, rate, duration, controller, Path(tmp), not args.no_log,
-                                              args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live, args.vx,
-                                              latency)  # fmt: skip
-                            results.append({"variant": name, **result} if name else result)
+                            for transport in args.transport:
+                                result = run_rate(description, model, rate, duration, controller, Path(tmp), not args.no_log,
+                                                  args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live, args.vx,
+                                                  latency, transport)  # fmt: skip
+                                results.append({"variant": name, **result} if name else result)
     effect = None
     if args.foxglove:
         effect = {
@@ -460,6 +472,11 @@ def main() -> None:
                 for lat in latencies} for c in args.controller}
             for rate in args.rates
         },  # medians over --repeat of runs alternated with each other
+        "exchange_by_transport_us": {  # the host's exchange (and estimator update) CPU time per cycle, medians over --repeat
+            f"{rate:g}": {t: float(np.median([r["cpu_per_cycle_us"]["host_can_path_mean"] for r in results if r["rate_hz"] == rate
+                                              and r["transport"] == t])) for t in args.transport}
+            for rate in args.rates
+        },
         "log": not args.no_log,
         "transport": ("giwbc-unix channels (AF_UNIX SOCK_SEQPACKET), emulator in its own process" if args.emulator == "process"
                       else "python-can virtual, emulator in the loop thread (lockstep)"),

@@ -90,10 +90,12 @@ class DdsEmulatorProcess:
 
     ``plan``: the DDS plan (its interface is replaced by loopback, its domain by ``domain``,
     default :func:`emulation_domain`); ``motors``: the hardware plan whose motor models the
-    firmware emulates (the robot's CAN reference plan); ``faults``: :class:`DdsFault` s."""
+    firmware emulates (the robot's CAN reference plan); ``faults``: :class:`DdsFault` s; ``cpu``:
+    pin the child to this CPU (keep the control loop on another)."""
 
     def __init__(self, plan: DdsPlan, motors: HardwarePlan, description: RobotDescription, config: EmulatorConfig | None = None, *,
-                 faults: tuple[DdsFault, ...] = (), domain: int | None = None, start_timeout: float = 60.0, plant: Any = None) -> None:  # fmt: skip
+                 faults: tuple[DdsFault, ...] = (), domain: int | None = None, start_timeout: float = 60.0, plant: Any = None,
+                 cpu: int | None = None) -> None:  # fmt: skip
         plan.validate_joints(description.joint_names)
         motors.routing(description.joint_names)
         if plant is not None:
@@ -102,13 +104,14 @@ class DdsEmulatorProcess:
         self.config = config or EmulatorConfig()
         self.faults = tuple(faults)
         self._conn, child = multiprocessing.get_context("fork").Pipe()
-        args = (self.plan, motors, description, self.config, self.faults, child, plant)
+        args = (self.plan, motors, description, self.config, self.faults, child, plant, cpu)
         self._process = children.start(_serve, args, "giwbc-dds-emulator")
         child.close()
         self.truth = np.zeros((0, 5))
         self.counters: dict[str, int] = {}
         self.failure: str | None = None
         self.physics_dt: float | None = None
+        self.scheduler = "default" if cpu is None else f"CPU {cpu}, default"
         self._closed = False
         try:
             kind, payload = self._receive(start_timeout, "start")
@@ -124,6 +127,10 @@ class DdsEmulatorProcess:
     @property
     def alive(self) -> bool:
         return self._process.is_alive()
+
+    @property
+    def pid(self) -> int | None:
+        return self._process.pid
 
     def truth_between(self, start: float, stop: float = math.inf) -> np.ndarray:
         """Ground truth rows (time, base height, tilt rad, base x, base y), after :meth:`close`."""
@@ -182,8 +189,10 @@ class _Robot:
     """The child's emulated G1: the actuator emulator, its DDS endpoints, its clock."""
 
     def __init__(self, plan: DdsPlan, motors: HardwarePlan, description: RobotDescription, config: EmulatorConfig,
-                 faults: tuple[DdsFault, ...], conn: Any, plant: Any) -> None:  # fmt: skip
+                 faults: tuple[DdsFault, ...], conn: Any, plant: Any, cpu: int | None = None) -> None:  # fmt: skip
         self.conn, self.faults = conn, faults
+        if cpu is not None:
+            os.sched_setaffinity(0, {cpu})
         model = description.build_mujoco() if plant is None else None
         quiet = replace(config, faults=tuple(config.faults))
         self.emulator = e = ActuatorEmulator(motors, description, quiet, model=model, plant=plant)

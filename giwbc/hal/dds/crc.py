@@ -17,20 +17,21 @@ import zlib
 
 import numpy as np
 
-_REVERSED = np.array([int(f"{b:08b}"[::-1], 2) for b in range(256)], dtype=np.uint8)  # each byte's bits reversed
+_REVERSED = bytes(int(f"{b:08b}"[::-1], 2) for b in range(256))  # each byte's bits reversed (a bytes.translate table)
 POLYNOMIAL = 0x04C11DB7
 
 
 def _reverse32(value: int) -> int:
-    return int(f"{value:032b}"[::-1], 2)
+    """The 32 bits of ``value`` in reverse order."""
+    return int.from_bytes(value.to_bytes(4, "little").translate(_REVERSED), "big")
 
 
 def unitree_crc(c_struct: np.ndarray | bytes) -> int:
     """The CRC of a message given as its C struct bytes (the last 4 bytes, the crc field, excluded)."""
     raw = np.frombuffer(c_struct, dtype=np.uint8) if isinstance(c_struct, (bytes, bytearray, memoryview)) else c_struct
     n = (len(raw) // 4 - 1) * 4
-    words = raw[:n].view("<u4").astype(">u4")  # each word's bytes most significant first
-    crc = zlib.crc32(_REVERSED[words.view(np.uint8)].tobytes())
+    words = raw[:n].view("<u4").byteswap()  # each word's bytes most significant first
+    crc = zlib.crc32(words.tobytes().translate(_REVERSED))
     return _reverse32(crc ^ 0xFFFFFFFF)
 
 

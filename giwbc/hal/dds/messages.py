@@ -32,10 +32,12 @@ class WireMessage:
         self._wire_modes, self._c_modes = np.array(wire.mode), np.array(c.mode)
         self.floats = wire.motor_floats(self.buffer)  # (MOTORS, n) float32, in place
         self.crc_word = np.ndarray((1,), dtype="<u4", buffer=self.buffer, offset=wire.crc)
-        tail = wire.stride - 4
-        self._wire_records = np.lib.stride_tricks.as_strided(self.buffer[wire.floats :], (MOTORS, tail), (wire.stride, 1))
-        self._c_records = np.lib.stride_tricks.as_strided(self._c[c.floats :], (MOTORS, tail), (c.stride, 1))
-        self._fields = [(wire.field(self.buffer, n), c.field(self._c, n)) for n in wire.fields]
+        # The C struct is the wire payload with padding put in before motor 0 (a CDR struct is not
+        # padded to its alignment): the fields before motor 0's mode byte where they are, that byte
+        # moved to its aligned slot, and everything from motor 0's first float on 4 bytes later.
+        self._head = wire.mode[0]  # wire offset of motor 0's mode (= the payload's fields before it, plus the header)
+        self._mode0 = c.mode[0]
+        self._body = wire.floats
         self.status = "empty"
 
     @property
@@ -56,11 +58,10 @@ class WireMessage:
 
     def c_struct(self) -> np.ndarray:
         """The message in Unitree's C layout (what the CRC covers), refreshed from the wire bytes."""
-        c = self._c
-        c[self._c_modes] = self.buffer[self._wire_modes]
-        self._c_records[:] = self._wire_records
-        for w, cv in self._fields:
-            cv[:] = w
+        c, b, head = self._c, self.buffer, self._head
+        c[: head - 4] = b[4:head]
+        c[self._mode0] = b[head]
+        c[self._mode0 + 4 :] = b[self._body :]  # (the padding between stays zero: never written)
         return c
 
     def crc(self) -> int:

@@ -50,7 +50,7 @@ if TYPE_CHECKING:
 
 ENABLED, DISABLED = 1, 0  # the mode byte of MotorCmd_ / MotorState_
 ENABLE_GRACE_CYCLES = 10  # cycles after enabling before a motor reporting mode 0 is a fault (states in flight predate the enable)
-LINK_CHECK_CYCLES = 1  # cycles between two checks of the readers discovery matched (one costs ~1 us)
+LINK_CHECK_CYCLES = 5  # cycles between two checks of the readers discovery matched (a list of handles each time)
 _HALF = 1 << 31
 
 
