@@ -152,20 +152,39 @@ def _interrupted(argv: list[str], cwd: Path) -> tuple[int, str, str]:
 
 
 def _interrupted_raw(argv: list[str], cwd: Path) -> tuple[int, str, str]:
-    """Run ``giwbc argv`` (SIGINT at its default, whatever the caller ignores) and Ctrl-C it after INTERRUPT_AFTER_S."""
+    """Run ``giwbc argv`` (SIGINT at its default, whatever the caller ignores); once it has printed its
+    first line (it is past its imports and checks: a Ctrl-C before that is Python's own), Ctrl-C it."""
+    import threading
+
     environment = {**os.environ, "MPLBACKEND": "Agg", "PYTHONPATH": str(ROOT)}
     process = subprocess.Popen([sys.executable, "-m", "giwbc.apps.cli", *argv], cwd=cwd, stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True, env=environment,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    streams: dict[str, list[str]] = {"out": [], "err": []}
+    started = threading.Event()
+
+    def read(stream: io.TextIOBase, into: list[str]) -> None:
+        for line in stream:
+            into.append(line)
+            started.set()
+
+    readers = [threading.Thread(target=read, args=(process.stdout, streams["out"]), daemon=True),
+               threading.Thread(target=read, args=(process.stderr, streams["err"]), daemon=True)]
+    for reader in readers:
+        reader.start()
     try:
-        out, err = process.communicate(timeout=INTERRUPT_AFTER_S)
-    except subprocess.TimeoutExpired:
-        process.send_signal(signal.SIGINT)
-        try:
-            out, err = process.communicate(timeout=30)
-        finally:
-            process.kill()
-    return process.returncode, out, err
+        started.wait(RUN_TIMEOUT_S)
+        if process.poll() is None:
+            try:
+                process.wait(INTERRUPT_AFTER_S)
+            except subprocess.TimeoutExpired:
+                process.send_signal(signal.SIGINT)
+        process.wait(30)
+    finally:
+        process.kill()
+        for reader in readers:
+            reader.join(5)
+    return process.returncode, "".join(streams["out"]), "".join(streams["err"])
 
 
 def _prepare(tmp: Path) -> None:
@@ -416,5 +435,7 @@ def test_play_says_how_each_episode_ended(tmp_path, capsys):
 
 
 def test_ctrl_c_ends_a_simulation_in_one_line_with_exit_130(tmp_path):
-    code, out, err = _interrupted_raw(["walk", "--seconds", "600", "--no-progress"], tmp_path)
-    assert code == 130 and err.strip().splitlines() == ["giwbc walk: interrupted"], err
+    pytest.importorskip("foxglove")  # its first line (where to connect) says the walk has started
+    code, out, err = _interrupted_raw(["walk", "--seconds", "600", "--foxglove", "--foxglove-port", "18733"], tmp_path)
+    assert code == 130 and err.strip().splitlines()[-1] == "giwbc walk: interrupted" and "Traceback" not in err, err
+    assert len(err.strip().splitlines()) == 2  # where to connect, then the interruption
