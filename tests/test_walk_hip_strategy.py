@@ -10,12 +10,20 @@ import numpy as np
 import pytest
 
 import giwbc.envs  # noqa: F401  (registers the ids)
-from giwbc.apps.walk_evaluation import WalkProtocol
 from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS, WalkerConfig
 
 SEED = 508
 HIP = {"hip_roll_gain": 4.0, "hip_roll_max": 0.2}  # rad per m of lateral DCM error, rad
 
+
+
+def _scenario(force: float, kwargs: dict) -> dict:
+    """The walking episode these seeds were chosen on, pinned: the evaluate walk protocol's before its 3 s settle
+    window (push schedule drawn to 60 s, 3.8 s episodes), so the random draws stay those of the tuning. It is a
+    scenario for the ankle-roll checks, not a push-recovery score (that is ``giwbc evaluate --protocol walk``)."""
+    commands = {"vx": [0.1, 0.4], "vy": [-0.1, 0.1], "yaw_rate": [-0.3, 0.3], "standing": 0.0, "interval": [4.8, 4.8], "horizon": 4.8}
+    sim2real = {**kwargs.get("sim2real", {}), "pushes": {"interval": [1.8, 2.0], "duration": 0.2, "force": [force, force]}}
+    return {**kwargs, "sim2real": sim2real, "commands": commands, "max_episode_steps": 190}
 
 def _episode(extra: dict) -> tuple[bool, np.ndarray, np.ndarray, float]:
     """(terminated, per ankle roll: lowest and highest angle and the soft limit's margin, the largest |pelvis roll reference|)."""
@@ -24,7 +32,7 @@ def _episode(extra: dict) -> tuple[bool, np.ndarray, np.ndarray, float]:
         "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}, "joint_limit_margin": 0.02,
         "sim2real": {"estimator": True}, "randomization": {"imu_profile": "ahrs", "parameters": []},
     }  # fmt: skip
-    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=50.0).env_overrides(kwargs, 50.0))
+    env = gymnasium.make("giwbc/G1Walk-v0", **_scenario(50.0, kwargs))
     task = env.unwrapped.task
     names = task.description.joint_names
     joints = [names.index("left_ankle_roll_joint"), names.index("right_ankle_roll_joint")]
@@ -70,7 +78,7 @@ def _joint_trajectory(residuals: list[str], action: dict[str, float], walker: di
         "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}, "joint_limit_margin": 0.02,
         "sim2real": {"estimator": True}, "randomization": {"imu_profile": "ahrs", "parameters": []},
     }  # fmt: skip
-    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=50.0).env_overrides(kwargs, 50.0))
+    env = gymnasium.make("giwbc/G1Walk-v0", **_scenario(50.0, kwargs))
     task = env.unwrapped.task
     names = task.action_names()
     constant = np.array([action.get(name, 0.0) for name in names], dtype=env.action_space.dtype)

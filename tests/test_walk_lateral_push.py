@@ -13,13 +13,21 @@ import numpy as np
 import pytest
 
 import giwbc.envs  # noqa: F401  (registers the ids)
-from giwbc.apps.walk_evaluation import WalkProtocol
 from giwbc.locomotion.walker_config import DEPLOYMENT_OPTIONS
 
 SEED = 502  # selection seed: a 40 N push to the right and forward, 1.86 s into the episode
 UNPUSHED_SEED = 599  # selection seed: vx 0.38 m/s, yaw rate 0.29 rad/s, no push
 FREEZE = 0.1  # s, adapt_freeze_time (selection seeds 500-599: 0 N 100 %, 40 N 76 %)
 
+
+
+def _scenario(force: float, kwargs: dict) -> dict:
+    """The walking episode these seeds were chosen on, pinned: the evaluate walk protocol's before its 3 s settle
+    window (push schedule drawn to 60 s, 3.8 s episodes), so the random draws stay those of the tuning. It is a
+    scenario for the ankle-roll checks, not a push-recovery score (that is ``giwbc evaluate --protocol walk``)."""
+    commands = {"vx": [0.1, 0.4], "vy": [-0.1, 0.1], "yaw_rate": [-0.3, 0.3], "standing": 0.0, "interval": [4.8, 4.8], "horizon": 4.8}
+    sim2real = {**kwargs.get("sim2real", {}), "pushes": {"interval": [1.8, 2.0], "duration": 0.2, "force": [force, force]}}
+    return {**kwargs, "sim2real": sim2real, "commands": commands, "max_episode_steps": 190}
 
 def _episode(extra: dict, seed: int = SEED, force: float = 40.0) -> tuple[bool, float, float, float]:
     """(terminated, lowest and highest left ankle roll, its soft lower limit) over one episode."""
@@ -28,7 +36,7 @@ def _episode(extra: dict, seed: int = SEED, force: float = 40.0) -> tuple[bool, 
         "wbc_options": {"joint_limits": True, "joint_limit_margin": 0.04}, "joint_limit_margin": 0.02,
         "sim2real": {"estimator": True}, "randomization": {"imu_profile": "ahrs", "parameters": []},
     }  # fmt: skip
-    env = gymnasium.make("giwbc/G1Walk-v0", **WalkProtocol(force=force).env_overrides(kwargs, 50.0))
+    env = gymnasium.make("giwbc/G1Walk-v0", **_scenario(force, kwargs))
     task = env.unwrapped.task
     joint = task.description.joint_names.index("left_ankle_roll_joint")
     env.reset(seed=seed)
