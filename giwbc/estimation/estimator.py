@@ -94,6 +94,10 @@ class EstimatorConfig:
     contact_full: float = 0.25  # x weight: a stance foot with this load is fully trusted not to slip;
     # below it, its velocity counts less (down to contact_min_confidence at contact_off)
     contact_min_confidence: float = 0.1
+    foot_roll_rate: float = 1.0  # rad/s: a stance foot turning this fast (rolling on an edge, rocking, slipping) counts
+    # half (confidence / (1 + (rate / foot_roll_rate)^2)): not flat, its velocity trusted less; 0: off
+    foot_roll_time: float = 0.02  # s: low-pass of the feet's squared angular rates before foot_roll_rate
+    foot_roll_velocity: bool = True  # the turning foot's velocity and position trusted less too (else only not flat)
     gyro_range: float = math.radians(2000.0)  # rad/s
     accel_range: float = 16.0 * 9.80665  # m/s^2
     max_dt: float = 0.02  # s: a longer gap between IMU samples is flagged (TIME_GAP)
@@ -107,6 +111,8 @@ class EstimatorConfig:
     feet_gain: float = 2.0  # 1/s, pull toward the flat feet's base orientation (integral gain: feet_gain^2 / 4)
     flat_min_load: float = 0.5  # a foot counts as flat with at least this load confidence ...
     flat_cop_margin: float = 0.6  # ... and its centre of pressure within this fraction of the sole's half sizes
+    flat_still_time: float = 0.03  # s: ... and turning slower than foot_roll_rate for this long (a rocking foot stops
+    # for an instant at each end of its rock, tilted: no level reference)
     accel_compensation_time: float = 0.1  # s: low-pass matching the accelerometer with the legs' velocity change
     foot_twist: float = math.radians(0.4)  # rad: a foot whose heading turned more than this ...
     foot_twist_time: float = 0.05  # s: ... within this time twisted on the ground (a slip; slower is gyro bias)
@@ -132,6 +138,8 @@ class EstimatorConfig:
             raise ValueError("accel_compensation_time and orientation_offset_time must be > 0")
         if self.foot_twist <= 0 or self.foot_twist_time <= 0:
             raise ValueError("foot_twist and foot_twist_time must be > 0")
+        if not (self.foot_roll_rate >= 0 and self.flat_still_time >= 0 and self.foot_roll_time >= 0):
+            raise ValueError("foot_roll_rate, foot_roll_time and flat_still_time must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -250,6 +258,8 @@ class StateEstimator:
         self._output_offset = (0.0, 0.0, 0.0)  # rotation vector (IMU frame) from the orientation output to the estimate
         self.headings.reset()
         self._flat = [False] * self.kinematics.n_feet
+        self._still_since = [-math.inf] * self.kinematics.n_feet  # s: when each foot last turned faster than foot_roll_rate
+        self._rate2 = [0.0] * self.kinematics.n_feet  # (rad/s)^2: each foot's squared angular rate, low-passed
         self._specific_force_lp: list[float] | None = None  # world frame, low-passed
         self._leg_velocity_lp: list[float] | None = None  # IMU velocity from the stance legs, world, low-passed
         self.reference = "none"  # the orientation reference of the last update: feet, orientation_output, gravity
@@ -342,7 +352,10 @@ class StateEstimator:
         stance = self._detect_contacts(measurement, effort_ok, use_efforts, plan, dt)
         flags = stance.tolist()
         loads = self._stance_confidence(flags)
-        self._correct_orientation(orientation, accel, base_rotation, flags, loads, use_efforts, position_ok, dt)
+        still = self._still_feet(loads, dt) if c.foot_roll_rate > 0.0 else loads
+        if c.foot_roll_velocity:
+            loads = still
+        self._correct_orientation(orientation, accel, base_rotation, flags, still, use_efforts, position_ok, dt)
         if accel is not None:
             window = self.standstill.add(now, gyro, accel, self._positions, min(loads))
             if window is not None:
@@ -442,6 +455,7 @@ class StateEstimator:
         pressure (from the leg's efforts) well inside the sole."""
         c, kin = self.config, self.kinematics
         margin, min_load, headings, now = c.flat_cop_margin, c.flat_min_load, self.headings, self._time
+        still_time = c.flat_still_time
         wrenches = kin.foot_wrenches.tolist() if use_efforts else None
         rotations = kin.foot_rotations.tolist()
         valid = [True] * len(flags) if position_ok is self._all_feet else position_ok.tolist()
@@ -450,8 +464,8 @@ class StateEstimator:
         yaw_error, yaw_count = 0.0, 0
         for i, (standing, load) in enumerate(zip(flags, loads)):
             loaded = standing and load >= min_load and valid[i]
-            flat = loaded
             (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotations[i]
+            flat = loaded and now - self._still_since[i] >= still_time
             if loaded:  # a loaded foot keeps its heading, even rolling on an edge, unless it twists (a slip)
                 yaw_error += headings.update(i, now, math.atan2(m10, m00))
                 yaw_count += 1
@@ -705,6 +719,23 @@ class StateEstimator:
         ax, ay, az = so3.rotate(base_rotation, so3.rotate(self._imu_rotation, accel))
         gx, gy, gz = self._gravity
         return (ax + gx, ay + gy, az + gz)
+
+    def _still_feet(self, loads: list[float], dt: float) -> list[float]:
+        """Stance confidences less for a turning foot (module doc, point 2): a sole that rolls on
+        an edge or point, rocks or slips is neither flat nor a still point (its frame moves). The
+        squared rate is low-passed (``foot_roll_time``): gyro and encoder noise alone is no turn."""
+        measured = (self.kinematics.foot_angular_velocities**2).sum(axis=1).tolist()
+        alpha = dt / (self.config.foot_roll_time + dt) if dt > 0.0 else 1.0
+        rate2 = self._rate2
+        for i, w2 in enumerate(measured):
+            rate2[i] += alpha * (w2 - rate2[i]) if math.isfinite(w2) else 0.0
+        scale = 1.0 / self.config.foot_roll_rate**2
+        since, now = self._still_since, self._time
+        for i, w2 in enumerate(rate2):
+            if w2 * scale > 1.0:
+                since[i] = now  # turning: still from here on at the earliest
+        least = self.config.contact_min_confidence
+        return [max(load / (1.0 + w2 * scale), least) if load > 0.0 else 0.0 for load, w2 in zip(loads, rate2)]
 
     def _stance_confidence(self, flags: list[bool]) -> list[float]:
         """Per foot: 0 in swing, else its load confidence, at least ``contact_min_confidence``."""

@@ -85,6 +85,7 @@ class LegKinematics:
         self.imu_offset = self._frame_motion[n, :3]
         self.foot_wrenches = np.zeros((n, 6))
         self.foot_rotations = np.zeros((n, 3, 3))  # each sole frame in world axes (at the estimated base orientation)
+        self.foot_angular_velocities = np.zeros((n, 3))  # each sole's, world axes: gyro plus leg joint rates (a rolling foot)
         self._pose_q, self._pose_data = self._q.copy(), legs.createData()  # for sole_rotations (compute's own stay untouched)
 
     @staticmethod
@@ -142,6 +143,7 @@ class LegKinematics:
                 rotations[i] = placement.rotation
             jacobians[i] = pin.getFrameJacobian(model, data, frame, _LWA)
         np.matmul(jacobians[:, :3], v, out=motion[:, 3:])
+        np.matmul(jacobians[:n, 3:], v, out=self.foot_angular_velocities)
         np.subtract(motion[:n], motion[n], out=self._relative_motion)
         if joint_efforts is not None:
             bias = pin.rnea(model, data, q, v, self._zero)[6:] - joint_efforts[joints]
