@@ -49,6 +49,11 @@ Fault rehearsal: ``--emulate --fault KIND`` injects one fault of the fault table
 (:data:`giwbc.runtimes.faults.FAULT_CASES`) ``--fault-at`` seconds after the start-up ramp, for a
 person to watch what the supervisor does (``DeployOptions.faults`` takes any number).
 
+DDS: ``--transport dds`` (:mod:`giwbc.apps.deploy_dds`): a G1 through Unitree's low-level DDS interface
+(``rt/lowcmd`` / ``rt/lowstate``, the plan ``hardware_dds.toml``), the same runtime and supervisor on a
+:class:`~giwbc.hal.dds.robot.DdsRobot`; with ``--emulate --emulator process`` the DDS emulator in its
+own process on loopback (:mod:`giwbc.emulation.dds_emulator`); ``--fault dds_...`` its fault rows.
+
 IMU: ``--imu-profile`` names the IMU's class (:data:`giwbc.robot.noise.IMU_PROFILES`): the
 estimator is set up for it (``mems``, ``cheap``: no orientation output, tilt from gravity and the
 feet) and, with ``--emulate``, the emulated IMU carries its errors (turn-on biases drawn from the

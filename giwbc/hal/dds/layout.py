@@ -115,21 +115,7 @@ CMD_RESERVE = (20, "<u4", 1)
 assert LOWCMD_WIRE.size == LOWCMD_C.size == 1004 and LOWSTATE_WIRE.size == LOWSTATE_C.size == 2092
 
 
-def copy_fields(src: np.ndarray, src_layout: Layout, dst: np.ndarray, dst_layout: Layout) -> None:
-    """Copy every field of a message from one layout to the other (padding left as it is in ``dst``)."""
-    dst[list(dst_layout.mode)] = src[list(src_layout.mode)]
-    stride = src_layout.stride
-    # a motor's record from its first float to its end is the same bytes in both layouts
-    tail = stride - 4
-    s = np.lib.stride_tricks.as_strided(src[src_layout.floats :], (MOTORS, tail), (stride, 1))
-    d = np.lib.stride_tricks.as_strided(dst[dst_layout.floats :], (MOTORS, tail), (stride, 1))
-    d[:] = s
-    for name in src_layout.fields:
-        dst_layout.field(dst, name)[:] = src_layout.field(src, name)
-    dst[dst_layout.crc : dst_layout.crc + 4] = src[src_layout.crc : src_layout.crc + 4]
-
-
 __all__ = [
     "CMD_RESERVE", "HEADER", "LOWCMD_C", "LOWCMD_WIRE", "LOWSTATE_C", "LOWSTATE_WIRE", "MOTORS", "STATE_MOTORSTATE", "STATE_SENSOR",
-    "STATE_TEMPERATURE", "STATE_VOL", "Layout", "copy_fields",
+    "STATE_TEMPERATURE", "STATE_VOL", "Layout",
 ]  # fmt: skip
