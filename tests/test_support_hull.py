@@ -101,3 +101,40 @@ def test_the_solved_cop_stays_in_the_hull(g1, sole):
         assert wrench[2] > 1.0
         cop = np.array([-wrench[4], wrench[3]]) / wrench[2]  # contact frame, about the sole centre
         assert inside(cop, contact.support_polygon(), 1e-6), (contact.name, cop)
+
+
+def _stance_foot_tilt(description, plant: str, command, seconds: float, seed: int):
+    """Max tilt (deg) of a loaded foot (touch sensor > 50 N) and whether the robot fell, walker on the true state."""
+    import math
+
+    from giwbc.locomotion.simulation import simulate_walk
+    from giwbc.robot.mujoco_model import foot_sensor_names
+
+    touch = [foot_sensor_names(c.name)["touch"] for c in description.contacts]
+    links = [c.link for c in description.contacts]
+    tilt = [0.0]
+
+    def observe(robot, controller):
+        for link, name in zip(links, touch):
+            if robot.sensor(name)[0] > 50.0:
+                rotation = robot.link_pose(link)[1]
+                tilt[0] = max(tilt[0], math.degrees(math.acos(min(1.0, float(rotation[2, 2])))))
+
+    run = simulate_walk(description, command, seconds, seed=seed, plant=plant, observe=observe)
+    return tilt[0], run.fell
+
+
+@pytest.mark.slow
+def test_point_feet_stand_and_walk_flat_on_their_own_hull(g1):
+    """The point-foot plant (two toe points, one heel point on the centreline): with the sole's
+    points in the description the walker's CoP stays on the triangle — standing 10 s no loaded foot
+    tilts past 2 deg, walking 0.3 m/s no loaded foot past 6 deg and no fall; planned on the
+    rectangle, the walking feet roll over (~20 deg)."""
+    sole = ((0.080, 0.025), (0.080, -0.025), (-0.080, 0.0))
+    robot = with_sole(g1, sole)
+    standing, fell = _stance_foot_tilt(robot, "point_feet", (0.0, 0.0, 0.0), 10.0, seed=7)
+    assert not fell and standing < 2.0
+    walking, fell = _stance_foot_tilt(robot, "point_feet", (0.3, 0.0, 0.0), 6.0, seed=7)
+    assert not fell and walking < 6.0
+    rectangle, _ = _stance_foot_tilt(g1, "point_feet", (0.3, 0.0, 0.0), 6.0, seed=7)
+    assert rectangle > 2.0 * walking
