@@ -36,13 +36,26 @@ def test_a_position_actuator_is_refused_naming_it(g1):
     knee = spec.actuator("left_knee_joint")
     knee.gainprm = [75.0] + [0.0] * 9
     knee.biasprm = [0.0, -75.0, 0.0] + [0.0] * 7  # MuJoCo's <position kp="75">: 1 N m of ctrl would be 75 N m
-    _refused(g1, spec, "actuator 'left_knee_joint' is not a torque actuator")
+    _refused(g1, spec, "actuator 'left_knee_joint' is a position/velocity actuator \\(gain 75")
     spec = build_mujoco_spec(g1)
-    spec.actuator("right_ankle_roll_joint").biasprm = [0.0, -20.0, 0.0] + [0.0] * 7
+    ankle = spec.actuator("right_ankle_roll_joint")
+    ankle.gainprm = [20.0] + [0.0] * 9
+    ankle.biasprm = [0.0, 0.0, -20.0] + [0.0] * 7  # <velocity kv="20">
     _refused(g1, spec, "actuator 'right_ankle_roll_joint' is a position/velocity actuator")
+    spec = build_mujoco_spec(g1)
+    spec.actuator("left_elbow_joint").gainprm = [3.0] + [0.0] * 9
+    _refused(g1, spec, "actuator 'left_elbow_joint' is not a torque actuator \\(gain 3\\)")
     spec = build_mujoco_spec(g1)
     spec.actuator("waist_yaw_joint").gear = [2.0, 0, 0, 0, 0, 0]
     _refused(g1, spec, "actuator 'waist_yaw_joint' has gear 2")
+
+
+def test_a_model_reused_after_a_robot_held_impedance_gains_binds_again(g1):
+    model = g1.build_mujoco()
+    first = MujocoRobot(g1, model)
+    first.set_joint_impedance(pd_hold_command(g1))  # the gains now sit in the model's actuator bias
+    second = MujocoRobot(g1, model)
+    assert np.all(second.model.actuator_biasprm[:, 1:3] == 0.0)  # cleared: a torque command is a torque again
 
 
 def test_a_missing_sensor_renamed_joint_and_other_timestep_are_refused(g1):

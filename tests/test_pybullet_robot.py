@@ -124,9 +124,9 @@ def test_armature_emulation_measured_against_pinocchio(g1: RobotDescription) -> 
             momentum = pin.computeCentroidalMomentum(model, data, *robot.generalized_state()).angular
             ratios[mode + " spin"] = momentum[2] / (2.0 * 10 * robot.dt)
     assert 0.85 < ratios["link"].min() and ratios["link"].max() < 2.6
-    assert ratios["ignore"].max() > 10.0  # wrist and ankle roll: 12x too light without armature
+    assert ratios["ignore"].max() > 10.0  # wrist and ankle roll: up to 23x too light without armature
     assert ratios["ignore spin"] == pytest.approx(1.0, abs=1e-3)  # no emulation: momentum exact
-    assert 0.55 < ratios["link spin"] < 0.7  # emulation: the added inertias hold the rest
+    assert 0.7 < ratios["link spin"] < 0.8  # emulation: the added inertias hold the rest (0.74 with robot.toml's armature)
 
 
 def test_standing_contact_forces_balance_weight(g1_robot: PybulletRobot, g1: RobotDescription) -> None:

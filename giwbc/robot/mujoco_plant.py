@@ -8,8 +8,9 @@ its origin, it must honour this contract, checked before the first step (one
 - **joints**: every joint of the description, by name, hinge or slide; no other movable joint; a
   free joint on the base link for a floating base. Their order in the plant does not matter;
 - **actuators**: one per actuated joint, a torque actuator on that joint (``<motor>``: fixed gain
-  1, gear 1, no bias, no activation dynamics); position, velocity or general actuators with a bias
-  and geared motors are refused (giwbc sends torques and MIT impedances itself). giwbc turns each
+  1, gear 1, no activation dynamics); position, velocity or general actuators with a bias and
+  geared motors are refused (giwbc sends torques and MIT impedances itself); a unit-gain actuator
+  with an affine bias is giwbc's own impedance form (gains an earlier robot left), its gains cleared. giwbc turns each
   into its own form (an affine bias that holds the impedance gains; force limited by the plant's
   force range, else its control range, else the description's effort; control unlimited);
 - **sensors**: ``imu_quat`` (framequat), ``imu_gyro`` (gyro), ``imu_accel`` (accelerometer) at the
@@ -140,10 +141,14 @@ def bind(description: RobotDescription, model: mujoco.MjModel, where: str = "pla
 
 def _check_torque_actuator(model: mujoco.MjModel, a: int, where: str) -> None:
     gain, bias = model.actuator_gainprm[a], model.actuator_biasprm[a]
-    if model.actuator_gaintype[a] != mujoco.mjtGain.mjGAIN_FIXED or gain[0] != 1.0:
-        raise PlantMismatchError(f"{where} is not a torque actuator (gain {model.actuator_gaintype[a]}, {gain[0]}); use <motor> with gear 1")
-    if model.actuator_biastype[a] != mujoco.mjtBias.mjBIAS_NONE and np.any(bias[:3] != 0.0):
-        raise PlantMismatchError(f"{where} is a position/velocity actuator (bias {bias[:3].tolist()}); giwbc sends torques: use <motor>")
+    unit_gain = model.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED and gain[0] == 1.0
+    biased = model.actuator_biastype[a] != mujoco.mjtBias.mjBIAS_NONE and np.any(bias[:3] != 0.0)
+    if biased and not unit_gain:  # <position kp>: gain kp, bias -kp q; <velocity kv>: gain kv, bias -kv qdot
+        raise PlantMismatchError(f"{where} is a position/velocity actuator (gain {gain[0]:g}, bias {bias[:3].tolist()}); "
+                                 "giwbc sends torques: use <motor>")
+    if not unit_gain:
+        raise PlantMismatchError(f"{where} is not a torque actuator (gain {gain[0]:g}); use <motor> with gear 1")
+    # A unit gain with a bias is giwbc's own impedance form (gains left by an earlier robot): adopt_actuators clears them.
     if model.actuator_dyntype[a] != mujoco.mjtDyn.mjDYN_NONE:
         raise PlantMismatchError(f"{where} has activation dynamics; use <motor> (actuator lag: giwbc.plants variants)")
     if model.actuator_gear[a, 0] != 1.0 or np.any(model.actuator_gear[a, 1:] != 0.0):

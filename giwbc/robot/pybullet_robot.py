@@ -9,9 +9,9 @@ same way. Differences from the MuJoCo model that no setting removes, measured in
   (:meth:`PybulletRobot.set_armature`). The joint then gains the armature on its mass-matrix
   diagonal, but on a floating base the added inertia also pushes back on the base (a real rotor
   sits on the parent and pushes back by ``armature / gear ratio`` only). Measured on the G1 in
-  free flight (tests/test_pybullet_robot.py): the joint-space inverse inertia is 0.9-2.4x that
-  of the Pinocchio/MuJoCo model with armature (1.3-12x with no armature at all), and a torque on
-  the limp robot's pelvis puts up to ~40 % of the angular momentum into the added inertias.
+  free flight (tests/test_pybullet_robot.py): the joint-space inverse inertia is 0.9-1.8x that
+  of the Pinocchio/MuJoCo model with armature (1.3-23x with no armature at all), and a torque on
+  the limp robot's pelvis puts up to ~26 % of the angular momentum into the added inertias.
   ``armature="ignore"`` leaves the URDF inertias alone: the G1 then still stands, but its wrist
   and shoulder-yaw joints chatter at tens of rad/s under the description's PD hold, explicit
   damping on links of ~1e-4 kg m² at 2 ms being past the stability bound ``kd dt / I < 2``
