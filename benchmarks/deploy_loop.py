@@ -256,7 +256,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
     cpus = sorted(os.sched_getaffinity(0))
     split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
     if transport == "dds":  # the G1's low-level DDS interface (rt/lowcmd, rt/lowstate) on loopback; the emulator in its own process
-        dds_plan = load_hardware(description.folder / "hardware_dds.toml", rate, joint_names=description.joint_names)
+        dds_plan = load_hardware(description.folder / "hardware_dds.toml", rate, joint_names=description.joint_names, allow_dds=True)
         emulator = DdsEmulatorProcess(dds_plan, plan, description, EmulatorConfig(), cpu=cpus[-1] if split else None)
         can_robot = DdsRobot(description, emulator.host_plan())
         mode = "process"

@@ -33,7 +33,7 @@ def _domain(k: int = 0) -> int:
 @pytest.fixture()
 def plan(g1) -> DdsPlan:
     """The G1's DDS plan on loopback, slots reversed (joint 0 in slot 28, ...): mapping by name shows."""
-    shipped = load_hardware(g1.folder / "hardware_dds.toml", 500.0, joint_names=g1.joint_names)
+    shipped = load_hardware(g1.folder / "hardware_dds.toml", 500.0, joint_names=g1.joint_names, allow_dds=True)
     slots = {j: 28 - k for k, j in enumerate(g1.joint_names)}
     return replace(shipped, slots=MappingProxyType(slots), state_timeout=1.0).with_interface("lo", _domain())
 
@@ -206,17 +206,23 @@ b = 1
 def test_plan_errors_are_one_line(change, message) -> None:
     text = PLAN.replace(*change)
     if message is None:
-        plan = parse_hardware(text, source="g1.toml", joint_names=["b", "a"])
+        plan = parse_hardware(text, source="g1.toml", joint_names=["b", "a"], allow_dds=True)
         assert plan.slot_array(["b", "a"]) == [1, 0] and plan.interface == "eth0"
         return
     with pytest.raises(HardwareConfigError, match=message) as info:
-        parse_hardware(text, source="g1.toml")
+        parse_hardware(text, source="g1.toml", allow_dds=True)
     assert "\n" not in str(info.value) and "g1.toml" in str(info.value)
 
 
 def test_plan_must_name_the_robots_joints() -> None:
     with pytest.raises(HardwareConfigError, match=r"no motor slot for robot joint\(s\) \['c'\]; slots for joint\(s\) the robot does not have: \['b'\]"):
-        parse_hardware(PLAN, source="g1.toml", joint_names=["a", "c"])
+        parse_hardware(PLAN, source="g1.toml", joint_names=["a", "c"], allow_dds=True)
+
+
+def test_a_can_command_refuses_a_dds_plan_in_one_line(g1) -> None:
+    with pytest.raises(HardwareConfigError, match="a DDS plan \\(\\[transport\\]\\), not CAN buses") as info:
+        load_hardware(g1.folder / "hardware_dds.toml", 500.0)
+    assert "\n" not in str(info.value)
 
 
 def test_cyclone_stays_on_the_interface_asked() -> None:

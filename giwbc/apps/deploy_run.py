@@ -161,7 +161,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     try:
         plan = load_hardware(
             hardware, options.control_rate, joint_names=names,
-            effort_limits=dict(zip(names, description.effort_limits)), interface="virtual" if options.emulate else None,
+            effort_limits=dict(zip(names, description.effort_limits)), interface="virtual" if options.emulate else None, allow_dds=True,
         )  # fmt: skip
     except HardwareConfigError as error:
         raise DeployError(str(error)) from error

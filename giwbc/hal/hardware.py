@@ -161,10 +161,13 @@ def load_hardware(
     joint_names: Sequence[str] | None = None,
     effort_limits: Mapping[str, float] | None = None,
     interface: str | None = None,
+    allow_dds: bool = False,
 ) -> HardwarePlan:
     """Read and validate ``hardware.toml``; also :func:`validate_joints` when ``joint_names`` is given.
 
     ``interface`` replaces every bus's python-can interface (``"virtual"`` for tests, dry runs).
+    ``allow_dds``: a DDS plan is returned (a :class:`giwbc.hal.dds.plan.DdsPlan`) instead of refused
+    in one line (callers that drive CAN buses leave it off).
     """
     p = Path(path)
     try:
@@ -174,7 +177,7 @@ def load_hardware(
     except UnicodeDecodeError as e:  # a binary or corrupted file
         raise HardwareConfigError(f"{p}: not a UTF-8 text hardware file: {e}") from e
     return parse_hardware(
-        text, control_rate, source=str(p), joint_names=joint_names, effort_limits=effort_limits, interface=interface
+        text, control_rate, source=str(p), joint_names=joint_names, effort_limits=effort_limits, interface=interface, allow_dds=allow_dds
     )
 
 
@@ -186,11 +189,16 @@ def parse_hardware(
     joint_names: Sequence[str] | None = None,
     effort_limits: Mapping[str, float] | None = None,
     interface: str | None = None,
+    allow_dds: bool = False,
 ) -> HardwarePlan:
     """:func:`load_hardware` for TOML text; ``source`` names it in error messages."""
     data = parse_toml(text, source, HardwareConfigError)
     if "transport" in data:  # a robot on Unitree's low-level DDS interface (giwbc.hal.dds.plan), not on CAN buses
         from giwbc.hal.dds.plan import parse_dds_plan
+
+        if not allow_dds:
+            raise HardwareConfigError(f"{source}: a DDS plan ([transport]), not CAN buses: this command drives CAN buses "
+                                      "(giwbc deploy --transport dds runs a DDS plan)")  # fmt: skip
 
         dds = parse_dds_plan(data, float(control_rate), source)
         if joint_names is not None:
