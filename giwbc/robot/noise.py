@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from giwbc.robot.so3 import as_floats, exp, matrix_to_quat, quat_multiply, quat_multiply_floats, rotate_back
+from giwbc.robot.so3 import as_floats, exp, matrix_to_quat, quat_multiply_floats, rotate_back
 from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
 from giwbc.errors import NotMeasuredError
 
@@ -234,16 +234,6 @@ class _Sample:
     positions: np.ndarray
     velocities: np.ndarray
     efforts: np.ndarray
-
-
-def _perturb(quaternion: np.ndarray, rotation_vector: np.ndarray) -> np.ndarray:
-    """``quaternion`` rotated by a small body-frame rotation vector."""
-    angle = float(np.linalg.norm(rotation_vector))
-    if angle == 0.0:
-        return quaternion.copy()
-    half = 0.5 * angle
-    delta = np.concatenate([math.sin(half) / angle * rotation_vector, [math.cos(half)]])
-    return quat_multiply(quaternion, delta)
 
 
 class SensorModel:
