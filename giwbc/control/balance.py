@@ -74,6 +74,8 @@ class BalanceConfig:
     roll_tilt_off: float = 1.5  # deg
     roll_lookahead: float = 0.01  # s
     roll_kp: float = 0.0  # 1/s^2
+    roll_supports: bool = True  # a rolled foot stands on its edge / corner (else only learning below)
+    sole_learning_step: float = 0.0  # m: each roll moves the edge the foot rolled over inward by this (rectangular soles)
     com_kp: float = 100.0
     com_kd: float | None = None
     com_weight: float = 10.0
@@ -147,6 +149,8 @@ class BalanceController:
             scale=config.support_scale,
             roll=None if config.roll_tilt_on <= 0 else RollDetector(math.radians(config.roll_tilt_on), math.radians(config.roll_tilt_off), config.roll_lookahead),
             roll_kp=config.roll_kp,
+            roll_supports=config.roll_supports,
+            learn_step=config.sole_learning_step,
         )
         for contact in self.contacts:
             self.wbc.add_contact(contact, ramp_time=config.contact_ramp_time)

@@ -45,7 +45,7 @@ import pinocchio as pin
 from scipy.optimize import nnls
 
 from giwbc.control.kinodynamics import LOCAL, Kinodynamics
-from giwbc.control.sole import FULL, RollDetector, SoleSupport, hull_2d, scale_polygon
+from giwbc.control.sole import FULL, RollDetector, SoleSupport, SoleRectangle, hull_2d, scale_polygon
 
 _frame_jacobian = pin.getFrameJacobian
 _classical_acceleration = pin.getFrameClassicalAcceleration
@@ -349,6 +349,9 @@ class WrenchConeContact(Contact):
         full_rows: np.ndarray | None = None,
         roll: RollDetector | None = None,
         roll_kp: float = 0.0,
+        roll_supports: bool = True,
+        learn_step: float = 0.0,
+        learn_min: float = 0.01,
         **kwargs: object,
     ) -> None:
         mu = float(kwargs.get("mu", DEFAULT_FRICTION))  # type: ignore[arg-type]
@@ -359,6 +362,16 @@ class WrenchConeContact(Contact):
         self.support = SoleSupport(vertices, mu, full_rows=full_rows)
         self.roll = roll
         self.roll_kp = float(roll_kp)
+        if not (math.isfinite(learn_step) and learn_step >= 0.0 and learn_min > 0.0):
+            raise ValueError(f"contact {name!r}: learn_step must be >= 0 and learn_min > 0 m")
+        self.roll_supports = bool(roll_supports)
+        self.learn_step = float(learn_step)
+        self.learn_min = float(learn_min)
+        self.learned_rolls = 0  # support edges moved in so far
+        self._armed = True
+        polygon = self.support.polygon
+        axis_aligned = len(polygon) == 4 and full_rows is not None
+        self._extents = (float(polygon[:, 0].min()), float(polygon[:, 0].max()), float(polygon[:, 1].min()), float(polygon[:, 1].max())) if axis_aligned else None
         self._released_at: float | None = None
         self._base_kp: float | None = None
         Contact.__init__(self, name, link, **kwargs)  # type: ignore[arg-type]  (not the rectangle's: a SurfaceContact sets its sizes itself)
@@ -429,6 +442,17 @@ class WrenchConeContact(Contact):
         omega = pin.getFrameVelocity(kin.model, kin.data, self.joint_id, self.placement, LOCAL).angular
         gradient = roll.tilt(relative, omega, roll.lookahead)
         tilt = math.hypot(float(gradient[0]), float(gradient[1]))
+        if self.learn_step > 0.0:
+            learned = False
+            if tilt > roll.tilt_on and self._armed:
+                self._armed = False
+                learned = self.learn_roll(gradient)
+            elif tilt < roll.tilt_off:
+                self._armed = True
+            if not self.roll_supports:
+                return learned
+        if not self.roll_supports:
+            return False
         if tilt > roll.tilt_on:
             self._released_at = None
             return self.set_support_mode(self.support.mode_for_tilt(gradient))  # type: ignore[union-attr]
@@ -441,6 +465,37 @@ class WrenchConeContact(Contact):
         elif self.support_mode != FULL:
             self._released_at = None
         return False
+
+    def learn_roll(self, gradient: np.ndarray) -> bool:
+        """The sole rolled downhill along ``-gradient`` (contact frame): the edge it rolled over is
+        beyond where it really touches. Move that edge of the support rectangle inward by
+        ``learn_step`` (never closer than ``learn_min`` to the rectangle's opposite edge); the
+        friction rows change (True) unless the edge cannot move."""
+        extents = self._extents
+        if extents is None:
+            return False
+        x_min, x_max, y_min, y_max = extents
+        step, least = self.learn_step, self.learn_min
+        if abs(float(gradient[1])) >= abs(float(gradient[0])):
+            if gradient[1] < 0.0:  # heights fall towards +y: rolled onto the +y edge
+                y_max = max(y_max - step, y_min + least)
+            else:
+                y_min = min(y_min + step, y_max - least)
+        elif gradient[0] < 0.0:  # onto the toe
+            x_max = max(x_max - step, x_min + least)
+        else:
+            x_min = min(x_min + step, x_max - least)
+        if (x_min, x_max, y_min, y_max) == extents:
+            return False
+        self._extents = (x_min, x_max, y_min, y_max)
+        centre = np.array([0.5 * (x_min + x_max), 0.5 * (y_min + y_max)])
+        rectangle = SoleRectangle(centre, np.array([1.0, 0.0]), 0.5 * (x_max - x_min), 0.5 * (y_max - y_min))
+        self.support = SoleSupport(rectangle.corners(), self.mu, full_rows=rectangle.cone(self.mu))
+        self.learned_rolls += 1
+        self.support_mode = FULL
+        self.friction_version += 1
+        self._friction = self.friction_matrix()
+        return True
 
     def reset_support(self) -> bool:
         """Back to the whole sole (a contact made again)."""
@@ -544,7 +599,8 @@ class CornerContact(RectangleContact):
 
 
 def foot_contacts(
-    description: object, model: str = "surface", *, scale: float = 1.0, roll: RollDetector | None = None, roll_kp: float = 0.0, **kwargs: object
+    description: object, model: str = "surface", *, scale: float = 1.0, roll: RollDetector | None = None, roll_kp: float = 0.0,
+    roll_supports: bool = True, learn_step: float = 0.0, **kwargs: object
 ) -> list[Contact]:
     """One contact per ``ContactRectangle`` of a robot description (``model``: surface | corners).
 
@@ -552,8 +608,9 @@ def foot_contacts(
     :class:`PolygonContact`, or corner forces at the hull's vertices); otherwise on its rectangle.
     ``scale`` (0, 1] shrinks the support about its centre: a margin that keeps the centre of
     pressure off the very edge of the real sole, where any model error rolls the foot. ``roll``
-    (surface model): watch the feet for rolling and stand a rolled foot on its edge or corner,
-    with pose feedback ``roll_kp`` (:class:`WrenchConeContact`).
+    (surface model): watch the feet for rolling and stand a rolled foot on its edge or corner
+    (``roll_supports``), with pose feedback ``roll_kp``; ``learn_step`` (m, rectangular soles): move
+    the edge a foot rolled over inward by this much at each roll (:class:`WrenchConeContact`).
     """
     if model not in ("surface", "corners"):
         raise ValueError(f"unknown contact model {model!r}; choose from ['corners', 'surface']")
@@ -570,8 +627,10 @@ def foot_contacts(
                     vertices=scale_polygon(hull_2d(rectangle.sole_points), scale), **kwargs,
                 )
         elif sole:
-            contact = PolygonContact.from_sole(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, **kwargs)
+            contact = PolygonContact.from_sole(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, **kwargs)
         else:
-            contact = SurfaceContact.from_rectangle(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, **kwargs)
+            contact = SurfaceContact.from_rectangle(
+                rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, learn_step=learn_step, **kwargs
+            )
         contacts.append(contact)
     return contacts

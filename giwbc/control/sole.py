@@ -119,7 +119,7 @@ class SoleSupport:
             if stop - start < 0.2 * length:
                 start, stop = 0.4 * length, 0.6 * length
             centre = a + along * 0.5 * (start + stop) + inward * 0.5 * width
-            rectangle = _Rectangle(centre, along, 0.5 * (stop - start), 0.5 * width)
+            rectangle = SoleRectangle(centre, along, 0.5 * (stop - start), 0.5 * width)
             modes.append(SupportMode("edge", (i, (i + 1) % k), rectangle.corners()))
             cones.append(rectangle.cone(mu))
         for i in range(k):  # a small rectangle on each corner's bisector
@@ -127,7 +127,7 @@ class SoleSupport:
             bisector = (after - v) / np.linalg.norm(after - v) + (before - v) / np.linalg.norm(before - v)
             bisector /= np.linalg.norm(bisector)
             half_width = min(0.5 * corner_size, CORNER_SETBACK * math.tan(0.5 * _angle(polygon, i)))
-            rectangle = _Rectangle(v + bisector * (CORNER_SETBACK + 0.5 * corner_size), bisector, 0.5 * corner_size, half_width)
+            rectangle = SoleRectangle(v + bisector * (CORNER_SETBACK + 0.5 * corner_size), bisector, 0.5 * corner_size, half_width)
             modes.append(SupportMode("corner", (i,), rectangle.corners()))
             cones.append(rectangle.cone(mu))
         self.modes = modes
@@ -186,7 +186,7 @@ class RollDetector:
 
 
 @dataclass(frozen=True)
-class _Rectangle:
+class SoleRectangle:
     """A rectangle in the sole plane: centre, unit axis, half sizes along and across it."""
 
     centre: np.ndarray
@@ -228,4 +228,4 @@ def _width_along(polygon: np.ndarray, direction: np.ndarray) -> float:
     return float(projection.max() - projection.min())
 
 
-__all__ = ["FULL", "RollDetector", "SoleSupport", "SupportMode", "hull_2d", "polygon_wrench_cone", "scale_polygon"]
+__all__ = ["FULL", "RollDetector", "SoleRectangle", "SoleSupport", "SupportMode", "hull_2d", "polygon_wrench_cone", "scale_polygon"]

@@ -210,7 +210,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         sole's support polygon as its contact has it now (the description's sole with the WBC's
         margin; the edge or corner a rolled foot stands on)."""
         sides = tuple(self.contacts) if sides is None else sides
-        key = (sides, tuple(self.contacts[side].support_mode for side in sides))
+        key = (sides, tuple((self.contacts[side].support_mode, self.contacts[side].friction_version) for side in sides))
         cached = self._polygons.get(key)
         if cached is not None:
             return cached
