@@ -138,3 +138,19 @@ def test_point_feet_stand_and_walk_flat_on_their_own_hull(g1):
     assert not fell and walking < 6.0
     rectangle, _ = _stance_foot_tilt(g1, "point_feet", (0.3, 0.0, 0.0), 6.0, seed=7)
     assert rectangle > 2.0 * walking
+
+
+def test_corner_model_puts_one_force_per_sole_point(g1):
+    """The corner model on a 3-point sole: 3 forces, each in its pyramid, summing to the weight."""
+    robot = with_sole(g1, TRIANGLE)
+    controller = BalanceController(robot, BalanceConfig(contact_model="corners", support_scale=1.0))
+    q = robot.default_configuration()
+    controller.reset(q)
+    result = controller.update(q, np.zeros(robot.pinocchio_model.nv), 0.0)
+    total = 0.0
+    for contact in controller.contacts:
+        assert contact.n_force == 9 and {tuple(p) for p in contact.corners[:, :2]} == set(TRIANGLE)
+        forces = contact.corner_forces(controller.wbc.contact_forces(contact.name, result))
+        assert (forces[:, 2] >= -1e-6).all() and (np.abs(forces[:, :2]) <= contact.mu * forces[:, 2:3] + 1e-6).all()
+        total += forces[:, 2].sum()
+    assert total == pytest.approx(robot.total_mass * 9.81, rel=0.05)
