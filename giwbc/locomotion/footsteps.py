@@ -7,14 +7,18 @@ Feet alternate. Every step advances the body by ``vx · T`` along the stance foo
 so feet never cross nor narrow below the nominal width, and the averages are the command.
 
 Limits (:class:`GaitConfig`): step length forward and backward, extra lateral width, yaw per
-step, minimum width. A command beyond them is *clamped* (the notes say which and by how much); a
-non-finite command is *refused* with ``ValueError``.
+step, minimum width. Beyond the velocities these allow at the base timing, the gait's
+:class:`GaitEnvelope` takes over (:meth:`GaitConfig.for_command`): faster cadence (shorter single
+and double support) and longer, wider, more turned steps, interpolated from the base gait at its
+limits to the envelope's gait at the envelope's edge — a command inside the base limits gets the
+base gait, unchanged. A command beyond the envelope is *clamped* (the notes say which and by how
+much); a non-finite command is *refused* with ``ValueError``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -93,6 +97,41 @@ class VelocityCommand:
 
 
 @dataclass(frozen=True)
+class GaitEnvelope:
+    """The velocities walked beyond the base gait's limits, and the gait at the envelope's edge.
+
+    A command beyond the base gait's limits (:meth:`GaitConfig.base_limits`) walks with timing
+    interpolated linearly from the base gait's (at its limits) to ``single_support`` /
+    ``double_support`` here (at the envelope's edge), by the largest fraction of the way any
+    component has gone; its steps may reach the ``max_step_*`` / ``max_extra_width`` here (the
+    G1's leg reach). An edge at or below the base limit extends nothing.
+
+    G1 defaults (MuJoCo, 12 s runs, tuning seed 1): at the edge cadence (0.28 + 0.07 s) the G1
+    walks 0.4 m/s sideways, 0.5 m/s backward and 1.0 rad/s without a fall. Not forward: every
+    cadence and step length tried beyond the base gait (0.22-0.40 s single support, steps up to
+    0.6 m) reached 0.56-0.79 m/s at most, the step adapter shortening the steps to where the DCM
+    goes (0.23 m at a nominal 0.38 m) and the fastest cadences falling at 1.0 m/s; the forward edge
+    stays at the base gait's 0.65 m/s."""
+
+    forward: float = 0.65  # m/s (the base gait's 0.652: no extension)
+    backward: float = 0.5  # m/s
+    lateral: float = 0.4  # m/s
+    turning: float = 1.0  # rad/s
+    single_support: float = 0.28  # s, at the envelope's edge
+    double_support: float = 0.07  # s
+    max_step_forward: float = 0.40  # m
+    max_step_backward: float = 0.22  # m
+    max_extra_width: float = 0.32  # m
+    max_step_yaw: float = 0.8  # rad
+
+    def __post_init__(self) -> None:
+        for name in self.__dataclass_fields__:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"gait envelope {name} must be finite and > 0, got {value}")
+
+
+@dataclass(frozen=True)
 class GaitConfig:
     """Timing and kinematic limits of the gait (G1 defaults)."""
 
@@ -105,6 +144,8 @@ class GaitConfig:
     max_step_backward: float = 0.15  # m
     max_step_yaw: float = 0.5  # rad, leading foot's turn per step
     max_inward_yaw: float = 0.05  # rad, a foot turned towards the other (toe collision)
+    # Beyond the limits above (at this timing): faster cadence, longer steps (None: clamp at them).
+    envelope: GaitEnvelope | None = field(default_factory=GaitEnvelope)
 
     def __post_init__(self) -> None:
         for name in ("single_support", "double_support", "step_width", "min_width", "max_step_forward", "max_step_backward", "max_step_yaw"):
@@ -113,10 +154,81 @@ class GaitConfig:
                 raise ValueError(f"gait {name} must be finite and > 0, got {value}")
         if self.min_width > self.step_width:
             raise ValueError(f"min_width {self.min_width} exceeds the nominal step_width {self.step_width}")
+        if self.envelope is not None:
+            self._check_envelope(self.envelope)
 
     @property
     def step_period(self) -> float:
         return self.single_support + self.double_support
+
+    def base_limits(self) -> dict[str, tuple[float, float]]:
+        """The velocity ranges this timing and these step limits allow: ``{"vx": (lo, hi), "vy": …, "yaw_rate": …}``."""
+        T = self.step_period
+        vy = self.max_extra_width / (2.0 * T)
+        yaw = self.max_step_yaw / (2.0 * T)
+        return {"vx": (-self.max_step_backward / T, self.max_step_forward / T), "vy": (-vy, vy), "yaw_rate": (-yaw, yaw)}
+
+    def limits(self) -> dict[str, tuple[float, float]]:
+        """The velocity ranges walked: the envelope's (at least the base limits), else the base limits."""
+        base = self.base_limits()
+        e = self.envelope
+        if e is None:
+            return base
+        return {
+            "vx": (min(base["vx"][0], -e.backward), max(base["vx"][1], e.forward)),
+            "vy": (min(base["vy"][0], -e.lateral), max(base["vy"][1], e.lateral)),
+            "yaw_rate": (min(base["yaw_rate"][0], -e.turning), max(base["yaw_rate"][1], e.turning)),
+        }
+
+    def envelope_fraction(self, command: VelocityCommand) -> float:
+        """How far beyond the base limits ``command`` is, towards the envelope's edge: 0 inside the
+        base limits, 1 at the edge (the largest fraction of any component)."""
+        if self.envelope is None:
+            return 0.0
+        base, edge = self.base_limits(), self.limits()
+        fraction = 0.0
+        for name, value in (("vx", command.vx), ("vy", command.vy), ("yaw_rate", command.yaw_rate)):
+            end = 1 if value > 0.0 else 0
+            b, e = base[name][end], edge[name][end]
+            if abs(value) > abs(b) and abs(e) > abs(b):
+                fraction = max(fraction, min((abs(value) - abs(b)) / (abs(e) - abs(b)), 1.0))
+        return fraction
+
+    def for_command(self, command: VelocityCommand) -> GaitConfig:
+        """The gait that walks ``command`` (inside :meth:`limits`): this one (the same object) inside
+        the base limits; beyond them the cadence and step limits interpolated towards the envelope's
+        (see :class:`GaitEnvelope`), as a gait without an envelope of its own."""
+        fraction = self.envelope_fraction(command)
+        if fraction == 0.0:
+            return self
+        return self._interpolated(fraction)
+
+    def _interpolated(self, fraction: float) -> GaitConfig:
+        e = self.envelope
+        assert e is not None
+
+        def towards(base: float, edge: float) -> float:
+            return base + fraction * (edge - base)
+
+        return replace(
+            self, single_support=towards(self.single_support, e.single_support), double_support=towards(self.double_support, e.double_support),
+            max_step_forward=max(self.max_step_forward, e.max_step_forward), max_step_backward=max(self.max_step_backward, e.max_step_backward),
+            max_extra_width=max(self.max_extra_width, e.max_extra_width), max_step_yaw=max(self.max_step_yaw, e.max_step_yaw), envelope=None,
+        )  # fmt: skip
+
+    def _check_envelope(self, e: GaitEnvelope) -> None:
+        """Every command in the envelope fits the interpolated gait's step limits (one line if not)."""
+        base = self.base_limits()
+        for name, limit, edge, step in (("forward", base["vx"][1], e.forward, "max_step_forward"), ("backward", -base["vx"][0], e.backward, "max_step_backward"),
+                                        ("lateral", base["vy"][1], e.lateral, "max_extra_width"), ("turning", base["yaw_rate"][1], e.turning, "max_step_yaw")):  # fmt: skip
+            if edge <= limit:
+                continue
+            per_step = 1.0 if name in ("forward", "backward") else 2.0
+            for fraction in np.linspace(0.0, 1.0, 21):
+                gait = self._interpolated(float(fraction))
+                needed = per_step * (limit + fraction * (edge - limit)) * gait.step_period
+                if needed > getattr(gait, step) + 1e-9:
+                    raise ValueError(f"gait envelope: {name} {limit + fraction * (edge - limit):.3g} needs a step of {needed:.3g} > {step} {getattr(gait, step):.3g}")
 
 
 @dataclass
@@ -136,12 +248,8 @@ class FootstepPlanner:
         self.config = config or GaitConfig()
 
     def limits(self) -> dict[str, tuple[float, float]]:
-        """The velocity ranges the step limits allow: ``{"vx": (lo, hi), "vy": …, "yaw_rate": …}``."""
-        c = self.config
-        T = c.step_period
-        vy = c.max_extra_width / (2.0 * T)
-        yaw = c.max_step_yaw / (2.0 * T)
-        return {"vx": (-c.max_step_backward / T, c.max_step_forward / T), "vy": (-vy, vy), "yaw_rate": (-yaw, yaw)}
+        """The velocity ranges walked (:meth:`GaitConfig.limits`): ``{"vx": (lo, hi), "vy": …, "yaw_rate": …}``."""
+        return self.config.limits()
 
     def clamp(self, command: VelocityCommand | tuple[float, float, float]) -> ClampedCommand:
         """The command inside the limits, with a note per clamped component (``ValueError`` if not finite)."""
@@ -163,7 +271,8 @@ class FootstepPlanner:
         return "left" if lateral > 0.0 else "right"
 
     def next_step(self, stance: Footstep, command: VelocityCommand) -> Footstep:
-        """The next footstep (the other foot) from ``stance`` for a command inside the limits."""
+        """The next footstep (the other foot) from ``stance`` for a command inside the limits, at
+        this planner's gait (a command beyond its base limits: plan with ``config.for_command``'s)."""
         c = self.config
         T = c.step_period
         side = other_side(stance.side)
@@ -183,10 +292,12 @@ class FootstepPlanner:
         if n < 0:
             raise ValueError("the number of footsteps must be >= 0")
         clamped = self.clamp(command)
+        gait = self.config.for_command(clamped.command)
+        planner = self if gait is self.config else FootstepPlanner(gait)
         steps: list[Footstep] = []
         current = stance
         for _ in range(n):
-            current = self.next_step(current, clamped.command)
+            current = planner.next_step(current, clamped.command)
             steps.append(current)
         return steps, clamped.notes
 

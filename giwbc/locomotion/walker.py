@@ -85,7 +85,10 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._sole_inverse = {side: c.offset.inverse() for side, c in self.contacts.items()}
         self._hips, self._leg_length = self._leg_geometry()
         self.weight = description.total_mass * 9.81
-        self.planner = FootstepPlanner(config.gait)
+        # ``config`` is the one walking now: ``base_config`` (the constructor's) but for a command
+        # beyond its base gait's limits, its ``for_command`` (faster cadence, longer steps).
+        self.base_config = config
+        self.planner = self._base_planner = FootstepPlanner(config.gait)
         self.command = VelocityCommand()
         self._in_place = False
         self.state = WalkerState()
@@ -117,9 +120,13 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
     def set_command(self, vx: float = 0.0, vy: float = 0.0, yaw_rate: float = 0.0, *, step_in_place: bool = False) -> list[str]:
         """Walk at ``(vx, vy, yaw_rate)`` (body frame); all zero stops, unless ``step_in_place``.
         A non-finite command raises ``ValueError``; one beyond the gait limits is clamped — the
-        notes say how (also kept in ``state.notes``)."""
-        clamped = self.planner.clamp(VelocityCommand(vx, vy, yaw_rate))
+        notes say how (also kept in ``state.notes``). Beyond the base gait's limits the walker
+        switches to the gait that walks it (:meth:`WalkerConfig.for_command`: faster cadence,
+        longer steps), from the next step on; inside them, the base gait."""
+        clamped = self._base_planner.clamp(VelocityCommand(vx, vy, yaw_rate))
         self.command = clamped.command
+        self.config = self.base_config.for_command(clamped.command)
+        self.planner = self._base_planner if self.config is self.base_config else FootstepPlanner(self.config.gait)
         self._in_place = bool(step_in_place)
         self.state.notes.extend(clamped.notes)
         return clamped.notes
@@ -133,6 +140,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         """Stand at configuration ``q`` (default pose): the balance controller's reset, feet where
         they are, no step planned."""
         q = self.description.default_configuration() if q is None else np.asarray(q, dtype=float)
+        self.config, self.planner = self.base_config, self._base_planner
         self.balance.reset(q)
         for task in self.swing_tasks.values():
             self._remove_swing_task(task)

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from giwbc.control.balance import BalanceConfig
-from giwbc.locomotion.footsteps import GaitConfig
+from giwbc.locomotion.footsteps import GaitConfig, VelocityCommand
 from giwbc.locomotion.residuals import check_error_gate
 from giwbc.locomotion.step_adapter import StepAdapterWeights
 
@@ -176,6 +176,23 @@ class WalkerConfig:
             (x_lo, x_hi), (y_lo, y_hi) = box
             if not (x_lo < x_hi and 0.0 < y_lo < y_hi) or not all(math.isfinite(float(x)) for x in (x_lo, x_hi, y_lo, y_hi)):
                 raise ValueError(f"{name} must be ((x_lo, x_hi), (y_lo, y_hi)) with x_lo < x_hi and 0 < y_lo < y_hi (left foot, stance frame), got {box}")
+
+    def for_command(self, command: VelocityCommand) -> WalkerConfig:
+        """The configuration that walks ``command`` (inside the gait's limits): this one (the same
+        object) inside the base gait's limits; beyond them the gait of
+        :meth:`~giwbc.locomotion.footsteps.GaitConfig.for_command` (faster cadence, longer steps),
+        the shortest swing no longer than its single support and the landing box holding its
+        longest, widest steps with today's margins around them."""
+        gait = self.gait.for_command(command)
+        if gait is self.gait:
+            return self
+        base = self.gait
+        (x_lo, x_hi), (y_lo, y_hi) = self.landing_box
+        box = (
+            (min(x_lo, x_lo - (gait.max_step_backward - base.max_step_backward)), max(x_hi, x_hi + (gait.max_step_forward - base.max_step_forward))),
+            (y_lo, max(y_hi, y_hi + (gait.max_extra_width - base.max_extra_width))),
+        )
+        return replace(self, gait=gait, min_swing=min(self.min_swing, gait.single_support), landing_box=box)
 
 
 # The walker on an *estimated* state (deployment, or a policy trained for it). The estimator's sole

@@ -1,0 +1,151 @@
+"""The gait envelope beyond the base gait's limits (issue 38, item 3): faster cadence and longer,
+wider, more turned steps for commands beyond the base limits; the base gait, bit for bit, inside
+them; the clamp at the envelope's edge said."""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from giwbc.apps.walk import followed_command
+from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, GaitConfig, GaitEnvelope, VelocityCommand, side_sign
+from giwbc.locomotion.simulation import simulate_walk
+from giwbc.locomotion.walker_config import WalkerConfig
+from giwbc.robot import load
+
+BASE = GaitConfig(envelope=None)  # today's gait: no envelope
+
+
+@pytest.fixture(scope="module")
+def g1():
+    return load("g1")
+
+
+def _inside_commands() -> list[VelocityCommand]:
+    """A grid over the base limits' box, its corners and faces included."""
+    limits = BASE.base_limits()
+    axes = [sorted({lo, 0.5 * lo, 0.0, 0.5 * hi, hi}) for lo, hi in limits.values()]
+    return [VelocityCommand(*c) for c in itertools.product(*axes)]
+
+
+def test_inside_the_base_limits_the_gait_and_the_walker_config_are_the_same_objects():
+    gait, config = GaitConfig(), WalkerConfig()
+    assert gait.base_limits() == BASE.base_limits()
+    for command in _inside_commands():
+        assert gait.envelope_fraction(command) == 0.0
+        assert gait.for_command(command) is gait
+        assert config.for_command(command) is config
+        assert FootstepPlanner(gait).clamp(command).command == command  # not clamped, same values
+
+
+def test_beyond_the_base_limits_the_cadence_quickens_towards_the_envelope_edge():
+    gait = GaitConfig()
+    envelope = gait.envelope
+    assert envelope is not None
+    base_vy = gait.base_limits()["vy"][1]
+    periods = []
+    for vy in np.linspace(base_vy, envelope.lateral, 6)[1:]:
+        adapted = gait.for_command(VelocityCommand(0.0, float(vy), 0.0))
+        assert adapted is not gait and adapted.envelope is None
+        periods.append(adapted.step_period)
+        # the step the command needs fits the adapted gait's limits (the planner does not cut it)
+        assert 2.0 * vy * adapted.step_period <= adapted.max_extra_width + 1e-12
+    assert all(a > b for a, b in zip(periods, periods[1:]))  # shorter steps the faster
+    assert periods[0] < gait.step_period
+    assert periods[-1] == pytest.approx(envelope.single_support + envelope.double_support)
+    # the edge of every axis reaches the edge cadence; the largest fraction of any axis decides
+    for command in [(-envelope.backward, 0.0, 0.0), (0.0, -envelope.lateral, 0.0), (0.0, 0.0, envelope.turning), (0.3, 0.1, -envelope.turning)]:
+        assert gait.envelope_fraction(VelocityCommand(*command)) == pytest.approx(1.0)
+    config = WalkerConfig().for_command(VelocityCommand(0.0, envelope.lateral, 0.0))
+    assert config.min_swing <= config.gait.single_support <= config.max_swing
+    (_, _), (_, y_hi) = config.landing_box
+    assert y_hi >= config.gait.step_width + config.gait.max_extra_width  # the widest step lands inside the box
+
+
+@pytest.mark.parametrize("command", [(0.0, 0.4, 0.0), (0.0, -0.4, 0.0), (-0.5, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (0.4, 0.3, 0.0), (-0.3, -0.35, 0.0), (0.3, 0.0, 0.9)])
+def test_envelope_plans_alternate_never_cross_and_average_to_the_command(command):
+    planner = FootstepPlanner()
+    gait = planner.config.for_command(VelocityCommand(*command))
+    stance = Footstep("right", [0.0, -gait.step_width / 2])
+    steps, notes = planner.plan(stance, command, 20)
+    assert not notes
+    feet = [stance] + steps
+    for a, b in zip(feet, feet[1:]):
+        assert a.side != b.side
+        local, yaw = a.relative(b)
+        lateral = local[1] * side_sign(b.side)
+        assert gait.min_width - 1e-12 <= lateral <= gait.step_width + gait.max_extra_width + 1e-12
+        assert -gait.max_step_backward - 1e-12 <= local[0] <= gait.max_step_forward + 1e-12
+        assert abs(yaw) <= gait.max_step_yaw + 1e-12 and yaw * side_sign(b.side) >= -gait.max_inward_yaw
+    T = gait.step_period
+    yaw_rate = (np.unwrap([f.yaw for f in feet])[-1] - feet[0].yaw) / (len(steps) * T)
+    assert yaw_rate == pytest.approx(command[2], abs=0.5 / len(steps))
+    if command[2] == 0.0:
+        mid0 = 0.5 * (feet[0].position + feet[1].position)
+        mid1 = 0.5 * (feet[-1].position + feet[-2].position)
+        np.testing.assert_allclose((mid1 - mid0) / ((len(steps) - 1) * T), command[:2], atol=0.2 / len(steps))
+
+
+def test_a_command_beyond_the_envelope_is_clamped_at_its_edge_and_said():
+    gait = GaitConfig()
+    envelope = gait.envelope
+    assert envelope is not None
+    limits = gait.limits()
+    assert limits["vy"] == (-envelope.lateral, envelope.lateral) and limits["yaw_rate"] == (-envelope.turning, envelope.turning)
+    assert limits["vx"] == (-envelope.backward, max(envelope.forward, gait.base_limits()["vx"][1]))
+    followed, notes = followed_command((3.0, -0.9, 2.5))
+    assert followed == (limits["vx"][1], -envelope.lateral, envelope.turning)
+    assert len(notes) == 3 and all("clamped" in note for note in notes) and "vy = -0.9" in notes[1]
+    followed, notes = followed_command((-0.5, 0.4, -1.0))  # the envelope's corners: followed as asked
+    assert followed == (-0.5, 0.4, -1.0) and not notes
+    # today's limits, without an envelope
+    assert FootstepPlanner(BASE).clamp((0.0, 0.4, 0.0)).command.vy == pytest.approx(BASE.max_extra_width / (2 * BASE.step_period))
+
+
+def test_an_envelope_whose_steps_do_not_fit_is_refused_in_one_line():
+    with pytest.raises(ValueError, match="lateral .* needs a step of .* max_extra_width"):
+        GaitConfig(envelope=GaitEnvelope(lateral=0.6))
+    with pytest.raises(ValueError, match="finite and > 0"):
+        GaitEnvelope(turning=math.nan)
+
+
+def _trajectory(g1, command: tuple[float, float, float], config: WalkerConfig, seconds: float) -> tuple[str, np.ndarray]:
+    digest = hashlib.sha256()
+    last: list[np.ndarray] = []
+
+    def observe(robot, controller) -> None:
+        q, v = robot.generalized_state()
+        digest.update(q.tobytes())
+        digest.update(v.tobytes())
+        last[:] = [q]
+
+    simulate_walk(g1, command, seconds, seed=0, config=config, observe=observe)
+    return digest.hexdigest(), last[0]
+
+
+@pytest.mark.parametrize("vx", [0.3, 0.5])
+def test_walks_inside_the_base_limits_are_bit_for_bit_those_without_an_envelope(g1, vx):
+    """Every physics step's state of a walk at 0.3 and 0.5 m/s with the envelope (default) equals the
+    one of today's gait without it. (Before the envelope, 4 s at seed 0 hashed 70dc9199… and
+    e4a5c72f…; with it, the same.)"""
+    with_envelope = _trajectory(g1, (vx, 0.0, 0.0), WalkerConfig(), 2.5)
+    without = _trajectory(g1, (vx, 0.0, 0.0), WalkerConfig(gait=BASE), 2.5)
+    assert with_envelope[0] == without[0]
+    assert np.array_equal(with_envelope[1], without[1])
+    assert with_envelope[1][0] > 0.3 * vx  # it walked
+
+
+@pytest.mark.slow
+def test_the_g1_walks_sideways_beyond_the_base_limit_with_the_envelope_cadence(g1):
+    """0.4 m/s sideways (the base gait stops at 0.21): no fall, the per-step mean within 15 % (it
+    overshoots by up to ~12 % on some seeds, see README), the
+    steps at the faster cadence."""
+    run = simulate_walk(g1, (0.0, 0.4, 0.0), 6.0, seed=0)
+    assert not run.fell and not run.notes
+    assert run.mean_velocity[1] == pytest.approx(0.4, rel=0.15)
+    assert abs(run.mean_velocity[0]) < 0.05
+    assert run.steps >= 12  # 5.5 s walking at 0.35 s per step (0.46 s in the base gait: <= 11)
