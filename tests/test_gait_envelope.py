@@ -149,3 +149,44 @@ def test_the_g1_walks_sideways_beyond_the_base_limit_with_the_envelope_cadence(g
     assert run.mean_velocity[1] == pytest.approx(0.4, rel=0.15)
     assert abs(run.mean_velocity[0]) < 0.05
     assert run.steps >= 12  # 5.5 s walking at 0.35 s per step (0.46 s in the base gait: <= 11)
+
+
+def test_envelope_turning_in_place_turns_the_feet_about_their_middle():
+    """At 1 rad/s in place the envelope's plan keeps the point between the feet where it is (the
+    base gait's turns about the stance sole walk it forward by ~width × yaw rate / 2)."""
+    planner = FootstepPlanner()
+    envelope_gait = planner.config.for_command(VelocityCommand(0.0, 0.0, 1.0))
+    assert envelope_gait.turn_about_centre and not BASE.turn_about_centre
+    stance = Footstep("right", [0.0, -planner.config.step_width / 2])
+    steps, _ = planner.plan(stance, (0.0, 0.0, 1.0), 12)
+    middles = [0.5 * (a.position + b.position) for a, b in zip([stance] + steps, steps)]
+    np.testing.assert_allclose(middles[1::2], np.zeros((6, 2)), atol=1e-12)  # after every trailing step
+    base_steps, _ = FootstepPlanner(BASE).plan(stance, (0.0, 0.0, 0.5), 12)
+    assert np.linalg.norm(0.5 * (base_steps[-1].position + base_steps[-2].position)) > 0.1  # the base gait's drift
+
+
+def test_a_leading_yaw_replaces_the_planned_turn_within_the_step_limits():
+    gait = GaitConfig().for_command(VelocityCommand(0.0, 0.0, 1.0))
+    planner = FootstepPlanner(gait)
+    stance = Footstep("right", [0.0, -0.12], 0.2)
+    assert planner.next_step(stance, VelocityCommand(0.0, 0.0, 1.0), leading_yaw=0.5).yaw == pytest.approx(0.7)
+    assert planner.next_step(stance, VelocityCommand(0.0, 0.0, 1.0), leading_yaw=5.0).yaw == pytest.approx(0.2 + gait.max_step_yaw)
+    assert planner.next_step(stance, VelocityCommand(0.0, 0.0, -1.0), leading_yaw=0.5).yaw == pytest.approx(0.2)  # a trailing step follows
+
+
+@pytest.mark.slow
+def test_the_g1_turns_at_one_radian_per_second_in_place(g1):
+    """1 rad/s (the base gait stops at 0.54): no fall, the mean yaw rate after 3 s within 5 %
+    (the closed-loop heading), the base within 0.05 m/s of standing still."""
+    rates, velocities = [], []
+
+    def observe(robot, controller) -> None:
+        if robot.time() >= 3.0:
+            base = robot.base_state()
+            rates.append(base.angular_velocity[2])
+            velocities.append(base.linear_velocity[:2])
+
+    run = simulate_walk(g1, (0.0, 0.0, 1.0), 7.0, seed=0, observe=observe)
+    assert not run.fell and not run.notes
+    assert np.mean(rates) == pytest.approx(1.0, rel=0.05)
+    assert np.linalg.norm(np.mean(velocities, axis=0)) < 0.05

@@ -122,10 +122,13 @@ class GaitEnvelope:
     max_step_forward: float = 0.40  # m
     max_step_backward: float = 0.22  # m
     max_extra_width: float = 0.32  # m
-    max_step_yaw: float = 0.8  # rad
+    max_step_yaw: float = 0.95  # rad (the closed-loop heading turns ~0.87 rad per step at 1 rad/s)
+    turn_about_centre: bool = True  # see GaitConfig.turn_about_centre
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:
+            if name == "turn_about_centre":
+                continue
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"gait envelope {name} must be finite and > 0, got {value}")
@@ -146,6 +149,10 @@ class GaitConfig:
     max_inward_yaw: float = 0.05  # rad, a foot turned towards the other (toe collision)
     # Beyond the limits above (at this timing): faster cadence, longer steps (None: clamp at them).
     envelope: GaitEnvelope | None = field(default_factory=GaitEnvelope)
+    # A turning step turns the feet about the point between them, not about the stance sole (which
+    # walks the body forward by ~width × yaw rate / 2 while it turns: 0.12 m/s at 1 rad/s). The
+    # envelope's gaits (GaitEnvelope.turn_about_centre); the base gait as it was.
+    turn_about_centre: bool = False
 
     def __post_init__(self) -> None:
         for name in ("single_support", "double_support", "step_width", "min_width", "max_step_forward", "max_step_backward", "max_step_yaw"):
@@ -214,6 +221,7 @@ class GaitConfig:
             self, single_support=towards(self.single_support, e.single_support), double_support=towards(self.double_support, e.double_support),
             max_step_forward=max(self.max_step_forward, e.max_step_forward), max_step_backward=max(self.max_step_backward, e.max_step_backward),
             max_extra_width=max(self.max_extra_width, e.max_extra_width), max_step_yaw=max(self.max_step_yaw, e.max_step_yaw), envelope=None,
+            turn_about_centre=e.turn_about_centre,
         )  # fmt: skip
 
     def _check_envelope(self, e: GaitEnvelope) -> None:
@@ -270,9 +278,11 @@ class FootstepPlanner:
         lateral = command.vy if command.vy != 0.0 else command.yaw_rate
         return "left" if lateral > 0.0 else "right"
 
-    def next_step(self, stance: Footstep, command: VelocityCommand) -> Footstep:
+    def next_step(self, stance: Footstep, command: VelocityCommand, leading_yaw: float | None = None) -> Footstep:
         """The next footstep (the other foot) from ``stance`` for a command inside the limits, at
-        this planner's gait (a command beyond its base limits: plan with ``config.for_command``'s)."""
+        this planner's gait (a command beyond its base limits: plan with ``config.for_command``'s).
+        ``leading_yaw`` (rad): a leading turning step's yaw relative to ``stance`` instead of
+        ``2 · yaw_rate · T`` (within the step limits; a closed-loop heading, see the walker)."""
         c = self.config
         T = c.step_period
         side = other_side(stance.side)
@@ -282,8 +292,15 @@ class FootstepPlanner:
         extra = min(2.0 * abs(command.vy) * T, c.max_extra_width) if lateral else 0.0
         dy = sign * (c.step_width + extra)
         leading_turn = command.yaw_rate * sign > 0.0
-        dyaw = float(np.clip(2.0 * command.yaw_rate * T, -c.max_step_yaw, c.max_step_yaw)) if leading_turn else 0.0
-        position = stance.to_world([dx, dy])
+        dyaw = float(np.clip(2.0 * command.yaw_rate * T if leading_yaw is None else leading_yaw, -c.max_step_yaw, c.max_step_yaw)) if leading_turn else 0.0
+        if c.turn_about_centre and dyaw != 0.0:
+            # The leading foot's nominal spot turned by dyaw about the point between the feet (not
+            # about the stance sole): the trailing foot, placed the nominal width across it, then
+            # brings the feet's middle back where it was.
+            half = 0.5 * c.step_width
+            position = stance.to_world([dx - math.sin(dyaw) * sign * (half + extra), sign * half + math.cos(dyaw) * sign * (half + extra)])
+        else:
+            position = stance.to_world([dx, dy])
         return Footstep(side, position, wrap_angle(stance.yaw + dyaw))
 
     def plan(self, stance: Footstep, command: VelocityCommand | tuple[float, float, float], n: int) -> tuple[list[Footstep], list[str]]:
