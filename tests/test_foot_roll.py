@@ -89,16 +89,17 @@ def test_a_still_foot_is_never_rolled_and_a_flat_one_comes_back(g1):
 
 
 def test_sole_learning_moves_the_rolled_over_edge_inward(g1):
-    """With ``sole_learning_step`` each roll moves the edge the foot rolled over inward (a foot whose
-    real sole is narrower than the description's learns it); the friction rows keep their count."""
+    """With ``sole_learning_step`` each roll moves the edge the foot rolled over inward, and the other
+    edge at the lowest corner by half as much (a foot whose real sole is smaller than the
+    description's learns it); the friction rows keep their count."""
     config = BalanceConfig(roll_tilt_on=3.0, roll_tilt_off=1.5, roll_lookahead=0.01, roll_supports=False, sole_learning_step=0.003)
     controller, first, result = _rolling_run(g1, rate=math.radians(60.0), ticks=40, config=config)
     left, right = controller.contacts
     assert left.learned_rolls == 1 and right.learned_rolls == 0 and left.support_mode == 0
     before = right.support_polygon()
     after = left.support_polygon()
-    assert np.ptp(after[:, 0]) == pytest.approx(np.ptp(before[:, 0]))  # the length is kept
-    assert np.ptp(after[:, 1]) == pytest.approx(np.ptp(before[:, 1]) - 0.003)  # one side moved in by the step
+    assert np.ptp(after[:, 1]) == pytest.approx(np.ptp(before[:, 1]) - 0.003)  # the side it rolled over: in by a step
+    assert np.ptp(after[:, 0]) == pytest.approx(np.ptp(before[:, 0]) - 0.5 * 0.003)  # the lowest corner's other edge: half a step
     assert left.n_ineq == right.n_ineq
     wrench = result.contact_wrenches[left.name]
     cop = np.array([-wrench[4], wrench[3]]) / wrench[2]

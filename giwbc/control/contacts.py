@@ -367,6 +367,7 @@ class WrenchConeContact(Contact):
         self.roll_supports = bool(roll_supports)
         self.learn_step = float(learn_step)
         self.learn_min = float(learn_min)
+        self.learn_corner = 0.5  # share of a step the edge along the roll moves too
         self.learned_rolls = 0  # support edges moved in so far
         self._armed = True
         polygon = self.support.polygon
@@ -475,16 +476,21 @@ class WrenchConeContact(Contact):
         if extents is None:
             return False
         x_min, x_max, y_min, y_max = extents
-        step, least = self.learn_step, self.learn_min
-        if abs(float(gradient[1])) >= abs(float(gradient[0])):
-            if gradient[1] < 0.0:  # heights fall towards +y: rolled onto the +y edge
-                y_max = max(y_max - step, y_min + least)
-            else:
-                y_min = min(y_min + step, y_max - least)
-        elif gradient[0] < 0.0:  # onto the toe
-            x_max = max(x_max - step, x_min + least)
+        gx, gy = float(gradient[0]), float(gradient[1])
+        major = max(abs(gx), abs(gy))
+        # Both edges at the lowest corner move: the one across the roll by a step, the other by a
+        # share of it (a foot rolling about a diagonal, as on a single heel point, loses that corner).
+        sx = self.learn_step * min(1.0, abs(gx) / major + self.learn_corner)
+        sy = self.learn_step * min(1.0, abs(gy) / major + self.learn_corner)
+        least = self.learn_min
+        if gy < 0.0:  # heights fall towards +y: rolled onto the +y side
+            y_max = max(y_max - sy, y_min + least)
         else:
-            x_min = min(x_min + step, x_max - least)
+            y_min = min(y_min + sy, y_max - least)
+        if gx < 0.0:  # towards the toe
+            x_max = max(x_max - sx, x_min + least)
+        else:
+            x_min = min(x_min + sx, x_max - least)
         if (x_min, x_max, y_min, y_max) == extents:
             return False
         self._extents = (x_min, x_max, y_min, y_max)
