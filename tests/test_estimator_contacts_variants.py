@@ -86,8 +86,8 @@ def test_a_still_foot_is_flat_and_a_rocking_one_is_not(g1, plant):
     about its centre (ankle roll +-8 deg at 2 Hz, up to 1.75 rad/s; the leg otherwise still): that foot is not
     flat while it turns and its stance confidence drops; the right one stays a flat reference."""
     settled = _settled(g1, plant)
-    still = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False))
-    rocking = StateEstimator(g1, EstimatorConfig(use_imu_orientation=False))
+    config = EstimatorConfig(use_imu_orientation=False, foot_roll_rate=1.0)
+    still, rocking = StateEstimator(g1, config), StateEstimator(g1, config)
     rock = lambda t: math.radians(8.0) * math.sin(2 * math.pi * 2.0 * (t - 1.5))
     flat_still, flat_rock, trust_rock = [], [], []
     for (t, a), (_, b) in zip(_stream(g1, settled, np.random.default_rng(5), 3.0), _stream(g1, settled, np.random.default_rng(5), 3.0, rock)):
