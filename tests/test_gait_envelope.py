@@ -190,3 +190,30 @@ def test_the_g1_turns_at_one_radian_per_second_in_place(g1):
     assert not run.fell and not run.notes
     assert np.mean(rates) == pytest.approx(1.0, rel=0.05)
     assert np.linalg.norm(np.mean(velocities, axis=0)) < 0.05
+
+
+def test_the_planner_correction_moves_only_non_zero_components_by_at_most_half():
+    planner = FootstepPlanner(GaitConfig().for_command(VelocityCommand(-0.5, 0.0, 0.0)))
+    assert planner.corrected(VelocityCommand(-0.5, 0.0, 0.3)) == VelocityCommand(-0.5, 0.0, 0.3)  # none by default
+    planner.correction = (0.2, -0.3)
+    assert planner.corrected(VelocityCommand(-0.5, 0.0, 0.3)) == VelocityCommand(-0.3, 0.0, 0.3)
+    assert planner.corrected(VelocityCommand(-0.3, 0.4, 0.0)) == VelocityCommand(-0.15, 0.2, 0.0)  # half at most: the sign stays
+    stance = Footstep("right", [0.0, -0.12])
+    step = planner.next_step(stance, VelocityCommand(-0.5, 0.0, 0.0))
+    assert stance.to_local(step.position)[0] == pytest.approx(-0.3 * planner.config.step_period)
+
+
+@pytest.mark.slow
+def test_the_g1_walks_backward_at_the_envelope_edge_within_five_percent(g1):
+    """-0.5 m/s (the base gait stops at -0.33 and overshoots by ~30 %): the velocity correction brings
+    the mean after 3 s within 5 % of the command; no fall."""
+    velocities = []
+
+    def observe(robot, controller) -> None:
+        if robot.time() >= 3.0:
+            velocities.append(robot.base_state().linear_velocity[:2])
+
+    run = simulate_walk(g1, (-0.5, 0.0, 0.0), 10.0, seed=1, observe=observe)
+    assert not run.fell and not run.notes
+    mean = np.mean(velocities, axis=0)
+    assert mean[0] == pytest.approx(-0.5, rel=0.05) and abs(mean[1]) < 0.05

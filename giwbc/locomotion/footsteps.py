@@ -254,6 +254,9 @@ class FootstepPlanner:
 
     def __init__(self, config: GaitConfig | None = None) -> None:
         self.config = config or GaitConfig()
+        # (vx, vy) m/s added to a command's non-zero components when stepping (at most half of each,
+        # never flipping its sign): a walker's velocity correction on the gait envelope; (0, 0): none.
+        self.correction = (0.0, 0.0)
 
     def limits(self) -> dict[str, tuple[float, float]]:
         """The velocity ranges walked (:meth:`GaitConfig.limits`): ``{"vx": (lo, hi), "vy": …, "yaw_rate": …}``."""
@@ -285,6 +288,8 @@ class FootstepPlanner:
         ``2 · yaw_rate · T`` (within the step limits; a closed-loop heading, see the walker)."""
         c = self.config
         T = c.step_period
+        if self.correction != (0.0, 0.0):
+            command = self.corrected(command)
         side = other_side(stance.side)
         sign = side_sign(side)
         dx = min(max(command.vx * T, -c.max_step_backward), c.max_step_forward)
@@ -302,6 +307,15 @@ class FootstepPlanner:
         else:
             position = stance.to_world([dx, dy])
         return Footstep(side, position, wrap_angle(stance.yaw + dyaw))
+
+    def corrected(self, command: VelocityCommand) -> VelocityCommand:
+        """``command`` with :attr:`correction` added to its non-zero components (each change at
+        most half the component: the step pattern's leading foot stays the same)."""
+        vx, vy = command.vx, command.vy
+        cx, cy = self.correction
+        vx += min(max(cx, -0.5 * abs(vx)), 0.5 * abs(vx))
+        vy += min(max(cy, -0.5 * abs(vy)), 0.5 * abs(vy))
+        return VelocityCommand(vx, vy, command.yaw_rate)
 
     def plan(self, stance: Footstep, command: VelocityCommand | tuple[float, float, float], n: int) -> tuple[list[Footstep], list[str]]:
         """``n`` footsteps after ``stance`` (alternating, starting with the other foot) and the
