@@ -65,14 +65,15 @@ def test_every_tick_of_a_fall_is_bounded(g1):
     controller = make_balance_controller(g1)
     solver = controller.wbc.solver
     bound = solver.max_iter * (solver.max_iter_in + 1)
-    iterations, failed = [], 0
+    iterations, failed, lowest = [], 0, np.inf
     for i in range(600):
         robot.set_external_wrench(g1.base_link, [0.0, 400.0 if 50 <= i < 150 else 0.0, 0.0])
         result = controller.step(robot)
         robot.step()
+        lowest = min(lowest, robot.base_state().position[2])
         iterations.append(result.iterations)
         failed += not result.ok
         assert np.all(np.isfinite(result.tau))
-    assert robot.base_state().position[2] < 0.4  # it did fall
+    assert lowest < 0.4  # it did fall (pelvis from 0.78 m to the floor; on the ground it flails, so not judged at the end)
     assert max(iterations) <= bound and max(iterations) > 0  # 844 ms for one tick before the bound
     assert failed > 0  # the budget was reached: the bound, not an easy problem, ended those ticks
