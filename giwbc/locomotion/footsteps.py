@@ -107,21 +107,24 @@ class GaitEnvelope:
     G1's leg reach). An edge at or below the base limit extends nothing.
 
     G1 defaults (MuJoCo, 12 s runs, tuning seed 1): at the edge cadence (0.28 + 0.07 s) the G1
-    walks 0.4 m/s sideways, 0.5 m/s backward and 1.0 rad/s without a fall. Not forward: every
-    cadence and step length tried beyond the base gait (0.22-0.40 s single support, steps up to
-    0.6 m) reached 0.56-0.79 m/s at most, the step adapter shortening the steps to where the DCM
-    goes (0.23 m at a nominal 0.38 m) and the fastest cadences falling at 1.0 m/s; the forward edge
-    stays at the base gait's 0.65 m/s."""
+    walks 0.5 m/s backward and turns 1.0 rad/s without a fall, its joints at least 0.09 rad inside
+    their limits. Not sideways: beyond the base gait's 0.21 m/s (itself 0.002 rad from the ankle
+    roll's limit) every cadence and step width tried (0.24-0.28 s single support, nominal width
+    0.19-0.237 m, 0.26-0.4 m/s) took an ankle roll or a knee 0.05-0.08 rad past its limit. Not
+    forward: every cadence and step length tried beyond the base gait (0.22-0.40 s single support,
+    steps up to 0.6 m) reached 0.56-0.79 m/s at most, the step adapter shortening the steps to
+    where the DCM goes (0.23 m at a nominal 0.38 m; the swing leg's momentum turns the CoM's
+    acceleration against the DCM controller's) and the fastest cadences falling at 1.0 m/s."""
 
     forward: float = 0.65  # m/s (the base gait's 0.652: no extension)
     backward: float = 0.5  # m/s
-    lateral: float = 0.4  # m/s
+    lateral: float = 0.2  # m/s (the base gait's 0.207: no extension)
     turning: float = 1.0  # rad/s
     single_support: float = 0.28  # s, at the envelope's edge
     double_support: float = 0.07  # s
-    max_step_forward: float = 0.40  # m
+    max_step_forward: float = 0.30  # m (the base gait's)
     max_step_backward: float = 0.22  # m
-    max_extra_width: float = 0.32  # m
+    max_extra_width: float = 0.19  # m (the base gait's)
     max_step_yaw: float = 0.95  # rad (the closed-loop heading turns ~0.87 rad per step at 1 rad/s)
     turn_about_centre: bool = True  # see GaitConfig.turn_about_centre
 
