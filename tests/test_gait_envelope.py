@@ -66,7 +66,7 @@ def test_beyond_the_base_limits_the_cadence_quickens_towards_the_envelope_edge()
     assert x_lo <= -config.gait.max_step_backward  # the longest backward step lands inside the box
 
 
-@pytest.mark.parametrize("command", [(-0.5, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (0.3, 0.0, 0.9), (-0.4, 0.15, 0.0), (-0.45, -0.2, 0.0), (0.5, -0.1, 0.8), (0.0, 0.2, -0.7)])
+@pytest.mark.parametrize("command", [(-0.5, 0.0, 0.0), (0.0, 0.0, 1.0), (0.0, 0.0, -1.0), (0.3, 0.0, 0.9), (-0.4, 0.15, 0.0), (-0.45, -0.11, 0.0), (0.4, -0.1, 0.8), (0.0, 0.15, -0.7)])
 def test_envelope_plans_alternate_never_cross_and_average_to_the_command(command):
     planner = FootstepPlanner()
     gait = planner.config.for_command(VelocityCommand(*command))
@@ -98,11 +98,12 @@ def test_a_command_beyond_the_envelope_is_clamped_at_its_edge_and_said():
     base = gait.base_limits()
     assert limits["yaw_rate"] == (-envelope.turning, envelope.turning) and limits["vy"] == base["vy"]  # sideways: not widened
     assert limits["vx"] == (-envelope.backward, base["vx"][1])  # forward: not widened
-    followed, notes = followed_command((3.0, -0.9, 2.5))
-    assert followed == (base["vx"][1], base["vy"][0], envelope.turning)
-    assert len(notes) == 3 and all("clamped" in note for note in notes) and "vy = -0.9" in notes[1]
-    followed, notes = followed_command((-0.5, 0.2, -1.0))  # the envelope's corner: followed as asked
-    assert followed == (-0.5, 0.2, -1.0) and not notes
+    followed, notes = followed_command((3.0, -0.9, 2.5))  # at the turning edge: the others at 40 % of their base limits
+    share = 1.0 - envelope.combined
+    assert followed == (pytest.approx(share * base["vx"][1]), pytest.approx(share * base["vy"][0]), envelope.turning)
+    assert len(notes) == 5 and all("clamped" in note for note in notes) and "vy = -0.9" in notes[1] and "40%" in notes[-1]
+    for corner in [(-0.5, 0.0, 0.0), (0.0, 0.0, -1.0), (0.0, 0.0, 1.0), (-0.5, share * base["vy"][1], 0.0)]:  # followed as asked
+        assert followed_command(corner) == (corner, [])
     # today's limits, without an envelope
     assert FootstepPlanner(BASE).clamp((0.0, 0.0, 1.0)).command.yaw_rate == pytest.approx(BASE.max_step_yaw / (2 * BASE.step_period))
 
@@ -212,3 +213,24 @@ def test_the_g1_walks_backward_at_the_envelope_edge_within_five_percent(g1):
     assert mean[0] == pytest.approx(-0.5, rel=0.05) and abs(mean[1]) < 0.05
     lower, upper = g1.position_limits
     assert np.all(np.array(joints) > lower) and np.all(np.array(joints) < upper)  # inside the G1's joint limits
+
+
+def test_beside_a_widened_component_the_others_shrink_and_it_is_said():
+    """(0.5, -0.1, 0.8) with the full base limits beside the envelope fell (fresh seed 40001): beyond
+    the base limits in one component, the others get at most (1 - combined x its fraction) of theirs."""
+    planner = FootstepPlanner()
+    gait = planner.config
+    assert gait.envelope is not None
+    clamped = planner.clamp((0.5, -0.1, 0.8))
+    fraction = gait.envelope_fraction(VelocityCommand(0.0, 0.0, 0.8))
+    share = 1.0 - gait.envelope.combined * fraction
+    command = clamped.command
+    assert command.vx == pytest.approx(share * gait.base_limits()["vx"][1]) and (command.vy, command.yaw_rate) == (-0.1, 0.8)
+    assert len(clamped.notes) == 1 and "vx = 0.5 with yaw_rate = 0.8" in clamped.notes[0] and f"{share:.0%}" in clamped.notes[0]
+    assert not planner.clamp((0.4, 0.0, 0.8)).notes  # within the share: as asked
+    # at the base limits' edge the share is whole: continuous with the base box
+    edge = gait.base_limits()["yaw_rate"][1]
+    assert planner.clamp((0.6, 0.2, edge)).command == VelocityCommand(0.6, 0.2, edge)
+    assert planner.clamp((0.6, 0.2, edge + 1e-6)).command.vx == pytest.approx(0.6, abs=1e-4)
+    with pytest.raises(ValueError, match="combined"):
+        GaitEnvelope(combined=1.5)

@@ -47,7 +47,7 @@ def test_plan_alternates_feet_keeps_width_and_averages_to_the_command(command):
 
 
 def test_commands_beyond_limits_are_clamped_with_a_note_and_nan_refused():
-    planner = FootstepPlanner()
+    planner = FootstepPlanner(GaitConfig(envelope=None))  # the base gait's box (the envelope's clamp: tests/test_gait_envelope.py)
     lo, hi = planner.limits()["vx"]
     clamped = planner.clamp((5.0, 0.0, -9.0))
     assert clamped.command.vx == pytest.approx(hi) and clamped.command.yaw_rate == pytest.approx(planner.limits()["yaw_rate"][0])

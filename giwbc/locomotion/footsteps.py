@@ -127,10 +127,19 @@ class GaitEnvelope:
     max_extra_width: float = 0.19  # m (the base gait's)
     max_step_yaw: float = 0.95  # rad (the closed-loop heading turns ~0.87 rad per step at 1 rad/s)
     turn_about_centre: bool = True  # see GaitConfig.turn_about_centre
+    # A command beyond the base limits in one component has the others within (1 − combined × its
+    # envelope fraction) of their base limits: 40 % at the edge. (Fresh seeds 40000-40001 with the
+    # full base limits beside the envelope: (0.5, −0.1, 0.8) fell, (−0.45, −0.2, 0) took a knee
+    # 0.08 rad past its limit, (−0.3, 0, −0.9) walked 0.11 m/s backward.)
+    combined: float = 0.6
 
     def __post_init__(self) -> None:
         for name in self.__dataclass_fields__:
             if name == "turn_about_centre":
+                continue
+            if name == "combined":
+                if not (0.0 <= self.combined <= 1.0):
+                    raise ValueError(f"gait envelope combined must be in [0, 1], got {self.combined}")
                 continue
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -277,6 +286,20 @@ class FootstepPlanner:
             if clipped != value:
                 notes.append(f"{name} = {value:g} is beyond the gait limits [{lo:.3g}, {hi:.3g}]: clamped to {clipped:.3g}")
             values[name] = clipped
+        envelope = self.config.envelope
+        fraction = self.config.envelope_fraction(VelocityCommand(**values))
+        if envelope is not None and fraction > 0.0:
+            # On the envelope, the other components within a shrinking share of their base limits.
+            base = self.config.base_limits()
+            widened = max(values, key=lambda name: self.config.envelope_fraction(VelocityCommand(**{name: values[name]})))
+            share = 1.0 - envelope.combined * fraction
+            for name, (lo, hi) in base.items():
+                value = values[name]
+                clipped = min(max(value, share * lo), share * hi)
+                if name != widened and clipped != value:
+                    notes.append(f"{name} = {value:g} with {widened} = {values[widened]:.3g} beyond the base gait's limits: clamped to {clipped:.3g} "
+                                 f"({share:.0%} of its base limit)")
+                    values[name] = clipped
         return ClampedCommand(VelocityCommand(**values), notes)
 
     def first_swing_side(self, command: VelocityCommand) -> str:
