@@ -9,10 +9,11 @@ so feet never cross nor narrow below the nominal width, and the averages are the
 Limits (:class:`GaitConfig`): step length forward and backward, extra lateral width, yaw per
 step, minimum width. Beyond the velocities these allow at the base timing, the gait's
 :class:`GaitEnvelope` takes over (:meth:`GaitConfig.for_command`): faster cadence (shorter single
-and double support) and longer, wider, more turned steps, interpolated from the base gait at its
-limits to the envelope's gait at the envelope's edge — a command inside the base limits gets the
-base gait, unchanged. A command beyond the envelope is *clamped* (the notes say which and by how
-much); a non-finite command is *refused* with ``ValueError``.
+and double support) and the envelope's step limits (longer backward steps, more turned ones),
+interpolated from the base gait at its limits to the envelope's gait at the envelope's edge — a
+command inside the base limits gets the base gait, unchanged. A command beyond the envelope is
+*clamped* (the notes say which and by how much; beside a widened component the others shrink,
+:attr:`GaitEnvelope.combined`); a non-finite command is *refused* with ``ValueError``.
 """
 
 from __future__ import annotations
