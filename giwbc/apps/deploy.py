@@ -69,6 +69,12 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
     parser.add_argument("--hardware", default=None, help="hardware plan (default: the robot folder's hardware.toml, hardware_dds.toml with --transport dds)")
     parser.add_argument("--transport", choices=("can", "dds"), default="can",
                         help="can: the plan's CAN buses; dds: Unitree's low-level DDS interface (rt/lowcmd, rt/lowstate: a G1 as Unitree builds it)")
+    parser.add_argument("--release-service", action="store_true",
+                        help="dds: release the robot's locomotion service through Unitree's motion switcher before any motor is enabled "
+                             "(refuses to start if it is not released in time); with --emulate the emulator plays that service")
+    parser.add_argument("--restore-service", action="store_true",
+                        help="dds, with --release-service: select the released mode again once the motors are off")
+    parser.add_argument("--service-timeout", type=seconds(60.0), default=5.0, help="s the release (or the restore) may take")
     parser.add_argument("--emulate", action="store_true", help="rehearse on the actuator emulator instead of the configured buses")
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
                         help="with --emulate: in the control loop's thread on virtual buses (lockstep), or in its own process (real time)")
@@ -175,7 +181,8 @@ def deploy_options(args: argparse.Namespace) -> DeployOptions:
         startup=startup, rt_priority=args.rt_priority, cpu_latency=args.cpu_latency, faults=faults, imu=args.imu, preflight=not args.no_preflight,
         first_run=args.first_run, emulated_hardware=args.emulated_hardware, scene_rate=args.scene_rate,
         foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk, walker=walker,
-        transport=getattr(args, "transport", "can"),
+        transport=getattr(args, "transport", "can"), release_service=getattr(args, "release_service", False),
+        restore_service=getattr(args, "restore_service", False), service_timeout=getattr(args, "service_timeout", 5.0),
     )  # fmt: skip
 
 

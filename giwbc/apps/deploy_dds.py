@@ -10,6 +10,12 @@ emulator.
 Rehearsals stay on the machine: the emulator and the host meet on the loopback interface only
 (Cyclone configured with ``lo`` alone, unicast discovery) and on a domain of the run's own
 (:func:`~giwbc.emulation.dds_emulator.emulation_domain`), never the plan's robot network.
+
+The robot's own locomotion service (``--release-service`` / ``--restore-service``): released
+through Unitree's motion switcher (:mod:`giwbc.hal.dds.motion_switcher`) before the robot is
+opened, so before any motor is enabled (not released within ``service_timeout``: DeployError,
+one line); the released mode selected again once the robot is closed with its motors off. With
+``--emulate`` the emulator plays that service (mode :data:`EMULATED_SERVICE`).
 """
 
 from __future__ import annotations
@@ -21,7 +27,8 @@ from typing import TYPE_CHECKING, Any
 
 from giwbc.emulation import EmulatorConfig, FaultInjection
 from giwbc.emulation.dds_emulator import DdsEmulatorProcess, DdsFault
-from giwbc.errors import DeployError, HardwareConfigError
+from giwbc.errors import DdsLinkError, DeployError, HardwareConfigError
+from giwbc.hal.dds.motion_switcher import Mode, MotionSwitcherClient
 from giwbc.hal.dds.plan import DdsPlan
 from giwbc.hal.dds.robot import DdsRobot
 from giwbc.hal.hardware import load_hardware
@@ -32,6 +39,7 @@ if TYPE_CHECKING:
 
 TRANSPORTS = ("can", "dds")
 PLAN_FILES = {"can": "hardware.toml", "dds": "hardware_dds.toml"}
+EMULATED_SERVICE = "ai"  # the mode the emulated G1's locomotion service runs in until released (a name, as CheckMode reports one)
 
 
 @dataclass(frozen=True)
@@ -114,18 +122,59 @@ def open_dds(plan: DdsPlan, description: RobotDescription, options: Any, config:
                                    interface="virtual")  # fmt: skip
         except HardwareConfigError as error:
             raise DeployError(f"the DDS emulator's motor models: {error}") from error
-        emulator = DdsEmulatorProcess(plan, motors, description, config, faults=dds_faults)
+        service = EMULATED_SERVICE if options.release_service else None
+        emulator = DdsEmulatorProcess(plan, motors, description, config, faults=dds_faults, service=service)
         plan = emulator.host_plan()
-        say(f"emulated G1 behind DDS in its own process (domain {plan.domain} on loopback, rt/lowcmd / rt/lowstate)")
+        say(f"emulated G1 behind DDS in its own process (domain {plan.domain} on loopback, rt/lowcmd / rt/lowstate"
+            + (f"; its locomotion service runs mode {service!r})" if service else ")"))
+    switcher, released = None, Mode("", "")
     try:
+        if options.release_service:
+            switcher, released = release_service(plan, options.service_timeout, say)
+            if not (options.restore_service and released.active):
+                switcher.close()
         robot = DdsRobot(description, plan)
-    except HardwareConfigError as error:
+    except (HardwareConfigError, DdsLinkError) as error:
+        if switcher is not None:
+            switcher.close()
         if emulator is not None:
             emulator.close()
         raise DeployError(str(error)) from error
+    if switcher is not None and options.restore_service and released.active:
+        robot.after_close = lambda: restore_service(robot, switcher, released, options.service_timeout, say)
+    elif options.restore_service:
+        say("--restore-service: no mode was active before the run; nothing to restore")
     say(f"DDS: robot on domain {plan.domain} over {plan.interface!r}, first rt/lowstate tick {int(robot.state.tick[0])}, "
         f"{robot.transport.matched_readers()} reader(s) of rt/lowcmd")  # fmt: skip
     return robot, emulator
 
 
-__all__ = ["DDS_FAULT_CASES", "PLAN_FILES", "TRANSPORTS", "DdsFaultCase", "check_transport", "default_hardware", "open_dds", "split_faults"]
+def release_service(plan: DdsPlan, timeout: float, say: Callable[[str], None]) -> tuple[MotionSwitcherClient, Mode]:
+    """The motion switcher's client on the plan's domain and interface, after releasing the active
+    mode within ``timeout`` s (DdsLinkError otherwise), and the mode it released."""
+    switcher = MotionSwitcherClient(plan.domain, plan.interface, source=f"{plan.source}: releasing the robot's locomotion service")
+    try:
+        released = switcher.release(timeout)
+    except BaseException:
+        switcher.close()
+        raise
+    say(f"motion switcher: {'mode ' + str(released) + ' released' if released.active else 'no mode active'} "
+        f"({', '.join(f'{name} {code}' for name, code in switcher.calls)})")  # fmt: skip
+    return switcher, released
+
+
+def restore_service(robot: DdsRobot, switcher: MotionSwitcherClient, mode: Mode, timeout: float, say: Callable[[str], None]) -> None:
+    """Select ``mode`` again (the robot closed); only with its motors off (zero gain, mode 0 sent)."""
+    try:
+        if robot.enabled:
+            say(f"motion switcher: mode {mode} NOT restored: the motors were not confirmed off; restore it by hand")
+            return
+        switcher.select(mode.name, timeout)
+        say(f"motion switcher: mode {mode} selected again (the robot's own service commands it now)")
+    except DdsLinkError as error:
+        say(f"motion switcher: mode {mode} NOT restored: {error}")
+    finally:
+        switcher.close()
+
+
+__all__ = ["DDS_FAULT_CASES", "EMULATED_SERVICE", "PLAN_FILES", "TRANSPORTS", "DdsFaultCase", "check_transport", "default_hardware", "open_dds", "release_service", "restore_service", "split_faults"]

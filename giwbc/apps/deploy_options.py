@@ -61,6 +61,9 @@ class DeployOptions:
     walk: WalkCommand | None = None  # the walk controller's command (None: stand)
     walker: Mapping[str, Any] | None = None  # the walk controller's WalkerConfig fields over the deployment walker's
     transport: str = "can"  # "can": the plan's CAN buses; "dds": Unitree's low-level DDS interface (giwbc.apps.deploy_dds)
+    release_service: bool = False  # dds: release the robot's locomotion service (motion switcher) before enabling motors
+    restore_service: bool = False  # dds, with release_service: select the released mode again once the motors are off
+    service_timeout: float = 5.0  # s the release (or the restore) may take before the run is refused
 
     def __post_init__(self) -> None:
         if self.controller is None:
@@ -68,6 +71,11 @@ class DeployOptions:
         _check_choice("controller", self.controller, CONTROLLERS)
         _check_choice("emulator_mode", self.emulator_mode, EMULATOR_MODES)
         _check_choice("transport", self.transport, ("can", "dds"))
+        if (self.release_service or self.restore_service) and self.transport != "dds":
+            raise ConfigError("--release-service / --restore-service hand the G1's locomotion service over DDS: they need --transport dds")
+        if self.restore_service and not self.release_service:
+            raise ConfigError("--restore-service selects the mode --release-service released: give both")
+        _check_number("service_timeout", self.service_timeout, low=0.0, low_open=True, high=60.0, unit="s")
         if self.task is not None:
             _check_choice("task", self.task, TASKS)
         _check_number("seconds", self.seconds, low=0.0)

@@ -24,15 +24,27 @@ DDS faults (:class:`DdsFault`, emulator time): ``silent`` (no state published), 
 with ``probability``), ``drop_commands`` (commands taken and ignored: the firmware's watchdog
 then makes the motors limp), ``late_subscriber`` (the robot's reader of ``rt/lowcmd`` is deleted
 at ``start``: nobody hears the commands), ``service_active`` (a second participant publishes
-``rt/lowcmd``, as the robot's locomotion service does until released). Motor faults are the
+``rt/lowcmd``, as the robot's locomotion service does until released), ``service_refuses`` (the
+motion switcher answers ReleaseMode with an error and the service keeps running),
+``service_mute`` (the motion switcher answers nothing). Motor faults are the
 emulator's own (:class:`~giwbc.emulation.faults.FaultInjection` in ``EmulatorConfig.faults``:
 ``error``, ``overheat``, ``push``, ...).
+
+The robot's own locomotion service (``service``: the name of its mode, e.g. ``"ai"``; None: no
+service, the robot already released): a second participant publishes ``rt/lowcmd`` every control
+period (its hold of the joints where they are) while its mode is active, and the motion switcher
+(:mod:`giwbc.hal.dds.motion_switcher`: ``rt/api/motion_switcher/request`` / ``response``, the
+``unitree_api`` types) answers CheckMode (``{"form": "0", "name": <mode or "">}``), ReleaseMode
+(the service stops publishing: ``name`` empty) and SelectMode (``{"name": ...}``: it publishes
+again). The service's commands stand for the robot's own controller: they reach the host's
+listener, not the emulated firmware (the emulator's reader ignores its own process's writers).
 """
 
 from __future__ import annotations
 
 import copy
 import gc
+import json
 import math
 import multiprocessing
 import os
@@ -48,6 +60,7 @@ from giwbc.emulation.emulator import ActuatorEmulator
 from giwbc.emulation.firmware import MOTOR, OFF
 from giwbc.hal.dds.config import LOOPBACK
 from giwbc.hal.dds.messages import OK, LowCmd, LowState
+from giwbc.hal.dds.motion_switcher import CHECK_MODE, RELEASE_MODE, RPC_ERR_SERVER_INTERNAL, RPC_OK, SELECT_MODE, RpcEndpoint, response
 from giwbc.hal.dds.plan import DdsPlan
 from giwbc.hal.dds.transport import LOWCMD_TOPIC, LOWSTATE_TOPIC, DdsTransport
 from giwbc.hal.hardware import HardwarePlan
@@ -57,7 +70,8 @@ from giwbc.util import children
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
 
-DDS_FAULT_KINDS = ("silent", "stale_state", "corrupt", "drop_commands", "late_subscriber", "service_active")
+DDS_FAULT_KINDS = ("silent", "stale_state", "corrupt", "drop_commands", "late_subscriber", "service_active", "service_refuses", "service_mute")
+RPC_ERR_SERVER_API_NOT_IMPL = 3203  # the SDK's code for an API the service does not have
 MODE_MACHINE = 5  # LowState_.mode_machine the emulated G1 reports (the host echoes it; giwbc does not interpret it)
 
 
@@ -91,11 +105,12 @@ class DdsEmulatorProcess:
     ``plan``: the DDS plan (its interface is replaced by loopback, its domain by ``domain``,
     default :func:`emulation_domain`); ``motors``: the hardware plan whose motor models the
     firmware emulates (the robot's CAN reference plan); ``faults``: :class:`DdsFault` s; ``cpu``:
-    pin the child to this CPU (keep the control loop on another)."""
+    pin the child to this CPU (keep the control loop on another); ``service``: the locomotion
+    service's mode active at start (module docstring), None: none."""
 
     def __init__(self, plan: DdsPlan, motors: HardwarePlan, description: RobotDescription, config: EmulatorConfig | None = None, *,
                  faults: tuple[DdsFault, ...] = (), domain: int | None = None, start_timeout: float = 60.0, plant: Any = None,
-                 cpu: int | None = None) -> None:  # fmt: skip
+                 cpu: int | None = None, service: str | None = None) -> None:  # fmt: skip
         plan.validate_joints(description.joint_names)
         motors.routing(description.joint_names)
         if plant is not None:
@@ -104,7 +119,8 @@ class DdsEmulatorProcess:
         self.config = config or EmulatorConfig()
         self.faults = tuple(faults)
         self._conn, child = multiprocessing.get_context("fork").Pipe()
-        args = (self.plan, motors, description, self.config, self.faults, child, plant, cpu)
+        self.service = service
+        args = (self.plan, motors, description, self.config, self.faults, child, plant, cpu, service)
         self._process = children.start(_serve, args, "giwbc-dds-emulator")
         child.close()
         self.truth = np.zeros((0, 5))
@@ -189,7 +205,7 @@ class _Robot:
     """The child's emulated G1: the actuator emulator, its DDS endpoints, its clock."""
 
     def __init__(self, plan: DdsPlan, motors: HardwarePlan, description: RobotDescription, config: EmulatorConfig,
-                 faults: tuple[DdsFault, ...], conn: Any, plant: Any, cpu: int | None = None) -> None:  # fmt: skip
+                 faults: tuple[DdsFault, ...], conn: Any, plant: Any, cpu: int | None = None, service: str | None = None) -> None:  # fmt: skip
         self.conn, self.faults = conn, faults
         if cpu is not None:
             os.sched_setaffinity(0, {cpu})
@@ -197,15 +213,19 @@ class _Robot:
         quiet = replace(config, faults=tuple(config.faults))
         self.emulator = e = ActuatorEmulator(motors, description, quiet, model=model, plant=plant)
         self.slots = np.array(plan.slot_array(description.joint_names), dtype=np.int64)[e.joint_index]  # per motor (plan order)
-        self.transport = DdsTransport(plan.domain, plan.interface, publish=LOWSTATE_TOPIC, subscribe=LOWCMD_TOPIC, source="emulator")
+        self.transport = DdsTransport(plan.domain, plan.interface, publish=LOWSTATE_TOPIC, subscribe=LOWCMD_TOPIC, source="emulator",
+                                      local=False)  # fmt: skip
+        self.mode = service or ""  # the locomotion service's active mode ("" released)
         self.service = (DdsTransport(plan.domain, plan.interface, publish=LOWCMD_TOPIC, subscribe=None, source="emulator")
-                        if any(f.kind == "service_active" for f in faults) else None)  # fmt: skip
+                        if service or any(f.kind == "service_active" for f in faults) else None)  # fmt: skip
+        self.switcher = RpcEndpoint(plan.domain, plan.interface, server=True, source="emulator") if service else None
         self.cmd, self.state, self.service_cmd = LowCmd(), LowState(), LowCmd()
         self.state.field("mode_machine")[0] = MODE_MACHINE
         self.rng = np.random.default_rng(None if config.seed is None else (config.seed, 0xDD5))
         self.period = 1.0 / plan.control_rate
         self.torque_max = np.array([m.model.torque.magnitude for m in e.motors])
-        self.counters = {"commands": 0, "crc_errors": 0, "states": 0, "dropped_commands": 0, "foreign": 0}
+        self.counters = {"commands": 0, "crc_errors": 0, "states": 0, "dropped_commands": 0, "foreign": 0, "service_commands": 0,
+                         "releases": 0, "selects": 0, "rpc_requests": 0}  # fmt: skip
         self.tick = 0
         self.frozen: bytes | None = None
 
@@ -252,12 +272,16 @@ class _Robot:
                     next_state = max(next_state + self.period, clock() - self.period)
                 if self.service is not None and self.active("service_active", t) and took:
                     self.service.write(self.service_cmd.seal())
+                if self.switcher is not None:
+                    self.serve_switcher(t)
             conn.send(("done", (np.array(e.truth, dtype=float).reshape(-1, 5), dict(self.counters))))
         finally:
             e.close()
             self.transport.close()
             if self.service is not None:
                 self.service.close()
+            if self.switcher is not None:
+                self.switcher.close()
 
     def commands(self, t: float) -> bool:
         """Take the waiting commands and hand each good one to the firmware; whether any came."""
@@ -288,6 +312,32 @@ class _Robot:
             if changed or special:
                 e._apply_commands()
         return True
+
+    def serve_switcher(self, t: float) -> None:
+        """Answer the motion switcher's requests waiting (module docstring; faults permitting)."""
+        for request in self.switcher.take():
+            self.counters["rpc_requests"] += 1
+            if self.active("service_mute", t):
+                continue
+            api = request.header.identity.api_id
+            code, data = RPC_OK, ""
+            if api == CHECK_MODE:
+                data = json.dumps({"form": "0", "name": self.mode})
+            elif api == RELEASE_MODE:
+                if self.active("service_refuses", t):
+                    code = RPC_ERR_SERVER_INTERNAL
+                else:
+                    self.mode = ""
+                    self.counters["releases"] += 1
+            elif api == SELECT_MODE:
+                try:
+                    self.mode = str(json.loads(request.parameter)["name"])
+                    self.counters["selects"] += 1
+                except (ValueError, KeyError, TypeError):
+                    code = RPC_ERR_SERVER_INTERNAL
+            else:
+                code = RPC_ERR_SERVER_API_NOT_IMPL
+            self.switcher.write(response(request, code, data))
 
     def publish(self, t: float) -> None:
         """Publish the state now (faults permitting)."""
@@ -331,6 +381,9 @@ class _Robot:
             modes[slots] = 1
             c.set_modes(modes)
             c.q[slots] = q
+            if self.mode:  # the locomotion service runs: it commands the motors every period
+                self.service.write(c.seal())
+                self.counters["service_commands"] += 1
 
 
 __all__ = ["DDS_FAULT_KINDS", "DdsEmulatorProcess", "DdsFault", "emulation_domain"]

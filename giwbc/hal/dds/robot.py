@@ -34,6 +34,7 @@ messages encoded up front.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -65,6 +66,7 @@ class DdsRobot(CanRobot):
 
     def __init__(self, description: RobotDescription, plan: DdsPlan, *, transport: DdsTransport | None = None,
                  wait_for_state: bool = True) -> None:  # fmt: skip  (CanRobot.__init__ is CAN's: not called)
+        self.after_close: Callable[[], None] | None = None  # run once by close() (the service's restore: motors off by then)
         self.description = description
         self.plan = plan  # type: ignore[assignment]
         names = description.joint_names
@@ -242,10 +244,13 @@ class DdsRobot(CanRobot):
         return DdsEmergencyStop(self, damping)
 
     def close(self) -> None:
-        """Close the transport (the motors are not touched: stop them first)."""
+        """Close the transport (the motors are not touched: stop them first), then run ``after_close``."""
         transport = getattr(self, "transport", None)
         if transport is not None:
             transport.close()
+        after, self.after_close = getattr(self, "after_close", None), None
+        if after is not None:
+            after()
 
 
 class DdsEmergencyStop:

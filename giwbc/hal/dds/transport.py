@@ -42,10 +42,12 @@ class DdsTransport:
     """A participant on ``domain`` over ``interface`` writing ``publish`` and reading ``subscribe``
     (topic names; their types from :data:`TYPES`). ``listen``: also read the ``publish`` topic
     (another participant's messages there: the robot's locomotion service still commanding it).
-    ``subscribe`` None: no reader (a second writer only: the emulated locomotion service)."""
+    ``subscribe`` None: no reader (a second writer only: the emulated locomotion service).
+    ``local`` False: the reader ignores this process's other participants (the emulator's own
+    locomotion service is not a command to its firmware)."""
 
     def __init__(self, domain: int, interface: str, *, publish: str, subscribe: str | None, depth: int = 8, listen: bool = False,
-                 source: str = "dds") -> None:  # fmt: skip
+                 source: str = "dds", local: bool = True) -> None:  # fmt: skip
         self.participant: Any = None
         check_domain(domain, source)
         check_interface(interface, source)
@@ -80,7 +82,9 @@ class DdsTransport:
             self.participant = DomainParticipant(domain)
             published = Topic(self.participant, publish, types[publish])
             self.writer = DataWriter(self.participant, published, qos=qos)
-            self.reader = None if subscribe is None else DataReader(self.participant, Topic(self.participant, subscribe, types[subscribe]), qos=qos)
+            reader_qos = qos if local else Qos(*qos, Policy.IgnoreLocal.Process)
+            self.reader = None if subscribe is None else DataReader(self.participant, Topic(self.participant, subscribe, types[subscribe]),
+                                                                    qos=reader_qos)  # fmt: skip
             # Another participant's messages on the published topic (never our own: IgnoreLocal).
             self.listener = DataReader(self.participant, published, qos=Qos(*qos, Policy.IgnoreLocal.Participant)) if listen else None
         except DDSException as error:
