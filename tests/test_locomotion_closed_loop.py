@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from giwbc.locomotion.footsteps import FootstepPlanner
 from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S
 from giwbc.locomotion.simulation import Push, simulate_walk
 from giwbc.control import WbcStatus
@@ -125,10 +126,10 @@ def test_bad_commands_are_refused_or_clamped_with_a_message(g1):
     assert walker.command.vx == pytest.approx(walker.planner.limits()["vx"][1])  # a refused command changes nothing
     limits = walker.planner.limits()
     notes = walker.set_command(-2.0, -1.0, 4.0)
-    assert len(notes) == 3 and all("clamped" in note for note in notes)
-    assert [note.split(" ")[0] for note in notes] == ["vx", "vy", "yaw_rate"]
-    assert (walker.command.vx, walker.command.vy, walker.command.yaw_rate) == pytest.approx((limits["vx"][0], limits["vy"][0], limits["yaw_rate"][1]))
-    assert walker.state.notes[-3:] == notes
+    assert len(notes) == 5 and all("clamped" in note for note in notes)  # each beyond the envelope; beside backward's edge, the others shrink
+    assert [note.split(" ")[0] for note in notes] == ["vx", "vy", "yaw_rate", "vy", "yaw_rate"]
+    assert walker.command == FootstepPlanner(walker.base_config.gait).clamp((-2.0, -1.0, 4.0)).command and walker.command.vx == limits["vx"][0]
+    assert walker.state.notes[-5:] == notes
 
 
 def test_a_non_finite_state_gets_the_fallback_and_the_walk_goes_on(g1):
