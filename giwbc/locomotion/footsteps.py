@@ -109,7 +109,8 @@ class GaitEnvelope:
 
     G1 defaults (MuJoCo, 12 s runs, tuning seed 1): at the edge cadence (0.28 + 0.07 s) the G1
     walks 0.5 m/s backward and turns 1.0 rad/s without a fall, its joints at least 0.09 rad inside
-    their limits. Not sideways: beyond the base gait's 0.21 m/s (itself 0.002 rad from the ankle
+    their limits (at 0.4 m/s backward, between the base gait's cadence and the edge's, a joint went
+    0.02-0.04 rad past its limit and the walk ran 0.36 m/s: README). Not sideways: beyond the base gait's 0.21 m/s (itself 0.002 rad from the ankle
     roll's limit) every cadence and step width tried (0.24-0.28 s single support, nominal width
     0.19-0.237 m, 0.26-0.4 m/s) took an ankle roll or a knee 0.05-0.08 rad past its limit. Not
     forward: every cadence and step length tried beyond the base gait (0.22-0.40 s single support,
