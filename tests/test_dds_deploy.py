@@ -92,6 +92,8 @@ def _plan(tmp_path: Path, name: str, **changes: str) -> str:
     (("--transport", "dds", "--emulate", "--emulator", "process", "--imu", "serial"), "IMU is the one in its rt/lowstate"),
     (("--transport", "dds", "--hardware", "{nosuch}"), "network interface 'nosuch0' does not exist on this machine"),
     (("--transport", "dds", "--hardware", "{domain}"), "DDS domain id must be an integer from 0 to 232"),
+    (("--transport", "dds", "--emulate", "--emulator", "process", "--restore-service"), "--restore-service selects the mode --release-service"),
+    (("--emulate", "--release-service"), "they need --transport dds"),
 ])  # fmt: skip
 def test_dds_configuration_errors_are_one_line(args, message, tmp_path) -> None:
     repo = Path(__file__).resolve().parents[1]

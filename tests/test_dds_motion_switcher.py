@@ -22,6 +22,7 @@ from giwbc.hal.dds.api_idl import Request_, Response_
 from giwbc.hal.dds.motion_switcher import (
     CHECK_MODE,
     RELEASE_MODE,
+    RPC_ERR_CLIENT_API_TIMEOUT,
     SELECT_MODE,
     MotionSwitcherClient,
     request,
@@ -178,3 +179,35 @@ def test_restore_needs_release_and_dds() -> None:
         DeployOptions(transport="dds", restore_service=True)
     with pytest.raises(ValueError, match="need --transport dds"):
         DeployOptions(release_service=True)
+
+
+def test_the_clients_request_on_the_wire_is_the_idl_built_by_hand() -> None:
+    """What the client publishes (the serialized sample DDS carries, taken raw) is the hand-built XCDR1 request."""
+    from cyclonedds._clayer import ddspy_take
+    from cyclonedds.core import Policy, Qos
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from giwbc.hal.dds.motion_switcher import REQUEST_TOPIC, RpcEndpoint
+
+    domain = 227  # (a domain no other test uses; loopback)
+    holder = RpcEndpoint(domain, "lo", server=True)  # creates the domain on loopback (giwbc's configuration)
+    participant = DomainParticipant(domain)
+    qos = Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(4), Policy.DataRepresentation(use_cdrv0_representation=True))
+    raw = DataReader(participant, Topic(participant, REQUEST_TOPIC, Request_), qos=qos)
+    try:
+        with MotionSwitcherClient(domain, "lo", timeout=0.2, resend=1.0) as switcher:  # (one request)
+            time.sleep(0.1)
+            holder.take()
+            raw_before = ddspy_take(raw._ref, 0xFFFFFFFF, 16)
+            assert isinstance(raw_before, int) or not raw_before
+            assert switcher.call(CHECK_MODE, {})[0] == RPC_ERR_CLIENT_API_TIMEOUT  # (nobody answers here)
+            identity = switcher._next_id
+        got = ddspy_take(raw._ref, 0xFFFFFFFF, 16)
+        assert not isinstance(got, int) and got, "no request on the wire"
+        data = [d for d, info in got if info.valid_data][0]
+        assert bytes(data) == _request_by_hand(identity, CHECK_MODE, "{}")
+    finally:
+        participant.__del__()
+        holder.close()

@@ -141,11 +141,14 @@ def response(to: Any, code: int, data: dict[str, Any] | str = "") -> Any:
 
 class MotionSwitcherClient:
     """The motion switcher's client (module docstring). ``timeout``: seconds one call waits for
-    its response; ``discovery``: seconds to wait for the service's endpoints to match."""
+    its response (``resend``: the request repeated this often meanwhile); ``discovery``: seconds to
+    wait for the service's endpoints to match."""
 
-    def __init__(self, domain: int, interface: str, *, timeout: float = 1.0, discovery: float = 2.0, source: str = "dds") -> None:
+    def __init__(self, domain: int, interface: str, *, timeout: float = 1.0, discovery: float = 2.0, resend: float = 0.1,
+                 source: str = "dds") -> None:  # fmt: skip
         self.where = f"{source}: DDS domain {domain} on {interface!r}"
         self.timeout = float(timeout)
+        self.resend = float(resend)
         self.endpoint = RpcEndpoint(domain, interface, source=source)
         self._next_id = time.monotonic_ns()  # request ids: unique within this client, as the SDK's (monotonic ns)
         self.calls: list[tuple[str, int]] = []  # (API name, status code) of each call, in order
@@ -157,14 +160,21 @@ class MotionSwitcherClient:
             raise DdsLinkError(f"{self.where}: no motion switcher service: nobody reads {REQUEST_TOPIC} within {discovery:g} s")
 
     def call(self, api_id: int, parameter: dict[str, Any]) -> tuple[int, str]:
-        """(status code, response data) of one call; :data:`RPC_ERR_CLIENT_API_TIMEOUT` when no response came in time."""
-        self._next_id += 1
-        identity = self._next_id
-        self.endpoint.write(request(identity, api_id, parameter))
+        """(status code, response data) of one call; :data:`RPC_ERR_CLIENT_API_TIMEOUT` when no response came in time.
+
+        The request goes out again (a new id) every ``resend`` s until one is answered: discovery
+        matches each side on its own clock, and a request written before the service's reader knew
+        this writer is dropped there. The three calls are idempotent, so a repeat does no harm."""
         end = time.monotonic() + self.timeout
-        code, data = RPC_ERR_CLIENT_API_TIMEOUT, ""
+        sent: set[int] = set()
+        code, data, due = RPC_ERR_CLIENT_API_TIMEOUT, "", 0.0
         while time.monotonic() < end:
-            got = [r for r in self.endpoint.take() if r.header.identity.id == identity]
+            if time.monotonic() >= due:
+                self._next_id += 1
+                sent.add(self._next_id)
+                self.endpoint.write(request(self._next_id, api_id, parameter))
+                due = time.monotonic() + self.resend
+            got = [r for r in self.endpoint.take() if r.header.identity.id in sent]
             if got:
                 answer = got[0]
                 code = RPC_ERR_CLIENT_API_NOT_MATCH if answer.header.identity.api_id != api_id else answer.header.status.code
