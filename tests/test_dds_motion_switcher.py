@@ -211,3 +211,9 @@ def test_the_clients_request_on_the_wire_is_the_idl_built_by_hand() -> None:
     finally:
         participant.__del__()
         holder.close()
+
+
+def test_no_motion_switcher_on_the_network_is_one_line() -> None:
+    with pytest.raises(DdsLinkError, match="no motion switcher service: nobody reads rt/api/motion_switcher/request") as error:
+        MotionSwitcherClient(226, "lo", discovery=0.3)  # (a domain nobody uses, loopback)
+    assert "\n" not in str(error.value)
