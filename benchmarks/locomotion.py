@@ -20,6 +20,17 @@ seeds 1000-1999).
   backward. Each fall is reported in s after the push ended.
 * **walking_push**: at 0.3 m/s, one push of 0.2 s at a random time in [2, 3] s, random
   direction, the episode running on 3 s after the push ends: success = no fall.
+* **gait_phase** (issue 38): pushes of ``--impulse`` N s (default 30) over 0.1 s in 8 directions
+  (from the heading) at 5 phases (0, 0.2, ... 0.8 of the left-to-left step pair from the first left
+  touch-down after 2.5 s, read from the walker's own contact schedule in the unpushed run of the
+  same seed), stepping in place and walking at 0.5 m/s; success by ``judge_push`` (3 s after the
+  push); per condition with Wilson 95 % intervals, per phase and per direction.
+* **impulse_grid**: standing (stepping walker), 0.1 s pushes in 8 directions at 25 / 30 / 35 N s
+  (``--impulses``), ``--grid-seeds`` seeds per cell (default 3).
+* **envelope**: the 23 commands of ``ENVELOPE_GRID`` (vx 1.0 / -0.5, vy +-0.4, wz +-1.0,
+  combinations) for 12 s (``--envelope-seconds``; --full 20 s x 10 seeds): falls, the command
+  followed after the clamp, mean heading-frame velocity after the first 3 s against it, tracking per
+  step and per tick. Every metric's definition is in the output's ``definitions``.
 * **tick**: the WBC tick (wall clock, one thread) in single support, in double support and at
   contact switches while walking, beside the standing (feet-in-place) double-support tick of the
   same process.
@@ -77,8 +88,10 @@ def _tick_split(run) -> dict:
     return {"single": t[walking & run.single_support_ticks].tolist(), "double": t[walking & ~run.single_support_ticks].tolist(), "switch": t[run.switch_ticks].tolist()}
 
 
-def _push_episode(job: tuple[float, int, bool, float | None, bool]) -> dict:
-    force, seed, stepping, direction, walking = job
+def _push_episode(job: tuple) -> dict:
+    """``(force, seed, stepping, direction or None, walking[, duration s])``: one pushed episode, judged by judge_push."""
+    force, seed, stepping, direction, walking, *rest = job
+    duration = float(rest[0]) if rest else PUSH_SECONDS
     rng = np.random.default_rng(seed)
     if walking:
         start, angle = float(rng.uniform(2.0, 3.0)), float(rng.uniform(-math.pi, math.pi))
@@ -88,9 +101,9 @@ def _push_episode(job: tuple[float, int, bool, float | None, bool]) -> dict:
         command, command_start = (0.0, 0.0, 0.0), None
     if direction is not None:
         angle = direction
-    push_end = start + PUSH_SECONDS
+    push_end = start + duration
     seconds = push_end + SETTLE_AFTER_PUSH_S + 0.005  # a few ticks over: the run's tick count is rounded
-    run = simulate_walk(load("g1"), command, seconds, pushes=(Push(start, force, angle, PUSH_SECONDS),), command_start=command_start,
+    run = simulate_walk(load("g1"), command, seconds, pushes=(Push(start, force, angle, duration),), command_start=command_start,
                         stepping=stepping, seed=seed)
     outcome = judge_push(fell=run.fell, fall_time=run.fall_time, end_time=run.seconds, push_end=push_end, final_tilt=run.final_tilt,
                          upright_tilt=math.inf if walking else UPRIGHT_TILT)
@@ -133,6 +146,209 @@ def _wilson(successes: int, n: int) -> list[float]:
     return [round(max(0.0, centre - half), 3), round(min(1.0, centre + half), 3)]  # no -0.0 from rounding
 
 
+# ---- pushes at gait phases, the standing impulse grid, the envelope grid (issue 38) ----
+
+PHASES = (0.0, 0.2, 0.4, 0.6, 0.8)  # fractions of a left-right step pair from a left touch-down
+DIRECTIONS = tuple(k * math.pi / 4 for k in range(8))  # rad from the heading (0 forward, pi/2 left)
+GRID_PUSH_SECONDS = 0.1
+PHASE_CONDITIONS = {"stepping_in_place": ((0.0, 0.0, 0.0), True), "walking_0.5": ((0.5, 0.0, 0.0), False)}
+PHASE_ANCHOR_S = 2.5  # the push's step pair starts at the first left touch-down at or after this
+ENVELOPE_GRID = {
+    "vx_0.3": (0.3, 0.0, 0.0), "vx_0.5": (0.5, 0.0, 0.0), "vx_0.7": (0.7, 0.0, 0.0), "vx_1.0": (1.0, 0.0, 0.0),
+    "vx_-0.3": (-0.3, 0.0, 0.0), "vx_-0.5": (-0.5, 0.0, 0.0), "vy_0.2": (0.0, 0.2, 0.0), "vy_-0.2": (0.0, -0.2, 0.0),
+    "vy_0.4": (0.0, 0.4, 0.0), "vy_-0.4": (0.0, -0.4, 0.0), "wz_0.5": (0.0, 0.0, 0.5), "wz_-0.5": (0.0, 0.0, -0.5),
+    "wz_1.0": (0.0, 0.0, 1.0), "wz_-1.0": (0.0, 0.0, -1.0), "vx_0.5_wz_0.5": (0.5, 0.0, 0.5), "vx_0.5_wz_-0.5": (0.5, 0.0, -0.5),
+    "vx_0.5_vy_0.2": (0.5, 0.2, 0.0), "vx_0.3_vy_-0.2": (0.3, -0.2, 0.0), "vx_-0.3_wz_0.5": (-0.3, 0.0, 0.5),
+    "vx_0.3_vy_0.2_wz_0.5": (0.3, 0.2, 0.5), "vx_1.0_wz_1.0": (1.0, 0.0, 1.0), "vx_-0.5_vy_0.4": (-0.5, 0.4, 0.0),
+    "vy_0.4_wz_1.0": (0.0, 0.4, 1.0),
+}
+ENVELOPE_DISCARD_S = 3.0
+METRIC_DEFINITIONS = {
+    "push_phase": "the push start's fraction of the step pair [t_L, t_L'), t_L the walker's last left touch-down at or before it and t_L' "
+                  "the next one, both from the unpushed run of the same seed (bit-identical to the pushed run up to the push); a touch-down is "
+                  "the tick the walker's step counter increments, the foot the one that swung",
+    "push_direction": "rad from the base heading at the push start in the unpushed run (0 forward, pi/2 left)",
+    "success": "judge_push: no fall (base below 65 % of its standing height or tilt > 45 deg) up to >= SETTLE_AFTER_PUSH_S after the push "
+               "ends, and (standing only) final tilt < upright_tilt",
+    "ci95": "Wilson score interval, z = 1.96",
+    "envelope_mean_velocity": "mean over the ticks after the first ENVELOPE_DISCARD_S s of the run of the base's ground-truth velocity in the "
+                              "heading frame (vx, vy) and of its yaw rate",
+    "envelope_within": "|mean - command followed| <= max(0.05 |command followed|, 0.03) for each of vx, vy (m/s) and wz (rad/s)",
+    "command_followed": "the walker's command after the gait envelope's clamp",
+    "tracking_rms_per_step": "RMS over steps (after the first two) of |per-step mean base xy velocity (heading frame) - command followed|",
+    "tracking_rms_per_tick_heading_xy": "RMS over 2 ms ticks (same span) of |instantaneous base xy velocity (heading frame) - command followed| "
+                                        "(mjlab's track_lin_vel_xy); mean_abs likewise; yaw_rate_* the same for the yaw rate",
+}
+
+
+class ContactSchedule:
+    """An ``observe`` hook for :func:`simulate_walk`: the walker's touch-downs (time s, side) and the base yaw of every tick."""
+
+    def __init__(self) -> None:
+        self.touchdowns: list[tuple[float, str]] = []
+        self.yaw: list[float] = []
+        self._steps = 0
+        self._stance: str | None = None
+
+    def __call__(self, robot, controller) -> None:
+        state = controller.state
+        if state.steps != self._steps:
+            self._steps = state.steps
+            if self._stance is not None:  # the foot that touched down is the one that swung
+                self.touchdowns.append((robot.time(), "right" if self._stance == "left" else "left"))
+        if state.phase.name == "SINGLE":
+            self._stance = state.stance
+        rotation = robot.base_state().rotation
+        self.yaw.append(math.atan2(rotation[1, 0], rotation[0, 0]))
+
+
+def step_pair(time_s: float, touchdowns: list[tuple[float, str]]) -> tuple[float, float]:
+    """The left-to-left step pair holding ``time_s``: (last left touch-down at or before it, the next left touch-down).
+    ValueError when the schedule does not hold one."""
+    lefts = np.array(sorted(t for t, side in touchdowns if side == "left"))
+    i = int(np.searchsorted(lefts, time_s, side="right")) - 1
+    if i < 0 or i + 1 >= len(lefts):
+        raise ValueError(f"no left-to-left step pair holds t = {time_s:.3f} s in this contact schedule")
+    return float(lefts[i]), float(lefts[i + 1])
+
+
+def push_phase(time_s: float, touchdowns: list[tuple[float, str]]) -> float:
+    """The phase in [0, 1) of ``time_s`` in the walker's gait: its fraction of the left-to-left step pair holding it."""
+    t0, t1 = step_pair(time_s, touchdowns)
+    return (time_s - t0) / (t1 - t0)
+
+
+def phase_start(phase: float, touchdowns: list[tuple[float, str]], anchor: float) -> float:
+    """The time at ``phase`` of the step pair starting at the first left touch-down at or after ``anchor`` s."""
+    lefts = [t for t, side in touchdowns if side == "left" and t >= anchor]
+    if len(lefts) < 2:
+        raise ValueError(f"the contact schedule has no full step pair after {anchor:g} s")
+    return lefts[0] + phase * (lefts[1] - lefts[0])
+
+
+def success_table(results: list[dict], key: str) -> dict:
+    """Success by ``key`` (e.g. phase, direction): per value the successes, episodes, rate and Wilson 95 % interval."""
+    table: dict = {}
+    for value in sorted({r[key] for r in results}):
+        rs = [r for r in results if r[key] == value]
+        wins = sum(bool(r["success"]) for r in rs)
+        table[f"{value:g}" if isinstance(value, float) else str(value)] = {"success": wins, "episodes": len(rs), "rate": round(wins / len(rs), 3), "ci95": _wilson(wins, len(rs))}
+    return table
+
+
+def _reference(job: tuple[str, int]) -> dict:
+    """The unpushed run of a gait-phase condition and seed: its contact schedule and headings."""
+    condition, seed = job
+    command, in_place = PHASE_CONDITIONS[condition]
+    schedule = ContactSchedule()
+    run = simulate_walk(load("g1"), command, PHASE_ANCHOR_S + 2.5, step_in_place=in_place, seed=seed, observe=schedule)
+    return {"condition": condition, "seed": seed, "fell": run.fell, "touchdowns": schedule.touchdowns, "yaw": schedule.yaw}
+
+
+def _phase_episode(job: tuple[str, int, float, float, float, float, float]) -> dict:
+    """A pushed episode of the gait-phase protocol: ``(condition, seed, phase, direction from heading, push start, heading, impulse)``."""
+    condition, seed, phase, direction, start, heading, impulse = job
+    command, in_place = PHASE_CONDITIONS[condition]
+    push = Push(start, impulse / GRID_PUSH_SECONDS, heading + direction, GRID_PUSH_SECONDS)
+    push_end = start + GRID_PUSH_SECONDS
+    schedule = ContactSchedule()
+    run = simulate_walk(load("g1"), command, push_end + SETTLE_AFTER_PUSH_S + 0.005, pushes=(push,), step_in_place=in_place, seed=seed, observe=schedule)
+    outcome = judge_push(fell=run.fell, fall_time=run.fall_time, end_time=run.seconds, push_end=push_end)
+    before = [(t, side) for t, side in schedule.touchdowns if t <= start]
+    return {"condition": condition, "seed": seed, "phase": phase, "direction": round(direction, 3), "push_start": round(start, 3),
+            "success": outcome.success, "fall_after_push": None if outcome.fall_after_push is None else round(outcome.fall_after_push, 3),
+            "last_left_touchdown": max((t for t, side in before if side == "left"), default=None)}
+
+
+def gait_phase_protocol(seeds: list[int], impulse: float, workers: int, progress: bool) -> dict:
+    """Pushes of ``impulse`` N s over 0.1 s at PHASES x DIRECTIONS, stepping in place and walking at 0.5 m/s, per seed."""
+    references = _map(_reference, [(c, s) for c in PHASE_CONDITIONS for s in seeds], workers, progress)
+    jobs, skipped = [], []
+    for ref in references:
+        if ref["fell"]:
+            skipped.append({"condition": ref["condition"], "seed": ref["seed"], "why": "the unpushed run fell"})
+            continue
+        for phase in PHASES:
+            start = phase_start(phase, ref["touchdowns"], PHASE_ANCHOR_S)
+            heading = ref["yaw"][min(int(round(start / 0.002)), len(ref["yaw"]) - 1)]
+            jobs += [(ref["condition"], ref["seed"], phase, d, start, heading, impulse) for d in DIRECTIONS]
+    results = _map(_phase_episode, jobs, workers, progress)
+    out: dict = {"impulse_Ns": impulse, "duration_s": GRID_PUSH_SECONDS, "force_N": impulse / GRID_PUSH_SECONDS, "phases": list(PHASES),
+                 "directions_rad": [round(d, 3) for d in DIRECTIONS], "anchor_s": PHASE_ANCHOR_S, "settle_after_push_s": SETTLE_AFTER_PUSH_S,
+                 "seeds": seeds, "skipped": skipped}
+    for condition in PHASE_CONDITIONS:
+        rs = [r for r in results if r["condition"] == condition]
+        if not rs:
+            continue
+        wins = sum(r["success"] for r in rs)
+        out[condition] = {"success": wins, "episodes": len(rs), "rate": round(wins / len(rs), 3), "ci95": _wilson(wins, len(rs)),
+                          "by_phase": success_table(rs, "phase"), "by_direction": success_table(rs, "direction"),
+                          **fall_times_summary([r["fall_after_push"] for r in rs if r["fall_after_push"] is not None]),
+                          "failures": [{k: r[k] for k in ("seed", "phase", "direction", "fall_after_push")} for r in rs if not r["success"]]}
+    return out
+
+
+def impulse_grid(impulses: list[float], seeds: list[int], workers: int, progress: bool) -> dict:
+    """Standing (stepping walker), 0.1 s pushes in 8 directions (world; the robot starts facing +x) at each impulse, per seed."""
+    jobs = [(i / GRID_PUSH_SECONDS, s, True, d, False, GRID_PUSH_SECONDS) for i in impulses for d in DIRECTIONS for s in seeds]
+    results = _map(_push_episode, jobs, workers, progress)
+    for r in results:
+        r["impulse"] = round(r["force"] * GRID_PUSH_SECONDS, 3)
+    out: dict = {"duration_s": GRID_PUSH_SECONDS, "start": [1.2, 1.6], "upright_tilt": UPRIGHT_TILT, "settle_after_push_s": SETTLE_AFTER_PUSH_S, "seeds": seeds}
+    for impulse in impulses:
+        rs = [r for r in results if r["impulse"] == round(impulse, 3)]
+        wins = sum(r["success"] for r in rs)
+        out[f"{impulse:g}Ns"] = {"success": wins, "episodes": len(rs), "rate": round(wins / len(rs), 3), "ci95": _wilson(wins, len(rs)),
+                                 "by_direction": success_table(rs, "direction"),
+                                 **fall_times_summary([r["fall_after_push"] for r in rs if r["fall_after_push"] is not None])}
+    return out
+
+
+class _HeadingVelocity:
+    """An ``observe`` hook: the base's heading-frame velocity and yaw rate summed over the ticks after ``discard`` s, and the command followed."""
+
+    def __init__(self, discard: float) -> None:
+        self.discard, self.sum, self.n, self.command = discard, np.zeros(3), 0, (math.nan,) * 3
+
+    def __call__(self, robot, controller) -> None:
+        if robot.time() <= self.discard:
+            return
+        base = robot.base_state()
+        c, s = base.rotation[0, 0], base.rotation[1, 0]
+        norm = math.hypot(c, s)
+        v = base.linear_velocity
+        self.sum += ((c * v[0] + s * v[1]) / norm, (-s * v[0] + c * v[1]) / norm, base.angular_velocity[2])
+        self.n += 1
+        cmd = controller.command
+        self.command = (cmd.vx, cmd.vy, cmd.yaw_rate)
+
+
+def _envelope_run(job: tuple[str, tuple[float, float, float], float, int]) -> dict:
+    name, command, seconds, seed = job
+    hook = _HeadingVelocity(ENVELOPE_DISCARD_S)
+    run = simulate_walk(load("g1"), command, seconds, seed=seed, observe=hook)
+    mean = hook.sum / max(hook.n, 1)
+    followed = np.array(hook.command)
+    within = bool(np.all(np.abs(mean - followed) <= np.maximum(0.05 * np.abs(followed), 0.03)))
+    return {"command": list(command), "seed": seed, "fell": run.fell, "fall_time": run.fall_time, "command_followed": [round(float(x), 3) for x in followed],
+            "clamped": bool(np.any(np.abs(followed - np.array(command)) > 1e-9)), "notes": run.notes,
+            "mean_velocity": [round(float(x), 3) for x in mean], "within": within, "steps": run.steps,
+            "tracking_rms_per_step": round(run.tracking_rms, 4), "yaw_rate_rms_per_step": round(run.yaw_rate_rms, 4),
+            **{key: round(getattr(run.per_tick, key), 4) for key in PER_TICK}}
+
+
+def envelope_grid(seconds: float, seeds: list[int], workers: int, progress: bool) -> dict:
+    """Every command of ENVELOPE_GRID for ``seconds`` per seed: falls, command followed, mean velocity vs it, tracking both ways."""
+    jobs = [(name, command, seconds, s) for name, command in ENVELOPE_GRID.items() for s in seeds]
+    results = _map(_envelope_run, jobs, workers, progress)
+    runs = {}
+    for (name, *_), r in zip(jobs, results):
+        runs.setdefault(name, []).append(r)
+    return {"seconds": seconds, "discard_s": ENVELOPE_DISCARD_S, "seeds": seeds, "commands": len(ENVELOPE_GRID),
+            "falls": sum(r["fell"] for r in results), "runs_total": len(results), "within": sum(r["within"] and not r["fell"] for r in results),
+            "runs": runs}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--full", action="store_true", help="the issue's protocol: 10 seeds x 20 s, 100 push episodes per force")
@@ -140,11 +356,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=None, help="length of a walking run (default 10, --full 20)")
     parser.add_argument("--episodes", type=int, default=None, help="push episodes per force and arm (default 10, --full 100)")
     parser.add_argument("--forces", type=float, nargs="+", default=[80.0, 100.0, 150.0])
-    parser.add_argument("--parts", default="walking,push,walking_push,tick")
+    parser.add_argument("--parts", default="walking,push,walking_push,tick", help="among walking, push, walking_push, tick, gait_phase, impulse_grid, envelope")
     parser.add_argument("--commands", default=",".join(COMMANDS), help=f"walking commands among {list(COMMANDS)}")
     parser.add_argument("--workers", type=int, default=1, help="processes (the machine has %d CPUs)" % (os.cpu_count() or 1))
     add_progress_argument(parser)
     parser.add_argument("--seed-base", type=int, default=SEED_BASE, help="first seed of every part")
+    parser.add_argument("--grid-seeds", type=int, default=None, help="seeds per cell of gait_phase / impulse_grid / envelope (default 1, --full 3 / 3 / 10)")
+    parser.add_argument("--impulse", type=float, default=30.0, help="gait_phase push impulse, N s (over 0.1 s)")
+    parser.add_argument("--impulses", type=float, nargs="+", default=[25.0, 30.0, 35.0], help="impulse_grid impulses, N s (over 0.1 s)")
+    parser.add_argument("--envelope-seconds", type=float, default=None, help="envelope run length (default 12, --full 20)")
     args = parser.parse_args(argv)
     progress = wants_progress(args)
     seeds = args.seeds if args.seeds is not None else (10 if args.full else 1)
@@ -216,6 +436,18 @@ def main(argv: list[str] | None = None) -> int:
             "standing_feet_in_place_double_support": _stats(standing.tick_seconds[100:].tolist()),
             "note": "wall-clock WBC ticks inside the simulation loop (MuJoCo steps between ticks), one thread, not pinned; compare within this run only",
         }
+    if "gait_phase" in parts:
+        n = args.grid_seeds if args.grid_seeds is not None else (3 if args.full else 1)
+        out["push_gait_phase"] = gait_phase_protocol([base + i for i in range(n)], args.impulse, args.workers, progress)
+    if "impulse_grid" in parts:
+        n = args.grid_seeds if args.grid_seeds is not None else 3
+        out["push_impulse_grid"] = impulse_grid(args.impulses, [base + i for i in range(n)], args.workers, progress)
+    if "envelope" in parts:
+        n = args.grid_seeds if args.grid_seeds is not None else (10 if args.full else 1)
+        length = args.envelope_seconds if args.envelope_seconds is not None else (20.0 if args.full else 12.0)
+        out["envelope_grid"] = envelope_grid(length, [base + i for i in range(n)], args.workers, progress)
+    if parts & {"gait_phase", "impulse_grid", "envelope"}:
+        out["definitions"] = METRIC_DEFINITIONS
     out["wall_seconds"] = round(time.perf_counter() - started, 1)
     print(json.dumps(out))
     return 0
