@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from giwbc.robot.description import RobotDescription
+from giwbc.robot.so3 import rpy_to_matrix
 
 STANDARD_GRAVITY = (0.0, 0.0, -9.81)
 ALL_OPERATIONS = ("absolute", "scale", "add")
@@ -169,18 +170,7 @@ def urdf_inertials(description: RobotDescription) -> tuple[tuple[str, ...], np.n
             ]
         )
         rpy = np.array([float(x) for x in origin.get("rpy", "0 0 0").split()]) if origin is not None else np.zeros(3)
-        rotation = _rpy_matrix(rpy)
+        rotation = rpy_to_matrix(rpy)
         inertias.append(rotation @ inertia @ rotation.T)
     return tuple(names), np.array(masses), np.array(coms, dtype=float).reshape(-1, 3), np.array(inertias).reshape(-1, 3, 3)
 
-
-def _rpy_matrix(rpy: np.ndarray) -> np.ndarray:
-    """URDF fixed-axis roll-pitch-yaw: ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy), np.sin(rpy)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )

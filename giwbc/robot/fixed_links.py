@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from giwbc.errors import RobotDescriptionError
+from giwbc.robot.so3 import rpy_to_matrix
 
 
 @dataclass(frozen=True)
@@ -28,17 +29,6 @@ class Carrier:
     position: np.ndarray
     rotation: np.ndarray
 
-
-def _rpy(rpy: np.ndarray) -> np.ndarray:
-    """URDF fixed-axis roll-pitch-yaw: ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy), np.sin(rpy)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
 
 
 @lru_cache(maxsize=8)
@@ -55,7 +45,7 @@ def fixed_parents(urdf_path: Path) -> dict[str, tuple[str, np.ndarray, np.ndarra
         origin = joint.find("origin")
         xyz = np.array([float(x) for x in origin.get("xyz", "0 0 0").split()]) if origin is not None else np.zeros(3)
         rpy = np.array([float(x) for x in origin.get("rpy", "0 0 0").split()]) if origin is not None else np.zeros(3)
-        parents[child.get("link")] = (parent.get("link"), xyz, _rpy(rpy))
+        parents[child.get("link")] = (parent.get("link"), xyz, rpy_to_matrix(rpy))
     return parents
 
 

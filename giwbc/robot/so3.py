@@ -34,6 +34,7 @@ __all__ = [
     "quat_to_rpy",
     "rotate_back",
     "rotation_angle",
+    "rpy_to_matrix",
     "rpy_to_quat",
     "skew",
 ]
@@ -183,6 +184,18 @@ def rpy_to_quat(roll: float, pitch: float, yaw: float) -> np.ndarray:
         [sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy, cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy]
     )
 
+
+
+def rpy_to_matrix(rpy: np.ndarray) -> np.ndarray:
+    """URDF fixed-axis roll-pitch-yaw (rad) as a rotation matrix: ``Rz(yaw) Ry(pitch) Rx(roll)``."""
+    (cr, cp, cy), (sr, sp, sy) = np.cos(rpy), np.sin(rpy)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
 
 def quat_to_rpy(q: Sequence[float]) -> Vector3:
     """Roll, pitch, yaw (rad) of a unit quaternion ``(x, y, z, w)``, inverse of :func:`rpy_to_quat`
