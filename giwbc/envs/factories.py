@@ -9,7 +9,9 @@ from typing import TYPE_CHECKING, Any
 
 from giwbc.envs import RUNTIME_OPTIONS
 from giwbc.errors import PlantMismatchError
+from giwbc.envs.plant_runtime import PlantDistributionRuntime, is_distribution
 from giwbc.plants import resolve_plant
+from giwbc.randomization.plant_distribution import PlantDistribution
 from giwbc.randomization import make_randomizer
 from giwbc.robot import RobotDescription, load
 from giwbc.runtimes import PushConfig, SimulatedRuntime
@@ -42,12 +44,19 @@ def simulated_env(
 
     ``plant``: the MuJoCo plant to simulate instead of the description's own model (a shipped variant's
     name, a variant ``.toml``, an MJCF file, an ``MjModel``: :func:`giwbc.plants.resolve_plant`), bound by
-    name and checked against the description; ``model=`` (an ``MjModel``) is the same as ``plant=model``."""
+    name and checked against the description; ``model=`` (an ``MjModel``) is the same as ``plant=model``;
+    ``"random"``, a plant-distribution dict or TOML, or a PlantDistribution: a plant drawn per episode
+    (:class:`~giwbc.envs.plant_runtime.PlantDistributionRuntime`)."""
     if not isinstance(description, RobotDescription):
         description = load(description)
     options = {name: dict(values) for name, values in (engine_options or {}).items()}
     if model is not None and plant is not None:
         raise PlantMismatchError("give the plant once: model= or plant=, not both")
+    if is_distribution(plant):  # a plant drawn per episode (giwbc.envs.plant_runtime)
+        return PlantDistributionRuntime(task, description, PlantDistribution.load(plant, description), agent_rate=agent_rate,
+                                        controller_rate=controller_rate, real_time_factor=real_time_factor, render_mode=render_mode,
+                                        sim2real=sim2real, render_size=render_size, engine=engine, engine_options=engine_options,
+                                        randomizer=randomization)
     if model is not None:
         options.setdefault("mujoco", {})["model"] = copy.copy(model)
     elif plant is not None:

@@ -1,0 +1,121 @@
+"""G1Walk on a plant drawn per episode (plant="random"): reproducible draws, parameters that really
+reach the simulated model, an actor observation without the plant's parameters."""
+
+from __future__ import annotations
+
+import hashlib
+
+import gymnasium
+import numpy as np
+import pytest
+
+import giwbc.envs  # noqa: F401  (registers the ids)
+from giwbc.errors import RandomizationError
+from giwbc.plants import named_variant
+from giwbc.randomization.plant_distribution import PlantDistribution, variant_nominal
+from giwbc.robot import load
+
+
+@pytest.fixture(scope="module")
+def g1():
+    return load("g1")
+
+
+def _rollout(env, seed: int, steps: int = 15) -> tuple[str, str]:
+    observation, info = env.reset(seed=seed)
+    digest = hashlib.sha256(observation.tobytes())
+    zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    for _ in range(steps):
+        observation, reward, terminated, truncated, info = env.step(zero)
+        digest.update(observation.tobytes())
+        digest.update(np.float64(reward).tobytes())
+        if terminated or truncated:
+            break
+    return info["plant"], digest.hexdigest()
+
+
+def test_same_seed_same_plant_and_rollout_also_after_other_episodes():
+    fresh = gymnasium.make("giwbc/G1Walk-v0", plant="random")
+    used = gymnasium.make("giwbc/G1Walk-v0", plant="random")
+    try:
+        for seed in (11, 12):  # the used env walks other plants first
+            _rollout(used, seed, steps=5)
+        first = _rollout(fresh, 7)
+        again = _rollout(used, 7)
+        assert first == again
+        plants = {_rollout(fresh, seed, steps=0)[0] for seed in range(6)}
+        assert len(plants) >= 2  # the seed does choose the plant
+    finally:
+        fresh.close()
+        used.close()
+
+
+def test_drawn_parameters_are_in_the_model_around_the_variant(g1):
+    env = gymnasium.make("giwbc/G1Walk-v0", plant="random")
+    try:
+        seen = {}
+        for seed in range(40):
+            _, info = env.reset(seed=seed)
+            if info["plant"] in ("frictional_joints", "nominal") and info["plant"] not in seen:
+                runtime = env.unwrapped
+                model = runtime.engine_robot.model
+                knee = model.joint("left_knee_joint").dofadr[0]
+                wrist = model.joint("left_wrist_yaw_joint").dofadr[0]
+                seen[info["plant"]] = (model.dof_frictionloss[knee], model.dof_frictionloss[wrist], model.dof_armature[knee],
+                                       runtime.engine_robot.actuator_dynamics, info["privileged"], runtime.privileged_names())
+            if len(seen) == 2:
+                break
+        assert set(seen) == {"frictional_joints", "nominal"}
+        armature = g1.joints[g1.joint_names.index("left_knee_joint")].armature
+        # frictional_joints: 1.2 N m on the knee plus U(0, 1.0); 0.05 on a 4010 wrist plus U(0, 0.04); armature 0.5x * [0.6, 1.6]
+        knee_f, wrist_f, knee_a, dynamics, privileged, names = seen["frictional_joints"]
+        assert 1.2 < knee_f < 2.2 and 0.05 < wrist_f < 0.09
+        assert 0.5 * 0.6 * armature <= knee_a <= 0.5 * 1.6 * armature and knee_a != pytest.approx(0.5 * armature)
+        assert privileged[names.index("frictionloss/left_knee_joint")] == knee_f
+        assert privileged[names.index("plant/frictional_joints")] == 1.0
+        # nominal: no friction of its own, only the draw; lag 0-4 ms (the nominal plant has none of its own)
+        knee_f, wrist_f, knee_a, dynamics, privileged, names = seen["nominal"]
+        assert 0.0 < knee_f < 1.0 and 0.0 < wrist_f < 0.04
+        assert dynamics is not None and np.all((dynamics.lag >= 0) & (dynamics.lag <= 0.004)) and np.ptp(dynamics.lag) > 0
+        assert privileged[names.index("plant/nominal")] == 1.0
+    finally:
+        env.close()
+
+
+def test_foot_shape_comes_from_the_variant_model_compiled_once(g1):
+    env = gymnasium.make("giwbc/G1Walk-v0", plant={"variants": {"point_feet": 1.0, "nominal": 1.0}})
+    try:
+        models = {}
+        for seed in range(12):
+            _, info = env.reset(seed=seed)
+            model = env.unwrapped.engine_robot.model
+            assert models.setdefault(info["plant"], model) is model  # the same compiled model, reused
+        assert set(models) == {"point_feet", "nominal"}
+        spheres = [int(np.sum(m.geom_type == 2)) for m in (models["point_feet"], models["nominal"])]
+        assert spheres[0] >= spheres[1] + 6  # three sole points a foot
+        # the actor sees the same observation layout on every plant: no plant parameters in it
+        plain = gymnasium.make("giwbc/G1Walk-v0")
+        assert plain.observation_space == env.observation_space
+        plain.close()
+    finally:
+        env.close()
+
+
+def test_variant_nominal_and_bad_distributions(g1):
+    variant = named_variant(g1, "lagged_actuators")
+    nominal = variant_nominal(g1, variant)
+    assert nominal.values["actuator_lag"][g1.joint_names.index("left_knee_joint")] == pytest.approx(0.004)
+    with pytest.raises(RandomizationError, match="unknown variant 'pointy_feet'"):
+        PlantDistribution.from_dict({"variants": {"pointy_feet": 1.0}}, g1)
+    with pytest.raises(RandomizationError, match="not plant parameters"):
+        PlantDistribution.from_dict({"variants": {"nominal": 1.0}, "parameters": [
+            {"parameter": "gyro_noise", "distribution": "uniform", "low": 0.0, "high": 0.01, "operation": "absolute"}]}, g1)
+    with pytest.raises(RandomizationError, match="sum to 0"):
+        PlantDistribution.from_dict({"variants": {"nominal": 0.0}}, g1)
+    distribution = PlantDistribution.load("random", g1)
+    rng = np.random.default_rng(0)
+    counts = {v: 0 for v in distribution.variants}
+    for _ in range(4000):
+        counts[distribution.draw(rng)] += 1
+    expected = 4000 / len(distribution.variants)
+    assert all(abs(c - expected) < 5 * np.sqrt(expected) for c in counts.values())
