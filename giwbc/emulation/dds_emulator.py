@@ -42,11 +42,9 @@ listener, not the emulated firmware (the emulator's reader ignores its own proce
 
 from __future__ import annotations
 
-import copy
 import gc
 import json
 import math
-import multiprocessing
 import os
 import time
 import traceback
@@ -55,6 +53,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from giwbc.emulation.child import ChildEmulator
 from giwbc.emulation.config import EmulatorConfig
 from giwbc.emulation.emulator import ActuatorEmulator
 from giwbc.emulation.firmware import MOTOR, OFF
@@ -65,7 +64,6 @@ from giwbc.hal.dds.plan import DdsPlan
 from giwbc.hal.dds.transport import LOWCMD_TOPIC, LOWSTATE_TOPIC, DdsTransport
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.plants import resolve_plant
-from giwbc.util import children
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
@@ -99,7 +97,7 @@ def emulation_domain(pid: int | None = None) -> int:
     return 1 + (os.getpid() if pid is None else pid) % 200
 
 
-class DdsEmulatorProcess:
+class DdsEmulatorProcess(ChildEmulator):
     """The emulated G1 behind DDS in a child process (module docstring).
 
     ``plan``: the DDS plan (its interface is replaced by loopback, its domain by ``domain``,
@@ -107,6 +105,8 @@ class DdsEmulatorProcess:
     firmware emulates (the robot's CAN reference plan); ``faults``: :class:`DdsFault` s; ``cpu``:
     pin the child to this CPU (keep the control loop on another); ``service``: the locomotion
     service's mode active at start (module docstring), None: none."""
+
+    label = "DDS emulator process"
 
     def __init__(self, plan: DdsPlan, motors: HardwarePlan, description: RobotDescription, config: EmulatorConfig | None = None, *,
                  faults: tuple[DdsFault, ...] = (), domain: int | None = None, start_timeout: float = 60.0, plant: Any = None,
@@ -118,82 +118,25 @@ class DdsEmulatorProcess:
         self.plan = plan.with_interface(LOOPBACK, emulation_domain() if domain is None else domain)
         self.config = config or EmulatorConfig()
         self.faults = tuple(faults)
-        self._conn, child = multiprocessing.get_context("fork").Pipe()
         self.service = service
-        args = (self.plan, motors, description, self.config, self.faults, child, plant, cpu, service)
-        self._process = children.start(_serve, args, "giwbc-dds-emulator")
-        child.close()
-        self.truth = np.zeros((0, 5))
         self.counters: dict[str, int] = {}
-        self.failure: str | None = None
-        self.physics_dt: float | None = None
         self.scheduler = "default" if cpu is None else f"CPU {cpu}, default"
-        self._closed = False
-        try:
-            kind, payload = self._receive(start_timeout, "start")
-        except BaseException:
-            self.close()
-            raise
-        self.physics_dt = float(payload)
+        args = (self.plan, motors, description, self.config, self.faults, plant, cpu, service)
+        self.physics_dt: float | None = float(self._start(_serve, args, "giwbc-dds-emulator", start_timeout))
 
     def host_plan(self) -> DdsPlan:
         """The plan the host uses: loopback, this emulator's domain."""
         return self.plan
 
-    @property
-    def alive(self) -> bool:
-        return self._process.is_alive()
-
-    @property
-    def pid(self) -> int | None:
-        return self._process.pid
-
-    def truth_between(self, start: float, stop: float = math.inf) -> np.ndarray:
-        """Ground truth rows (time, base height, tilt rad, base x, base y), after :meth:`close`."""
-        rows = self.truth
-        return rows[(rows[:, 0] >= start) & (rows[:, 0] < stop)]
-
-    def close(self, timeout: float = 10.0) -> None:
-        """Stop the child and bring back its ground truth and counters (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            if self._process.is_alive():
-                self._conn.send(("stop", None))
-            kind, payload = self._receive(timeout, "stop")
-            if kind == "done":
-                self.truth, self.counters = payload
-        except (RuntimeError, OSError, EOFError) as error:
-            self.failure = str(error)
-        finally:
-            children.stop(self._process, timeout)
-            self._conn.close()
-
-    def __enter__(self) -> DdsEmulatorProcess:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-    def _receive(self, timeout: float, what: str) -> tuple[str, Any]:
-        deadline = time.monotonic() + timeout
-        while not self._conn.poll(0.05):
-            if not self._process.is_alive():
-                raise RuntimeError(f"the DDS emulator process died (exit code {self._process.exitcode}) before {what}")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"the DDS emulator process did not answer within {timeout:g} s ({what})")
-        kind, payload = self._conn.recv()
-        if kind == "error":
-            raise RuntimeError(f"the DDS emulator process failed:\n{payload}")
-        return kind, payload
+    def _done(self, payload: Any) -> None:
+        self.truth, self.counters = payload
 
 
 # ----------------------------------------------------------------------------- the child
-def _serve(*args: Any) -> None:
-    conn = args[5]
+def _serve(plan: DdsPlan, motors: HardwarePlan, description: RobotDescription, config: EmulatorConfig, faults: tuple[DdsFault, ...],
+           plant: Any, cpu: int | None, service: str | None, conn: Any) -> None:  # fmt: skip
     try:
-        _Robot(*args).run()
+        _Robot(plan, motors, description, config, faults, conn, plant, cpu, service).run()
     except BaseException:  # noqa: BLE001 - reported to the parent
         try:
             conn.send(("error", traceback.format_exc()))

@@ -24,8 +24,6 @@ from __future__ import annotations
 
 import copy
 import gc
-import math
-import multiprocessing
 import os
 import select
 import time
@@ -39,6 +37,7 @@ import numpy as np
 
 import can
 
+from giwbc.emulation.child import ChildEmulator
 from giwbc.emulation.config import EmulatorConfig, EmulatorCounters
 from giwbc.plants import resolve_plant
 from giwbc.emulation.emulator import ActuatorEmulator
@@ -47,7 +46,6 @@ from giwbc.hal.can_robot import ENTER, CanRobot
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.robot.interface import ImuReading
 from giwbc.robot.standing import pd_hold_command
-from giwbc.util import children
 
 if TYPE_CHECKING:
     from giwbc.robot.description import RobotDescription
@@ -120,7 +118,7 @@ class SharedImuChannel:
             self._shm.unlink()
 
 
-class EmulatorProcess:
+class EmulatorProcess(ChildEmulator):
     """An :class:`~giwbc.emulation.emulator.ActuatorEmulator` of ``plan`` in a child process (module docstring).
 
     ``rt_priority``: the child runs under ``SCHED_FIFO`` at this priority (Linux, needs
@@ -148,99 +146,32 @@ class EmulatorProcess:
         prefix = f"giwbc-emu-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         self._host_plan = replace(plan, buses=tuple(replace(b, interface=INTERFACE, channel=f"{prefix}/{b.name}") for b in plan.buses))
         self.imu_channel = SharedImuChannel()
-        self._conn, child = multiprocessing.get_context("fork").Pipe()
-        args = (plan, description, self.config, prefix, self.imu_channel.name, child, rt_priority, cpu, plant)
-        self._process = children.start(_serve, args, "giwbc-emulator")  # motors do not hear Ctrl-C (see children)
-        child.close()
-        self.truth = np.zeros((0, 5))
         self.counters: EmulatorCounters | None = None
         self.cpu_seconds: float | None = None  # the child's user + system CPU time, after close()
-        self.physics_dt: float | None = None
         self.scheduler = "default"  # the child's scheduling policy, as it could set it
-        self.failure: str | None = None  # why the child did not end cleanly (after close())
-        self._closed = False
-        try:
-            kind, payload = self._receive(start_timeout, "start")
-        except BaseException:
-            self.close()
-            raise
-        if kind != "ready":
-            self.close()
-            raise RuntimeError(f"the emulator process failed to start:\n{payload}")
-        self.physics_dt, self.scheduler = float(payload[0]), str(payload[1])
+        args = (plan, description, self.config, prefix, self.imu_channel.name, rt_priority, cpu, plant)
+        dt, scheduler = self._start(_serve, args, "giwbc-emulator", start_timeout)
+        self.physics_dt: float | None = float(dt)
+        self.scheduler = str(scheduler)
 
     def host_plan(self) -> HardwarePlan:
         """The plan the host opens: the same buses on this emulator's ``giwbc-unix`` channels."""
         return self._host_plan
 
-    @property
-    def alive(self) -> bool:
-        return self._process.is_alive()
-
-    @property
-    def pid(self) -> int | None:
-        return self._process.pid
-
     def add_fault(self, fault: FaultInjection) -> None:
         """Inject a fault (its window is in emulator time: seconds since the host's first frame)."""
         self._send(("fault", fault))
 
-    def truth_between(self, start: float, stop: float = math.inf) -> np.ndarray:
-        """Ground truth rows (time, base height, tilt rad, base x, base y) with ``start <= time < stop``, after :meth:`close`."""
-        rows = self.truth
-        return rows[(rows[:, 0] >= start) & (rows[:, 0] < stop)]
+    def _done(self, payload: Any) -> None:
+        self.truth, self.counters, self.cpu_seconds = payload
 
-    def close(self, timeout: float = 10.0) -> None:
-        """Stop the child, collect its results, release the shared memory (idempotent)."""
-        if self._closed:
-            return
-        self._closed = True
-        try:
-            if self._process.is_alive():
-                self._send(("stop", None))
-        except OSError:
-            pass  # it is ending by itself (the host closed its buses): its results may be in the pipe
-        try:
-            kind, payload = self._receive(timeout, "stop")
-            if kind == "done":
-                self.truth, self.counters, self.cpu_seconds = payload
-        except (RuntimeError, OSError, EOFError) as error:
-            self.failure = str(error)  # a failed, dead or stuck child: terminated below
-        finally:
-            children.stop(self._process, timeout)
-            self._conn.close()
-            self.imu_channel.close()
-
-    def __enter__(self) -> EmulatorProcess:
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        self.close()
-
-    def _send(self, message: tuple[str, Any]) -> None:
-        if self._closed and message[0] != "stop":
-            raise RuntimeError("the emulator process is closed")
-        self._conn.send(message)
-
-    def _receive(self, timeout: float, what: str) -> tuple[str, Any]:
-        deadline = time.monotonic() + timeout
-        while not self._conn.poll(0.05):
-            if not self._process.is_alive():
-                raise RuntimeError(f"the emulator process died (exit code {self._process.exitcode}) before {what}")
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"the emulator process did not answer within {timeout:g} s ({what})")
-        try:
-            kind, payload = self._conn.recv()
-        except EOFError:
-            raise RuntimeError(f"the emulator process closed its pipe before {what}") from None
-        if kind == "error":
-            raise RuntimeError(f"the emulator process failed:\n{payload}")
-        return kind, payload
+    def _release(self) -> None:
+        self.imu_channel.close()
 
 
 # ----------------------------------------------------------------------------- the child
-def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str, conn: Any,
-           rt_priority: int | None, cpu: int | None, plant: Any = None) -> None:  # fmt: skip
+def _serve(plan: HardwarePlan, description: RobotDescription, config: EmulatorConfig, prefix: str, imu_name: str,
+           rt_priority: int | None, cpu: int | None, plant: Any, conn: Any) -> None:  # fmt: skip
     """The child's main: build the emulator, wait for the host, then run in real time until told to stop."""
     try:
         _run(plan, description, config, prefix, imu_name, conn, rt_priority, cpu, plant)

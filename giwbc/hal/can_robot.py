@@ -166,6 +166,11 @@ class CanRobot(DescribedRobot):
         self._no_corrupt = np.zeros(len(self.links), dtype=np.int64)
         self._no_frames = np.zeros(len(self.links), dtype=np.int64)  # expected per bus when draining
 
+        self._init_joint_state(description)
+
+    def _init_joint_state(self, description: RobotDescription) -> None:
+        """The per-joint state, command and counters every link kind keeps (CAN here, DDS in
+        :class:`~giwbc.hal.dds.robot.DdsRobot`), allocated once: the cycle writes into them."""
         dofs = description.dofs
         self._joint_state = np.zeros((3, dofs))  # q, dq, tau: written in one assignment per cycle
         self._q, self._dq, self._tau = self._joint_state

@@ -77,26 +77,8 @@ class DdsRobot(CanRobot):
         self.wait_for_replies = False  # the state of a command is read at the next cycle
         self.imu_source = None
         self.links = []
+        self._init_joint_state(description)
         dofs = description.dofs
-        self._joint_state = np.zeros((3, dofs))
-        self._q, self._dq, self._tau = self._joint_state
-        self._temperature = np.full(dofs, np.nan)
-        self._error = np.full(dofs, -1, dtype=np.int64)
-        self._status = np.full(dofs, -1, dtype=np.int64)
-        self._stale = np.zeros(dofs, dtype=np.int64)
-        self._replied = np.zeros(dofs, dtype=bool)
-        self._effort = description.effort_limits
-        self._neg_effort = -self._effort
-        self._gain_scale = 1.0
-        self.command = ImpedanceCommand.damping(dofs, 0.0)
-        self.clamp_counts = np.zeros((dofs, 5), dtype=np.int64)
-        self.cycle = 0
-        self._time = 0.0
-        self._now = 0.0
-        self._imu: ImuReading | None = None
-        self._imu_time: float | None = None
-        self.late_frames = 0
-        self.send_dropped = 0
         self.crc_errors = 0  # states refused for a bad CRC (or size, or encapsulation)
         self.out_of_order = 0  # states whose tick was not after the last one taken
         self.foreign_commands = 0  # rt/lowcmd messages another participant published
