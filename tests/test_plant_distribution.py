@@ -119,3 +119,38 @@ def test_variant_nominal_and_bad_distributions(g1):
         counts[distribution.draw(rng)] += 1
     expected = 4000 / len(distribution.variants)
     assert all(abs(c - expected) < 5 * np.sqrt(expected) for c in counts.values())
+
+
+@pytest.mark.slow
+def test_evaluate_walk_on_random_plants_pairs_the_plant_draws(tmp_path, capsys):
+    """giwbc evaluate --protocol walk --plant random: both arms on the plant each seed draws, figures per plant."""
+    import argparse
+    import json
+
+    pytest.importorskip("onnxruntime")
+    from giwbc.apps.training import describe_env
+    from giwbc.apps.walk_evaluation import add_evaluate_command
+    from giwbc.policy import MlpWeights, export_onnx
+
+    env_kwargs = {"residuals": ["step"], "sim2real": {"pushes": None}}
+    described = describe_env("giwbc/G1Walk-v0", env_kwargs)
+    n_obs, n_act = len(described["observation_names"]), len(described["action_names"])
+    bias = np.array([0.5, 0.0, -0.5])  # longer, quicker steps than the walker's: an arm that differs
+    weights = MlpWeights(((np.zeros((8, n_obs)), np.zeros(8)), (np.zeros((n_act, 8)), bias)))
+    policy = export_onnx(tmp_path / "biased.onnx", weights, {**described, "env_id": "giwbc/G1Walk-v0", "env_kwargs": env_kwargs})
+    parser = argparse.ArgumentParser()
+    add_evaluate_command(parser.add_subparsers())
+    args = parser.parse_args(["evaluate", "--protocol", "walk", "--policy", str(policy), "--plant", "random", "--episodes", "2",
+                              "--workers", "1", "--force", "40", "--duration", "0.1", "--interval", "1.2", "1.3", "--seed", "3", "--json"])
+    assert args.run(args) == 0
+    (summary,) = json.loads(capsys.readouterr().out)["comparisons"]
+    drawn = []
+    env = gymnasium.make("giwbc/G1Walk-v0", plant="random", **env_kwargs)
+    for seed in (3, 4):
+        drawn.append(env.reset(seed=seed)[1]["plant"])
+    env.close()
+    assert summary["same_plants"] and summary["same_pushes"]
+    per_plant = summary["per_plant"]
+    assert sorted(per_plant) == sorted(set(drawn)) and sum(row["episodes"] for row in per_plant.values()) == 2
+    assert sum(row["wbc_successes"] for row in per_plant.values()) == round(summary["wbc"]["success_rate"] * 2)
+    assert summary["wbc"]["mean_return"] != summary["residual"]["mean_return"]  # the policy acted

@@ -36,11 +36,14 @@ from giwbc.apps.plots import check_plot_path, evaluation_figure, save_figure
 from giwbc.apps.progress import Progress, add_progress_argument, wants_progress
 from giwbc.apps.workers import map_jobs, quiet_banners
 from giwbc.distributed import RayRunner, add_ray_argument, connect
+from giwbc.errors import EstimatorCalibrationError
 from giwbc.locomotion.push_scoring import SETTLE_AFTER_PUSH_S, fall_times_summary, judge_push
 from giwbc.locomotion.tracking import per_tick_tracking
 import giwbc.envs  # noqa: F401  (registers the giwbc/ ids)
 from giwbc.policy import OnnxPolicy, PolicyFormatError, check_compatible
+from giwbc.envs.plant_runtime import is_distribution
 from giwbc.plants import resolve_plant
+from giwbc.randomization.plant_distribution import PlantDistribution
 from giwbc.robot import load as load_robot
 from giwbc.util.shipped import shipped_policy
 
@@ -110,6 +113,8 @@ class EpisodeResult:
     tracking_mean_abs_per_tick_heading_xy: float | None = None  # m/s
     yaw_rate_rms_per_tick: float | None = None  # rad/s
     yaw_rate_mean_abs_per_tick: float | None = None  # rad/s
+    plant: str | None = None  # the plant the episode ran on, where the environment draws one (plant="random"); None otherwise
+    started: bool = True  # False: the estimator in the loop did not calibrate at reset (no step ran; a failure in both arms)
 
 
 TRACKING_START = 1.0  # s: walking tasks' tracking figures (windows and ticks) from here (the gait is established)
@@ -190,7 +195,8 @@ class ArmResult:
             "survival_rate": self.survival_rate,
             "mean_survival_time_s": self.mean_survival_time,
             "mean_return": float(np.mean([e.episode_return for e in self.episodes])),
-            "mean_max_tilt_rad": float(np.mean([e.max_tilt for e in self.episodes])),
+            "mean_max_tilt_rad": float(np.mean([e.max_tilt for e in self.episodes if e.started] or [math.nan])),
+            "not_started": sum(not e.started for e in self.episodes),  # estimator calibration failed at reset: counted as failures
             "settle_after_push_s": SETTLE_AFTER_PUSH_S,
             **fall_times_summary([e.fall_after_push for e in self.episodes if e.fall_after_push is not None]),
         }
@@ -210,6 +216,11 @@ class Comparison:
             np.allclose(a.push_force, b.push_force) and (a.push_time == b.push_time or not (a.survived and b.survived))
             for a, b in zip(self.wbc.episodes, self.residual.episodes)
         )
+
+    @property
+    def same_plants(self) -> bool:
+        """Both arms ran every episode on the same plant (always, unless a plant distribution drew differently)."""
+        return all(a.plant == b.plant for a, b in zip(self.wbc.episodes, self.residual.episodes))
 
     @property
     def saved(self) -> int:
@@ -235,7 +246,47 @@ class Comparison:
             "residual": self.residual.summary(),
             "same_pushes": self.same_pushes,
             "paired": {"saved": self.saved, "lost": self.lost, "mcnemar_exact_p": self.paired_p_value},
+            **({"same_plants": self.same_plants, "per_plant": per_plant(self)} if any(e.plant for e in self.wbc.episodes) else {}),
         }
+
+
+def per_plant(comparison: Comparison) -> dict[str, dict[str, Any]]:
+    """Per drawn plant (plant="random"): episodes, each arm's successes with a 95 % Wilson interval,
+    and the exact McNemar test of the pairs on that plant."""
+    table: dict[str, dict[str, Any]] = {}
+    for name in sorted({str(e.plant) for e in comparison.wbc.episodes}):
+        pairs = [(a, b) for a, b in zip(comparison.wbc.episodes, comparison.residual.episodes) if str(a.plant) == name]
+        n = len(pairs)
+        wins = [sum(a.success for a, _ in pairs), sum(b.success for _, b in pairs)]
+        saved = sum(b.success and not a.success for a, b in pairs)
+        lost = sum(a.success and not b.success for a, b in pairs)
+        table[name] = {"episodes": n, "wbc_successes": wins[0], "wbc_95ci": list(wilson_interval(wins[0], n)),
+                       "residual_successes": wins[1], "residual_95ci": list(wilson_interval(wins[1], n)),
+                       "saved": saved, "lost": lost, "mcnemar_exact_p": mcnemar_exact(saved, lost)}
+    return table
+
+
+def arm_per_plant(arm: ArmResult) -> dict[str, dict[str, Any]]:
+    """One arm's successes per drawn plant (plant="random"), with 95 % Wilson intervals; {} on one plant."""
+    table: dict[str, dict[str, Any]] = {}
+    for name in sorted({str(e.plant) for e in arm.episodes if e.plant is not None}):
+        episodes = [e for e in arm.episodes if e.plant == name]
+        wins = sum(e.success for e in episodes)
+        table[name] = {"episodes": len(episodes), "successes": wins, "success_95ci": list(wilson_interval(wins, len(episodes)))}
+    return table
+
+
+def format_per_plant(comparison: Comparison) -> str:
+    """The per-plant table of a paired comparison on drawn plants, one line per plant ('' without plants)."""
+    if not any(e.plant for e in comparison.wbc.episodes):
+        return ""
+    lines = [f"per drawn plant at {comparison.wbc.protocol.force:g} N (same plant in both arms: {comparison.same_plants}):"]
+    for name, row in per_plant(comparison).items():
+        lines.append(f"  {name:<20} n={row['episodes']:<4} walker alone {row['wbc_successes']}/{row['episodes']} "
+                     f"[{row['wbc_95ci'][0]:.2f}, {row['wbc_95ci'][1]:.2f}], residual {row['residual_successes']}/{row['episodes']} "
+                     f"[{row['residual_95ci'][0]:.2f}, {row['residual_95ci'][1]:.2f}], saves {row['saved']}, loses {row['lost']} "
+                     f"(McNemar p = {row['mcnemar_exact_p']:.3g})")
+    return "\n".join(lines)
 
 
 def _episodes(n: int) -> str:
@@ -283,7 +334,16 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
     results = []
     try:
         for seed in seeds:
-            observation, _ = env.reset(seed=seed)
+            try:
+                observation, reset_info = env.reset(seed=seed)
+            except EstimatorCalibrationError:  # at reset, before any action: the same in both arms, counted, never a crash
+                results.append(EpisodeResult(seed=seed, survived=False, success=False, survival_time=0.0, final_tilt=math.nan,
+                                             max_tilt=math.nan, push_time=math.nan, push_force=(0.0, 0.0, 0.0), episode_return=0.0,
+                                             plant=getattr(env.unwrapped, "plant", None), started=False))
+                if tick is not None:
+                    tick(1)
+                continue
+            plant = reset_info.get("plant")
             total, max_tilt, push_time, push_force = 0.0, 0.0, math.nan, (0.0, 0.0, 0.0)
             terminated = truncated = False
             info: dict[str, Any] = {}
@@ -320,7 +380,7 @@ def _run_chunk(job: tuple[str | None, str, dict[str, Any], PushProtocol, list[in
                 seed=seed, survived=survived, success=outcome.success,
                 survival_time=end_time, final_tilt=final_tilt, max_tilt=max_tilt,
                 push_time=push_time, push_force=push_force, episode_return=total, fall_after_push=outcome.fall_after_push,
-                **tracking,
+                plant=None if plant is None else str(plant), **tracking,
             ))
             if tick is not None:
                 tick(1)
@@ -540,7 +600,9 @@ def add_evaluate_command(commands: Any) -> None:
                         help=f"environment of the WBC-alone arm when no --policy is given (default {DEFAULT_ENV_ID}, walk: giwbc/G1Walk-v0)")
     parser.add_argument("--env-kwargs", default=json.dumps(DEFAULT_ENV_KWARGS), help="JSON object of --env's gymnasium.make options")
     parser.add_argument("--plant", default=None, help="the simulated plant of every arm: a variant of robots/<robot>/plants (e.g. "
-                        "point_feet), a variant .toml or a vendor's MJCF file (.xml) of the robot (default: the robot's own model)")
+                        "point_feet), a variant .toml or a vendor's MJCF file (.xml) of the robot, or 'random' (or a plant-distribution .toml): "
+                        "a plant drawn per episode from the seed, the same in both arms, figures also per drawn plant "
+                        "(default: the robot's own model)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--plot", default=None, metavar="FILE",
                         help="also draw success rate against push impulse per arm, and the paired counts (.png, .svg, .pdf)")
@@ -549,11 +611,15 @@ def add_evaluate_command(commands: Any) -> None:
 
 
 def check_plant(args: Any) -> str | None:
-    """``--plant``, refused here in one line (PlantMismatchError) when the robot cannot run on it."""
+    """``--plant``, refused here in one line (PlantMismatchError, RandomizationError for a distribution)
+    when the robot cannot run on it."""
     plant = getattr(args, "plant", None)
     if plant is not None:
-        robot = json.loads(getattr(args, "env_kwargs", "{}") or "{}").get("robot", "g1")
-        resolve_plant(load_robot(robot), plant)
+        robot = load_robot(json.loads(getattr(args, "env_kwargs", "{}") or "{}").get("robot", "g1"))
+        if is_distribution(plant):
+            PlantDistribution.load(plant, robot)
+        else:
+            resolve_plant(robot, plant)
     return plant
 
 

@@ -38,7 +38,9 @@ from giwbc.apps.evaluation import (
     Comparison,
     EpisodeResult,
     PushProtocol,
+    arm_per_plant,
     format_falls,
+    format_per_plant,
     settled_episode_seconds,
     success_rule,
     compare,
@@ -270,7 +272,8 @@ def run_evaluate(args: Any) -> int:
             else:
                 rows = sweep(args.force, env_id=args.env or WALK_ENV_ID, env_kwargs=env_kwargs, protocol=protocol, **common)
             summary: dict[str, Any] = {"env_id": args.env or WALK_ENV_ID,
-                                       "arms": [r.summary() | tracking_summary(r) | {"force": r.protocol.force} for r in rows]}
+                                       "arms": [r.summary() | tracking_summary(r) | {"force": r.protocol.force}
+                                                | ({"per_plant": arm_per_plant(r)} if arm_per_plant(r) else {}) for r in rows]}
         else:
             protocols = [replace(protocol, force=force) for force in args.force]
             if runner is not None:
@@ -299,6 +302,10 @@ def run_evaluate(args: Any) -> int:
     print(format_falls(rows))
     for row in rows:
         print(format_per_tick(row))
+        not_started = row.summary()["not_started"]
+        if not_started:
+            print(f"{row.name} at {row.protocol.force:g} N: {not_started} of {row.n} episodes never started (the estimator did "
+                  "not calibrate at reset on the drawn plant): counted as failures, the same in every arm")
     if args.policy is None:
         for row in rows:
             t = tracking_summary(row)
@@ -314,4 +321,6 @@ def run_evaluate(args: Any) -> int:
               f"[{t.wbc_ci[0]:.3f}, {t.wbc_ci[1]:.3f}], residual {t.residual_mean:.3f} [{t.residual_ci[0]:.3f}, "
               f"{t.residual_ci[1]:.3f}] m/s, difference {t.mean_difference:+.3f} [{t.difference_ci[0]:+.3f}, "
               f"{t.difference_ci[1]:+.3f}] (Wilcoxon p = {t.wilcoxon_p:.3g})")
+        if format_per_plant(c):
+            print(format_per_plant(c))
     return 0

@@ -37,7 +37,7 @@ ENVIRONMENTS: dict[str, tuple[str, int]] = {
 }
 
 # What gymnasium.make options go to the runtime rather than the task (a deployment drops them too).
-RUNTIME_OPTIONS = ("model", "plant", "controller_rate", "real_time_factor", "render_mode", "sim2real", "render_size",
+RUNTIME_OPTIONS = ("model", "plant", "plant_redraws", "controller_rate", "real_time_factor", "render_mode", "sim2real", "render_size",
                    "engine", "engine_options", "randomization")
 
 

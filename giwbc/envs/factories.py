@@ -39,6 +39,7 @@ def simulated_env(
     engine: Any = None,
     engine_options: dict[str, dict[str, Any]] | None = None,
     randomization: Any = None,
+    plant_redraws: int = 0,
 ) -> SimulatedRuntime:
     """A simulated runtime for ``task`` on the robot ``description`` (a name, a path or a description).
 
@@ -46,17 +47,20 @@ def simulated_env(
     name, a variant ``.toml``, an MJCF file, an ``MjModel``: :func:`giwbc.plants.resolve_plant`), bound by
     name and checked against the description; ``model=`` (an ``MjModel``) is the same as ``plant=model``;
     ``"random"``, a plant-distribution dict or TOML, or a PlantDistribution: a plant drawn per episode
-    (:class:`~giwbc.envs.plant_runtime.PlantDistributionRuntime`)."""
+    (:class:`~giwbc.envs.plant_runtime.PlantDistributionRuntime`; ``plant_redraws``: its redraws when an
+    estimator in the loop cannot calibrate on the drawn plant)."""
     if not isinstance(description, RobotDescription):
         description = load(description)
     options = {name: dict(values) for name, values in (engine_options or {}).items()}
     if model is not None and plant is not None:
         raise PlantMismatchError("give the plant once: model= or plant=, not both")
+    if plant_redraws and not is_distribution(plant):
+        raise PlantMismatchError("plant_redraws is for a plant drawn per episode (plant='random' or a distribution)")
     if is_distribution(plant):  # a plant drawn per episode (giwbc.envs.plant_runtime)
         return PlantDistributionRuntime(task, description, PlantDistribution.load(plant, description), agent_rate=agent_rate,
                                         controller_rate=controller_rate, real_time_factor=real_time_factor, render_mode=render_mode,
                                         sim2real=sim2real, render_size=render_size, engine=engine, engine_options=engine_options,
-                                        randomizer=randomization)
+                                        randomizer=randomization, plant_redraws=plant_redraws)
     if model is not None:
         options.setdefault("mujoco", {})["model"] = copy.copy(model)
     elif plant is not None:

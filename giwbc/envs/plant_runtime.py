@@ -10,6 +10,10 @@ its robot: a reset writes parameters in place and never recompiles.
 The actor's observation is the task's (what a robot has); what the plant really is goes to
 ``info["privileged"]`` (names: :meth:`PlantDistributionRuntime.privileged_names`), e.g. for an
 asymmetric critic, and ``info["plant"]`` names the variant.
+
+With an estimator in the loop the start-up calibration can fail on a plant where the standing robot
+creeps (seen on point feet and the soft floor: a leg joint moving > 1 mrad over the window);
+``plant_redraws=N`` (a gymnasium.make option) then draws another plant, up to N times.
 """
 
 from __future__ import annotations
@@ -25,7 +29,7 @@ import numpy as np
 
 from giwbc.plants import NOMINAL, resolve_plant
 from giwbc.randomization import DomainRandomizer, PerturbedRobot, RandomizationConfig
-from giwbc.errors import RandomizationError
+from giwbc.errors import EstimatorCalibrationError, RandomizationError
 from giwbc.randomization.plant_distribution import RANDOM, PlantDistribution
 from giwbc.robot.description import RobotDescription
 from giwbc.runtimes import SimulatedRuntime
@@ -41,7 +45,14 @@ class PlantDistributionRuntime(SimulatedRuntime):
 
     def __init__(self, task: Task, description: RobotDescription, distribution: PlantDistribution, *,
                  randomizer: Any = None, engine: Any = None, engine_options: dict[str, dict[str, Any]] | None = None,
-                 **kwargs: Any) -> None:
+                 plant_redraws: int = 0, **kwargs: Any) -> None:
+        """``plant_redraws``: with an estimator in the loop, how many times a reset draws another plant
+        (from the same generator: still reproducible) when the estimator cannot calibrate on the drawn one
+        (``EstimatorCalibrationError``); 0: the error is raised. For training; an evaluation counts them."""
+        if isinstance(plant_redraws, bool) or not isinstance(plant_redraws, int) or plant_redraws < 0:
+            raise ValueError(f"plant_redraws must be an integer >= 0, got {plant_redraws!r}")
+        self.plant_redraws = plant_redraws
+        self.redrawn = 0  # resets that drew another plant, since construction
         if engine not in (None, "mujoco"):
             raise ValueError(f"a plant distribution runs on MuJoCo, got engine={engine!r}")
         if engine_options and set(engine_options) - {"mujoco"} or (engine_options or {}).get("mujoco", {}).get("model") is not None:
@@ -88,10 +99,17 @@ class PlantDistributionRuntime(SimulatedRuntime):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
         if seed is not None:
             gymnasium.Env.reset(self, seed=seed)  # seed first: the plant is the episode's first draw
-        self._use_plant(self.distribution.draw(self.np_random))
-        observation, info = super().reset(seed=None, options=options)
+        for attempt in range(self.plant_redraws + 1):
+            self._use_plant(self.distribution.draw(self.np_random))
+            try:
+                observation, info = super().reset(seed=None, options=options)
+                break
+            except EstimatorCalibrationError:
+                if attempt == self.plant_redraws:
+                    raise
+                self.redrawn += 1
         self._privileged = self._measure_plant()
-        info = {**info, "plant": self.plant, "privileged": self._privileged.copy()}
+        info = {**info, "plant": self.plant, "privileged": self._privileged.copy(), "plant_redraws": attempt}
         return observation, info
 
     def _info(self) -> dict[str, Any]:
