@@ -165,6 +165,9 @@ class CanRobot(DescribedRobot):
         self._steady_counts = np.bincount(plan_bus * 8 + RECEIVED, minlength=self._link_counts.size).reshape(self._link_counts.shape)
         self._no_corrupt = np.zeros(len(self.links), dtype=np.int64)
         self._no_frames = np.zeros(len(self.links), dtype=np.int64)  # expected per bus when draining
+        self._all_sent = [(int(size), 0, 0, 0) for size in self._bus_sizes]  # PortGroup.send's outcome when all went out
+        self._all_sent_array = np.array(self._all_sent, dtype=np.int64).reshape(len(self.links), 4)
+        self._all_sent_array.flags.writeable = False
 
         self._init_joint_state(description)
 
@@ -183,6 +186,7 @@ class CanRobot(DescribedRobot):
         self._neg_effort = -self._effort
         self._gain_scale = 1.0
         self.command = ImpedanceCommand.damping(dofs, 0.0)
+        self._held: tuple[Any, ...] | None = None  # (command, its (5, dofs) rows, its fields) when set_joint_impedance made it
         self.clamp_counts = np.zeros((dofs, 5), dtype=np.int64)  # per joint and field, cumulative
         self.cycle = 0
         self._time = 0.0
@@ -234,12 +238,18 @@ class CanRobot(DescribedRobot):
         ports = self.ports.ports
         for port in ports:
             port.last_error = None  # type: ignore[attr-defined]
-        outcomes = np.array(self.ports.send(batch, self._bounds, deadline, timeout=self._send_timeouts, retries=self._send_retries))
+        sent_per_bus = self.ports.send(batch, self._bounds, deadline, timeout=self._send_timeouts, retries=self._send_retries)
         driver_errors = tuple(getattr(port, "last_error", None) for port in ports)
         counts = self._link_counts  # += outcomes in the columns SENT, DROPPED, RETRIES (0-2) and BUS_ERRORS
-        counts[:, :3] += outcomes[:, :3]
-        counts[:, BUS_ERRORS] += outcomes[:, 3]
-        dropped = int(outcomes[:, 1].sum())
+        if sent_per_bus == self._all_sent:  # every frame went out at the first attempt
+            outcomes = self._all_sent_array
+            counts[:, SENT] += self._bus_sizes
+            dropped = 0
+        else:
+            outcomes = np.array(sent_per_bus)
+            counts[:, :3] += outcomes[:, :3]
+            counts[:, BUS_ERRORS] += outcomes[:, 3]
+            dropped = int(outcomes[:, 1].sum())
         self.send_dropped += dropped
         t1 = sent = time.perf_counter()
         if not deferred:
@@ -271,8 +281,15 @@ class CanRobot(DescribedRobot):
         if kind != COMMAND:
             return self.codec.special_frames(kind), 0
         c = self.command
-        rows = self.group.commands_to_motor(np.array((c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff))[:, self.joint_index])
-        batch, clamp = self.codec.encode_commands(*rows)
+        held = self._held
+        if (held is not None and held[0] is c and c.q_ref is held[2] and c.v_ref is held[3] and c.kp is held[4] and c.kd is held[5]
+                and c.tau_ff is held[6]):  # set by set_joint_impedance, fields untouched: its rows, checked and finite  # fmt: skip
+            rows = held[1].take(self.joint_index, axis=1)
+        else:
+            rows = np.array((c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff), dtype=float)[:, self.joint_index]
+        rows = self.group.commands_to_motor(rows)
+        encoded = self.codec.encode_rows(rows)
+        batch, clamp = encoded if encoded is not None else self.codec.encode_commands(*rows)
         n_clamped = int(np.count_nonzero(clamp))
         if n_clamped:
             np.add.at(self.clamp_counts, self.joint_index, clamp.astype(np.int64))
@@ -374,7 +391,9 @@ class CanRobot(DescribedRobot):
         newest reply of each motor. Returns (replied per joint, corrupt frames per bus, unknown frames)."""
         decoded, bus, skipped = self._receive(deadline)
         if decoded.index.tobytes() == self._plan_order_bytes:  # the steady state: every motor once, in order
-            state = self.group.states_to_joint(decoded.state)
+            state = decoded.state  # a new array: converted in place
+            state *= self.group._state_scale
+            state += self.group._state_offset
             rows: Any = slice(None)
             j = self.joint_index
             corrupt, unknown = self._no_corrupt.copy(), skipped
@@ -467,6 +486,8 @@ class CanRobot(DescribedRobot):
         if self._gain_scale != 1.0:
             rows[2:4] *= self._gain_scale
         self.command = ImpedanceCommand(rows[0], rows[1], rows[2], rows[3], rows[4])
+        c = self.command
+        self._held = (c, rows, c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff)  # the exchange encodes these rows (the fields are views of them)
 
     def reduce_limits(self, torque_fraction: float, gain_fraction: float) -> None:
         """A first run (the robot on a gantry): feed-forward torques clamped to ``torque_fraction``

@@ -11,6 +11,7 @@ Motors are numbered in bus order, then each bus's motor order (a hardware plan's
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -22,6 +23,7 @@ from giwbc.hal.protocols.base import ActuatorProtocol, DecodedReplies
 from giwbc.hal.protocols.mit import MitCommandEncoder, MitProtocol, MitReplyDecoder
 
 SPECIAL_FRAMES = ("enter", "exit", "zero")
+_LITTLE_ENDIAN = sys.byteorder == "little"  # encode_rows writes payloads as native 64-bit words
 
 
 class MultiBusCodec:
@@ -59,6 +61,17 @@ class MultiBusCodec:
             parts.append(frames(batch.arbitration_ids, batch.data, extended=batch.is_extended_id))
             clamped.append(batch.clamped)
         return np.concatenate(parts), np.vstack(clamped)
+
+    def encode_rows(self, rows: NDArray[np.float64]) -> tuple[NDArray[Any], NDArray[np.bool_]] | None:
+        """:meth:`encode_commands` of a ``(5, N)`` motor-side float block (overwritten), in the
+        control loop's few calls; None when the buses do not all speak MIT mode (then call
+        :meth:`encode_commands`)."""
+        if self._encoder is None or not _LITTLE_ENDIAN:
+            return None
+        words, clamped = self._encoder.encode_rows(rows)
+        out = self._template.copy()
+        out.view(np.uint64).reshape(-1, 2)[:, 1] = words.byteswap()  # the payload, big-endian, in bytes 8..15 of each frame
+        return out, clamped
 
     def special_frames(self, kind: str) -> NDArray[Any]:
         """The ``enter`` (motor mode), ``exit`` or ``zero`` frame of every motor."""

@@ -1,0 +1,96 @@
+"""The control loop's few-call forms of the CAN codec against the general ones, on the G1's plan
+(Damiao and CubeMars replies mixed over 10 buses): the steady reply decode (a batch whose ids,
+lengths and byte 0 repeat the last one's) against a fresh decoder's full decode, and the block
+command encoder against the per-field one, on random input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from giwbc.hal.frames import frames_of
+from giwbc.hal.hardware import load_hardware
+from giwbc.hal.protocols import CORRUPT, REPLY, CommandValueError
+from giwbc.hal.protocols.mit import MitReplyDecoder
+from giwbc.hal.protocols.multibus import MultiBusCodec
+
+FIELDS = ("verdict", "index", "motor_id", "state", "temperature", "rotor_temperature", "error_code", "voltage", "status")
+
+
+@pytest.fixture(scope="module")
+def protocols(g1):
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    return [bus.make_protocol() for bus in plan.buses]
+
+
+def _replies(protocols, rng):
+    """One reply per motor in plan order, random states, temperatures and error codes; the bus of each."""
+    frames, bus = [], []
+    for b, protocol in enumerate(protocols):
+        for motor in protocol.motors:
+            r = motor.model
+            cubemars = protocol._variants[protocol.index[motor.can_id]].name == "cubemars"
+            frames.append(protocol.encode_reply(
+                motor.can_id, rng.uniform(r.position.min, r.position.max), rng.uniform(r.velocity.min, r.velocity.max),
+                rng.uniform(r.torque.min, r.torque.max), temperature=float(rng.integers(20, 90)),
+                rotor_temperature=float(rng.integers(20, 90)), error_code=int(rng.integers(0, 8)) if cubemars else 0,
+                status=int(rng.choice([0, 1, 8, 12])) if not cubemars else None))  # fmt: skip
+            bus.append(b)
+    return frames_of(frames), np.array(bus)
+
+
+def _assert_same(a, b):
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name), err_msg=name)
+
+
+def test_steady_decode_equals_a_fresh_decoder(protocols):
+    rng = np.random.default_rng(7)
+    warm = MitReplyDecoder(protocols)
+    batch, bus = _replies(protocols, rng)
+    warm.decode(bus, batch)  # keeps the steady key
+    for _ in range(20):
+        fresh, _ = _replies(protocols, rng)
+        batch["data"][:, 1:] = fresh["data"][:, 1:]  # same ids, lengths and byte 0; new payloads
+        assert warm._steady is not None
+        steady = warm.decode(bus, batch)
+        _assert_same(steady, MitReplyDecoder(protocols).decode(bus, batch))
+        assert (steady.verdict == REPLY).all()
+
+
+def test_steady_decode_falls_back_on_what_the_key_does_not_cover(protocols):
+    rng = np.random.default_rng(8)
+    warm = MitReplyDecoder(protocols)
+    batch, bus = _replies(protocols, rng)
+    warm.decode(bus, batch)
+    cubemars = [k for k, (b, m) in enumerate((b, m) for b, p in enumerate(protocols) for m in p.motors)
+                if protocols[b]._variants[protocols[b].index[m.can_id]].name == "cubemars"]  # fmt: skip
+    assert cubemars, "the G1 plan has CubeMars wrist motors"
+    batch["data"][cubemars[0], 7] = 200  # an undefined CubeMars error byte: corrupt
+    steady = warm.decode(bus, batch)
+    _assert_same(steady, MitReplyDecoder(protocols).decode(bus, batch))
+    assert steady.verdict[cubemars[0]] == CORRUPT
+    other = batch.copy()
+    other["data"][3, 0] ^= 0x01  # byte 0 names another motor (or none): the key differs, full decode
+    _assert_same(warm.decode(bus, other), MitReplyDecoder(protocols).decode(bus, other))
+    swapped = bus.copy()
+    swapped[[0, -1]] = swapped[[-1, 0]]  # the same frames on other buses
+    _assert_same(warm.decode(swapped, batch), MitReplyDecoder(protocols).decode(swapped, batch))
+
+
+def test_block_encoder_equals_the_field_encoder(protocols):
+    rng = np.random.default_rng(9)
+    codec = MultiBusCodec(protocols)
+    n = len(codec.motors)
+    lo, hi = codec._encoder._lo.T, codec._encoder._hi.T
+    for _ in range(20):
+        rows = rng.uniform(lo - 0.3 * (hi - lo), hi + 0.3 * (hi - lo), size=(5, n))  # some beyond the ranges: clamped
+        rows[:, rng.integers(0, n, 3)] = lo[:, :3]  # exact range ends
+        reference, clamped = codec.encode_commands(*rows)
+        block, block_clamped = codec.encode_rows(rows.copy())
+        np.testing.assert_array_equal(block.view(np.uint8), reference.view(np.uint8))
+        np.testing.assert_array_equal(block_clamped, clamped)
+        assert clamped.any() and not clamped.all()
+    rows[2, 4] = np.nan
+    with pytest.raises(CommandValueError, match="NaN"):
+        codec.encode_rows(rows)
