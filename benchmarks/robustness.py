@@ -29,7 +29,12 @@ Figures per plant and protocol (JSON, one object; ``definitions`` repeats these)
 ``--estimator``: the same protocols through ``giwbc/G1Walk-v0`` in the shipped walking policy's
 training conditions (its metadata: the deployment walker on the **estimated** state, the AHRS IMU
 profile, WBC joint limits and soft-limit ends) with the zero residual (the walker alone);
-``--policy P``: the same with policy ``P`` acting (its own metadata's conditions). Both sample the
+``--policy P``: walker alone vs policy ``P`` (its own metadata's conditions), paired: the same seeds and
+plant draws in both arms, each cell's figures per arm (``walker``, ``policy``) and ``paired``: each
+arm's successes (push: not fallen ``--judge-after`` s after the push ends; stand and walk: not fallen)
+with 95 % Wilson intervals, the discordant pairs (``saved``, ``lost``) and the exact McNemar p-value,
+also per drawn plant. ``--plants random`` (env path only): a plant drawn per episode from the seed out
+of the robot's plant distribution (``robots/<robot>/plant_distribution.toml``). Both sample the
 ground truth at the agent rate (50 Hz) instead of every physics tick, push in a seeded random
 direction (the environment's pushes) instead of the fixed directions, count any early end (a fall or
 a soft-limit end) as a fall, and add the estimator's errors: ``estimator_tilt_error_deg`` (max),
@@ -52,10 +57,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from giwbc.apps.evaluation import wilson_interval  # noqa: E402
+from giwbc.apps.evaluation import mcnemar_exact, wilson_interval  # noqa: E402
 from giwbc.errors import EstimatorCalibrationError  # noqa: E402
 from giwbc.locomotion.simulation import Push, simulate_walk  # noqa: E402
 from giwbc.plants import NOMINAL, available_variants  # noqa: E402
+from giwbc.randomization.plant_distribution import RANDOM  # noqa: E402
 from giwbc.robot import load  # noqa: E402
 from giwbc.robot.mujoco_model import foot_sensor_names  # noqa: E402
 
@@ -85,6 +91,8 @@ ENV_DEFINITIONS = {
     "estimator_height_error_max_m": "max |true - estimated base height|, m",
     "push_directions": "seeded random (the environment's pushes), --directions pushes per seed",
     "calibration_failures": "episodes whose start-up IMU calibration never saw a standstill (counted as falls)",
+    "paired": "--policy: walker alone vs policy on the same seeds and plant draws; successes (push: not fallen --judge-after s after the push "
+              "ends; stand/walk: not fallen) with 95 % Wilson intervals, saved/lost = discordant pairs, exact two-sided McNemar p; per_plant: the same per drawn plant",
 }
 
 
@@ -190,6 +198,7 @@ class EnvMonitor(Monitor):
         self.velocity_errors: list[float] = []
         self.height_error = 0.0
         self.calibration_failed = False
+        self.plant: str | None = None  # the plant the episode drew (plant="random"), None otherwise
 
     def observe_env(self, env) -> None:
         runtime = env.unwrapped
@@ -228,9 +237,11 @@ def run_env_episode(description, plant: str, command, seconds: float, seed: int,
     touchdowns = []
     try:
         try:
-            observation, _ = env.reset(seed=seed)
+            observation, info = env.reset(seed=seed)
+            monitor.plant = info.get("plant")
         except EstimatorCalibrationError:  # the start-up never saw a standstill on this plant: counted, not a crash
             monitor.calibration_failed = True
+            monitor.plant = getattr(env.unwrapped, "plant", None)
             return True, monitor, math.nan
         zero = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
         walker = env.unwrapped.task.walker
@@ -258,8 +269,10 @@ def run_env_episode(description, plant: str, command, seconds: float, seed: int,
 def run_env_cell(description, plant: str, command, seconds: float, seeds: list[int], conditions: dict, policy) -> dict:
     falls, tilt, slip, step_rms, tick_xy, tick_yaw = 0, 0.0, 0.0, [], [], []
     est_tilt, est_velocity, est_height, uncalibrated = 0.0, [], 0.0, 0
+    outcomes = []
     for seed in seeds:
         fell, monitor, rms = run_env_episode(description, plant, command, seconds, seed, conditions, policy)
+        outcomes.append((not fell, monitor.plant))
         falls += fell
         uncalibrated += monitor.calibration_failed
         tilt, slip = max(tilt, monitor.max_tilt), max(slip, monitor.max_slip)
@@ -274,23 +287,50 @@ def run_env_cell(description, plant: str, command, seconds: float, seeds: list[i
     return {"runs": len(seeds), "falls": falls, "max_foot_tilt_deg": round(tilt, 2), "max_foot_slip_mm": round(1000 * slip, 1),
             "step_tracking_rms": _rms(step_rms), "tick_tracking_rms": _rms(tick_xy), "tick_yaw_rate_rms": _rms(tick_yaw),
             "estimator_tilt_error_deg": round(est_tilt, 3), "estimator_velocity_error_rms": _rms(est_velocity),
-            "estimator_height_error_max_m": round(est_height, 4), "calibration_failures": uncalibrated}
+            "estimator_height_error_max_m": round(est_height, 4), "calibration_failures": uncalibrated, "_outcomes": outcomes}
 
 
 def run_env_pushes(description, plant: str, force: float, pushes: int, seeds: list[int], judge_after: float, conditions: dict,
                    policy) -> dict:
     successes, n, tilt, slip = 0, 0, 0.0, 0.0
     seconds = PUSH_START + PUSH_DURATION + judge_after
+    outcomes = []
     for seed in seeds:
         for k in range(pushes):
             fell, monitor, _ = run_env_episode(description, plant, (0.0, 0.0, 0.0), seconds, seed * 100 + k, conditions, policy,
                                                push=(force, PUSH_START))
+            outcomes.append((not fell, monitor.plant))
             successes += not fell
             n += 1
             tilt, slip = max(tilt, monitor.max_tilt), max(slip, monitor.max_slip)
     low, high = wilson_interval(successes, n)
     return {"pushes": n, "force_N": force, "successes": successes, "push_success": round(successes / n, 3) if n else None,
-            "push_success_95ci": [round(low, 3), round(high, 3)], "max_foot_tilt_deg": round(tilt, 2), "max_foot_slip_mm": round(1000 * slip, 1)}
+            "push_success_95ci": [round(low, 3), round(high, 3)], "max_foot_tilt_deg": round(tilt, 2), "max_foot_slip_mm": round(1000 * slip, 1),
+            "_outcomes": outcomes}
+
+
+def paired(walker: dict, acting: dict) -> dict:
+    """Walker alone vs policy on the same episodes (same seeds, same plant draws): each arm's successes
+    (push: not fallen 3 s after the push ends; stand/walk: not fallen) with 95 % Wilson intervals, the
+    discordant pairs and the exact McNemar p-value, overall and per drawn plant."""
+    a, b = walker.pop("_outcomes"), acting.pop("_outcomes")
+    if [plant for _, plant in a] != [plant for _, plant in b]:
+        raise RuntimeError("the arms ran on different plants: not paired")
+
+    def figures(pairs: list) -> dict:
+        n = len(pairs)
+        wins = [sum(x for x, _ in pairs), sum(y for _, y in pairs)]
+        saved, lost = sum(y and not x for x, y in pairs), sum(x and not y for x, y in pairs)
+        return {"episodes": n, "walker_successes": wins[0], "walker_95ci": [round(v, 3) for v in wilson_interval(wins[0], n)],
+                "policy_successes": wins[1], "policy_95ci": [round(v, 3) for v in wilson_interval(wins[1], n)],
+                "saved": saved, "lost": lost, "mcnemar_exact_p": mcnemar_exact(saved, lost)}
+
+    pairs = [(x, y) for (x, _), (y, _) in zip(a, b)]
+    result = figures(pairs)
+    plants = [plant for _, plant in a]
+    if any(p is not None for p in plants):
+        result["per_plant"] = {name: figures([pair for pair, p in zip(pairs, plants) if p == name]) for name in sorted(set(map(str, plants)))}
+    return {"walker": walker, "policy": acting, "paired": result}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -308,10 +348,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--directions", type=int, default=8)
     parser.add_argument("--judge-after", type=float, default=3.0, help="s after the push ends when success is judged")
     parser.add_argument("--estimator", action="store_true", help="the walker on the estimated state (AHRS), through G1Walk-v0")
-    parser.add_argument("--policy", default=None, help="a G1Walk policy .onnx acting (implies the env path, its own conditions)")
+    parser.add_argument("--policy", default=None, help="a G1Walk policy .onnx: walker alone vs this policy, paired (same seeds, same plant "
+                        "draws), in the policy's own training conditions (implies the env path)")
     args = parser.parse_args(argv)
+    if RANDOM in (args.plants or []) and not (args.estimator or args.policy):
+        parser.error("--plants random (a plant drawn per episode) runs through G1Walk-v0: add --estimator or --policy")
     env_mode = args.estimator or args.policy is not None
     conditions = env_conditions(args.policy) if env_mode else {}
+
+    def env_cell(run, *arguments) -> dict:  # one arm, or with --policy both arms paired
+        if policy is None:
+            row = run(*arguments, conditions, None)
+            row.pop("_outcomes")
+            return row
+        return paired(run(*arguments, conditions, None), run(*arguments, conditions, policy))
+
     policy = None
     if args.policy is not None:
         from giwbc.policy import OnnxPolicy
@@ -326,15 +377,15 @@ def main(argv: list[str] | None = None) -> int:
     for plant in plants:
         row: dict[str, dict] = {}
         if "stand" in args.protocols:
-            row["stand"] = (run_env_cell(description, plant, (0.0, 0.0, 0.0), args.stand_seconds, seeds, conditions, policy) if env_mode
+            row["stand"] = (env_cell(run_env_cell, description, plant, (0.0, 0.0, 0.0), args.stand_seconds, seeds) if env_mode
                             else run_cell(description, plant, (0.0, 0.0, 0.0), args.stand_seconds, seeds))
         if "walk" in args.protocols:
             for name in args.commands:
                 command = WALK_COMMANDS[name]
-                row[f"walk_{name}"] = (run_env_cell(description, plant, command, args.walk_seconds, seeds, conditions, policy) if env_mode
+                row[f"walk_{name}"] = (env_cell(run_env_cell, description, plant, command, args.walk_seconds, seeds) if env_mode
                                        else run_cell(description, plant, command, args.walk_seconds, seeds))
         if "push" in args.protocols:
-            row["push"] = (run_env_pushes(description, plant, args.push_force, args.directions, push_seeds, args.judge_after, conditions, policy)
+            row["push"] = (env_cell(run_env_pushes, description, plant, args.push_force, args.directions, push_seeds, args.judge_after)
                            if env_mode else run_pushes(description, plant, args.push_force, args.directions, push_seeds, args.judge_after))
         table[plant] = row
         print(f"{plant}: {json.dumps(row)}", file=sys.stderr, flush=True)
