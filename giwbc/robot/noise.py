@@ -226,14 +226,14 @@ IMU_PROFILES: dict[str, dict[str, object]] = {
 }
 
 
-@dataclass(frozen=True)
 class _Sample:
-    """Every measured channel at one time: what one read of the sensors returns."""
+    """Every measured channel at one time: what one read of the sensors returns (one per physics
+    step: a slotted class, not a frozen dataclass, whose ``__init__`` costs 4 ``object.__setattr__``)."""
 
-    imu: ImuReading | None
-    positions: np.ndarray
-    velocities: np.ndarray
-    efforts: np.ndarray
+    __slots__ = ("imu", "positions", "velocities", "efforts")
+
+    def __init__(self, imu: ImuReading | None, positions: np.ndarray, velocities: np.ndarray, efforts: np.ndarray) -> None:
+        self.imu, self.positions, self.velocities, self.efforts = imu, positions, velocities, efforts
 
 
 class SensorModel:
@@ -265,6 +265,10 @@ class SensorModel:
         self._bias_floats = tuple(self._orientation_bias.tolist())
         self._joint_bias = np.broadcast_to(np.asarray(errors.joint_position_bias, dtype=float), (self._dofs,)).copy()
         self._joint_bias_any = bool(self._joint_bias.any())
+        # The joints' three noise stds as one (3, dofs) array: one product with the draws' (3, dofs) view.
+        self._joint_noise = np.stack([np.broadcast_to(np.asarray(std, dtype=float), (self._dofs,))
+                                      for std in (errors.joint_position_noise, errors.joint_velocity_noise, errors.joint_effort_noise)])
+        self._draw_count = 15 + 3 * self._dofs
         self._buffer: deque[_Sample] = deque(maxlen=errors.latency + 1)
         self._sample_time: float | None = None
 
@@ -329,7 +333,7 @@ class SensorModel:
     def _sample(self, elapsed: float) -> _Sample:
         robot, e, n = self.robot, self.errors, self._dofs
         rng = self._rng
-        draws = rng.standard_normal(15 + 3 * n)  # fixed order: IMU (15), positions, velocities, efforts
+        draws = rng.standard_normal(self._draw_count)  # fixed order: IMU (15), positions, velocities, efforts
         dropped = rng.random() < e.imu_dropout
         jitter = 0.0
         if e.sample_jitter:
@@ -340,14 +344,19 @@ class SensorModel:
             imu = self._measure_imu(robot.imu(), elapsed, draws[:15].tolist(), jitter)
             if dropped and self._buffer:
                 imu = self._buffer[-1].imu
+        # (In place on the draws and on new arrays: the same products and sums as std * draw + truth.)
+        noise = draws[15:].reshape(3, n)
+        noise *= self._joint_noise
         positions = robot.joint_positions()
-        if self._joint_bias_any:
-            positions = positions + self._joint_bias
-        positions = positions + e.joint_position_noise * draws[15 : 15 + n]
-        if e.encoder_resolution > 0:
-            positions = np.round(positions / e.encoder_resolution) * e.encoder_resolution
-        velocities = robot.joint_velocities() + e.joint_velocity_noise * draws[15 + n : 15 + 2 * n]
-        efforts = robot.joint_efforts() + e.joint_effort_noise * draws[15 + 2 * n :]
+        positions = positions + self._joint_bias if self._joint_bias_any else positions.copy()
+        positions += noise[0]
+        resolution = e.encoder_resolution
+        if resolution > 0:
+            np.divide(positions, resolution, out=positions)
+            np.round(positions, out=positions)
+            positions *= resolution
+        velocities = np.add(robot.joint_velocities(), noise[1])
+        efforts = np.add(robot.joint_efforts(), noise[2])
         return _Sample(imu, positions, velocities, efforts)
 
     def _measure_imu(self, truth: ImuReading, elapsed: float, draws: Sequence[float], jitter: float = 0.0) -> ImuReading:
@@ -369,14 +378,16 @@ class SensorModel:
             k = e.accel_bias_walk * walk
             ab = self._accel_bias = [ab[0] + k * draws[9], ab[1] + k * draws[10], ab[2] + k * draws[11]]
         sg, sa = e.gyro_noise, e.accel_noise
-        gyro = [gyro_true[i] + gb[i] + sg * draws[i] for i in range(3)]
-        accel = [accel_true[i] + ab[i] + sa * draws[6 + i] for i in range(3)]
+        g0, g1, g2 = gyro_true
+        a0, a1, a2 = accel_true
+        gyro = (g0 + gb[0] + sg * draws[0], g1 + gb[1] + sg * draws[1], g2 + gb[2] + sg * draws[2])
+        accel = (a0 + ab[0] + sa * draws[6], a1 + ab[1] + sa * draws[7], a2 + ab[2] + sa * draws[8])
         if e.gyro_range < math.inf:
             r = e.gyro_range
-            gyro = [min(max(g, -r), r) for g in gyro]
+            gyro = tuple(min(max(g, -r), r) for g in gyro)
         if e.accel_range < math.inf:
             r = e.accel_range
-            accel = [min(max(a, -r), r) for a in accel]
+            accel = tuple(min(max(a, -r), r) for a in accel)
         if not e.orientation_output:
             return ImuReading(np.full(4, np.nan), np.array(gyro), np.array(accel), truth.time + jitter)
         if self._orientation_error:  # world-frame error: constant tilt, heading drifting with time
@@ -385,7 +396,9 @@ class SensorModel:
         if e.orientation_noise:
             o = e.orientation_noise
             quaternion = quat_multiply_floats(quaternion, _rotation_quaternion(o * draws[12], o * draws[13], o * draws[14]))
-        return ImuReading(np.array(quaternion, dtype=float), np.array(gyro), np.array(accel), truth.time + jitter)
+        # One array for the three channels, read through views (one allocation instead of three).
+        values = np.array((*quaternion, *gyro, *accel))
+        return ImuReading(values[:4], values[4:7], values[7:], truth.time + jitter)
 
 
 def _rotation_quaternion(x: float, y: float, z: float) -> tuple[float, float, float, float]:
