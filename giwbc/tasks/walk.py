@@ -21,7 +21,14 @@ Action blocks (``residuals=``; each entry in [-1, 1] times its scale):
 - ``hip``: one entry, added to the gain of the walker's hip strategy (rad of pelvis roll into the
   fall per m of lateral DCM error, ``WalkerConfig.hip_roll_gain``): a feedback the walker applies
   every controller tick, within its ``hip_roll_max`` and its own ``hip_gate``, where a policy's
-  orientation residual is held for an agent step.
+  orientation residual is held for an agent step;
+- ``torque`` (off unless named): one entry per leg joint (hips, knees, ankles: joints named
+  ``*hip*``, ``*knee*``, ``*ankle*``), a joint torque added to the WBC's output at every controller
+  tick, a full entry being ``scales.torque`` (default 5 %) of that joint's effort limit (the actuators
+  clip the sum to the limit): a delta action where the plant's joints differ from the model
+  (friction, armature, lag) that no reference of the walker reaches. A residual on the WBC's CoP /
+  contact-force references is not a block: the ``com`` block's DCM offset moves the CoP the DCM
+  controller asks for, and the walker has no other hook for it.
 
 The zero action is the walker alone, bit for bit. With ``residual_gate=(start, full)`` (m) the
 residuals act in proportion to ``clip((|ξ − ξ_ref| − start) / (full − start), 0, 1)`` of the
@@ -44,6 +51,7 @@ reward, termination and info read the simulated truth (:attr:`Task.truth`).
 
 from __future__ import annotations
 
+import fnmatch
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
@@ -60,8 +68,9 @@ from giwbc.robot.interface import BaseState, quat_to_matrix
 from giwbc.tasks.floating_base import ANGULAR_VELOCITY_SCALE, JOINT_VELOCITY_SCALE, FloatingBaseTask
 from giwbc.tasks.task import ActionBlock, ResidualLayout
 
-BLOCKS = ("step", "com", "orientation", "hip")
-_SIZES = {"step": 3, "com": 3, "orientation": 3, "hip": 1}
+BLOCKS = ("step", "com", "orientation", "hip", "torque")
+_SIZES = {"step": 3, "com": 3, "orientation": 3, "hip": 1, "torque": 1}  # torque: one scale for all leg joints
+TORQUE_JOINTS = ("*hip*", "*knee*", "*ankle*")  # fnmatch patterns of the joints the torque block acts on
 _PHASES = (Phase.STAND, Phase.DOUBLE, Phase.SINGLE)
 
 
@@ -147,6 +156,7 @@ class WalkScales:
     com: tuple[float, float, float] = (0.03, 0.03, 0.02)  # m
     orientation: tuple[float, float, float] = (0.1, 0.1, 0.1)  # rad
     hip: tuple[float] = (8.0,)  # rad/m of hip-strategy gain
+    torque: tuple[float] = (0.05,)  # fraction of each leg joint's effort limit
 
     def __post_init__(self) -> None:
         for name in BLOCKS:
@@ -155,14 +165,35 @@ class WalkScales:
             if len(values) != size:
                 raise ValueError(f"scale {name} needs {size} entries, got {value}")
             object.__setattr__(self, name, values)
+        if not 0.0 <= self.torque[0] <= 0.25:
+            raise ValueError(f"scale torque is a fraction of the effort limit in [0, 0.25], got {self.torque[0]}")
 
 
-def _layout(scales: WalkScales, names: Sequence[str]) -> ResidualLayout:
+def torque_joints(description: RobotDescription) -> np.ndarray:
+    """Indices (description order) of the joints the ``torque`` block acts on: the actuated leg joints."""
+    names = description.joint_names
+    return np.array([i for i, name in enumerate(names)
+                     if description.actuated[i] and any(fnmatch.fnmatchcase(name, p) for p in TORQUE_JOINTS)], dtype=int)
+
+
+def _layout(scales: WalkScales, names: Sequence[str], description: RobotDescription) -> ResidualLayout:
     names = tuple(names)
     if not names or len(set(names)) != len(names) or set(names) - set(BLOCKS):
         raise ValueError(f"residuals must be distinct names among {BLOCKS}, got {list(names)}")
     labels = {"step": ("x", "y", "duration"), "com": ("x", "y", "z"), "orientation": ("roll", "pitch", "yaw"), "hip": ("roll_gain",)}
-    return ResidualLayout([ActionBlock(name, _SIZES[name], getattr(scales, name), labels[name]) for name in BLOCKS if name in names])
+    blocks = []
+    for name in BLOCKS:
+        if name not in names:
+            continue
+        if name == "torque":
+            legs = torque_joints(description)
+            if not len(legs):
+                raise ValueError(f"residual block 'torque': robot {description.name!r} has no actuated joint matching {list(TORQUE_JOINTS)}")
+            effort = np.asarray(description.effort_limits, dtype=float)[legs]
+            blocks.append(ActionBlock(name, len(legs), tuple(scales.torque[0] * effort), tuple(description.joint_names[i] for i in legs)))
+        else:
+            blocks.append(ActionBlock(name, _SIZES[name], getattr(scales, name), labels[name]))
+    return ResidualLayout(blocks)
 
 
 def _yaw(quaternion: np.ndarray) -> float:
@@ -196,7 +227,10 @@ class G1Walk(FloatingBaseTask):
         self.scales = WalkScales(**scales) if isinstance(scales, dict) else scales or WalkScales()
         self.rewards = WalkRewards(**rewards) if isinstance(rewards, dict) else rewards or WalkRewards()
         self.commands = CommandRanges(**commands) if isinstance(commands, dict) else commands or CommandRanges()
-        self.layout = _layout(self.scales, residuals or ("step",))
+        self.layout = _layout(self.scales, residuals or ("step",), description)
+        self._torque_joints = torque_joints(description)
+        self._torque = np.zeros(description.dofs)  # the torque block's residual, N m (description order)
+        self._torque_on = False
         self.initial_joint_noise = float(initial_joint_noise)
         self.max_tilt = float(max_tilt)
         # Deployment's safety layer stops the robot when a joint leaves its limits moved inward by
@@ -274,6 +308,8 @@ class G1Walk(FloatingBaseTask):
         self.command = np.zeros(3)
         self.last_action = np.zeros(self.layout.size)
         self.previous_action = np.zeros(self.layout.size)
+        self._torque[:] = 0.0
+        self._torque_on = False
         q, _ = self.robot.generalized_state()
         self.walker.reset(q)
 
@@ -298,6 +334,9 @@ class G1Walk(FloatingBaseTask):
         gate = self.gate()
         if gate != 1.0:
             residuals = {name: gate * value for name, value in residuals.items()}
+        if "torque" in residuals:
+            self._torque[self._torque_joints] = residuals["torque"]
+            self._torque_on = bool(np.any(residuals["torque"] != 0.0))
         if "step" in residuals:
             step = residuals["step"]
             walker.set_step_residual(step[:2], float(step[2]))
@@ -318,6 +357,8 @@ class G1Walk(FloatingBaseTask):
             self.walker.set_command(*schedule[self._next_command][1])
             self._next_command += 1
         self.result = self.walker.step(robot)
+        if self._torque_on:  # the torque block: the WBC's torques plus the residual (the zero residual sends nothing more)
+            robot.set_joint_torques(self.result.tau + self._torque)
         set_plan = getattr(robot, "set_contact_plan", None)
         if set_plan is not None:  # an estimating robot: a swinging foot is never taken as a stance foot
             set_plan(self.walker.single_support_plan(self._plans))
