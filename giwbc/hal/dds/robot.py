@@ -53,6 +53,8 @@ ENABLED, DISABLED = 1, 0  # the mode byte of MotorCmd_ / MotorState_
 ENABLE_GRACE_CYCLES = 10  # cycles after enabling before a motor reporting mode 0 is a fault (states in flight predate the enable)
 LINK_CHECK_CYCLES = 5  # cycles between two checks of the readers discovery matched (a list of handles each time)
 _HALF = 1 << 31
+_STATE_COLUMNS = [0, 1, 3]  # MotorState_'s floats q, dq, ddq, tau_est: the joint state's q, dq, tau
+_IDL_ROWS = [0, 1, 4, 2, 3]  # MotorCmd_'s floats q, dq, tau, kp, kd from the held rows q, v, kp, kd, tau
 
 
 def tick_after(tick: int, last: int | None) -> bool:
@@ -87,6 +89,8 @@ class DdsRobot(CanRobot):
         self.state = LowState()
         self.lowcmd = LowCmd()
         self.lowcmd.field("mode_pr")[0] = plan.mode_pr
+        self._cmd_mode_machine = self.lowcmd.field("mode_machine")
+        self._modes_on: bool | None = None  # whether the LowCmd_'s mode bytes say enabled (None: not written yet)
         self._tick: int | None = None
         self._mode_machine = 0
         self._readers = 1
@@ -155,9 +159,7 @@ class DdsRobot(CanRobot):
         new, late, corrupt, stale = self._take_states()
         s, slots = self.state, self.slots
         if new:
-            self._joint_state[0] = s.q[slots]
-            self._joint_state[1] = s.dq[slots]
-            self._joint_state[2] = s.tau_est[slots]
+            self._joint_state[:] = s.floats[slots][:, _STATE_COLUMNS].T  # q, dq, tau_est: one gather
             self._temperature[:] = s.temperature[slots].max(axis=1)
             self._error[:] = s.motorstate[slots]
             self._status[:] = s.modes[slots] if self.enabled and self.cycle - self._enabled_cycle > ENABLE_GRACE_CYCLES else -1
@@ -208,14 +210,20 @@ class DdsRobot(CanRobot):
             self.enabled = True
         elif kind == EXIT:
             self.enabled = False
-        m.field("mode_machine")[0] = self._mode_machine
-        modes = np.zeros(len(m.floats), dtype=np.uint8)
-        if self.enabled:
-            modes[slots] = ENABLED
-        m.set_modes(modes)
+        self._cmd_mode_machine[0] = self._mode_machine
+        if self._modes_on is not self.enabled:  # the mode bytes change only when the motors are enabled or not
+            modes = np.zeros(len(m.floats), dtype=np.uint8)
+            if self.enabled:
+                modes[slots] = ENABLED
+            m.set_modes(modes)
+            self._modes_on = self.enabled
         if self.enabled and kind == COMMAND:
-            c = self.command
-            m.q[slots], m.dq[slots], m.tau[slots], m.kp[slots], m.kd[slots] = c.q_ref, c.v_ref, c.tau_ff, c.kp, c.kd
+            c, held = self.command, self._held
+            if (held is not None and held[0] is c and c.q_ref is held[2] and c.v_ref is held[3] and c.kp is held[4]
+                    and c.kd is held[5] and c.tau_ff is held[6]):  # set_joint_impedance's rows: one assignment  # fmt: skip
+                m.floats[slots] = held[1][_IDL_ROWS].T
+            else:
+                m.q[slots], m.dq[slots], m.tau[slots], m.kp[slots], m.kd[slots] = c.q_ref, c.v_ref, c.tau_ff, c.kp, c.kd
         else:  # enter (motors on, no torque yet), exit and before enabling: no gains, no torque
             m.floats[:] = 0.0
             m.q[slots] = self._q
