@@ -26,6 +26,9 @@ import numpy as np
 from giwbc.locomotion.planar import rotate, rotate_back
 
 SIDES = ("left", "right")
+# FootstepPlanner.turn_compensated: fixed-point passes, and steps planned before the cycle measured.
+TURN_COMPENSATION_ITERATIONS = 4
+TURN_COMPENSATION_WARMUP = 4
 
 
 def side_sign(side: str) -> float:
@@ -269,8 +272,9 @@ class FootstepPlanner:
     def __init__(self, config: GaitConfig | None = None) -> None:
         self.config = config or GaitConfig()
         # (vx, vy) m/s added to a command's non-zero components when stepping (at most half of each,
-        # never flipping its sign): a walker's velocity correction on the gait envelope; (0, 0): none.
+        # never flipping its sign): a walker's velocity correction; (0, 0): none.
         self.correction = (0.0, 0.0)
+        self._compensated: dict[tuple[float, float, float], VelocityCommand] = {}  # turn_compensated's
 
     def limits(self) -> dict[str, tuple[float, float]]:
         """The velocity ranges walked (:meth:`GaitConfig.limits`): ``{"vx": (lo, hi), "vy": …, "yaw_rate": …}``."""
@@ -314,10 +318,56 @@ class FootstepPlanner:
         this planner's gait (a command beyond its base limits: plan with ``config.for_command``'s).
         ``leading_yaw`` (rad): a leading turning step's yaw relative to ``stance`` instead of
         ``2 · yaw_rate · T`` (within the step limits; a closed-loop heading, see the walker)."""
-        c = self.config
-        T = c.step_period
         if self.correction != (0.0, 0.0):
             command = self.corrected(command)
+        if command.yaw_rate != 0.0:
+            command = self.turn_compensated(command)
+        return self._step(stance, command, leading_yaw)
+
+    def turn_compensated(self, command: VelocityCommand) -> VelocityCommand:
+        """The command whose turning steps walk ``command``: a turning plan's feet's middle, in the
+        feet's mean heading, drifts from the linear velocity asked (the base gait's (0.5, 0, 0.5):
+        (0.544, -0.069) m/s over a cycle: each step goes along its stance sole's heading and the
+        feet turn about a sole); ``TURN_COMPENSATION_ITERATIONS`` fixed-point passes over
+        :meth:`cycle_velocity` remove it (within the step limits). Cached per command."""
+        key = (command.vx, command.vy, command.yaw_rate)
+        cached = self._compensated.get(key)
+        if cached is not None:
+            return cached
+        c = self.config
+        T = c.step_period
+        lo_x, hi_x = -c.max_step_backward / T, c.max_step_forward / T
+        vy_max = c.max_extra_width / (2.0 * T)
+        vx, vy = command.vx, command.vy
+        for _ in range(TURN_COMPENSATION_ITERATIONS):
+            ax, ay = self.cycle_velocity(VelocityCommand(vx, vy, command.yaw_rate))
+            vx = min(max(vx + command.vx - ax, lo_x), hi_x)
+            vy = min(max(vy + command.vy - ay, -vy_max), vy_max)
+        compensated = self._compensated[key] = VelocityCommand(vx, vy, command.yaw_rate)
+        return compensated
+
+    def cycle_velocity(self, command: VelocityCommand) -> tuple[float, float]:
+        """The velocity ``(vx, vy)`` m/s of the feet's middle in the feet's mean heading over a step
+        cycle (two steps) of this plan for ``command`` (uncompensated, no correction), from the
+        feet side by side: the cycle after ``TURN_COMPENSATION_WARMUP`` steps."""
+        half = 0.5 * self.config.step_width
+        feet = {"left": Footstep("left", [0.0, half]), "right": Footstep("right", [0.0, -half])}
+        stance = feet[other_side(self.first_swing_side(command))]
+        poses = []
+        for _ in range(TURN_COMPENSATION_WARMUP + 2):
+            stance = self._step(stance, command, None)
+            feet[stance.side] = stance
+            left, right = feet["left"], feet["right"]
+            poses.append((0.5 * (left.position + right.position), left.yaw + 0.5 * wrap_angle(right.yaw - left.yaw)))
+        (m0, h0), (m1, h1) = poses[-3], poses[-1]
+        heading = h0 + 0.5 * wrap_angle(h1 - h0)
+        d = (m1 - m0) / (2.0 * self.config.step_period)
+        return float(math.cos(heading) * d[0] + math.sin(heading) * d[1]), float(-math.sin(heading) * d[0] + math.cos(heading) * d[1])
+
+    def _step(self, stance: Footstep, command: VelocityCommand, leading_yaw: float | None) -> Footstep:
+        """:meth:`next_step` for a command as it is planned (corrected and compensated already)."""
+        c = self.config
+        T = c.step_period
         side = other_side(stance.side)
         sign = side_sign(side)
         dx = min(max(command.vx * T, -c.max_step_backward), c.max_step_forward)

@@ -124,11 +124,12 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         switches to the gait that walks it (:meth:`WalkerConfig.for_command`: faster cadence,
         longer steps), from the next step on; inside them, the base gait."""
         clamped = self._base_planner.clamp(VelocityCommand(vx, vy, yaw_rate))
-        if clamped.command != self.command:  # (the envelope's closed-loop heading and velocity restart)
+        if clamped.command != self.command:  # (the closed-loop heading and velocity restart)
             self._yaw_goal = None
             self._touchdowns = []
             self.config = self.base_config.for_command(clamped.command)
             self.planner = self._base_planner if self.config is self.base_config else FootstepPlanner(self.config.gait)
+            self._base_planner.correction = (0.0, 0.0)
         self.command = clamped.command
         self._in_place = bool(step_in_place)
         self.state.notes.extend(clamped.notes)
@@ -144,6 +145,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         they are, no step planned."""
         q = self.description.default_configuration() if q is None else np.asarray(q, dtype=float)
         self.config, self.planner = self.base_config, self._base_planner
+        self._base_planner.correction = (0.0, 0.0)
         self.balance.reset(q)
         for task in self.swing_tasks.values():
             self._remove_swing_task(task)
@@ -184,7 +186,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._last_tick = 0.0
         self._nominal_feet: dict[str, Footstep] = {}
         self._yaw_goal: tuple[float, float] | None = None  # (time, heading) the envelope's turning counts from
-        self._touchdowns: list[tuple[float, np.ndarray, float]] = []  # (time, feet's middle, heading), on the envelope
+        self._touchdowns: list[tuple[float, np.ndarray, float]] = []  # (time, feet's middle, heading), while walking
         self._planned_for: tuple[np.ndarray, float] | None = None
         self._reference: DcmReference | None = None
         self._time = 0.0
