@@ -91,7 +91,7 @@ class CycleReport:
 
     @property
     def complete(self) -> bool:
-        return not bool(self.missing.any())
+        return not np.count_nonzero(self.missing)
 
 
 class CanRobot(DescribedRobot):
@@ -177,6 +177,9 @@ class CanRobot(DescribedRobot):
         dofs = description.dofs
         self._joint_state = np.zeros((3, dofs))  # q, dq, tau: written in one assignment per cycle
         self._q, self._dq, self._tau = self._joint_state
+        self._measured = tuple(a.view() for a in (self._q, self._dq, self._tau))  # read-only views, made once
+        for view in self._measured:
+            view.flags.writeable = False
         self._temperature = np.full(dofs, np.nan)
         self._error = np.full(dofs, -1, dtype=np.int64)
         self._status = np.full(dofs, -1, dtype=np.int64)
@@ -477,9 +480,9 @@ class CanRobot(DescribedRobot):
             raise ValueError(f"impedance command fields must each have {self.dofs} entries: {error}") from None
         if rows.shape != (5, self.dofs):
             raise ValueError(f"impedance command fields must each have {self.dofs} entries, got shape {rows.shape}")
-        if not np.isfinite(rows).all():
+        if np.count_nonzero(~np.isfinite(rows)):
             raise NonFiniteCommand(f"impedance command is not finite: {command}")
-        if (rows[2:4] < 0).any():
+        if np.count_nonzero(rows[2:4] < 0):
             raise ValueError("impedance gains kp and kd must be >= 0")
         torque = rows[4]  # clipped to the effort limits (finite: min(max(.)) is np.clip, without its wrapper)
         np.minimum(np.maximum(torque, self._neg_effort, out=torque), self._effort, out=torque)
@@ -501,11 +504,9 @@ class CanRobot(DescribedRobot):
     # --- latest measurements, without copies (the runtime and the supervisor read them) ---------
     @property
     def measured(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Joint positions, velocities, efforts as last measured (read-only views)."""
-        views = tuple(a.view() for a in (self._q, self._dq, self._tau))
-        for v in views:
-            v.flags.writeable = False
-        return views  # type: ignore[return-value]
+        """Joint positions, velocities, efforts as last measured (read-only views of the buffers
+        each exchange writes into)."""
+        return self._measured  # type: ignore[return-value]
 
     @property
     def latest_imu(self) -> ImuReading | None:

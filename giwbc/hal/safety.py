@@ -231,34 +231,34 @@ class SafetySupervisor:
             joints = tuple(names[j] for j in np.flatnonzero(mask)) if mask is not None else ()
             faults.append(Fault(kind, message, cycle, t, joints))
 
-        if report.error_code.max() > 0:
-            error = report.error_code > 0
+        error = report.error_code > 0
+        if np.count_nonzero(error):
             codes = ", ".join(f"{names[j]}={int(report.error_code[j])}" for j in np.flatnonzero(error))
             add(FaultKind.MOTOR_ERROR, f"motor error code(s): {codes}", error)
-        if report.status is not None and not report.status.all():  # some state 0 (quiet path: one reduction)
+        if report.status is not None and np.count_nonzero(report.status) < report.status.size:  # some state 0 (quiet path: one reduction)
             disabled = (report.status == 0) & ~report.missing  # Damiao state 0: out of motor mode
-            if disabled.any():
+            if np.count_nonzero(disabled):
                 which = ", ".join(names[j] for j in np.flatnonzero(disabled))
                 add(FaultKind.MOTOR_DISABLED, f"motor(s) left motor mode (reply state 'disabled'): {which}", disabled)
         if report.bus_errors is not None:
             self._bus_faults(report, add)
         hot = report.temperature > c.max_temperature  # NaN (not reported) compares False
-        if hot.any():
+        if np.count_nonzero(hot):  # (count_nonzero: a quarter of .any()'s cost on these small arrays)
             temps = ", ".join(f"{names[j]}={report.temperature[j]:.0f}°C" for j in np.flatnonzero(hot))
             add(FaultKind.OVER_TEMPERATURE, f"above {c.max_temperature:g}°C: {temps}", hot)
 
         slot = cycle % c.corrupt_window
-        if report.corrupt.any() or self._corrupt_total.any():
+        if np.count_nonzero(report.corrupt) or np.count_nonzero(self._corrupt_total):
             row = np.zeros(self._corrupt.shape[1], dtype=np.int64)
             row[: len(report.corrupt)] = report.corrupt
             self._corrupt_total += row - self._corrupt[slot]
             self._corrupt[slot] = row
             bad_bus = self._corrupt_total >= c.max_corrupt_frames
-            if bad_bus.any():
+            if np.count_nonzero(bad_bus):
                 which = ", ".join(f"{self.bus_names[b]} ({self._corrupt_total[b]})" for b in np.flatnonzero(bad_bus))
                 add(FaultKind.CORRUPT_FRAMES, f"corrupt frames in the last {c.corrupt_window} cycles on {which}")
-        if report.stale.max() >= c.max_missing_cycles:
-            silent = report.stale >= c.max_missing_cycles
+        silent = report.stale >= c.max_missing_cycles
+        if np.count_nonzero(silent):
             which = ", ".join(f"{names[j]} ({int(report.stale[j])})" for j in np.flatnonzero(silent))
             extra = f"; {report.late} late frame(s) this cycle" if report.late else ""
             add(FaultKind.MISSING_REPLIES, f"no valid reply for >= {c.max_missing_cycles} cycles: {which}{extra}", silent)
@@ -276,20 +276,20 @@ class SafetySupervisor:
         inside = (q >= self.soft_lower) & (q <= self.soft_upper)
         self._armed_limits |= inside
         beyond = self._armed_limits > (inside | report.missing)  # armed, outside and measured (bools: a > b is a & ~b)
-        if beyond.any():
+        if np.count_nonzero(beyond):
             which = ", ".join(
                 f"{names[j]}={q[j]:.3f} not in [{self.soft_lower[j]:.3f}, {self.soft_upper[j]:.3f}]" for j in np.flatnonzero(beyond)
             )
             add(FaultKind.JOINT_LIMIT, f"beyond soft limits: {which}", beyond)
         fast = np.abs(dq) > self.velocity_limit
-        if fast.any():
+        if np.count_nonzero(fast):
             which = ", ".join(f"{names[j]}={dq[j]:.1f} rad/s" for j in np.flatnonzero(fast))
             add(FaultKind.VELOCITY_LIMIT, f"beyond velocity limits: {which}", fast)
         over = np.abs(tau) > self.torque_limit
-        if over.any() or self._torque_over.any():
+        if np.count_nonzero(over) or np.count_nonzero(self._torque_over):
             self._torque_over = np.where(over, self._torque_over + 1, 0)
             strong = self._torque_over >= c.torque_cycles
-            if strong.any():
+            if np.count_nonzero(strong):
                 which = ", ".join(f"{names[j]}={tau[j]:.1f} N m" for j in np.flatnonzero(strong))
                 add(FaultKind.TORQUE_LIMIT, f"beyond torque limits for {c.torque_cycles} cycles: {which}", strong)
         return faults
@@ -301,7 +301,7 @@ class SafetySupervisor:
         errors, sent = report.bus_errors, report.bus_sent
         assert errors is not None and sent is not None
         causes = report.driver_errors or ()
-        if not (errors.any() or self._down_any or any(causes)):  # the quiet path: no driver error anywhere
+        if not (np.count_nonzero(errors) or self._down_any or any(causes)):  # the quiet path: no driver error anywhere
             return
         refused = (errors > 0) & (sent == 0)
         self._bus_down[: len(refused)] = np.where(refused, self._bus_down[: len(refused)] + 1, 0)

@@ -252,7 +252,7 @@ class MitCommandEncoder:
         motor order; overwritten): the payloads as big-endian 64-bit words, and the clamp mask
         ``(N, 5)``. The same arithmetic, element by element, in fewer calls (the control loop's
         form); NaN raises CommandValueError naming the fields."""
-        if np.isnan(rows).any():
+        if np.count_nonzero(np.isnan(rows)):
             self.encode(*rows)  # raises, naming the joints and fields
         lo, hi = self._lo_rows, self._hi_rows
         clamped = (rows < lo) | (rows > hi)
@@ -703,7 +703,7 @@ class MitReplyDecoder:
         d6, d7 = octets[:, 14], octets[:, 15]
         if cubemars is not None:
             rows, limit = cubemars  # the CubeMars rows, and byte 7's largest defined error code per row
-            if (d7 > limit).any():
+            if np.count_nonzero(d7 > limit):
                 return None
             error = np.where(rows, d7, error)
         word = payload.byteswap()  # the big-endian word of :meth:`decode`
