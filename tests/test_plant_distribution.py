@@ -154,3 +154,26 @@ def test_evaluate_walk_on_random_plants_pairs_the_plant_draws(tmp_path, capsys):
     assert sorted(per_plant) == sorted(set(drawn)) and sum(row["episodes"] for row in per_plant.values()) == 2
     assert sum(row["wbc_successes"] for row in per_plant.values()) == round(summary["wbc"]["success_rate"] * 2)
     assert summary["wbc"]["mean_return"] != summary["residual"]["mean_return"]  # the policy acted
+
+
+def test_the_training_config_builds_its_environment_across_plants():
+    """configs/g1_walk_plants.env.json: a G1Walk on random plants with the estimator in the loop and the torque block."""
+    import json
+    from pathlib import Path
+
+    kwargs = json.loads((Path(__file__).resolve().parents[1] / "configs" / "g1_walk_plants.env.json").read_text())
+    kwargs.pop("max_episode_steps")
+    env = gymnasium.make("giwbc/G1Walk-v0", **kwargs)
+    try:
+        runtime = env.unwrapped
+        assert runtime.estimated is not None  # the walker reads the estimator's base
+        names = runtime.task.action_names()
+        assert sum(n.startswith("torque/") for n in names) == 12 and "hip/roll_gain" in names
+        observation, info = env.reset(seed=2)
+        assert info["plant"] in runtime.distribution.variants
+        assert len(info["privileged"]) == len(runtime.privileged_names())
+        assert observation.shape == env.observation_space.shape  # the plant's parameters are not in it
+        commands = runtime.task.commands
+        assert commands.vx == (-0.5, 0.65) and commands.yaw_rate == (-1.0, 1.0)
+    finally:
+        env.close()
