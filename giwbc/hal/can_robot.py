@@ -37,7 +37,7 @@ import numpy as np
 
 from giwbc.hal.bus import BUS_ERRORS, DROPPED, RECEIVED, RETRIES, SENT, UNKNOWN, VERDICT_COLUMNS, CanBusLink
 from giwbc.hal.can_imu import CanImu
-from giwbc.hal.frames import GroupReceived, PortGroup
+from giwbc.hal.frames import GroupReceived, PortGroup, SocketPort
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.hal.imu import ImuSource
 from giwbc.hal.motor import MotorGroup
@@ -53,6 +53,7 @@ COMMAND, ENTER, EXIT = "command", "enter", "exit"
 _SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
 assert _SEND_COLUMNS[:3] == [0, 1, 2]  # (exchange adds the first three as one slice)
 _SEND_BUDGET = 5e-3  # s: how long sending may take when the caller gives no deadline
+_EVERY = slice(None)  # every reply row (the steady state: one reply per motor, in plan order)
 
 
 class Peer(Protocol):
@@ -152,6 +153,10 @@ class CanRobot(DescribedRobot):
         self._bounds = bounds.tolist()
         self._bus_sizes, self._bus_starts = np.diff(bounds), bounds[:-1]
         self.ports = PortGroup([link.port for link in self.links])
+        # The ports that keep a driver's exception while sending (python-can buses; a socket port
+        # counts its failures and keeps none): only theirs are reset and read each cycle.
+        self._error_ports = [(b, port) for b, port in enumerate(self.ports.ports) if type(port) is not SocketPort]
+        self._no_driver_errors: tuple[BaseException | None, ...] = (None,) * len(self.links)
         self._send_timeouts = [link.send_timeout for link in self.links]
         self._send_retries = [link.max_retries for link in self.links]
         # Every link's counters, one row each, updated in one operation per cycle.
@@ -185,6 +190,8 @@ class CanRobot(DescribedRobot):
         self._status = np.full(dofs, -1, dtype=np.int64)
         self._stale = np.zeros(dofs, dtype=np.int64)
         self._replied = np.zeros(dofs, dtype=bool)
+        self._all_replied = np.ones(dofs, dtype=bool)  # what a cycle where every motor replied reports (read-only)
+        self._all_replied.flags.writeable = False
         self._effort = description.effort_limits
         self._neg_effort = -self._effort
         self._gain_scale = 1.0
@@ -238,11 +245,16 @@ class CanRobot(DescribedRobot):
         if deadline is None:
             deadline = t0 + self.send_budget
         batch, clamped = self._frames(kind)
-        ports = self.ports.ports
-        for port in ports:
-            port.last_error = None  # type: ignore[attr-defined]
+        error_ports = self._error_ports
+        for _, port in error_ports:
+            port.last_error = None
         sent_per_bus = self.ports.send(batch, self._bounds, deadline, timeout=self._send_timeouts, retries=self._send_retries)
-        driver_errors = tuple(getattr(port, "last_error", None) for port in ports)
+        driver_errors = self._no_driver_errors
+        if error_ports:
+            errors_now = list(driver_errors)
+            for b, port in error_ports:
+                errors_now[b] = port.last_error
+            driver_errors = tuple(errors_now)
         counts = self._link_counts  # += outcomes in the columns SENT, DROPPED, RETRIES (0-2) and BUS_ERRORS
         if sent_per_bus == self._all_sent:  # every frame went out at the first attempt
             outcomes = self._all_sent_array
@@ -264,10 +276,16 @@ class CanRobot(DescribedRobot):
             replied, corrupt, unknown = self._collect(min(t1 + self.reply_timeout, deadline))
             receive_s = time.perf_counter() - t1
 
-        missing = ~replied
-        self._stale = np.where(replied, 0, self._stale + 1)
-        self._replied |= replied
-        corrupt += corrupt_late
+        if replied is self._all_replied:  # every motor replied: the steady state
+            missing = np.zeros(self.dofs, dtype=bool)
+            self._stale = np.zeros(self.dofs, dtype=np.int64)
+            self._replied.fill(True)
+        else:
+            missing = ~replied
+            self._stale = np.where(replied, 0, self._stale + 1)
+            self._replied |= replied
+        if not deferred:  # (deferred: nothing was drained)
+            corrupt += corrupt_late
         unknown += unknown_late
         imu_fresh = self._read_imu()
         self._time = float(t)
@@ -397,7 +415,7 @@ class CanRobot(DescribedRobot):
             state = decoded.state  # a new array: converted in place
             state *= self.group._state_scale
             state += self.group._state_offset
-            rows: Any = slice(None)
+            rows: Any = _EVERY
             j = self.joint_index
             corrupt, unknown = self._no_corrupt.copy(), skipped
         else:
@@ -418,9 +436,11 @@ class CanRobot(DescribedRobot):
         self._temperature[j] = np.where(np.isnan(rotor), reported, rotor)  # the coil's where reported
         self._error[j] = decoded.error_code[rows]
         self._status[j] = decoded.status[rows]
-        replied = np.zeros(self.description.dofs, dtype=bool)
-        replied[j] = True
-        return replied, corrupt, unknown
+        if rows is not _EVERY:
+            replied = np.zeros(self.description.dofs, dtype=bool)
+            replied[j] = True
+            return replied, corrupt, unknown
+        return self._all_replied, corrupt, unknown
 
     def _read_imu(self) -> bool:
         if self.imu_source is None:
