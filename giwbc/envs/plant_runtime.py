@@ -94,6 +94,11 @@ class PlantDistributionRuntime(SimulatedRuntime):
         if pool is not self.engines:
             self.engines = pool
             self._use_engine("mujoco")
+            for attribute in ("_renderer", "_viewer"):  # built for the previous plant's model: rebuilt on the next frame
+                view = getattr(self, attribute)
+                if view is not None:
+                    view.close()
+                    setattr(self, attribute, None)
         self.plant = name
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
