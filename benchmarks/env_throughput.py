@@ -20,6 +20,11 @@ a worker process of its own (the same script; the envs built once, before the fi
 ``git worktree`` of an older commit) and alternates the two workers round by round, so both are
 measured under the same load; ``current_over_baseline`` divides their medians.
 
+Where the time goes (``--breakdown SECONDS``): the same configurations (but the plain env) stepped
+in this process with the methods of each part wrapped (physics, sensor model, estimator, WBC,
+walker planning, resets: ``BREAKDOWN_PARTS``), each part's exclusive share of a step's time and µs
+per agent step (``breakdown``).
+
 Each environment steps with zero actions (episodes reset on termination) in this process, pinned
 to one thread; the share of wall time in the physics engine, in the controller (the WBC for
 G1Balance) and in everything else comes from the runtime's own timers; ``real_time_factor_cpu``
@@ -327,11 +332,105 @@ def relative(rounds: int, seconds: float, baseline: Path | None) -> dict[str, An
     return result
 
 
+# --- where a step's CPU goes: exclusive time per part, from wrappers in this process ------------------
+BREAKDOWN_PARTS = {  # part: (module, class, methods); the engine's physics first (innermost)
+    "physics": ("giwbc.robot.mujoco_robot", "MujocoRobot", ("step",)),
+    "sensor_model": ("giwbc.robot.noise", "SensorModel", ("record",)),
+    "estimator": ("giwbc.estimation.estimator", "StateEstimator", ("update",)),
+    "wbc": ("giwbc.control.wbc", "WholeBodyController", ("update",)),
+    "walker_planning": ("giwbc.locomotion.walker", "WalkingController", ("step",)),
+    "reset": ("giwbc.runtimes.simulated", "SimulatedRuntime", ("reset",)),
+}
+
+
+class _PartTimer:
+    """Exclusive time per part: a part's time less that of the parts it calls (a stack of starts;
+    ``time.perf_counter``, ~0.07 µs a read: this thread's CPU clock costs a system call, ~1 µs)."""
+
+    def __init__(self) -> None:
+        self.totals: dict[str, float] = {}
+        self._stack: list[list] = []  # [part, start, time of the parts called inside]
+
+    def wrap(self, part: str, method: Any) -> Any:
+        import functools
+
+        clock, stack, totals = time.perf_counter, self._stack, self.totals
+        totals.setdefault(part, 0.0)
+
+        @functools.wraps(method)
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            frame = [part, clock(), 0.0]
+            stack.append(frame)
+            try:
+                return method(*args, **kwargs)
+            finally:
+                stack.pop()
+                spent = clock() - frame[1]
+                totals[part] += spent - frame[2]
+                if stack:
+                    stack[-1][2] += spent
+
+        return timed
+
+
+def breakdown(seconds: float) -> dict[str, Any]:
+    """Per configuration of the relative measurement (but the plain env), stepped for ``seconds``
+    CPU-seconds: each part's share of a step's time (exclusive, ``BREAKDOWN_PARTS``; ``task_and_runtime``: the rest — the task's
+    action, observation and reward, the runtime's loop, the walker's robot reads through the
+    estimated robot's caches), and µs per agent step. The parts' methods are wrapped in this
+    process only (class attributes, restored after), ~0.5 µs a call. Wall time: on a busy machine
+    (``cpu_over_wall`` below 1) preemptions fall in the parts in proportion to their time, so read
+    the shares; the µs per agent step are a quiet machine's only."""
+    import importlib
+
+    timer = _PartTimer()
+    originals = []
+    for part, (module, name, methods) in BREAKDOWN_PARTS.items():
+        cls = getattr(importlib.import_module(module), name)
+        for method in methods:
+            original = cls.__dict__[method]
+            originals.append((cls, method, original))
+            setattr(cls, method, timer.wrap(part, original))
+    try:
+        envs = relative_envs()
+        out: dict[str, Any] = {}
+        for config, env in envs.items():
+            if config == "plain_g1":
+                continue
+            _steps_per_cpu_second(env, 0.2 * seconds)  # warm up
+            for part in timer.totals:
+                timer.totals[part] = 0.0
+            started, cpu_started, steps = time.perf_counter(), time.thread_time(), 0
+            action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+            while time.thread_time() - cpu_started < seconds:
+                for _ in range(10):
+                    _, _, terminated, truncated, _ = env.step(action)
+                    if terminated or truncated:
+                        env.reset()
+                steps += 10
+            wall, cpu = time.perf_counter() - started, time.thread_time() - cpu_started
+            parts = {part: value for part, value in timer.totals.items() if value > 0.0}
+            parts["task_and_runtime"] = wall - sum(parts.values())
+            out[config] = {
+                "agent_steps": steps,
+                "cpu_over_wall": round(cpu / wall, 3),
+                "share": {part: round(value / wall, 4) for part, value in parts.items()},
+                "us_per_agent_step": {part: round(1e6 * value / steps, 1) for part, value in parts.items()},
+                "unit": "wall time (perf_counter), the wrappers' own cost included in the parts they wrap",
+            }
+        return out
+    finally:
+        for cls, method, original in originals:
+            setattr(cls, method, original)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--rounds", type=int, default=5, help="interleaved rounds of the relative measurement")
     parser.add_argument("--seconds", type=float, default=1.0, help="CPU-seconds per configuration and round")
     parser.add_argument("--baseline", type=Path, default=None, help="another source tree to measure alongside (its giwbc/)")
+    parser.add_argument("--breakdown", type=float, default=0.0, metavar="SECONDS",
+                        help="also time each part of a step (physics, sensor model, estimator, WBC, walker, resets) for SECONDS per configuration")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--steps", type=int, default=2000, help="agent steps per measurement of --cases")
     parser.add_argument("--cases", nargs="*", default=[], choices=list(CASES), help="absolute steps/s and time shares (e.g. all of them)")
@@ -349,6 +448,8 @@ def main() -> None:
     }
     if args.rounds > 0:
         result["relative"] = relative(args.rounds, args.seconds, args.baseline)
+    if args.breakdown > 0:
+        result["breakdown"] = breakdown(args.breakdown)
     for name in args.cases:
         env_id, kwargs = CASES[name]
         result[name] = measure(env_id, kwargs, args.steps)
