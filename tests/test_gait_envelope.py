@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -39,7 +40,21 @@ def test_inside_the_base_limits_the_gait_and_the_walker_config_are_the_same_obje
         assert gait.envelope_fraction(command) == 0.0
         assert gait.for_command(command) is gait
         assert config.for_command(command) is config
-        assert FootstepPlanner(gait).clamp(command).command == command  # not clamped, same values
+        unbounded = FootstepPlanner(replace(gait, backward_turning=None))  # (backward while turning: its own bound, below)
+        assert unbounded.clamp(command).command == command  # not clamped, same values
+
+
+def test_backward_while_turning_is_clamped_and_said():
+    """(-0.3, 0, 0.5) is inside the base gait's box, but backward while turning is bounded
+    (``GaitConfig.backward_turning``): the backward speed gives way, the turn stays, a note says so."""
+    planner = FootstepPlanner()
+    base = planner.config.base_limits()
+    clamped = planner.clamp((-0.3, 0.0, 0.5))
+    expected = -base["vx"][0] * (planner.config.backward_turning - 0.5 / base["yaw_rate"][1])
+    assert clamped.command.vx == pytest.approx(-expected) and clamped.command.yaw_rate == 0.5
+    assert len(clamped.notes) == 1 and "backward while turning" in clamped.notes[0] and f"{-expected:.3g}" in clamped.notes[0]
+    assert planner.clamp((-0.3, 0.0, 0.1)).command == VelocityCommand(-0.3, 0.0, 0.1)  # within the bound
+    assert planner.clamp((0.3, 0.0, 0.5)).command == VelocityCommand(0.3, 0.0, 0.5)  # forward: no bound
 
 
 def test_beyond_the_base_limits_the_cadence_quickens_towards_the_envelope_edge():
@@ -157,7 +172,7 @@ def test_envelope_turning_in_place_turns_the_feet_about_their_middle():
     assert raw[0] > 0.05  # (uncompensated, its turns about the stance sole walk it forward)
 
 
-@pytest.mark.parametrize("command", [(0.5, 0.0, 0.5), (0.5, 0.0, -0.5), (0.0, 0.0, 0.5), (0.3, 0.1, -0.4), (-0.2, 0.0, 0.4), (0.4, 0.0, 0.8)])
+@pytest.mark.parametrize("command", [(0.5, 0.0, 0.5), (0.5, 0.0, -0.5), (0.0, 0.0, 0.5), (0.3, 0.1, -0.4), (-0.2, 0.1, 0.3), (0.4, 0.0, 0.8)])
 def test_turning_plans_walk_the_linear_velocity_asked_in_the_feet_heading(command):
     """A turning plan's feet's middle, seen in the feet's mean heading, goes at the command's
     (vx, vy) over a cycle once compensated (uncompensated the base gait's (0.5, 0, 0.5) drifts 0.06 m/s
@@ -172,6 +187,9 @@ def test_turning_plans_walk_the_linear_velocity_asked_in_the_feet_heading(comman
     np.testing.assert_allclose(planner.cycle_velocity(compensated), command[:2], atol=0.015)
     if command == (0.5, 0.0, 0.5):
         assert abs(planner.cycle_velocity(asked)[1]) > 0.05
+    # Backward turning without a lateral command: no lateral lead against the turn's, the vx is compensated, a drift is left.
+    backward = planner.turn_compensated(VelocityCommand(-0.2, 0.0, 0.4))
+    assert backward.vy == 0.0 and planner.cycle_velocity(backward)[0] == pytest.approx(-0.2, abs=0.01)
     stance = Footstep("right", [0.0, -0.12])
     straight = VelocityCommand(0.4, 0.1, 0.0)
     assert planner.next_step(stance, straight).position.tolist() == planner._step(stance, straight, None).position.tolist()

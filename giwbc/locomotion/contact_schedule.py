@@ -180,7 +180,9 @@ class ContactSchedule:
         dx, dy = (float(middle[0]) - float(middle0[0])) / (t - t0), (float(middle[1]) - float(middle0[1])) / (t - t0)
         command, (cx, cy) = self.command, self.planner.correction
         limit = ENVELOPE_MAX_CORRECTION
-        if command.vx != 0.0:
+        # (Not forward beside a lateral command: the longer steps cost lateral, (0.5, 0.2, 0) walked vy
+        # 0.155, not 0.181; backward beside one, uncorrected, (-0.5, 0.083, 0) walked -0.595.)
+        if command.vx < 0.0 or (command.vx > 0.0 and command.vy == 0.0):
             cx = min(max(cx + ENVELOPE_VELOCITY_GAIN * (command.vx - (c * dx + s * dy)), -limit), limit)
         self.planner.correction = (cx, cy)
 

@@ -29,6 +29,7 @@ SIDES = ("left", "right")
 # FootstepPlanner.turn_compensated: fixed-point passes, and steps planned before the cycle measured.
 TURN_COMPENSATION_ITERATIONS = 4
 TURN_COMPENSATION_WARMUP = 4
+CORRECTION_REACH = 0.04  # m a forward step may reach beyond max_step_forward while the velocity correction lengthens it
 
 
 def side_sign(side: str) -> float:
@@ -170,6 +171,11 @@ class GaitConfig:
     # walks the body forward by ~width × yaw rate / 2 while it turns: 0.12 m/s at 1 rad/s). The
     # envelope's gaits (GaitEnvelope.turn_about_centre); the base gait as it was.
     turn_about_centre: bool = False
+    # Backward while turning (None: no bound): |vx| / its base limit + |yaw rate| / its base limit (at
+    # most 1) within this. The G1 (tuning seed 1, 10 s): (-0.3, 0, 0.5) walked (-0.12, 0.03, 0.50) with
+    # an ankle roll 0.10 rad past its limit, (-0.2, 0, 0.5) walked -0.14 and fell at 6.3 s; (-0.15, 0,
+    # 0.3) (1.01) and (-0.3, 0, 0.15) (1.2) walked within 0.01 m/s of their vx, the joints inside their limits.
+    backward_turning: float | None = 1.25
 
     def __post_init__(self) -> None:
         for name in ("single_support", "double_support", "step_width", "min_width", "max_step_forward", "max_step_backward", "max_step_yaw"):
@@ -306,6 +312,15 @@ class FootstepPlanner:
                     notes.append(f"{name} = {value:g} with {widened} = {values[widened]:.3g} beyond the base gait's limits: clamped to {clipped:.3g} "
                                  f"({share:.0%} of its base limit)")
                     values[name] = clipped
+        bound = self.config.backward_turning
+        if bound is not None and values["vx"] < 0.0 and values["yaw_rate"] != 0.0:
+            # Backward while turning: |vx| / its base limit + |yaw rate| / its (at most 1) within ``bound``.
+            base = self.config.base_limits()
+            turning = min(abs(values["yaw_rate"]) / base["yaw_rate"][1], 1.0)
+            slowest = -base["vx"][0] * max(bound - turning, 0.0)
+            if -values["vx"] > slowest:
+                notes.append(f"vx = {values['vx']:.3g} with yaw_rate = {values['yaw_rate']:.3g}: backward while turning, clamped to {-slowest:.3g}")
+                values["vx"] = -slowest
         return ClampedCommand(VelocityCommand(**values), notes)
 
     def first_swing_side(self, command: VelocityCommand) -> str:
@@ -323,6 +338,13 @@ class FootstepPlanner:
         if command.yaw_rate != 0.0:
             command = self.turn_compensated(command)
         return self._step(stance, command, leading_yaw)
+
+    @property
+    def forward_reach(self) -> float:
+        """The longest forward step (m): ``max_step_forward``, plus ``CORRECTION_REACH`` while the
+        velocity correction lengthens the steps (the adapter shortens them: at the base gait's edge,
+        0.652 m/s, nominal 0.30 m steps walked 0.595 m/s)."""
+        return self.config.max_step_forward + (CORRECTION_REACH if self.correction[0] > 0.0 else 0.0)
 
     def turn_compensated(self, command: VelocityCommand) -> VelocityCommand:
         """The command whose turning steps walk ``command``: a turning plan's feet's middle, in the
@@ -343,6 +365,11 @@ class FootstepPlanner:
             ax, ay = self.cycle_velocity(VelocityCommand(vx, vy, command.yaw_rate))
             vx = min(max(vx + command.vx - ax, lo_x), hi_x)
             vy = min(max(vy + command.vy - ay, -vy_max), vy_max)
+            # Never a lateral lead against the turn's (nor against the command's own vy): the feet's
+            # pattern would flip (backward turning at (-0.2, 0, 0.5) fell with it).
+            lead = command.vy if command.vy != 0.0 else command.yaw_rate
+            if vy * lead < 0.0:
+                vy = 0.0
         compensated = self._compensated[key] = VelocityCommand(vx, vy, command.yaw_rate)
         return compensated
 
@@ -370,7 +397,7 @@ class FootstepPlanner:
         T = c.step_period
         side = other_side(stance.side)
         sign = side_sign(side)
-        dx = min(max(command.vx * T, -c.max_step_backward), c.max_step_forward)
+        dx = min(max(command.vx * T, -c.max_step_backward), self.forward_reach)
         lateral = command.vy * sign > 0.0
         extra = min(2.0 * abs(command.vy) * T, c.max_extra_width) if lateral else 0.0
         dy = sign * (c.step_width + extra)
@@ -416,7 +443,7 @@ class FootstepPlanner:
         c = self.config
         local, yaw = stance.relative(step)
         lo, hi = self.lateral_range(step.side)
-        local = np.array([min(max(local[0], -c.max_step_backward), c.max_step_forward), min(max(local[1], lo), hi)])
+        local = np.array([min(max(local[0], -c.max_step_backward), self.forward_reach), min(max(local[1], lo), hi)])
         sign = side_sign(step.side)
         outward = yaw * sign
         outward = min(max(outward, -c.max_inward_yaw), c.max_step_yaw)
