@@ -649,7 +649,8 @@ def run_evaluate_command(args: Any) -> int:
         summary: dict[str, Any]
         if args.policy is None:
             rows = sweep(args.force, env_id=args.env or DEFAULT_ENV_ID, env_kwargs=json.loads(args.env_kwargs), protocol=protocol, **common)
-            summary = {"env_id": args.env or DEFAULT_ENV_ID, "arms": [r.summary() | {"force": r.protocol.force} for r in rows]}
+            summary = {"env_id": args.env or DEFAULT_ENV_ID, "arms": [r.summary() | {"force": r.protocol.force}
+                                                                         | ({"per_plant": arm_per_plant(r)} if arm_per_plant(r) else {}) for r in rows]}
         else:
             from dataclasses import replace
 
@@ -682,6 +683,8 @@ def run_evaluate_command(args: Any) -> int:
             for c in comparisons:
                 print(f"paired at {c.wbc.protocol.force:g} N: the residual saves {_episodes(c.saved)} the WBC alone loses, "
                       f"loses {c.lost} the WBC alone saves (exact McNemar p = {c.paired_p_value:.3g})")
+                if format_per_plant(c):
+                    print(format_per_plant(c))
     return 0
 
 
