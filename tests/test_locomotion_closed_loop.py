@@ -126,10 +126,11 @@ def test_bad_commands_are_refused_or_clamped_with_a_message(g1):
     assert walker.command.vx == pytest.approx(walker.planner.limits()["vx"][1])  # a refused command changes nothing
     limits = walker.planner.limits()
     notes = walker.set_command(-2.0, -1.0, 4.0)
-    assert len(notes) == 5 and all("clamped" in note for note in notes)  # each beyond the envelope; beside backward's edge, the others shrink
-    assert [note.split(" ")[0] for note in notes] == ["vx", "vy", "yaw_rate", "vy", "yaw_rate"]
-    assert walker.command == FootstepPlanner(walker.base_config.gait).clamp((-2.0, -1.0, 4.0)).command and walker.command.vx == limits["vx"][0]
-    assert walker.state.notes[-5:] == notes
+    # Each beyond the envelope; beside backward's edge, the others shrink; backward while turning, vx gives way.
+    assert len(notes) == 6 and all("clamped" in note for note in notes)
+    assert [note.split(" ")[0] for note in notes] == ["vx", "vy", "yaw_rate", "vy", "yaw_rate", "vx"] and "backward while turning" in notes[-1]
+    assert walker.command == FootstepPlanner(walker.base_config.gait).clamp((-2.0, -1.0, 4.0)).command and limits["vx"][0] < walker.command.vx < 0.0
+    assert walker.state.notes[-6:] == notes
 
 
 def test_a_non_finite_state_gets_the_fallback_and_the_walk_goes_on(g1):
