@@ -23,8 +23,11 @@ them. Measured over the running phase only:
   motor and cycle); the emulator's CPU time (its own process, or the loop's thread in lockstep);
 - the bus loads of the hardware plan at that rate;
 - ``work_parts``: the host work split by part, wall time per cycle (p50 / p99 / mean, us): the CAN
-  exchange, the estimator, the safety check, the controller's tick (for the walker also its WBC
-  tick and its own planning), and the rest (the runtime's bookkeeping); and each part's mean over
+  exchange (and inside it ``receive``: reading every bus, decoding the replies and the joint state;
+  ``encode``: the commands' frames; ``send``: writing them; ``exchange_other``: the rest of it, the
+  IMU and the cycle's report; over DDS ``receive`` takes and checks the states and ``send`` fills
+  and publishes the command), the estimator, the safety check, the controller's tick (for the
+  walker also its WBC tick and its own planning), and the rest (the runtime's bookkeeping); and each part's mean over
   the slowest 1 % of cycles against its mean over all (``slowest_1pct.ratio_to_all_cycles``):
   every part slower at once in those cycles is the machine, not one code path;
 - with ``--controller walk``, ``walking.contact_switches``: how many of the slowest 1 % of cycles
@@ -132,7 +135,8 @@ class _WallParts:
     the parts (the runtime's own: report, signals, fault bookkeeping). Each wrapper costs about
     0.2 µs."""
 
-    PARTS = ("exchange", "estimator", "safety", "controller", "wbc")
+    PARTS = ("exchange", "estimator", "safety", "controller", "wbc", "receive", "encode", "send")
+    SUBPARTS = ("wbc", "receive", "encode", "send")  # inside another part (the controller's, the exchange's)
 
     def __init__(self) -> None:
         self._now = dict.fromkeys(self.PARTS, 0.0)
@@ -170,11 +174,14 @@ class _WallParts:
             return {}
         parts, work_us = parts[:n], work_us[:n]
         table = {name: parts[:, k] for k, name in enumerate(self.PARTS)}
-        if not table["wbc"].any():
-            del table["wbc"]
-        else:
+        for name in self.SUBPARTS:
+            if not table[name].any():
+                del table[name]
+        if "wbc" in table:
             table["planning"] = table["controller"] - table["wbc"]  # the walker's own work
-        table["rest"] = work_us - sum(table[name] for name in ("exchange", "estimator", "safety", "controller"))  # (wbc: inside controller)
+        if "receive" in table and "send" in table:
+            table["exchange_other"] = table["exchange"] - table["receive"] - table.get("encode", 0.0) - table["send"]
+        table["rest"] = work_us - sum(table[name] for name in ("exchange", "estimator", "safety", "controller"))  # (sub-parts: inside these)
         slowest = np.argsort(work_us)[n - max(1, n // 100):]
 
         def stats(values: np.ndarray) -> dict[str, float]:
@@ -287,6 +294,13 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
                               startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.1, off_delay=0.05))  # fmt: skip
     parts = _WallParts()  # (wraps the meter's wrappers: the same calls)
     parts.wrap(can_robot, "exchange", "exchange")
+    if transport == "dds":  # inside the exchange: take and check the states, fill and publish the command
+        parts.wrap(can_robot, "_take_states", "receive")
+        parts.wrap(can_robot, "_publish", "send")
+    else:  # inside the exchange: the replies (read, decode, joint state), the commands' frames, their writes
+        parts.wrap(can_robot, "_collect", "receive")
+        parts.wrap(can_robot, "_frames", "encode")
+        parts.wrap(can_robot.ports, "send", "send")
     if robot is not can_robot:
         parts.wrap(robot, "update", "estimator")
     parts.wrap(runtime.supervisor, "check", "safety")
