@@ -50,3 +50,31 @@ def test_torque_block_is_off_by_default_and_validated():
     assert len(torque_joints(description)) == 12
     with pytest.raises(ValueError, match="fraction of the effort limit"):
         WalkScales(torque=0.5)
+
+
+def test_deployed_walk_policy_task_puts_the_torque_block_on_the_feed_forward():
+    """giwbc deploy's WalkPolicyTask (impedance commands): the torque residual reaches the actuators
+    as feed-forward torque, exactly as much as in the simulation."""
+    from giwbc.apps.deploy_walk import WalkPolicyTask
+    from giwbc.robot import load
+    from giwbc.robot.mujoco_robot import MujocoRobot
+    from giwbc.tasks.rates import Rates
+
+    g1 = load("g1")
+    sent = []
+    for knee in (0.0, 1.0):
+        task = WalkPolicyTask(g1, residuals=["step", "torque"], walker="deployment")
+        robot = MujocoRobot(g1)
+        task.bind(robot, Rates.from_timestep(float(robot.model.opt.timestep), 50.0, 500.0))
+        task.np_random = np.random.default_rng(0)
+        robot.reset(*task.initial_state())
+        task.reset_task()
+        action = np.zeros(task.layout.size)
+        action[list(task.action_names()).index("torque/left_knee_joint")] = knee
+        task.set_action(action)
+        task.apply_command()
+        sent.append(robot.data.ctrl.copy())
+    difference = sent[1] - sent[0]
+    knee_actuator = _knee_actuator(robot.model)
+    assert difference[knee_actuator] == pytest.approx(0.05 * 139.0, abs=1e-9)
+    assert np.count_nonzero(difference) == 1

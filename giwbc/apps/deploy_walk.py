@@ -22,7 +22,7 @@ import argparse
 import json
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -180,6 +180,8 @@ class WalkPolicyTask(G1Walk):
         impedance = self.hold(robot)
         self.result = self.hold.last
         self.command = self.hold.active_command
+        if self._torque_on:  # the policy's torque block: on the feed-forward torque, as the simulation adds it to the WBC's
+            impedance = replace(impedance, tau_ff=np.asarray(impedance.tau_ff, dtype=float) + self._torque)
         robot.set_joint_impedance(impedance)
 
     def controller_failure(self) -> str | None:
