@@ -24,7 +24,9 @@ Per episode (engine level, in place, from a seeded generator): the randomization
 ``joint_friction``, ``joint_damping``, ``joint_armature``, ``actuator_strength``, ``ground_friction``,
 ``contact_timeconst``, ``contact_dampratio``, ``solver_iterations``, ``actuator_lag`` and ``imu_mounting``
 (:data:`giwbc.randomization.PARAMETERS`) vary a plant around any of these; the foot shape changes
-the model's geometry, so it is a plant (a variant) rather than a per-episode draw.
+the model's geometry, so it is a plant (a variant) rather than a per-episode draw. A plant drawn per
+episode among the variants, its parameters randomized around the drawn variant's own values, is
+:class:`giwbc.randomization.plant_distribution.PlantDistribution` (``plant="random"`` in the envs).
 """
 
 from __future__ import annotations

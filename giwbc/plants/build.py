@@ -2,9 +2,10 @@
 
 Geometry (feet), the IMU's mounting and the solver are set in the spec before compiling; joint
 friction, damping, armature, effort limits and contact softness are written into the compiled
-model by :func:`write_parameters`, which the per-episode randomizer (:mod:`giwbc.plants.randomize`)
-uses too, in place; actuator lag and the torque-speed envelope become the robot's
-:class:`~giwbc.robot.actuator_dynamics.ActuatorDynamics`, applied per physics step.
+model by :func:`write_parameters`; per episode the randomizer writes them in place
+(:mod:`giwbc.randomization.mujoco`; around a variant's own values:
+:mod:`giwbc.randomization.plant_distribution`); actuator lag and the torque-speed envelope become
+the robot's :class:`~giwbc.robot.actuator_dynamics.ActuatorDynamics`, applied per physics step.
 """
 
 from __future__ import annotations
