@@ -38,7 +38,10 @@ of the robot's plant distribution (``robots/<robot>/plant_distribution.toml``). 
 ground truth at the agent rate (50 Hz) instead of every physics tick, push in a seeded random
 direction (the environment's pushes) instead of the fixed directions, count any early end (a fall or
 a soft-limit end) as a fall, and add the estimator's errors: ``estimator_tilt_error_deg`` (max),
-``estimator_velocity_error_rms`` (base xy, m/s) and ``estimator_height_error_max_m``.
+``estimator_velocity_error_rms`` (base xy, m/s), ``estimator_height_error_max_m``,
+``estimator_height_drift_max_m`` (the height error's largest change from its first sampled value)
+and its contact decisions against the touch sensors (``estimator_contact_agreement``,
+``estimator_false_stance``: a foot taken as standing that carries under 20 N, ``estimator_missed_stance``).
 
 Run: ``python benchmarks/robustness.py --runs 10`` (the issue's size: ~hours on 2 vCPUs);
 ``--runs 2 --directions 4`` for a quick table. Use fresh seeds (>= 20000: never tuned on).
@@ -89,6 +92,10 @@ ENV_DEFINITIONS = {
     "estimator_tilt_error_deg": "max angle between the true and estimated base z axes after 0.5 s",
     "estimator_velocity_error_rms": "RMS of the base xy velocity error of the estimate (world frame), m/s",
     "estimator_height_error_max_m": "max |true - estimated base height|, m",
+    "estimator_height_drift_max_m": "max |height error - its first sampled value| over the episode, m",
+    "estimator_contact_agreement": "share of (sample, foot) pairs where the estimate's contact flag equals the touch sensor's load > 20 N",
+    "estimator_false_stance": "share of (sample, foot) pairs taken as standing while carrying under 20 N",
+    "estimator_missed_stance": "share of (sample, foot) pairs carrying over 20 N but taken as in swing",
     "push_directions": "seeded random (the environment's pushes), --directions pushes per seed",
     "calibration_failures": "episodes whose start-up IMU calibration never saw a standstill (counted as falls)",
     "paired": "--policy: walker alone vs policy on the same seeds and plant draws; successes (push: not fallen --judge-after s after the push "
@@ -197,6 +204,10 @@ class EnvMonitor(Monitor):
         self.tilt_error = 0.0
         self.velocity_errors: list[float] = []
         self.height_error = 0.0
+        self.height_drift = 0.0
+        self._height_error0: float | None = None
+        self.contact_pairs = np.zeros(3, dtype=int)  # agreeing, false stance, missed stance (sample, foot) pairs
+        self.samples = 0
         self.calibration_failed = False
         self.plant: str | None = None  # the plant the episode drew (plant="random"), None otherwise
 
@@ -211,7 +222,17 @@ class EnvMonitor(Monitor):
         cosine = float(np.clip(true_state.rotation[:, 2] @ estimate.rotation[:, 2], -1.0, 1.0))
         self.tilt_error = max(self.tilt_error, math.degrees(math.acos(cosine)))
         self.velocity_errors.append(float(np.linalg.norm(true_state.linear_velocity[:2] - estimate.linear_velocity[:2])))
-        self.height_error = max(self.height_error, abs(float(true_state.position[2] - estimate.position[2])))
+        height_error = float(estimate.position[2] - true_state.position[2])
+        self.height_error = max(self.height_error, abs(height_error))
+        if self._height_error0 is None:
+            self._height_error0 = height_error
+        self.height_drift = max(self.height_drift, abs(height_error - self._height_error0))
+        latest = estimated.latest_estimate
+        if latest is not None:
+            loaded = np.array([float(truth.sensor(touch)[0]) > LOADED_N for _, touch, _ in self.feet])
+            taken = np.asarray(latest.contacts, bool)
+            self.contact_pairs += [int(np.sum(loaded == taken)), int(np.sum(taken & ~loaded)), int(np.sum(loaded & ~taken))]
+            self.samples += len(loaded)
 
 
 def run_env_episode(description, plant: str, command, seconds: float, seed: int, conditions: dict, policy,
@@ -268,7 +289,8 @@ def run_env_episode(description, plant: str, command, seconds: float, seed: int,
 
 def run_env_cell(description, plant: str, command, seconds: float, seeds: list[int], conditions: dict, policy) -> dict:
     falls, tilt, slip, step_rms, tick_xy, tick_yaw = 0, 0.0, 0.0, [], [], []
-    est_tilt, est_velocity, est_height, uncalibrated = 0.0, [], 0.0, 0
+    est_tilt, est_velocity, est_height, est_drift, uncalibrated = 0.0, [], 0.0, 0.0, 0
+    pairs, samples = np.zeros(3, dtype=int), 0
     outcomes = []
     for seed in seeds:
         fell, monitor, rms = run_env_episode(description, plant, command, seconds, seed, conditions, policy)
@@ -278,6 +300,9 @@ def run_env_cell(description, plant: str, command, seconds: float, seeds: list[i
         tilt, slip = max(tilt, monitor.max_tilt), max(slip, monitor.max_slip)
         est_tilt, est_height = max(est_tilt, monitor.tilt_error), max(est_height, monitor.height_error)
         est_velocity.extend(monitor.velocity_errors)
+        est_drift = max(est_drift, monitor.height_drift)
+        pairs += monitor.contact_pairs
+        samples += monitor.samples
         if not fell:
             step_rms.append(rms)
             if monitor.errors:

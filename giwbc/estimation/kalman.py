@@ -84,10 +84,12 @@ class LegKalmanFilter:
     (``P[a]``, a copy: axes share theirs as the module says)."""
 
     def __init__(
-        self, n_feet: int, noise: LegKalmanNoise | None = None, use_ground_height: bool = False, velocity_gate: float = 11.3
+        self, n_feet: int, noise: LegKalmanNoise | None = None, use_ground_height: bool = False, velocity_gate: float = 11.3,
+        gate_power: float = 1.0,
     ) -> None:
         self.noise = noise if noise is not None else LegKalmanNoise()
         self.velocity_gate = velocity_gate  # normalized innovation above which a foot's velocity is down-weighted
+        self.gate_power = gate_power  # ... its variance times (innovation / gate)^power: 1 Huber-like, 2 a slipping foot left out
         self.n_feet = n = n_feet
         self.use_ground_height = use_ground_height
         states = 2 + n
@@ -212,7 +214,7 @@ class LegKalmanFilter:
         confidence, scaled by the normalized innovation beyond the gate (a foot that slips or
         bounces contradicts the IMU-propagated velocity: a Huber-like robust update).
         Plain floats: a few per foot."""
-        base, gate = self.noise.foot_velocity**2, self.velocity_gate
+        base, gate, power = self.noise.foot_velocity**2, self.velocity_gate, self.gate_power
         vx, vy, vz = self.x[:, 1].tolist()
         px, py, pz = (group.P.item(1, 1) for group in self._axis_groups)  # IMU velocity variance per axis
         variances = []
@@ -222,7 +224,8 @@ class LegKalmanFilter:
             if gate > 0:
                 rx, ry, rz = fx + vx, fy + vy, fz + vz  # innovation: the foot's velocity + the IMU's (zero if still)
                 nis = rx * rx / (px + variance) + ry * ry / (py + variance) + rz * rz / (pz + variance)
-                variance *= max(1.0, nis / gate)
+                if nis > gate:
+                    variance *= nis / gate if power == 1.0 else (nis / gate) ** power
             variances.append(variance)
         return variances
 
