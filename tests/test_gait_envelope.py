@@ -274,3 +274,31 @@ def test_beside_a_widened_component_the_others_shrink_and_it_is_said():
     assert planner.clamp((0.6, 0.2, edge + 1e-6)).command.vx == pytest.approx(0.6, abs=1e-4)
     with pytest.raises(ValueError, match="combined"):
         GaitEnvelope(combined=1.5)
+
+
+def _heading_frame_mean(after: float) -> tuple[list, object]:
+    """An ``observe`` hook summing the base's heading-frame (vx, vy) and yaw rate after ``after`` s."""
+    rows: list = []
+
+    def observe(robot, controller) -> None:
+        if robot.time() >= after:
+            base = robot.base_state()
+            c, s = base.rotation[0, 0], base.rotation[1, 0]
+            norm = math.hypot(c, s)
+            v = base.linear_velocity
+            rows.append(((c * v[0] + s * v[1]) / norm, (-s * v[0] + c * v[1]) / norm, base.angular_velocity[2]))
+
+    return rows, observe
+
+
+@pytest.mark.slow
+def test_the_g1_walks_forward_while_turning_without_sideways_drift(g1):
+    """(0.5, 0, 0.5) (before the turning compensation and the base gait's closed-loop heading it walked
+    (0.53, -0.10, 0.47): 0.1 m/s sideways): the mean after 3 s within 5 % of vx and the yaw rate, and
+    within 0.03 m/s of no sideways motion; no fall."""
+    rows, observe = _heading_frame_mean(3.0)
+    run = simulate_walk(g1, (0.5, 0.0, 0.5), 9.0, seed=1, observe=observe)
+    assert not run.fell and not run.notes
+    vx, vy, wz = np.mean(rows, axis=0)
+    assert vx == pytest.approx(0.5, rel=0.05) and wz == pytest.approx(0.5, rel=0.05)
+    assert abs(vy) < 0.03

@@ -13,7 +13,14 @@ and double support) and the envelope's step limits (longer backward steps, more 
 interpolated from the base gait at its limits to the envelope's gait at the envelope's edge — a
 command inside the base limits gets the base gait, unchanged. A command beyond the envelope is
 *clamped* (the notes say which and by how much; beside a widened component the others shrink,
-:attr:`GaitEnvelope.combined`); a non-finite command is *refused* with ``ValueError``.
+:attr:`GaitEnvelope.combined`; backward while turning is bounded, :attr:`GaitConfig.backward_turning`);
+a non-finite command is *refused* with ``ValueError``.
+
+A turning plan is *compensated* (:meth:`FootstepPlanner.turn_compensated`): the (vx, vy) it plans
+with are those whose steps' cycle, seen in the feet's mean heading, goes at the command's — each
+step goes along its stance sole's heading and the feet turn about a sole, which alone would walk
+(0.5, 0, 0.5) at (0.546, -0.057). A walker's velocity correction (:attr:`FootstepPlanner.correction`)
+comes on top.
 """
 
 from __future__ import annotations
