@@ -129,7 +129,7 @@ class GaitEnvelope:
     where the DCM goes (0.23 m at a nominal 0.38 m; the swing leg's momentum turns the CoM's
     acceleration against the DCM controller's) and the fastest cadences falling at 1.0 m/s."""
 
-    forward: float = 0.65  # m/s (the base gait's 0.652: no extension)
+    forward: float = 0.6  # m/s (at or below the base gait's 0.609: no extension)
     backward: float = 0.5  # m/s
     lateral: float = 0.2  # m/s (the base gait's 0.207: no extension)
     turning: float = 1.0  # rad/s
@@ -168,7 +168,9 @@ class GaitConfig:
     step_width: float = 0.237  # m, nominal lateral distance between sole centres
     min_width: float = 0.17  # m, never closer (no crossing)
     max_extra_width: float = 0.19  # m, how much wider than nominal a step may land
-    max_step_forward: float = 0.30  # m, sole-to-sole along the stance heading
+    # m, sole-to-sole along the stance heading. 0.28 (0.609 m/s at the base timing): at 0.30 the edge,
+    # 0.652 m/s, walked 0.571-0.615 (fresh seeds 60000-60002, 20 s), 0.609 walks 0.599-0.603 (tuning seeds 1-2).
+    max_step_forward: float = 0.28
     max_step_backward: float = 0.15  # m
     max_step_yaw: float = 0.5  # rad, leading foot's turn per step
     max_inward_yaw: float = 0.05  # rad, a foot turned towards the other (toe collision)
@@ -349,8 +351,8 @@ class FootstepPlanner:
     @property
     def forward_reach(self) -> float:
         """The longest forward step (m): ``max_step_forward``, plus ``CORRECTION_REACH`` while the
-        velocity correction lengthens the steps (the adapter shortens them: at the base gait's edge,
-        0.652 m/s, nominal 0.30 m steps walked 0.595 m/s)."""
+        velocity correction lengthens the steps (the adapter shortens them: at 0.652 m/s, nominal
+        0.30 m steps walked 0.595 m/s; 0.612 with this reach)."""
         return self.config.max_step_forward + (CORRECTION_REACH if self.correction[0] > 0.0 else 0.0)
 
     def turn_compensated(self, command: VelocityCommand) -> VelocityCommand:
