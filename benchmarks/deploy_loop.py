@@ -258,7 +258,7 @@ def _free_port() -> int:
 
 def run_rate(description, model, rate: float, seconds: float, controller: str, log_dir: Path, log: bool, rt_priority: int | None,
              mode: str, pin: bool, scene_rate: float = 50.0, live: bool = False, vx: float = 0.3,
-             cpu_latency: float | None = None, transport: str = "can") -> dict:  # fmt: skip
+             cpu_latency: float | None = None, transport: str = "can", spin: float | None = None) -> dict:  # fmt: skip
     plan = load_hardware(description.folder / "hardware.toml", rate, joint_names=description.joint_names, interface="virtual")
     cpus = sorted(os.sched_getaffinity(0))
     split = pin and len(cpus) > 1  # the emulator on the last CPU, the loop's thread on the first
@@ -290,7 +290,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         viewer = subprocess.Popen([sys.executable, "-m", "giwbc.apps.live", str(port), str(seconds + 30.0)],
                                   stdout=subprocess.PIPE, text=True)  # fmt: skip
     runtime = RealtimeRuntime(task, robot, controller_rate=rate, log=writer, rt_priority=rt_priority, cpu_latency=cpu_latency,
-                              safety=BENCHMARK_SAFETY, recorders=recorders,
+                              safety=BENCHMARK_SAFETY, recorders=recorders, spin=spin,
                               startup=StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.1, off_delay=0.05))  # fmt: skip
     parts = _WallParts()  # (wraps the meter's wrappers: the same calls)
     parts.wrap(can_robot, "exchange", "exchange")
@@ -375,6 +375,7 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         "seconds": seconds,
         "scheduler": runtime.scheduler,
         "cpu_latency_us": cpu_latency,
+        "spin_us": None if spin is None else 1e6 * spin,
         "cpu_idle": runtime.cpu_idle,
         "emulator_scheduler": emulator.scheduler if mode == "process" else "the loop's thread",
         "ok": result.ok,
@@ -430,6 +431,10 @@ def main() -> None:
     parser.add_argument("--cpu-latency", type=float, nargs="+", default=[None], metavar="US",
                         help="hold the CPUs' wake-up latency at most US µs while the motors are on (PM QoS, as giwbc deploy "
                              "--cpu-latency; 0: idle CPUs poll); several values (-1: none) alternate run by run")
+    parser.add_argument("--spin", type=float, default=None, metavar="US",
+                        help="µs the loop spins before each deadline instead of sleeping (default: the runtime's, 100 under SCHED_FIFO); "
+                             "a spin as long as the slack keeps the loop's CPU, and its caches, from other processes (the clock still "
+                             "sleeps 6 %% of each period under SCHED_FIFO)")
     parser.add_argument("--no-pin", action="store_true", help="do not pin the loop's thread and the emulator process to different CPUs")
     parser.add_argument("--transport", choices=("can", "dds"), nargs="+", default=["can"],
                         help="can: the emulated CAN buses; dds: the G1's rt/lowcmd / rt/lowstate on loopback (emulator in its own process); "
@@ -455,7 +460,7 @@ def main() -> None:
                             for transport in args.transport:
                                 result = run_rate(description, model, rate, duration, controller, Path(tmp), not args.no_log,
                                                   args.rt_priority or None, args.emulator, not args.no_pin, scene_rate, live, args.vx,
-                                                  latency, transport)  # fmt: skip
+                                                  latency, transport, None if args.spin is None else 1e-6 * args.spin)  # fmt: skip
                                 results.append({"variant": name, **result} if name else result)
     effect = None
     if args.foxglove:
