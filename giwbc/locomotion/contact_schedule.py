@@ -47,6 +47,8 @@ class ContactSchedule:
                 self._start_recovery(t, xi)
             return
         if self._phase is Phase.DOUBLE:
+            if self.walking:
+                self._walking_push(t, xi)  # a push: the other foot may step now, or the recovery's steps take over
             swing = other_side(self._stance)
             if not self._lift_off_issued and t >= self._phase_end - cfg.contact_ramp:
                 self.wbc.remove_contact(self.contacts[swing].name, ramp_time=cfg.contact_ramp)
@@ -58,6 +60,8 @@ class ContactSchedule:
         swing = other_side(self._stance)
         elapsed = t - self._phase_start
         assert self._swing is not None and self._target is not None
+        if self.walking and t < self._swing.t1 - 0.03:
+            self._walking_push(t, xi)
         if cfg.step_adaptation and t < self._swing.t1 - 0.03:
             self._adapt_step(t, xi)
         force = forces.get(swing, 0.0)

@@ -14,6 +14,18 @@ landing with the CoP held on the stance sole's edge nearest the DCM (or its cent
 ``recovery_cop``). While a foot swings *backward*, the CoM height reference drops so that the
 landing spot stays within the leg's reach (the reach crouch). At each touch-down the recovery
 settles once the capture point is back inside both feet, or the other foot steps on.
+
+**Pushes while walking** (or stepping in place; issue 38). Unhandled, a push at the wrong moment
+failed in one of a few ways: toward the stance side, the swinging foot (which cannot cross the
+stance leg) finished its swing at the narrowest width and the other foot stepped a whole step
+later, into a 0.7 m split with the DCM still outside it; in double support, the foot the plan had
+next stepped inward first; forward, the adapter asked for the landing box's front edge in the
+shortest swing and the foot came down 0.27 m short and late. Now a DCM error (with the disturbance
+lead) beyond ``walking_recovery_error`` hands the steps to the recovery above — the foot on the
+push's side steps now in double support, a swinging foot comes down on the adapter's spot and the
+other steps on — with only the force ramp between steps, then the walk goes on; below it, in double
+support, ``push_swap_error`` may swap the feet's roles. The adapter can also keep a pushed landing
+within the swinging foot's reach (``push_reach_speed``, :class:`~giwbc.locomotion.step_adapter.SwingReach`; off by default).
 """
 
 from __future__ import annotations
@@ -23,7 +35,8 @@ import math
 import numpy as np
 
 from giwbc.locomotion.footsteps import Footstep, other_side, side_sign
-from giwbc.locomotion.step_adapter import StepAdjustment, StepFrame
+from giwbc.locomotion.planar import distance2
+from giwbc.locomotion.step_adapter import StepAdjustment, StepFrame, SwingReach
 from giwbc.locomotion.support import clip_to_polygon, signed_distance
 from giwbc.locomotion.walker_config import Phase
 
@@ -85,6 +98,11 @@ class PushRecovery:
         to what it can still stand on — the stance sole, or the landing box of the other foot —
         wins. (The foot the capture point passed on the outside steps out when it is far past;
         when it is only just past, that foot carries and the other closes up.)"""
+        return self._swing_scores(xi)[0]
+
+    def _swing_scores(self, xi: np.ndarray) -> tuple[str, dict[str, float]]:
+        """:meth:`_recovery_swing_side`'s choice and each swing side's score (m: how far the
+        predicted DCM ends out of what that choice can still stand on)."""
         cfg = self.config
         growth = math.exp(self.omega * (cfg.min_swing + cfg.contact_ramp))
         scores = {}
@@ -98,7 +116,7 @@ class PushRecovery:
             (x_lo, x_hi), (y_lo, y_hi) = self._landing_box(swing)
             reach = math.hypot(local[0] - min(max(local[0], x_lo), x_hi), local[1] - min(max(local[1], y_lo), y_hi))
             scores[swing] = min(reach, max(signed_distance(predicted, sole), 0.0))
-        return min(scores, key=lambda side: (scores[side], side))
+        return min(scores, key=lambda side: (scores[side], side)), scores
 
     def _predict_recovery(self, stance: Footstep, horizon: float) -> Footstep:
         """Where a recovering foot goes: on the capture point ``horizon`` s ahead with the CoP on
@@ -130,10 +148,65 @@ class PushRecovery:
         assert self._nominal_target is not None
         edge = self._recovering and cfg.recovery_cop != "centre"
         cop_hold = clip_to_polygon(dcm, self.support_polygon((self._stance,))) if edge else stance.position
-        adjustment = self.adapter.adapt_in(frame, cop_hold, dcm, self._phase_end - t, box, remaining_range)  # type: ignore[union-attr]
+        reach = None
+        if self.walking and cfg.push_reach_speed > 0.0 and (self._recovering or distance2(self.state.dcm, self.state.dcm_ref) > cfg.stiff_swing_error):
+            # Pushed while walking: a landing the foot reaches, as soon as push_min_swing after lift-off.
+            foot = stance.to_local(self._sole_world(other_side(stance.side)).translation[:2])
+            reach = SwingReach(float(foot[0]), float(foot[1]), cfg.push_reach_speed, cfg.push_reach_slack)
+            remaining_range = (max(cfg.push_min_swing - (t - self._phase_start), 0.02), remaining_range[1])
+        adjustment = self.adapter.adapt_in(frame, cop_hold, dcm, self._phase_end - t, box, remaining_range, reach)  # type: ignore[union-attr]
         if edge and cfg.recovery_cop == "auto" and float(stance.to_local(adjustment.position)[0]) >= box[0][1] - 1e-6:
             adjustment = self.adapter.adapt_in(frame, stance.position, dcm, self._phase_end - t, box, remaining_range)  # type: ignore[union-attr]
         return adjustment
+
+    # --- pushes while walking ----------------------------------------------------------------------
+    def _walking_push(self, t: float, xi: np.ndarray) -> None:
+        """Walking or stepping in place, in double or single support: a push beyond
+        ``walking_recovery_error`` hands the steps to the standing recovery's (its choice of foot,
+        landing box, CoP on the stance edge, stiff swing) until the capture point is back inside the
+        feet, then the walk goes on; a smaller one may swap the feet's roles (:meth:`_push_swap`)."""
+        cfg = self.config
+        if self._recovering:
+            return
+        if math.isfinite(cfg.walking_recovery_error) and distance2(xi + self._disturbance_lead(), self.state.dcm_ref) > cfg.walking_recovery_error:
+            self._recovering = True
+            self._nominal_feet = {}
+            self.state.recovery_steps += 1
+            if self._phase is Phase.DOUBLE:
+                swing = self._recovery_swing_side(xi)
+                planned = other_side(self._stance)
+                if self._lift_off_issued and swing != planned:
+                    self.wbc.add_contact(self.contacts[planned], ramp_time=cfg.contact_ramp)
+                    self._begin_double(t, stance=other_side(swing), duration=max(cfg.contact_ramp, 1e-3))
+                elif not self._lift_off_issued:
+                    self._begin_double(t, stance=other_side(swing), duration=max(cfg.contact_ramp, 1e-3))
+            elif self._phase is Phase.SINGLE and self._target is not None:
+                swing = other_side(self._stance)
+                self.swing_tasks[swing].set_weight(cfg.recovery_swing_weight)
+                yaw = self._target.yaw
+                self._nominal_offset = -side_sign(swing) * cfg.recovery_offset * np.array([-math.sin(yaw), math.cos(yaw)])
+            return
+        if self._phase is Phase.DOUBLE:
+            self._push_swap(t, xi)
+
+    def _push_swap(self, t: float, xi: np.ndarray) -> None:
+        """Walking, in double support: a push that the foot about to swing cannot catch (it would
+        have to cross the other leg) swaps the feet's roles — the foot on the push's side steps now,
+        after the force ramp (:attr:`~giwbc.locomotion.walker_config.WalkerConfig.push_swap_error`)."""
+        cfg = self.config
+        if self._recovering or not math.isfinite(cfg.push_swap_error) or self._phase_start == self._swap_at:
+            return  # (one swap per double support: the one it started)
+        if distance2(xi + self._disturbance_lead(), self.state.dcm_ref) < cfg.push_swap_error:
+            return
+        planned = other_side(self._stance)
+        best, scores = self._swing_scores(xi)
+        if best == planned or scores[planned] <= scores[best] + cfg.push_swap_margin:
+            return
+        if self._lift_off_issued:  # the planned swing foot's force was ramping out: back in
+            self.wbc.add_contact(self.contacts[planned], ramp_time=cfg.contact_ramp)
+        self._begin_double(t, stance=planned, duration=max(cfg.contact_ramp, 1e-3))
+        self._swap_at = t
+        self.state.push_swaps += 1
 
     # --- the reach crouch -------------------------------------------------------------------------
     def _recovery_drop(self) -> float:
@@ -160,8 +233,10 @@ class PushRecovery:
         # (Measured on the tuning seeds at 150 N, no better: a shorter double support between
         # recovery steps, 26/40 vs 26/40; closing up a split wider than 0.45 m first, 22/40 vs 25/40.)
         if signed_distance(self.state.dcm, self.support_polygon()) > -cfg.settle_margin:
-            # Feet alternate: the one just landed carries, the other closes up or steps on.
-            self._begin_double(t, stance=landed, duration=max(cfg.gait.double_support, cfg.contact_ramp))
+            # Feet alternate: the one just landed carries, the other closes up or steps on (walking:
+            # at once, after the force ramp — a push while walking has had the time of a step already).
+            double = max(cfg.contact_ramp, 1e-3) if self.walking else max(cfg.gait.double_support, cfg.contact_ramp)
+            self._begin_double(t, stance=landed, duration=double)
             self.state.recovery_steps += 1
         else:
             self._recovering = False

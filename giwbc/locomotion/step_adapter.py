@@ -154,6 +154,44 @@ def solve_step_qp(
     return np.array(best)
 
 
+def step_cost(w_u: float, w_s: float, w_b: float, u_nom: tuple[float, float], sigma_nom: float, d: tuple[float, float], k: tuple[float, float],
+              z: tuple[float, float, float]) -> float:
+    """The step QP's cost (:func:`step_qp_matrices`) at ``z = (u_x, u_y, σ)``, plain floats."""
+    ux, uy, sigma = z
+    cost = w_u * ((ux - u_nom[0]) ** 2 + (uy - u_nom[1]) ** 2) + w_s * (sigma - sigma_nom) ** 2
+    return cost + w_b * ((d[0] * sigma + k[0] - ux) ** 2 + (d[1] * sigma + k[1] - uy) ** 2)
+
+
+@dataclass(frozen=True)
+class SwingReach:
+    """Where the swinging foot can still get to before it lands: within ``slack + speed · T`` m
+    (each axis of the stance frame) of where it is now (``x``, ``y``, stance frame), ``T`` the
+    remaining swing time. Without it the adapter may ask for a landing the leg cannot reach in
+    the time it chose — a push forward while walking asked for 0.7 m in 0.24 s, and the foot came
+    down 0.27 m short of it, late."""
+
+    x: float
+    y: float
+    speed: float  # m/s, mean horizontal speed of the foot over what is left of the swing
+    slack: float  # m: already within reach whatever the time (the foot's momentum, the landing's tolerance)
+    pieces: int = 12  # the remaining-time range is cut into this many pieces, each with the reach of its shortest time
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.x) and math.isfinite(self.y) and self.speed > 0.0 and math.isfinite(self.speed) and 0.0 <= self.slack < math.inf and self.pieces >= 1):
+            raise ValueError(f"swing reach needs a finite foot position, speed > 0, slack >= 0 and pieces >= 1, got {self}")
+
+    def cut(self, box: tuple[tuple[float, float], tuple[float, float]], remaining: float) -> tuple[tuple[float, float], tuple[float, float]]:
+        """``box`` cut to what the foot reaches in ``remaining`` s (the box's point nearest the reach when they do not meet)."""
+        radius = self.slack + self.speed * remaining
+        axes = []
+        for (lo, hi), at in zip(box, (self.x, self.y)):
+            a, b = max(lo, at - radius), min(hi, at + radius)
+            if a > b:  # out of reach: the box's bound nearest the foot
+                a = b = lo if at < lo else hi
+            axes.append((a, b))
+        return axes[0], axes[1]
+
+
 class StepFrame:
     """What one step's adaptations share (a swing's every tick): the stance sole's frame and the
     plan's next foot and DCM offset in it — made once per step, for :meth:`StepAdapter.adapt_in`."""
@@ -210,8 +248,13 @@ class StepAdapter:
         nominal_remaining: float,
         box: tuple[tuple[float, float], tuple[float, float]],
         remaining_range: tuple[float, float],
+        reach: SwingReach | None = None,
     ) -> StepAdjustment:
-        """:meth:`adapt` with its per-step part made already (:class:`StepFrame`): the same numbers."""
+        """:meth:`adapt` with its per-step part made already (:class:`StepFrame`): the same numbers.
+        With ``reach`` the landing also stays where the swinging foot reaches in the remaining time
+        chosen (the time range cut into ``reach.pieces``, each piece solved with the reach of its
+        shortest time, so that whatever time the piece picks the landing is reached; the cheapest
+        piece wins)."""
         cx, cy, xx, xy = float(cop[0]), float(cop[1]), float(dcm[0]), float(dcm[1])
         if not all(math.isfinite(v) for v in (cx, cy, xx, xy, nominal_remaining)):
             raise ValueError("step adapter inputs must be finite")
@@ -227,7 +270,19 @@ class StepAdapter:
         sigma_nom = math.exp(self.omega * min(max(nominal_remaining, t_lo), t_hi))
         (x_lo, x_hi), (y_lo, y_hi) = box
         k = (p[0] - b_nom[0], p[1] - b_nom[1])
-        z = solve_step_qp(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
+        if reach is None:
+            z = solve_step_qp(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
+        else:
+            n = reach.pieces if t_hi > t_lo else 1
+            best_cost = math.inf
+            for i in range(n):
+                a, b = t_lo + (t_hi - t_lo) * i / n, t_lo + (t_hi - t_lo) * (i + 1) / n
+                (px_lo, px_hi), (py_lo, py_hi) = reach.cut(box, a)
+                piece = solve_step_qp(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (px_lo, py_lo, math.exp(self.omega * a)),
+                                      (px_hi, py_hi, math.exp(self.omega * b)))
+                cost = step_cost(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (float(piece[0]), float(piece[1]), float(piece[2])))
+                if cost < best_cost:
+                    z, best_cost = piece, cost
         ux, uy, sigma = float(z[0]), float(z[1]), float(z[2])
         u_world = rotate(c, sn, ux, uy)
         ex, ey = p[0] + d[0] * sigma, p[1] + d[1] * sigma  # ξ_end, stance frame

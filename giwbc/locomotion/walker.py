@@ -179,6 +179,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._dcm_shaper = DcmErrorShaper(self.config.adapt_deadband, self.config.adapt_filter, self.config.adapt_full_error, self.config.adapt_fade_delay)
         self._recovering = False
         self._crouch = 0.0
+        self._swap_at = math.nan  # when a push last swapped the feet's roles in double support (push_recovery)
         self._lead_after: float | None = None  # set at the first tick: start_settle_time after it
         self._xi_previous: np.ndarray | None = None
         self._xi_rate: np.ndarray | None = None
