@@ -88,6 +88,10 @@ class EstimatorConfig:
     gyro_bias_gain: float = 0.2  # 1/s^2
     noise: LegKalmanNoise = field(default_factory=LegKalmanNoise)
     ground_height: float | None = None  # flat ground at this height: stance feet measured on it
+    ground_pull: float | None = None  # flat ground at this height: a still stance foot's height is pulled onto it ...
+    ground_pull_time: float = 0.5  # s: ... with this time constant (the filter's own rows for ground_height cost a
+    # second covariance for the z axis, ~13 us a tick; this costs a few float operations, and the foot's position rows
+    # carry it to the base height)
     velocity_gate: float = 11.3  # normalized innovation (3 dof) above which a foot's velocity is down-weighted; 0: off
     velocity_gate_power: float = 1.0  # beyond the gate its noise variance grows as (innovation / gate)^power: 1 bounds a
     # foot's pull (Huber-like), 2 leaves a sliding foot out until the IMU's own velocity uncertainty has grown to it
@@ -146,6 +150,8 @@ class EstimatorConfig:
             raise ValueError("accel_compensation_time and orientation_offset_time must be > 0")
         if self.foot_twist <= 0 or self.foot_twist_time <= 0:
             raise ValueError("foot_twist and foot_twist_time must be > 0")
+        if not self.ground_pull_time > 0:
+            raise ValueError("ground_pull_time must be > 0")
         if not (self.foot_roll_rate >= 0 and self.flat_still_time >= 0 and self.foot_roll_time >= 0):
             raise ValueError("foot_roll_rate, foot_roll_time and flat_still_time must be >= 0")
 
@@ -159,15 +165,15 @@ class EstimatorConfig:
 #   velocity error 0.03-0.06 -> 0.23-0.39 m/s: the feet that rock are the ones the base stands on);
 # - pivot_velocity: the velocity of the CoP, the point a rolling foot turns about, not of the sole
 #   centre (capsule 0.071 -> 0.052 m/s, point 0.044 -> 0.034);
-# - ground_height 0 (the ground the robot started on, flat): stance feet measured on it (height
-#   drift walking forward comes from a pitch error times the distance: 0.17 deg gives 7 mm in 3 m);
+# - ground_pull 0 (the ground the robot started on, flat): a still stance foot's height pulled onto it
+#   (height drift walking forward comes from a pitch error times the distance: 0.17 deg gives 7 mm in 3 m);
 # - velocity_gate_power 2: a foot whose velocity contradicts the IMU's beyond the gate is left out
 #   rather than pulling with a bounded force (nominal 0.027 -> 0.019 m/s, point feet 0.034 -> 0.028).
 # Opt-in (giwbc.runtimes.estimated.EstimatorInLoop uses it): it changes the estimate on the nominal
 # plant too (better: velocity 0.029 -> 0.027 m/s, height drift 7 -> 4 mm) and so the seed-pinned
 # deployment walks; the ground prior is wrong off flat ground.
 ANY_FEET: dict[str, object] = {
-    "foot_roll_rate": 1.0, "foot_roll_velocity": False, "pivot_velocity": True, "ground_height": 0.0,
+    "foot_roll_rate": 1.0, "foot_roll_velocity": False, "pivot_velocity": True, "ground_pull": 0.0,
     "velocity_gate_power": 2.0,
 }
 
@@ -301,6 +307,7 @@ class StateEstimator:
         self._efforts = np.zeros(self._dofs)
         self._forces = np.zeros((self.kinematics.n_feet, 3))
         self._pivot_velocities = np.zeros((self.kinematics.n_feet, 3))
+        self._foot_lists: tuple[list, list, list, list] | None = None
         self._estimate = self._initial_estimate()
 
     @property
@@ -387,6 +394,7 @@ class StateEstimator:
             self.kinematics.compute(base_quaternion, base_omega, self._positions, self._velocities, efforts)
         except np.linalg.LinAlgError:  # a leg at a singularity: no effort-based forces this update
             use_efforts, effort_ok = False, np.zeros_like(effort_ok)
+        self._foot_lists = None  # this update's kinematics as Python floats, made on first use
         stance = self._detect_contacts(measurement, effort_ok, use_efforts, plan, dt)
         flags = stance.tolist()
         loads = self._stance_confidence(flags)
@@ -427,6 +435,8 @@ class StateEstimator:
                 self.kinematics.foot_positions, velocities, loads, position_ok, velocity_ok,
                 0.0 if c.ground_height is None else c.ground_height,
             )
+            if c.ground_pull is not None:
+                self._pull_to_ground(flags, loads, dt)
         self._estimate = self._make_estimate(
             base_rotation, base_quaternion, base_omega, stance, np.array(loads), monitor.finish()
         )
@@ -500,8 +510,9 @@ class StateEstimator:
         c, kin = self.config, self.kinematics
         margin, min_load, headings, now = c.flat_cop_margin, c.flat_min_load, self.headings, self._time
         still_time = c.flat_still_time
-        wrenches = kin.foot_wrenches.tolist() if use_efforts else None
-        rotations = kin.foot_rotations.tolist()
+        lists = self._kinematics_lists()
+        wrenches = lists[0] if use_efforts else None
+        rotations = lists[1]
         valid = [True] * len(flags) if position_ok is self._all_feet else position_ok.tolist()
         ex = ey = ez = 0.0
         count = 0
@@ -548,7 +559,7 @@ class StateEstimator:
         total = sum(loads)  # swing feet have 0
         if total > 0.0:
             vx = vy = vz = 0.0
-            for (ux, uy, uz), w in zip(self.kinematics.foot_velocities.tolist(), loads):
+            for (ux, uy, uz), w in zip(self._kinematics_lists()[3], loads):
                 vx -= w * ux; vy -= w * uy; vz -= w * uz  # noqa: E702 - a still stance foot: IMU velocity = -its relative velocity
             vx, vy, vz = vx / total, vy / total, vz / total
         else:
@@ -768,7 +779,7 @@ class StateEstimator:
         """Stance confidences less for a turning foot (module doc, point 2): a sole that rolls on
         an edge or point, rocks or slips is neither flat nor a still point (its frame moves). The
         squared rate is low-passed (``foot_roll_time``): gyro and encoder noise alone is no turn."""
-        measured = (self.kinematics.foot_angular_velocities**2).sum(axis=1).tolist()
+        measured = [wx * wx + wy * wy + wz * wz for wx, wy, wz in self._kinematics_lists()[2]]
         alpha = dt / (self.config.foot_roll_time + dt) if dt > 0.0 else 1.0
         rate2 = self._rate2
         for i, w2 in enumerate(measured):
@@ -781,16 +792,39 @@ class StateEstimator:
         least = self.config.contact_min_confidence
         return [max(load / (1.0 + w2 * scale), least) if load > 0.0 else 0.0 for load, w2 in zip(loads, rate2)]
 
+    def _kinematics_lists(self) -> tuple[list, list, list, list]:
+        """This update's foot wrenches, rotations, angular velocities and velocities as Python floats
+        (converted once: several per-foot steps read them)."""
+        if self._foot_lists is None:
+            kin = self.kinematics
+            self._foot_lists = (kin.foot_wrenches.tolist(), kin.foot_rotations.tolist(), kin.foot_angular_velocities.tolist(),
+                                kin.foot_velocities.tolist())
+        return self._foot_lists
+
+    def _pull_to_ground(self, flags: list[bool], still: list[float], dt: float) -> None:
+        """Config ``ground_pull``: the height states (IMU and every foot) shifted together toward the
+        stance feet standing on the flat ground, each foot weighted by how still it is (a rolling
+        foot's sole centre is above the ground). The filter measures heights only relative to each
+        other, so a common shift is its unobservable direction: nothing it measures is contradicted."""
+        heights = self.filter.x[2]
+        error = weight = 0.0
+        ground = self.config.ground_pull
+        for i, (standing, trust) in enumerate(zip(flags, still)):
+            if standing:
+                error += trust * (ground - float(heights[2 + i]))
+                weight += trust
+        if weight > 0.0:
+            gain = min(dt / self.config.ground_pull_time * min(weight, 1.0), 1.0)
+            heights[0] += gain * error / weight
+            heights[2:] += gain * error / weight
+
     def _pivot_velocity(self) -> np.ndarray:
         """Per foot, the velocity (relative to a non-translating IMU, world axes) of its centre of
         pressure, the point of the sole that stays put when the foot rolls on an edge or a point
         (config ``pivot_velocity``): ``v_centre + w_foot x r``, ``r`` the CoP from the sole centre on
         the sole plane, from the leg's wrench, clamped to the sole's half sizes. Plain floats."""
-        kin, out = self.kinematics, self._pivot_velocities
-        for i, ((fx, fy, fz, tx, ty, tz), rotation, (wx, wy, wz), (vx, vy, vz)) in enumerate(
-            zip(kin.foot_wrenches.tolist(), kin.foot_rotations.tolist(), kin.foot_angular_velocities.tolist(),
-                kin.foot_velocities.tolist())
-        ):
+        out = self._pivot_velocities
+        for i, ((fx, fy, fz, tx, ty, tz), rotation, (wx, wy, wz), (vx, vy, vz)) in enumerate(zip(*self._kinematics_lists())):
             (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotation
             normal = m02 * fx + m12 * fy + m22 * fz  # force along the sole normal
             if normal <= 1e-6:
