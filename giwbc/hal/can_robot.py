@@ -302,10 +302,9 @@ class CanRobot(DescribedRobot):
         if kind != COMMAND:
             return self.codec.special_frames(kind), 0
         c = self.command
-        held = self._held
-        if (held is not None and held[0] is c and c.q_ref is held[2] and c.v_ref is held[3] and c.kp is held[4] and c.kd is held[5]
-                and c.tau_ff is held[6]):  # set by set_joint_impedance, fields untouched: its rows, checked and finite  # fmt: skip
-            rows = held[1].take(self.joint_index, axis=1)
+        held = self._held_rows()
+        if held is not None:
+            rows = held.take(self.joint_index, axis=1)
         else:
             rows = np.array((c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff), dtype=float)[:, self.joint_index]
         rows = self.group.commands_to_motor(rows)
@@ -315,6 +314,15 @@ class CanRobot(DescribedRobot):
         if n_clamped:
             np.add.at(self.clamp_counts, self.joint_index, clamp.astype(np.int64))
         return batch, n_clamped
+
+    def _held_rows(self) -> np.ndarray | None:
+        """The held command as ``(5, dofs)`` rows (q, v, kp, kd, tau; checked and finite) when
+        :meth:`set_joint_impedance` made it and its fields are still those rows' views; None otherwise."""
+        c, held = self.command, self._held
+        if (held is not None and held[0] is c and c.q_ref is held[2] and c.v_ref is held[3] and c.kp is held[4] and c.kd is held[5]
+                and c.tau_ff is held[6]):  # fmt: skip
+            return held[1]
+        return None
 
     def _receive(self, deadline: float | None, expect: bool = True) -> tuple[DecodedReplies, np.ndarray, int]:
         """Frames from every bus, decoded together: until each bus's motors all replied or

@@ -218,10 +218,9 @@ class DdsRobot(CanRobot):
             m.set_modes(modes)
             self._modes_on = self.enabled
         if self.enabled and kind == COMMAND:
-            c, held = self.command, self._held
-            if (held is not None and held[0] is c and c.q_ref is held[2] and c.v_ref is held[3] and c.kp is held[4]
-                    and c.kd is held[5] and c.tau_ff is held[6]):  # set_joint_impedance's rows: one assignment  # fmt: skip
-                m.floats[slots] = held[1][_IDL_ROWS].T
+            c, held = self.command, self._held_rows()
+            if held is not None:  # set_joint_impedance's rows: one assignment
+                m.floats[slots] = held[_IDL_ROWS].T
             else:
                 m.q[slots], m.dq[slots], m.tau[slots], m.kp[slots], m.kd[slots] = c.q_ref, c.v_ref, c.tau_ff, c.kp, c.kd
         else:  # enter (motors on, no torque yet), exit and before enabling: no gains, no torque
