@@ -94,3 +94,42 @@ def test_block_encoder_equals_the_field_encoder(protocols):
     rows[2, 4] = np.nan
     with pytest.raises(CommandValueError, match="NaN"):
         codec.encode_rows(rows)
+
+
+def test_the_held_command_encodes_as_any_command_does(g1):
+    """CanRobot encodes set_joint_impedance's checked rows directly; a command set any other way
+    (the same values in new arrays) goes the general way: the same frames, the same clamps."""
+    import socket
+
+    from giwbc.hal.bus import CanBusLink
+    from giwbc.hal.can_robot import CanRobot
+    from giwbc.hal.unix_bus import UnixCanBus
+    from giwbc.robot.interface import ImpedanceCommand
+
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    ends = [socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET) for _ in plan.buses]
+    links = [CanBusLink(UnixCanBus(f"held-{bus.name}", _socket=host), bus.make_protocol(), name=bus.name)
+             for bus, (host, _) in zip(plan.buses, ends)]  # fmt: skip
+    robot = CanRobot(g1, plan, links=links, wait_for_replies=False)
+    try:
+        rng = np.random.default_rng(3)
+        n = g1.dofs
+        for _ in range(10):
+            command = ImpedanceCommand(rng.uniform(-3, 3, n), rng.uniform(-40, 40, n), rng.uniform(0, 600, n), rng.uniform(0, 10, n),
+                                       rng.uniform(-300, 300, n))  # fmt: skip
+            robot.set_joint_impedance(command)
+            assert robot._held_rows() is not None
+            before = robot.clamp_counts.copy()
+            held, held_clamped = robot._frames("command")
+            held_counts = robot.clamp_counts.copy()
+            c = robot.command
+            robot.command = ImpedanceCommand(*(np.array(v) for v in (c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff)))
+            assert robot._held_rows() is None
+            general, general_clamped = robot._frames("command")
+            np.testing.assert_array_equal(held.view(np.uint8), general.view(np.uint8))
+            assert held_clamped == general_clamped > 0
+            np.testing.assert_array_equal(robot.clamp_counts - held_counts, held_counts - before)  # the same fields clamped
+    finally:
+        robot.close()
+        for _, motor in ends:
+            motor.close()
