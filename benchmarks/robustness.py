@@ -312,7 +312,10 @@ def run_env_cell(description, plant: str, command, seconds: float, seeds: list[i
     return {"runs": len(seeds), "falls": falls, "max_foot_tilt_deg": round(tilt, 2), "max_foot_slip_mm": round(1000 * slip, 1),
             "step_tracking_rms": _rms(step_rms), "tick_tracking_rms": _rms(tick_xy), "tick_yaw_rate_rms": _rms(tick_yaw),
             "estimator_tilt_error_deg": round(est_tilt, 3), "estimator_velocity_error_rms": _rms(est_velocity),
-            "estimator_height_error_max_m": round(est_height, 4), "calibration_failures": uncalibrated, "_outcomes": outcomes}
+            "estimator_height_error_max_m": round(est_height, 4), "estimator_height_drift_max_m": round(est_drift, 4),
+            **{name: (round(float(count) / samples, 4) if samples else None) for name, count in
+               zip(("estimator_contact_agreement", "estimator_false_stance", "estimator_missed_stance"), pairs)},
+            "calibration_failures": uncalibrated, "_outcomes": outcomes}
 
 
 def run_env_pushes(description, plant: str, force: float, pushes: int, seeds: list[int], judge_after: float, conditions: dict,
