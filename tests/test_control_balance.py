@@ -12,9 +12,23 @@ import pytest
 
 from giwbc.control import WbcStatus, make_balance_controller
 from giwbc.control.balance import BalanceController, BalanceOnEstimate
+from giwbc.control.contacts import sole_frame
 from giwbc.robot import MujocoRobot, RobotDescription
 
 ACCURATE = {"eps_abs": 1e-9, "max_iter": 100, "max_iter_in": 100}
+
+
+def contact_cop(controller: BalanceController, contact, result) -> np.ndarray:
+    """The centre of pressure (contact frame, sole plane) of a contact's planned wrench."""
+    wrench = result.contact_wrenches[contact.name]  # contact frame: (f, τ) about the contact origin
+    return np.array([-wrench[4] / wrench[2], wrench[3] / wrench[2]])
+
+
+def inside(point: np.ndarray, polygon: np.ndarray, tolerance: float = 1e-7) -> bool:
+    """``point`` inside the counter-clockwise convex ``polygon``."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    offsets = point - polygon
+    return bool(np.all(edges[:, 0] * offsets[:, 1] - edges[:, 1] * offsets[:, 0] >= -tolerance))
 
 
 def normals(controller: BalanceController, result) -> np.ndarray:
@@ -40,11 +54,16 @@ def test_a_far_com_target_leaves_each_foot_its_minimum_load_and_the_cop_in_the_m
         corners = controller.wbc.contact_forces(controller.contacts[1].name, result)[2::3]
         np.testing.assert_allclose(corners, 0.015 * weight, rtol=1e-4)
     assert np.all(load <= 3.0 * weight)
-    full = g1.contacts
-    for contact, rectangle in zip(controller.contacts, full):
-        assert contact.half_length == pytest.approx(0.85 * rectangle.half_length)
-        assert contact.half_width == pytest.approx(0.85 * rectangle.half_width)
+    for contact, rectangle in zip(controller.contacts, g1.contacts):
+        # The support: the description's sole hull (about its centroid, the contact frame) shrunk to 85 %.
+        _, hull = sole_frame(rectangle)
+        support = contact.support_polygon()
+        assert sorted(map(tuple, np.round(support, 9))) == sorted(map(tuple, np.round(0.85 * hull, 9)))
+        wrench = controller.wbc.contact_wrench_world(contact.name, result)  # the CoP inside it
+        cop = contact_cop(controller, contact, result)
+        assert inside(cop, support), (cop, support)
         assert contact.mu == 0.8 and contact.kd == 20.0 and contact.kp == 0.0
+        assert wrench[2] > 0.0
 
 
 def test_the_cop_margin_binds_under_a_forward_com_acceleration(g1: RobotDescription) -> None:
@@ -57,10 +76,10 @@ def test_the_cop_margin_binds_under_a_forward_com_acceleration(g1: RobotDescript
     result = controller.update(q, v, 0.002)
     assert result.ok, result.message
     for contact in controller.contacts:
-        wrench = result.contact_wrenches[contact.name]  # contact frame: (f, τ) about the sole centre
-        cop_x = -wrench[4] / wrench[2]
-        assert abs(cop_x) <= contact.half_length * (1 + 1e-6)
-    assert max(abs(-result.contact_wrenches[c.name][4] / result.contact_wrenches[c.name][2]) / c.half_length for c in controller.contacts) > 0.999
+        front = float(contact.support_polygon()[:, 0].max())  # the shrunk sole's front edge (contact frame)
+        cop = contact_cop(controller, contact, result)
+        assert cop[0] <= front + 1e-6
+        assert cop[0] > 0.999 * front  # ... reached, not passed
 
 
 def test_limits_and_gains_come_from_the_description_and_the_config(g1: RobotDescription) -> None:

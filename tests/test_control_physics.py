@@ -5,6 +5,7 @@ written out by hand in the world frame, the torque limits, finite differences of
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import mujoco
 import numpy as np
@@ -28,7 +29,7 @@ from giwbc.control import (
     WholeBodyController,
     foot_contacts,
 )
-from giwbc.control.contacts import corner_forces_from_wrench, corner_wrench_map, rectangle_corners
+from giwbc.control.contacts import corner_forces_from_wrench, corner_wrench_map, rectangle_corners, sole_frame
 from giwbc.control.qp import QpProblem
 from giwbc.testing import DoublePendulum, SimplePendulum
 from giwbc.testing.pinocchio_models import build_pinocchio_model
@@ -100,11 +101,13 @@ def test_tight_torque_limits_bind_and_the_answer_still_obeys_mujocos_dynamics_an
             assert np.all(np.abs(tangential) <= MU * fn * (1 + 1e-6) + 1e-6)
             if fn > 1.0:
                 steepest = max(steepest, float(np.max(np.abs(tangential))) / fn)
-            if fn > 1.0:  # the centre of pressure inside the sole rectangle
+            if fn > 1.0:  # the centre of pressure inside the sole's support polygon
                 cop = np.cross(normal, torque) / fn  # about the contact origin, world axes
                 local = placement.rotation.T @ cop
-                assert abs(local[0]) <= contact.half_length * (1 + 1e-6) + 1e-9
-                assert abs(local[1]) <= contact.half_width * (1 + 1e-6) + 1e-9
+                polygon = contact.support_polygon()  # counter-clockwise, contact frame
+                edges = np.roll(polygon, -1, axis=0) - polygon
+                offsets = local[:2] - polygon
+                assert np.all(edges[:, 0] * offsets[:, 1] - edges[:, 1] * offsets[:, 0] >= -1e-9), (local, polygon)
     assert bound >= 1  # the limits did bind: the bound above was tested, not idle
     assert steepest > 0.05  # friction was used: the cone check was not idle either
 
@@ -999,10 +1002,17 @@ def test_contact_settings_are_checked_and_feet_are_built_from_the_description(g1
     for scale in (0.0, 1.5):
         with pytest.raises(ValueError, match=rf"^scale must be in \(0, 1\], got {scale}$"):
             foot_contacts(g1, scale=scale)
-    for contact, rectangle in zip(foot_contacts(g1, "corners", scale=0.5, mu=0.3), g1.contacts):
+    box = replace(g1, contacts=tuple(replace(rectangle, sole=()) for rectangle in g1.contacts))  # rectangular soles
+    for contact, rectangle in zip(foot_contacts(box, "corners", scale=0.5, mu=0.3), box.contacts):
         assert (contact.name, contact.link, contact.mu) == (rectangle.name, rectangle.link, 0.3)
         assert contact.half_length == 0.5 * rectangle.half_length and contact.half_width == 0.5 * rectangle.half_width
         np.testing.assert_array_equal(contact.offset.translation, rectangle.center)
+    for contact, rectangle in zip(foot_contacts(g1, "corners", scale=0.5, mu=0.3), g1.contacts):  # the G1's sole polygon
+        offset, hull = sole_frame(rectangle)
+        assert (contact.name, contact.link, contact.mu) == (rectangle.name, rectangle.link, 0.3)
+        np.testing.assert_allclose(contact.corners[:, :2], 0.5 * hull, atol=1e-12)  # shrunk about its centroid ...
+        np.testing.assert_allclose(contact.offset.translation, offset.translation)  # ... the contact frame's origin
+        assert offset.translation[0] > rectangle.center[0]  # the G1's heel is narrower than its toe: ahead of the centre
 
 
 def test_the_first_joint_rotation_of_a_one_joint_model(rng: np.random.Generator) -> None:

@@ -45,7 +45,7 @@ import pinocchio as pin
 from scipy.optimize import nnls
 
 from giwbc.control.kinodynamics import LOCAL, Kinodynamics
-from giwbc.control.sole import FULL, RollDetector, SoleSupport, SoleRectangle, hull_2d, scale_polygon
+from giwbc.control.sole import FULL, RollDetector, SoleSupport, SoleRectangle, hull_2d, polygon_centroid, scale_polygon
 
 _frame_jacobian = pin.getFrameJacobian
 _classical_acceleration = pin.getFrameClassicalAcceleration
@@ -514,11 +514,11 @@ class PolygonContact(WrenchConeContact):
 
     @classmethod
     def from_sole(cls, rectangle: object, *, scale: float = 1.0, **kwargs: object) -> "PolygonContact":
-        """Build from a :class:`giwbc.robot.description.ContactRectangle`'s sole points (offset:
-        its centre), the hull shrunk about its centroid by ``scale``."""
-        offset = pin.SE3(np.eye(3), np.asarray(rectangle.center, dtype=float))  # type: ignore[attr-defined]
-        vertices = scale_polygon(hull_2d(rectangle.sole_points), scale)  # type: ignore[attr-defined]
-        return cls(rectangle.name, rectangle.link, vertices, offset=offset, **kwargs)  # type: ignore[attr-defined]
+        """Build from a :class:`giwbc.robot.description.ContactRectangle`'s sole points, the hull
+        shrunk about its centroid by ``scale``. The contact frame sits at the hull's area centroid
+        (:func:`sole_frame`): where a walker holds the CoP of a stance foot and puts its landings."""
+        offset, vertices = sole_frame(rectangle)
+        return cls(rectangle.name, rectangle.link, scale_polygon(vertices, scale), offset=offset, **kwargs)  # type: ignore[attr-defined]
 
     def corner_forces(self, forces: np.ndarray) -> np.ndarray:
         """(k, 3) forces at the polygon's vertices (contact frame) reproducing the wrench."""
@@ -604,6 +604,21 @@ class CornerContact(RectangleContact):
         return np.asarray(forces, dtype=float).reshape(-1, 3).copy()
 
 
+def sole_frame(rectangle: object) -> tuple[pin.SE3, np.ndarray]:
+    """The contact frame of a sole given by points (robot.toml ``sole``) and the hull's vertices
+    in it: origin at the hull's area centroid in the sole plane, axes the link's.
+
+    The CoP a walker plans for a stance foot is that frame's origin; at the rectangle's centre,
+    a sole that touches mostly through its forefoot (a heel point on the centreline) would have
+    its planned CoP near the hull's narrow end, with no room to move sideways. For a symmetric
+    sole the centroid is the rectangle's centre and nothing moves."""
+    hull = hull_2d(rectangle.sole_points)  # type: ignore[attr-defined]
+    centroid = polygon_centroid(hull)
+    origin = np.asarray(rectangle.center, dtype=float).copy()  # type: ignore[attr-defined]
+    origin[:2] += centroid
+    return pin.SE3(np.eye(3), origin), hull - centroid
+
+
 def foot_contacts(
     description: object, model: str = "surface", *, scale: float = 1.0, roll: RollDetector | None = None, roll_kp: float = 0.0,
     roll_supports: bool = True, learn_step: float = 0.0, **kwargs: object
@@ -628,9 +643,10 @@ def foot_contacts(
         if model == "corners":
             contact: Contact = CornerContact.from_rectangle(rectangle, scale=scale, **kwargs)
             if sole:
+                offset, vertices = sole_frame(rectangle)
                 contact = CornerContact(
-                    rectangle.name, rectangle.link, rectangle.half_length, rectangle.half_width, offset=contact.offset,
-                    vertices=scale_polygon(hull_2d(rectangle.sole_points), scale), **kwargs,
+                    rectangle.name, rectangle.link, rectangle.half_length, rectangle.half_width, offset=offset,
+                    vertices=scale_polygon(vertices, scale), **kwargs,
                 )
         elif sole:
             contact = PolygonContact.from_sole(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, **kwargs)

@@ -65,14 +65,20 @@ def polygon_wrench_cone(vertices: np.ndarray, mu: float) -> np.ndarray:
     return rows_array[np.sort(unique)]
 
 
-def scale_polygon(vertices: np.ndarray, scale: float) -> np.ndarray:
-    """The polygon shrunk (``scale`` < 1) about its area centroid."""
+def polygon_centroid(vertices: np.ndarray) -> np.ndarray:
+    """Area centroid (2,) of a simple polygon given by its (k, 2) vertices in order."""
     vertices = np.asarray(vertices, dtype=float)
     x, y = vertices[:, 0], vertices[:, 1]
     x1, y1 = np.roll(x, -1), np.roll(y, -1)
     cross = x * y1 - x1 * y
     area = cross.sum() / 2.0
-    centroid = np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (6.0 * area)
+    return np.array([((x + x1) * cross).sum(), ((y + y1) * cross).sum()]) / (6.0 * area)
+
+
+def scale_polygon(vertices: np.ndarray, scale: float) -> np.ndarray:
+    """The polygon shrunk (``scale`` < 1) about its area centroid."""
+    vertices = np.asarray(vertices, dtype=float)
+    centroid = polygon_centroid(vertices)
     return centroid + scale * (vertices - centroid)
 
 
@@ -228,4 +234,4 @@ def _width_along(polygon: np.ndarray, direction: np.ndarray) -> float:
     return float(projection.max() - projection.min())
 
 
-__all__ = ["FULL", "RollDetector", "SoleRectangle", "SoleSupport", "SupportMode", "hull_2d", "polygon_wrench_cone", "scale_polygon"]
+__all__ = ["FULL", "RollDetector", "SoleRectangle", "SoleSupport", "SupportMode", "hull_2d", "polygon_centroid", "polygon_wrench_cone", "scale_polygon"]
