@@ -125,6 +125,9 @@ class EstimatorConfig:
     flat_cop_margin: float = 0.6  # ... and its centre of pressure within this fraction of the sole's half sizes
     flat_still_time: float = 0.03  # s: ... and turning slower than foot_roll_rate for this long (a rocking foot stops
     # for an instant at each end of its rock, tilted: no level reference)
+    flat_max_tilt: float = math.pi  # rad: ... and its sole, at the estimated base orientation, within this of level (a
+    # point or capsule foot resting on its toe-heel diagonal is still and its CoP central, but tilted: not a level
+    # reference; the estimate's own tilt error is a few tenths of a degree, so a few degrees tell it apart)
     accel_compensation_time: float = 0.1  # s: low-pass matching the accelerometer with the legs' velocity change
     foot_twist: float = math.radians(0.4)  # rad: a foot whose heading turned more than this ...
     foot_twist_time: float = 0.05  # s: ... within this time twisted on the ground (a slip; slower is gyro bias)
@@ -167,6 +170,9 @@ class EstimatorConfig:
 #   centre (capsule 0.071 -> 0.052 m/s, point 0.044 -> 0.034);
 # - ground_pull 0 (the ground the robot started on, flat): a still stance foot's height pulled onto it
 #   (height drift walking forward comes from a pitch error times the distance: 0.17 deg gives 7 mm in 3 m);
+# - flat_max_tilt 1.5 deg: a foot resting tilted (point feet on their toe-heel diagonal: "flat"
+#   feet were up to 5.6 deg off level, p99) is no level reference (point feet tilt error max
+#   1.22 -> see README);
 # - velocity_gate_power 2: a foot whose velocity contradicts the IMU's beyond the gate is left out
 #   rather than pulling with a bounded force (nominal 0.027 -> 0.019 m/s, point feet 0.034 -> 0.028).
 # Opt-in (giwbc.runtimes.estimated.EstimatorInLoop uses it): it changes the estimate on the nominal
@@ -174,7 +180,7 @@ class EstimatorConfig:
 # deployment walks; the ground prior is wrong off flat ground.
 ANY_FEET: dict[str, object] = {
     "foot_roll_rate": 1.0, "foot_roll_velocity": False, "pivot_velocity": True, "ground_pull": 0.0,
-    "velocity_gate_power": 2.0,
+    "velocity_gate_power": 2.0, "flat_max_tilt": math.radians(1.5),
 }
 
 
@@ -272,6 +278,7 @@ class StateEstimator:
         self._all_feet.flags.writeable = False
         self._leg_joint_index = np.flatnonzero(self._leg_mask.any(axis=0))
         self._sole_half = [(c.half_length, c.half_width) for c in description.contacts]
+        self._flat_cos = math.cos(min(self.config.flat_max_tilt, math.pi))  # a sole's world z-z component at least this
         self.standstill = StandstillDetector(c.standstill, self._leg_joint_index)
         self.headings = FootHeadings(n_feet, c.foot_twist, c.foot_twist_time)
         self.reset()
@@ -534,6 +541,8 @@ class StateEstimator:
                     px, py = -ty / fz, tx / fz  # centre of pressure from the sole centre, world axes
                     half_length, half_width = self._sole_half[i]
                     flat = abs(m00 * px + m10 * py) <= margin * half_length and abs(m01 * px + m11 * py) <= margin * half_width
+            if flat and m22 < self._flat_cos:
+                flat = False
             self._flat[i] = flat
             if not flat:
                 continue
@@ -779,18 +788,19 @@ class StateEstimator:
         """Stance confidences less for a turning foot (module doc, point 2): a sole that rolls on
         an edge or point, rocks or slips is neither flat nor a still point (its frame moves). The
         squared rate is low-passed (``foot_roll_time``): gyro and encoder noise alone is no turn."""
-        measured = [wx * wx + wy * wy + wz * wz for wx, wy, wz in self._kinematics_lists()[2]]
         alpha = dt / (self.config.foot_roll_time + dt) if dt > 0.0 else 1.0
-        rate2 = self._rate2
-        for i, w2 in enumerate(measured):
-            rate2[i] += alpha * (w2 - rate2[i]) if math.isfinite(w2) else 0.0
         scale = 1.0 / self.config.foot_roll_rate**2
-        since, now = self._still_since, self._time
-        for i, w2 in enumerate(rate2):
-            if w2 * scale > 1.0:
+        rate2, since, now, least = self._rate2, self._still_since, self._time, self.config.contact_min_confidence
+        trusted = []
+        for i, ((wx, wy, wz), load) in enumerate(zip(self._kinematics_lists()[2], loads)):
+            w2 = wx * wx + wy * wy + wz * wz
+            if math.isfinite(w2):
+                rate2[i] += alpha * (w2 - rate2[i])
+            turning = rate2[i] * scale
+            if turning > 1.0:
                 since[i] = now  # turning: still from here on at the earliest
-        least = self.config.contact_min_confidence
-        return [max(load / (1.0 + w2 * scale), least) if load > 0.0 else 0.0 for load, w2 in zip(loads, rate2)]
+            trusted.append(max(load / (1.0 + turning), least) if load > 0.0 else 0.0)
+        return trusted
 
     def _kinematics_lists(self) -> tuple[list, list, list, list]:
         """This update's foot wrenches, rotations, angular velocities and velocities as Python floats
@@ -806,29 +816,29 @@ class StateEstimator:
         stance feet standing on the flat ground, each foot weighted by how still it is (a rolling
         foot's sole centre is above the ground). The filter measures heights only relative to each
         other, so a common shift is its unobservable direction: nothing it measures is contradicted."""
-        heights = self.filter.x[2]
+        states = self.filter.x[2]
         error = weight = 0.0
         ground = self.config.ground_pull
-        for i, (standing, trust) in enumerate(zip(flags, still)):
+        for standing, trust, height in zip(flags, still, states[2:].tolist()):
             if standing:
-                error += trust * (ground - float(heights[2 + i]))
+                error += trust * (ground - height)
                 weight += trust
         if weight > 0.0:
-            gain = min(dt / self.config.ground_pull_time * min(weight, 1.0), 1.0)
-            heights[0] += gain * error / weight
-            heights[2:] += gain * error / weight
+            shift = min(dt / self.config.ground_pull_time * min(weight, 1.0), 1.0) * error / weight
+            states += shift
+            states[1] -= shift  # the velocity is not a height
 
     def _pivot_velocity(self) -> np.ndarray:
         """Per foot, the velocity (relative to a non-translating IMU, world axes) of its centre of
         pressure, the point of the sole that stays put when the foot rolls on an edge or a point
         (config ``pivot_velocity``): ``v_centre + w_foot x r``, ``r`` the CoP from the sole centre on
         the sole plane, from the leg's wrench, clamped to the sole's half sizes. Plain floats."""
-        out = self._pivot_velocities
+        rows = []
         for i, ((fx, fy, fz, tx, ty, tz), rotation, (wx, wy, wz), (vx, vy, vz)) in enumerate(zip(*self._kinematics_lists())):
             (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotation
             normal = m02 * fx + m12 * fy + m22 * fz  # force along the sole normal
             if normal <= 1e-6:
-                out[i] = (vx, vy, vz)
+                rows.append((vx, vy, vz))
                 continue
             # the wrench's torque in the sole frame: CoP (px, py) on the sole plane
             sx, sy = m00 * tx + m10 * ty + m20 * tz, m01 * tx + m11 * ty + m21 * tz
@@ -836,8 +846,9 @@ class StateEstimator:
             px = min(max(-sy / normal, -half_length), half_length)
             py = min(max(sx / normal, -half_width), half_width)
             rx, ry, rz = m00 * px + m01 * py, m10 * px + m11 * py, m20 * px + m21 * py  # world axes
-            out[i] = (vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx)
-        return out
+            rows.append((vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx))
+        self._pivot_velocities[:] = rows
+        return self._pivot_velocities
 
     def _stance_confidence(self, flags: list[bool]) -> list[float]:
         """Per foot: 0 in swing, else its load confidence, at least ``contact_min_confidence``."""
