@@ -53,7 +53,8 @@ def test_commands_beyond_limits_are_clamped_with_a_note_and_nan_refused():
     assert clamped.command.vx == pytest.approx(hi) and clamped.command.yaw_rate == pytest.approx(planner.limits()["yaw_rate"][0])
     assert len(clamped.notes) == 2 and "vx = 5" in clamped.notes[0] and "clamped" in clamped.notes[0]
     steps, notes = planner.plan(Footstep("left", [0, 0.12]), (5.0, 0.0, 0.0), 2)
-    assert notes and planner.config.max_step_forward == pytest.approx(steps[0].to_local(steps[1].position)[0])
+    assert notes and hi * planner.config.step_period == pytest.approx(steps[0].to_local(steps[1].position)[0])  # the forward edge's step
+    assert hi == pytest.approx(planner.config.max_forward_speed) and hi * planner.config.step_period < planner.config.max_step_forward
     for bad in [(math.nan, 0, 0), (0, math.inf, 0), (0, 0, -math.inf)]:
         with pytest.raises(ValueError, match="finite"):
             planner.plan(Footstep("left", [0, 0.12]), bad, 3)

@@ -129,7 +129,7 @@ class GaitEnvelope:
     where the DCM goes (0.23 m at a nominal 0.38 m; the swing leg's momentum turns the CoM's
     acceleration against the DCM controller's) and the fastest cadences falling at 1.0 m/s."""
 
-    forward: float = 0.6  # m/s (at or below the base gait's 0.609: no extension)
+    forward: float = 0.6  # m/s (at or below the base gait's 0.609, GaitConfig.max_forward_speed: no extension)
     backward: float = 0.5  # m/s
     lateral: float = 0.2  # m/s (the base gait's 0.207: no extension)
     turning: float = 1.0  # rad/s
@@ -168,9 +168,11 @@ class GaitConfig:
     step_width: float = 0.237  # m, nominal lateral distance between sole centres
     min_width: float = 0.17  # m, never closer (no crossing)
     max_extra_width: float = 0.19  # m, how much wider than nominal a step may land
-    # m, sole-to-sole along the stance heading. 0.28 (0.609 m/s at the base timing): at 0.30 the edge,
-    # 0.652 m/s, walked 0.571-0.615 (fresh seeds 60000-60002, 20 s), 0.609 walks 0.599-0.603 (tuning seeds 1-2).
-    max_step_forward: float = 0.28
+    max_step_forward: float = 0.30  # m, sole-to-sole along the stance heading (a standing recovery's too)
+    # m/s (None: max_step_forward / step period): the forward edge walked. At 0.652 (0.30 m steps at the
+    # base timing) the G1 walked 0.571-0.615 (fresh seeds 60000-60002, 20 s), at 0.609 0.599-0.603 (tuning
+    # seeds 1-2). (Not by a shorter max_step_forward: 0.28 lost standing pushes forward, 25 N s forward-right.)
+    max_forward_speed: float | None = 0.609
     max_step_backward: float = 0.15  # m
     max_step_yaw: float = 0.5  # rad, leading foot's turn per step
     max_inward_yaw: float = 0.05  # rad, a foot turned towards the other (toe collision)
@@ -191,6 +193,8 @@ class GaitConfig:
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"gait {name} must be finite and > 0, got {value}")
+        if self.max_forward_speed is not None and not (math.isfinite(self.max_forward_speed) and self.max_forward_speed > 0):
+            raise ValueError(f"gait max_forward_speed must be finite and > 0 (or None), got {self.max_forward_speed}")
         if self.min_width > self.step_width:
             raise ValueError(f"min_width {self.min_width} exceeds the nominal step_width {self.step_width}")
         if self.envelope is not None:
@@ -205,7 +209,8 @@ class GaitConfig:
         T = self.step_period
         vy = self.max_extra_width / (2.0 * T)
         yaw = self.max_step_yaw / (2.0 * T)
-        return {"vx": (-self.max_step_backward / T, self.max_step_forward / T), "vy": (-vy, vy), "yaw_rate": (-yaw, yaw)}
+        forward = self.max_step_forward / T if self.max_forward_speed is None else min(self.max_step_forward / T, self.max_forward_speed)
+        return {"vx": (-self.max_step_backward / T, forward), "vy": (-vy, vy), "yaw_rate": (-yaw, yaw)}
 
     def limits(self) -> dict[str, tuple[float, float]]:
         """The velocity ranges walked: the envelope's (at least the base limits), else the base limits."""
