@@ -171,8 +171,8 @@ class EstimatorConfig:
 # - ground_pull 0 (the ground the robot started on, flat): a still stance foot's height pulled onto it
 #   (height drift walking forward comes from a pitch error times the distance: 0.17 deg gives 7 mm in 3 m);
 # - flat_max_tilt 1.5 deg: a foot resting tilted (point feet on their toe-heel diagonal: "flat"
-#   feet were up to 5.6 deg off level, p99) is no level reference (point feet tilt error max
-#   1.22 -> see README);
+#   feet were up to 5.6 deg off level, p99) is no level reference (point feet, seed 20003:
+#   tilt error max 1.22 -> 0.41 deg);
 # - velocity_gate_power 2: a foot whose velocity contradicts the IMU's beyond the gate is left out
 #   rather than pulling with a bounded force (nominal 0.027 -> 0.019 m/s, point feet 0.034 -> 0.028).
 # Opt-in (giwbc.runtimes.estimated.EstimatorInLoop uses it): it changes the estimate on the nominal
