@@ -1007,12 +1007,14 @@ def test_contact_settings_are_checked_and_feet_are_built_from_the_description(g1
         assert (contact.name, contact.link, contact.mu) == (rectangle.name, rectangle.link, 0.3)
         assert contact.half_length == 0.5 * rectangle.half_length and contact.half_width == 0.5 * rectangle.half_width
         np.testing.assert_array_equal(contact.offset.translation, rectangle.center)
-    for contact, rectangle in zip(foot_contacts(g1, "corners", scale=0.5, mu=0.3), g1.contacts):  # the G1's sole polygon
+    heel = ((0.08, 0.03), (0.08, -0.03), (-0.075, 0.012), (-0.075, -0.012))  # a narrower heel than toe
+    trapezoid = replace(g1, contacts=tuple(replace(rectangle, sole=heel) for rectangle in g1.contacts))
+    for contact, rectangle in zip(foot_contacts(trapezoid, "corners", scale=0.5, mu=0.3), trapezoid.contacts):
         offset, hull = sole_frame(rectangle)
         assert (contact.name, contact.link, contact.mu) == (rectangle.name, rectangle.link, 0.3)
         np.testing.assert_allclose(contact.corners[:, :2], 0.5 * hull, atol=1e-12)  # shrunk about its centroid ...
         np.testing.assert_allclose(contact.offset.translation, offset.translation)  # ... the contact frame's origin
-        assert offset.translation[0] > rectangle.center[0]  # the G1's heel is narrower than its toe: ahead of the centre
+        assert offset.translation[0] > rectangle.center[0]  # the heel narrower than the toe: the frame ahead of the centre
 
 
 def test_the_first_joint_rotation_of_a_one_joint_model(rng: np.random.Generator) -> None:
