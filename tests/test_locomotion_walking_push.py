@@ -98,13 +98,13 @@ def test_bad_swing_reach_is_refused(kwargs):
 
 @pytest.mark.slow
 def test_a_mid_swing_push_toward_the_stance_side_is_recovered(g1):
-    """Stepping in place (seed 700), 30 N s (300 N x 0.1 s) to the left at 3.117 s: the left foot
-    carries, the right one is half-way through its swing and cannot step under a push its leg would
-    have to cross the stance leg for. Without the walking-push steps the swinging foot landed where
-    the plan had it, the left foot stepped out a whole step later and the robot fell 0.9 s after the
-    push; with them the right foot comes down at once, the left one steps out, and the robot is up
-    3 s after the push ends (judge_push)."""
-    push = Push(3.117, 300.0, math.pi / 2, 0.1)
+    """Stepping in place (seed 700), 30 N s (300 N x 0.1 s) to the right at 3.617 s: the right foot
+    carries, the left one is half-way through its swing and cannot step under a push its leg would
+    have to cross the stance leg for. Before the walking-push steps the swinging foot landed where
+    the plan had it and the robot fell 0.9 s after the push; now the left foot comes down, the right
+    one steps out, and the robot is up 3 s after the push ends (judge_push). (On 84060df's narrower
+    G1 sole, since taken back, this push fell either way.)"""
+    push = Push(3.617, 300.0, -math.pi / 2, 0.1)
     seen = {}
 
     def at_push(robot, walker) -> None:
@@ -115,8 +115,8 @@ def test_a_mid_swing_push_toward_the_stance_side_is_recovered(g1):
     off = WalkerConfig(walking_recovery_error=math.inf, push_swap_error=math.inf)
     before = simulate_walk(g1, (0.0, 0.0, 0.0), end, pushes=(push,), step_in_place=True, seed=700, config=off)
     now = simulate_walk(g1, (0.0, 0.0, 0.0), end, pushes=(push,), step_in_place=True, seed=700, observe=at_push)
-    # The push comes mid-swing of the right foot, toward the left (stance) foot.
-    assert seen["phase"] is Phase.SINGLE and seen["stance"] == "left" and 0.25 < seen["progress"] < 0.75
+    # The push comes mid-swing of the left foot, toward the right (stance) foot.
+    assert seen["phase"] is Phase.SINGLE and seen["stance"] == "right" and 0.25 < seen["progress"] < 0.75
     judged = [judge_push(fell=r.fell, fall_time=r.fall_time, end_time=r.seconds, push_end=push.start + push.duration) for r in (before, now)]
     assert not judged[0].success and judged[0].fall_after_push is not None and judged[0].fall_after_push < 2.0
     assert judged[1].success and now.recovery_steps >= 1 and now.wbc_failures == 0
