@@ -248,3 +248,23 @@ def test_help_says_what_every_option_is_with_defaults(capsys):
     for expected in ("(default: 100000)", "(default: 4)", "(default: 50000)", "(default: subproc)", "(default: 0)",
                      "rounded up to whole rollouts", "0: no checkpoints", "--overwrite"):
         assert expected in text, expected
+
+
+def test_a_warm_started_run_is_not_said_to_resume_exactly(tmp_path) -> None:
+    """Resuming a run that began from a warm start is said to start a new branch (its resume is
+    measured not to be bit-exact yet); the same run without one continues exactly."""
+    import json
+    from dataclasses import asdict
+
+    from giwbc.apps.training import TrainConfig, resume_branch
+
+    checkpoints = tmp_path / "run" / "checkpoints"
+    checkpoints.mkdir(parents=True)
+    (checkpoints / "step_512.zip").write_bytes(b"")
+    plain = TrainConfig(resume=str(checkpoints / "step_512.zip"))
+    saved = {**json.loads(json.dumps(asdict(plain))), "resume": None}
+    (tmp_path / "run" / "config.json").write_text(json.dumps(saved))
+    assert resume_branch(plain) == []
+    (tmp_path / "run" / "config.json").write_text(json.dumps({**saved, "warm_start": "policies/g1_walk_residual.onnx"}))
+    (reason,) = resume_branch(plain)
+    assert "warm-started from policies/g1_walk_residual.onnx" in reason

@@ -217,6 +217,8 @@ def resume_branch(config: TrainConfig) -> list[str]:
     if not run_config.is_file():
         return [*reasons, f"its run's configuration is not at {run_config}"]
     saved, mine = json.loads(run_config.read_text()), json.loads(json.dumps(asdict(config)))  # tuples as JSON lists
+    if saved.get("warm_start"):  # measured: its resume parts from the uninterrupted run at the first rollout (configs/README.md)
+        reasons.append(f"the run was warm-started from {saved['warm_start']}, whose resume is not yet exact")
     defaults = json.loads(json.dumps(asdict(TrainConfig())))  # a field newer than the run's config.json: its default
     saved = {key: saved.get(key, defaults[key]) for key in RUN_FIELDS}
     return reasons + [f"{key}: {saved[key]!r} in the run, {mine[key]!r} now" for key in RUN_FIELDS if saved[key] != mine[key]]
