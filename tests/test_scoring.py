@@ -112,7 +112,7 @@ def test_arm_scores_count_successes_and_survivals_apart() -> None:
     assert ARM.summary() == {
         "arm": "wbc", "episodes": 4, "success_rate": 0.25, "success_rate_95ci": [low, high], "survival_rate": 0.5,
         "mean_survival_time_s": pytest.approx(3.675), "mean_return": 10.0, "mean_max_tilt_rad": pytest.approx(1.4),
-        "settle_after_push_s": 3.0, "falls": 2, "fall_after_push_s": [-0.1, 2.2],
+        "settle_after_push_s": 3.0, "falls": 2, "fall_after_push_s": [-0.1, 2.2], "not_started": 0,
     }  # fmt: skip
     assert format_falls([ARM]) == "falls of wbc at 80 N, s after the push ended: -0.10, 2.20"
     empty = ArmResult("none", PushProtocol(), ())

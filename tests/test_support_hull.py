@@ -69,7 +69,10 @@ def test_polygon_sole_in_robot_toml_and_refusals(tmp_path, g1):
     assert robot.contacts[0].sole == TRIANGLE and robot.contacts[1].sole == ()
     contacts = foot_contacts(robot, scale=0.85)
     assert isinstance(contacts[0], PolygonContact) and isinstance(contacts[1], SurfaceContact)
-    np.testing.assert_allclose(np.sort(contacts[0].support_polygon(), axis=0), np.sort(scale_polygon(hull_2d(np.array(TRIANGLE)), 0.85), axis=0))
+    # In the contact frame, which sits at the hull's area centroid (the triangle's: 0.0267 m ahead of the rectangle's centre).
+    centroid = np.array(TRIANGLE).mean(axis=0)
+    np.testing.assert_allclose(np.sort(contacts[0].support_polygon(), axis=0), np.sort(scale_polygon(hull_2d(np.array(TRIANGLE)), 0.85) - centroid, axis=0))
+    np.testing.assert_allclose(contacts[0].offset.translation, np.asarray(robot.contacts[0].center) + [*centroid, 0.0])
     for bad, message in (("[[0.08, 0.025], [0.08, -0.025]]", "at least 3"), ("[[0.2, 0.0], [0.08, -0.025], [-0.08, 0.0]]", "outside"),
                          ("[[0.0, 0.0], [0.01, 0.0], [0.02, 0.0]]", "one line")):
         (folder / "robot.toml").write_text(text.replace("[[0.08, 0.025], [0.08, -0.025], [-0.08, 0.0]]", bad))
@@ -149,7 +152,8 @@ def test_corner_model_puts_one_force_per_sole_point(g1):
     result = controller.update(q, np.zeros(robot.pinocchio_model.nv), 0.0)
     total = 0.0
     for contact in controller.contacts:
-        assert contact.n_force == 9 and {tuple(p) for p in contact.corners[:, :2]} == set(TRIANGLE)
+        points = contact.corners[:, :2] + contact.offset.translation[:2] - np.asarray(robot.contacts[0].center)[:2]  # back to the rectangle's centre
+        assert contact.n_force == 9 and {tuple(np.round(p, 12)) for p in points} == set(TRIANGLE)
         forces = contact.corner_forces(controller.wbc.contact_forces(contact.name, result))
         assert (forces[:, 2] >= -1e-6).all() and (np.abs(forces[:, :2]) <= contact.mu * forces[:, 2:3] + 1e-6).all()
         total += forces[:, 2].sum()
