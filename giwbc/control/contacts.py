@@ -641,13 +641,14 @@ def foot_contacts(
     for rectangle in description.contacts:  # type: ignore[attr-defined]
         sole = bool(getattr(rectangle, "sole", ()))
         if model == "corners":
-            contact: Contact = CornerContact.from_rectangle(rectangle, scale=scale, **kwargs)
             if sole:
                 offset, vertices = sole_frame(rectangle)
-                contact = CornerContact(
+                contact: Contact = CornerContact(
                     rectangle.name, rectangle.link, rectangle.half_length, rectangle.half_width, offset=offset,
                     vertices=scale_polygon(vertices, scale), **kwargs,
                 )
+            else:
+                contact = CornerContact.from_rectangle(rectangle, scale=scale, **kwargs)
         elif sole:
             contact = PolygonContact.from_sole(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, **kwargs)
         else:
