@@ -56,15 +56,16 @@ class PushRecovery:
             return
         # (Plain floats, element by element: the same operations as on the 2-vectors.)
         dt = t - last
-        alpha = dt / (self.config.disturbance_time + dt)
+        px, py = float(previous[0]), float(previous[1])
+        rx, ry = (float(xi[0]) - px) / dt, (float(xi[1]) - py) / dt
         smoothed = self._xi_rate
-        rates = []
-        for i in (0, 1):
-            rate = (float(xi[i]) - float(previous[i])) / dt
-            rates.append(rate if smoothed is None else float(smoothed[i]) + alpha * (rate - float(smoothed[i])))
-        self._xi_rate = np.array(rates)
+        if smoothed is not None:
+            alpha = dt / (self.config.disturbance_time + dt)
+            sx, sy = float(smoothed[0]), float(smoothed[1])
+            rx, ry = sx + alpha * (rx - sx), sy + alpha * (ry - sy)
+        self._xi_rate = np.array([rx, ry])
         omega, cop = self.omega, self._last_cop
-        self.state.disturbance = np.array([rates[i] - omega * (float(previous[i]) - float(cop[i])) for i in (0, 1)])
+        self.state.disturbance = np.array([rx - omega * (px - float(cop[0])), ry - omega * (py - float(cop[1]))])
 
     def _disturbance_lead(self) -> np.ndarray:
         """The DCM shift a disturbance ``d`` held for ``disturbance_horizon`` more seconds adds to
@@ -75,11 +76,22 @@ class PushRecovery:
             return np.zeros(2)
         return self.state.disturbance / self.omega * (1.0 - math.exp(-self.omega * cfg.disturbance_horizon))
 
+    def _led(self, xi: np.ndarray) -> tuple[float, float]:
+        """``xi + self._disturbance_lead()`` on floats, the same operations (every tick's push checks)."""
+        x, y = float(xi[0]), float(xi[1])
+        cfg = self.config
+        if not cfg.use_disturbance:
+            return x + 0.0, y + 0.0
+        omega = self.omega
+        factor = 1.0 - math.exp(-omega * cfg.disturbance_horizon)
+        dx, dy = self.state.disturbance.tolist()
+        return x + dx / omega * factor, y + dy / omega * factor
+
     def _pushed(self, t: float, xi: np.ndarray) -> bool:
         """Standing: the capture point ``xi`` (plus the disturbance lead, unless a walk stopped less
         than ``lead_settle_time`` ago) is ``push_margin`` outside the support polygon."""
         cfg = self.config
-        return signed_distance(xi + self._disturbance_lead() if cfg.trigger_lead and t >= self._lead_after else xi, self.support_polygon()) > cfg.push_margin
+        return signed_distance(self._led(xi) if cfg.trigger_lead and t >= self._lead_after else xi, self.support_polygon()) > cfg.push_margin
 
     # --- the recovery steps ----------------------------------------------------------------------
     def _start_recovery(self, t: float, xi: np.ndarray) -> None:
@@ -168,7 +180,7 @@ class PushRecovery:
         cfg = self.config
         if self._recovering:
             return
-        if math.isfinite(cfg.walking_recovery_error) and distance2(xi + self._disturbance_lead(), self.state.dcm_ref) > cfg.walking_recovery_error:
+        if math.isfinite(cfg.walking_recovery_error) and distance2(self._led(xi), self.state.dcm_ref) > cfg.walking_recovery_error:
             self._recovering = True
             self._nominal_feet = {}
             self.state.recovery_steps += 1
@@ -196,7 +208,7 @@ class PushRecovery:
         cfg = self.config
         if self._recovering or not math.isfinite(cfg.push_swap_error) or self._phase_start == self._swap_at:
             return  # (one swap per double support: the one it started)
-        if distance2(xi + self._disturbance_lead(), self.state.dcm_ref) < cfg.push_swap_error:
+        if distance2(self._led(xi), self.state.dcm_ref) < cfg.push_swap_error:
             return
         planned = other_side(self._stance)
         best, scores = self._swing_scores(xi)

@@ -33,7 +33,7 @@ controller's state.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Iterator, Mapping, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -58,6 +58,44 @@ from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
 
 __all__ = ["Phase", "WalkerConfig", "WalkerState", "WalkingController"]
+
+
+class _FootForces(Mapping[str, float]):
+    """The measured normal force per side (N), each read from the robot (``contact_wrench``) the
+    first time it is asked for: the contact schedule reads the swinging foot's in single support
+    only, so a tick reads at most one of them (two reads a tick were ~5 % of a walking step; on an
+    estimating robot each also computes the feet's poses). The robot does not change during a
+    tick, so the values are those a read before it gives."""
+
+    __slots__ = ("_robot", "_links", "_read")
+
+    def __init__(self, robot: Robot, links: dict[str, str]) -> None:
+        self._robot, self._links, self._read = robot, links, {}
+
+    def _force(self, side: str) -> float | None:
+        value = self._read.get(side)
+        if value is None:
+            link = self._links.get(side)
+            if link is None:
+                return None
+            value = self._read[side] = float(self._robot.contact_wrench(link).force[2])
+        return value
+
+    def get(self, side: str, default: float | None = None) -> float | None:  # type: ignore[override]
+        value = self._force(side)
+        return default if value is None else value
+
+    def __getitem__(self, side: str) -> float:
+        value = self._force(side)
+        if value is None:
+            raise KeyError(side)
+        return value
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._links)
+
+    def __len__(self) -> int:
+        return len(self._links)
 
 
 class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerReferences, Residuals):
@@ -98,6 +136,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self.dcm_controller: DcmController | None = None
         self._anchored = False
         self.last_result: WbcResult | None = None  # the last tick's
+        self._force_links = {side: contact.link for side, contact in self.contacts.items()}  # (for step()'s _FootForces)
         self._clear_residuals()
 
     def _leg_geometry(self) -> tuple[dict[str, int], float]:
@@ -243,7 +282,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         return hull
 
     # --- the tick ----------------------------------------------------------------------------------
-    def update(self, q: np.ndarray, v: np.ndarray, t: float, foot_forces: dict[str, float] | None = None) -> WbcResult:
+    def update(self, q: np.ndarray, v: np.ndarray, t: float, foot_forces: Mapping[str, float] | None = None) -> WbcResult:
         """One tick at time ``t`` for the Pinocchio state ``(q, v)``; ``foot_forces`` are the
         measured normal forces (N) per side (``None``: switch on the schedule alone).
 
@@ -289,10 +328,11 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         return self.last_result
 
     def step(self, robot: Robot) -> WbcResult:
-        """Read ``robot`` (state, foot forces), run one tick, command its joint torques."""
+        """Read ``robot`` (state, foot forces), run one tick, command its joint torques. The foot
+        forces are read when the schedule asks for them (:class:`_FootForces`: the swinging foot's in
+        single support, none in the other phases), the same values as read beforehand."""
         q, v = robot.generalized_state()
-        forces = {side: float(robot.contact_wrench(contact.link).force[2]) for side, contact in self.contacts.items()}
-        result = self.update(q, v, robot.time(), forces)
+        result = self.update(q, v, robot.time(), _FootForces(robot, self._force_links))
         robot.set_joint_torques(result.tau)
         return result
 
