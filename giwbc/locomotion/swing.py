@@ -39,10 +39,10 @@ def _quintic(t0: float, t1: float, start: tuple[float, float, float], end: tuple
 
 
 def _evaluate(coefficients: tuple[float, ...] | np.ndarray, s: float) -> tuple[float, float, float]:
-    c = coefficients
-    p = c[0] + s * (c[1] + s * (c[2] + s * (c[3] + s * (c[4] + s * c[5]))))
-    v = c[1] + s * (2 * c[2] + s * (3 * c[3] + s * (4 * c[4] + s * 5 * c[5])))
-    a = 2 * c[2] + s * (6 * c[3] + s * (12 * c[4] + s * 20 * c[5]))
+    c0, c1, c2, c3, c4, c5 = coefficients
+    p = c0 + s * (c1 + s * (c2 + s * (c3 + s * (c4 + s * c5))))
+    v = c1 + s * (2 * c2 + s * (3 * c3 + s * (4 * c4 + s * 5 * c5)))
+    a = 2 * c2 + s * (6 * c3 + s * (12 * c4 + s * 20 * c5))
     return float(p), float(v), float(a)
 
 
@@ -94,8 +94,12 @@ class SwingTrajectory:
 
     def state(self, t: float) -> tuple[tuple[float, float, float], ...]:
         """:meth:`evaluate`'s numbers as floats, per coordinate (x, y, z, yaw): (position, velocity, acceleration)."""
-        x, y, yaw = (axis(t) for axis in self._axes)
-        return x, y, self._z(t), yaw
+        x, y, yaw = self._axes
+        if not x.knots[0] <= t <= x.knots[-1]:
+            return x(t), y(t), self._z(t), yaw(t)
+        # (Inside the swing: x, y and yaw are one quintic each over the same interval, :meth:`retarget`.)
+        s = t - x.knots[0]
+        return _evaluate(x._floats[0], s), _evaluate(y._floats[0], s), self._z(t), _evaluate(yaw._floats[0], s)
 
     def retarget(self, t: float, target: np.ndarray | None = None, touchdown: float | None = None, min_remaining: float = 0.02) -> None:
         """From time ``t`` on, go to ``target`` (default: the current one) landing at

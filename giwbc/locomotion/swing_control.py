@@ -112,7 +112,8 @@ class SwingControl:
             pz -= self.config.descent_speed * late
             vz = -self.config.descent_speed
         c, s = math.cos(yaw), math.sin(yaw)
-        rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+        rotation = self._swing_rotation  # (a rotation about z, its four entries written in place: pin.SE3 copies it)
+        rotation[0, 0], rotation[0, 1], rotation[1, 0], rotation[1, 1] = c, -s, s, c
         sole = pin.SE3(rotation, np.array([px, py, pz]))
         ankle = sole * self._sole_inverse[swing]
         # The ankle origin's velocity and acceleration (the sole turns about z only).

@@ -137,6 +137,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._anchored = False
         self.last_result: WbcResult | None = None  # the last tick's
         self._force_links = {side: contact.link for side, contact in self.contacts.items()}  # (for step()'s _FootForces)
+        self._swing_rotation = np.eye(3)  # the swing sole's rotation, rewritten at every tick of a swing (swing_control)
         self._clear_residuals()
 
     def _leg_geometry(self) -> tuple[dict[str, int], float]:
