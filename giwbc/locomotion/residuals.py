@@ -61,25 +61,30 @@ class Residuals:
         support by ``duration`` s. The result stays inside the step adapter's landing box and
         ``[min_swing, max_swing]``; applied at once to a foot in flight (re-targeted swing)."""
         offset = np.asarray(offset, dtype=float).reshape(2)
-        if not (np.all(np.isfinite(offset)) and math.isfinite(duration)):
+        x, y = offset.tolist()  # (floats: set at every agent step, numpy's per-call overhead was most of the cost)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(duration)):
             raise ValueError(f"step residual must be finite, got {offset}, {duration}")
-        self._step_offset = offset.copy() if offset.any() else None
+        self._step_offset = np.array([x, y]) if x != 0.0 or y != 0.0 else None
         self._duration_offset = float(duration)
 
     def set_reference_residual(self, dcm: np.ndarray | None = None, height: float = 0.0, orientation: np.ndarray | None = None) -> None:
         """Offsets on the references the walker gives the WBC: the DCM reference (world x, y, m;
         in steady state a CoM offset), the CoM height (m) and the pelvis orientation (roll, pitch,
         yaw about the walker's heading, rad)."""
-        values = [np.zeros(2) if dcm is None else np.asarray(dcm, dtype=float).reshape(2),
-                  np.zeros(3) if orientation is None else np.asarray(orientation, dtype=float).reshape(3)]
-        if not (all(np.all(np.isfinite(x)) for x in values) and math.isfinite(height)):
+        # (Floats: set at every agent step, numpy's per-call overhead on 2- and 3-vectors was most of the cost.)
+        shift = [0.0, 0.0] if dcm is None else np.asarray(dcm, dtype=float).reshape(2).tolist()
+        turn = [0.0, 0.0, 0.0] if orientation is None else np.asarray(orientation, dtype=float).reshape(3).tolist()
+        if not (all(map(math.isfinite, shift)) and all(map(math.isfinite, turn)) and math.isfinite(height)):
             raise ValueError(f"reference residual must be finite, got {dcm}, {height}, {orientation}")
-        self._dcm_offset = values[0].copy() if values[0].any() else None
+        self._dcm_offset = np.array(shift) if any(shift) else None
         self._height_offset = float(height)
-        orientation_offset = values[1].copy() if values[1].any() else None
         previous = self._orientation_offset
-        same = (previous is None and orientation_offset is None) or (
-            previous is not None and orientation_offset is not None and np.array_equal(previous, orientation_offset))
+        if not any(turn):
+            orientation_offset = None
+            same = previous is None
+        else:
+            same = previous is not None and previous.tolist() == turn
+            orientation_offset = previous if same else np.array(turn)
         if not same:
             self._orientation_changed = True
         self._orientation_offset = orientation_offset
