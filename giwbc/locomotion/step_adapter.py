@@ -111,44 +111,42 @@ def solve_step_qp(
     s_lo, s_hi = float(lower[2]), float(upper[2])
     if s_lo > s_hi or lower[0] > upper[0] or lower[1] > upper[1]:
         raise ValueError("the step adapter's box is empty (lower bound above upper bound)")
+    # (Per coordinate i = 0, 1 written out: solved at every tick of a swing, plain floats.)
+    lo0, lo1, hi0, hi1 = lower[0], lower[1], upper[0], upper[1]
     total = w_u + w_b
-    un, dd, kk = (float(u_nom[0]), float(u_nom[1])), (float(d[0]), float(d[1])), (float(k[0]), float(k[1]))
+    un0, un1, d0, d1, k0, k1 = float(u_nom[0]), float(u_nom[1]), float(d[0]), float(d[1]), float(k[0]), float(k[1])
     # Unconstrained u(σ) = a + b σ, per coordinate.
-    a = [(w_u * un[i] + w_b * kk[i]) / total for i in range(2)]
-    b = [w_b * dd[i] / total for i in range(2)]
+    a0, a1 = (w_u * un0 + w_b * k0) / total, (w_u * un1 + w_b * k1) / total
+    b0, b1 = w_b * d0 / total, w_b * d1 / total
     breaks = {s_lo, s_hi}
-    for i in range(2):
-        if b[i] != 0.0:
-            for bound in (lower[i], upper[i]):
-                sigma = (bound - a[i]) / b[i]
+    for a, b, lo, hi in ((a0, b0, lo0, hi0), (a1, b1, lo1, hi1)):
+        if b != 0.0:
+            for bound in (lo, hi):
+                sigma = (bound - a) / b
                 if s_lo < sigma < s_hi:
                     breaks.add(sigma)
     knots = sorted(breaks)
     best, best_cost = None, math.inf
     for left, right in zip(knots, knots[1:] + ([knots[0]] if len(knots) == 1 else [])):
         middle = 0.5 * (left + right)
-        alpha, beta = [0.0, 0.0], [0.0, 0.0]
-        for i in range(2):  # the active pattern on this piece
-            u = a[i] + b[i] * middle
-            if u < lower[i]:
-                alpha[i] = lower[i]
-            elif u > upper[i]:
-                alpha[i] = upper[i]
-            else:
-                alpha[i], beta[i] = a[i], b[i]
+        # The active pattern on this piece: u = α + β σ per coordinate.
+        u = a0 + b0 * middle
+        alpha0, beta0 = (lo0, 0.0) if u < lo0 else (hi0, 0.0) if u > hi0 else (a0, b0)
+        u = a1 + b1 * middle
+        alpha1, beta1 = (lo1, 0.0) if u < lo1 else (hi1, 0.0) if u > hi1 else (a1, b1)
         # f(σ) = w_u ‖α + βσ − u_n‖² + w_σ (σ − σ_n)² + w_b ‖(d − β)σ + (k − α)‖²
+        m0, m1 = d0 - beta0, d1 - beta1
         num = w_s * sigma_nom
+        num -= w_u * beta0 * (alpha0 - un0) + w_b * m0 * (k0 - alpha0)
+        num -= w_u * beta1 * (alpha1 - un1) + w_b * m1 * (k1 - alpha1)
         den = w_s
-        for i in range(2):
-            e, m = alpha[i] - un[i], dd[i] - beta[i]
-            r = kk[i] - alpha[i]
-            num -= w_u * beta[i] * e + w_b * m * r
-            den += w_u * beta[i] * beta[i] + w_b * m * m
+        den += w_u * beta0 * beta0 + w_b * m0 * m0
+        den += w_u * beta1 * beta1 + w_b * m1 * m1
         sigma = min(max(num / den, left), right) if den > 0.0 else left
-        z0 = min(max(alpha[0] + beta[0] * sigma, lower[0]), upper[0])
-        z1 = min(max(alpha[1] + beta[1] * sigma, lower[1]), upper[1])
-        cost = w_u * ((z0 - un[0]) ** 2 + (z1 - un[1]) ** 2) + w_s * (sigma - sigma_nom) ** 2
-        cost += w_b * ((dd[0] * sigma + kk[0] - z0) ** 2 + (dd[1] * sigma + kk[1] - z1) ** 2)
+        z0 = min(max(alpha0 + beta0 * sigma, lo0), hi0)
+        z1 = min(max(alpha1 + beta1 * sigma, lo1), hi1)
+        cost = w_u * ((z0 - un0) ** 2 + (z1 - un1) ** 2) + w_s * (sigma - sigma_nom) ** 2
+        cost += w_b * ((d0 * sigma + k0 - z0) ** 2 + (d1 * sigma + k1 - z1) ** 2)
         if cost < best_cost:
             best, best_cost = (z0, z1, sigma), cost
     return np.array(best)

@@ -302,8 +302,9 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
             self._lead_after = t + self.config.start_settle_time
         self._measure(q, v)
         omega = self.omega
-        com, com_velocity = self._com, self._com_velocity
-        xi = np.array([com[0] + com_velocity[0] / omega, com[1] + com_velocity[1] / omega])
+        cx, cy, _ = self._com.tolist()
+        vx, vy, _ = self._com_velocity.tolist()
+        xi = np.array([cx + vx / omega, cy + vy / omega])
         self._estimate_disturbance(t, xi)
         self.state.dcm = xi
         self._advance(t, xi, foot_forces or {})
@@ -318,7 +319,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         # The CoM task's horizontal rows have no damping (set in reset): their position error
         # carries the acceleration, ẍ* = kp (c + c̈/kp − c) = c̈ — one reference, no rates to gather.
         kp = self._com_kp
-        self.balance.com_task.set_reference(np.array([self._com[0] + acceleration[0] / kp, self._com[1] + acceleration[1] / kp, self._ground + self._com_height + self._height_offset - self._recovery_drop()]))
+        ax, ay = acceleration.tolist()
+        self.balance.com_task.set_reference(np.array([cx + ax / kp, cy + ay / kp, self._ground + self._com_height + self._height_offset - self._recovery_drop()]))
         if self._phase is not Phase.SINGLE:  # (one foot: it carries the weight, no split to set)
             self.balance.force_regularization.set_support_point(np.array([cop[0], cop[1], 0.0]))
         self._heading_reference(self._hip_roll_reference(xi, xi_ref))
