@@ -65,21 +65,22 @@ def signed_distance(point: np.ndarray, hull: np.ndarray) -> float:
     """Distance from ``point`` to the polygon's boundary: negative inside, positive outside."""
     px, py = float(point[0]), float(point[1])
     depth = -math.inf
-    for x, y, ex, ey in _edges(hull):
+    edges = _edges(hull)
+    for x, y, ex, ey in edges:
         length = math.sqrt(ey * ey + ex * ex)  # the outward normal (e_y, −e_x), normalised
         d = (px - x) * (ey / length) + (py - y) * (-ex / length) if length > 0.0 else math.nan
         if not d <= 0.0:  # outside (or a degenerate edge, whose normal is NaN): the distance to the boundary
-            nearest = clip_to_polygon((px, py), hull)
+            nearest = hull[0] if len(hull) == 1 else _clip(px, py, edges)
             dx, dy = px - float(nearest[0]), py - float(nearest[1])
             return math.sqrt(dx * dx + dy * dy)
         depth = max(depth, d)
     return depth
 
 
-def _nearest(px: float, py: float, hull: np.ndarray) -> tuple[float, float]:
-    """The nearest point of the polygon's boundary (vertices and edges) to ``(px, py)``."""
+def _nearest(px: float, py: float, edges: list[tuple[float, float, float, float]]) -> tuple[float, float]:
+    """The nearest point of the polygon's boundary (vertices and edges, :func:`_edges`) to ``(px, py)``."""
     best, bx, by = math.inf, 0.0, 0.0
-    for x, y, ex, ey in _edges(hull):
+    for x, y, ex, ey in edges:
         s = ((px - x) * ex + (py - y) * ey) / max(ex * ex + ey * ey, 1e-18)
         s = min(max(s, 0.0), 1.0)
         cx, cy = x + s * ex, y + s * ey
@@ -91,12 +92,16 @@ def _nearest(px: float, py: float, hull: np.ndarray) -> tuple[float, float]:
 
 def clip_to_polygon(point: np.ndarray, hull: np.ndarray) -> np.ndarray:
     """The point itself when inside the (CCW, convex) polygon, else its nearest boundary point."""
-    px, py = float(point[0]), float(point[1])
     if len(hull) == 1:
         return hull[0].copy()
-    if all((px - x) * ey + (py - y) * -ex <= 0.0 for x, y, ex, ey in _edges(hull)):
+    return _clip(float(point[0]), float(point[1]), _edges(hull))
+
+
+def _clip(px: float, py: float, edges: list[tuple[float, float, float, float]]) -> np.ndarray:
+    """:func:`clip_to_polygon` of ``(px, py)`` for a polygon of two or more vertices, given its :func:`_edges`."""
+    if all((px - x) * ey + (py - y) * -ex <= 0.0 for x, y, ex, ey in edges):
         return np.array([px, py])
-    return np.array(_nearest(px, py, hull))
+    return np.array(_nearest(px, py, edges))
 
 
 def clip_along_ray(origin: np.ndarray, point: np.ndarray, hull: np.ndarray) -> np.ndarray:
@@ -117,7 +122,7 @@ def clip_along_ray(origin: np.ndarray, point: np.ndarray, hull: np.ndarray) -> n
     for x, y, ex, ey in edges:
         inside = (ox - x) * ey + (oy - y) * -ex  # origin against the outward normal (e_y, −e_x): <= 0 inside
         if inside > 0.0 or len(edges) < 3:
-            return clip_to_polygon(point, hull)
+            return hull[0].copy() if len(hull) == 1 else _clip(px, py, edges)
         a, b = ey * dx, ex * dy
         if a - b <= -4e-16 * (abs(a) + abs(b)):
             continue  # an edge the ray moves away from, whatever the last bit of its rate
