@@ -104,13 +104,15 @@ class DcmReference:
         tau = min(max(t - start_time, 0.0), duration)
         omega = self.omega
         growth = math.exp(omega * tau)
-        out = []
-        for xi0, p0, p1 in ((x0, sx, ex), (y0, sy, ey)):
-            rate = (p1 - p0) / duration
-            p = p0 + rate * tau
-            xi = p + rate / omega + (xi0 - p0 - rate / omega) * growth
-            out.append((xi, omega * (xi - p), p0 + (p1 - p0) * (tau / duration)))
-        (xi_x, rate_x, cop_x), (xi_y, rate_y, cop_y) = out
+        # x, then y, written out
+        rate = (ex - sx) / duration
+        p = sx + rate * tau
+        xi_x = p + rate / omega + (x0 - sx - rate / omega) * growth
+        rate_x, cop_x = omega * (xi_x - p), sx + (ex - sx) * (tau / duration)
+        rate = (ey - sy) / duration
+        p = sy + rate * tau
+        xi_y = p + rate / omega + (y0 - sy - rate / omega) * growth
+        rate_y, cop_y = omega * (xi_y - p), sy + (ey - sy) * (tau / duration)
         return np.array([xi_x, xi_y]), np.array([rate_x, rate_y]), np.array([cop_x, cop_y])
 
     def dcm_at_segment_end(self, index: int) -> np.ndarray:

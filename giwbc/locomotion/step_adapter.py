@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from giwbc.locomotion.footsteps import Footstep
-from giwbc.locomotion.planar import rotate, rotate_back
+from giwbc.locomotion.planar import distance2, rotate, rotate_back
 
 
 @dataclass(frozen=True)
@@ -312,7 +312,7 @@ class DcmErrorShaper:
             raise ValueError(f"fade_delay must be finite and >= 0, got {fade_delay}")
         self.deadband, self.time_constant, self.full_error = float(deadband), float(time_constant), float(full_error)
         self.fade_delay = float(fade_delay)
-        self._last: tuple[float, np.ndarray] | None = None
+        self._last: tuple[float, tuple[float, float]] | None = None  # (time, filtered error)
         self._beyond_since: float | None = None  # when the error last went beyond the deadband
 
     @property
@@ -325,13 +325,17 @@ class DcmErrorShaper:
         self._beyond_since = None
 
     def __call__(self, t: float, measured: np.ndarray, nominal: np.ndarray) -> np.ndarray:
-        error = np.asarray(measured, dtype=float)[:2] - np.asarray(nominal, dtype=float)[:2]
+        # (Plain floats, x and y: called at every tick of a swing; the same operations as on the
+        # 2-vectors, the norm as np.linalg.norm computes it, giwbc.locomotion.planar.distance2.)
+        nx, ny = float(nominal[0]), float(nominal[1])
+        ex, ey = float(measured[0]) - nx, float(measured[1]) - ny
         if self.time_constant > 0.0 and self._last is not None:
-            last_t, previous = self._last
+            last_t, (px, py) = self._last
             dt = max(t - last_t, 0.0)
-            error = previous + dt / (self.time_constant + dt) * (error - previous)
-        self._last = (float(t), error)
-        size = float(np.linalg.norm(error))
+            gain = dt / (self.time_constant + dt)
+            ex, ey = px + gain * (ex - px), py + gain * (ey - py)
+        self._last = (float(t), (ex, ey))
+        size = distance2((ex, ey), (0.0, 0.0))
         plain = max(1.0 - self.deadband / size, 0.0) if size > 0.0 else 0.0  # the deadband's shrink
         scale = plain
         if size >= self.full_error:
@@ -345,7 +349,7 @@ class DcmErrorShaper:
                     self._beyond_since = float(t)
                 lasted = 0.0 if self._beyond_since is None else min((float(t) - self._beyond_since) / self.fade_delay, 1.0)
                 scale = plain + lasted * (scale - plain)
-        return np.asarray(nominal, dtype=float)[:2] + error * scale
+        return np.array([nx + ex * scale, ny + ey * scale])
 
 
 def bounded_box(box: tuple[tuple[float, float], tuple[float, float]], centre: np.ndarray, bound: float) -> tuple[tuple[float, float], tuple[float, float]]:
