@@ -81,8 +81,11 @@ def _nearest(px: float, py: float, edges: list[tuple[float, float, float, float]
     """The nearest point of the polygon's boundary (vertices and edges, :func:`_edges`) to ``(px, py)``."""
     best, bx, by = math.inf, 0.0, 0.0
     for x, y, ex, ey in edges:
-        s = ((px - x) * ex + (py - y) * ey) / max(ex * ex + ey * ey, 1e-18)
-        s = min(max(s, 0.0), 1.0)
+        # (min / max written as conditions: the same values, NaN and signed zeros included)
+        length2 = ex * ex + ey * ey
+        s = ((px - x) * ex + (py - y) * ey) / (1e-18 if 1e-18 > length2 else length2)
+        s = 0.0 if 0.0 > s else s
+        s = 1.0 if s > 1.0 else s
         cx, cy = x + s * ex, y + s * ey
         distance = (cx - px) * (cx - px) + (cy - py) * (cy - py)
         if distance < best:
@@ -99,9 +102,10 @@ def clip_to_polygon(point: np.ndarray, hull: np.ndarray) -> np.ndarray:
 
 def _clip(px: float, py: float, edges: list[tuple[float, float, float, float]]) -> np.ndarray:
     """:func:`clip_to_polygon` of ``(px, py)`` for a polygon of two or more vertices, given its :func:`_edges`."""
-    if all((px - x) * ey + (py - y) * -ex <= 0.0 for x, y, ex, ey in edges):
-        return np.array([px, py])
-    return np.array(_nearest(px, py, edges))
+    for x, y, ex, ey in edges:
+        if not (px - x) * ey + (py - y) * -ex <= 0.0:
+            return np.array(_nearest(px, py, edges))
+    return np.array([px, py])
 
 
 def clip_along_ray(origin: np.ndarray, point: np.ndarray, hull: np.ndarray) -> np.ndarray:
