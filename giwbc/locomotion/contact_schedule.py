@@ -15,6 +15,7 @@ a push standing starts recovery steps (:mod:`giwbc.locomotion.push_recovery`).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import numpy as np
 
@@ -35,7 +36,7 @@ ENVELOPE_MAX_TURN = 1.3  # the closed-loop heading's turn per step, at most this
 class ContactSchedule:
     """The walking controller's phase machine: lift-off, touch-down, settling (see the module docstring)."""
 
-    def _advance(self, t: float, xi: np.ndarray, forces: dict[str, float]) -> None:
+    def _advance(self, t: float, xi: np.ndarray, forces: Mapping[str, float]) -> None:
         """One tick of the schedule: start a walk or a recovery standing, lift off at the end of a
         double support, adapt the step and detect touch-down in single support."""
         cfg = self.config
@@ -64,10 +65,10 @@ class ContactSchedule:
             self._walking_push(t, xi)
         if cfg.step_adaptation and t < self._swing.t1 - 0.03:
             self._adapt_step(t, xi)
-        force = forces.get(swing, 0.0)
         late = t >= self._swing.t1 and cfg.late_touchdown_force is not None
         threshold = cfg.late_touchdown_force if late else cfg.touchdown_force
-        landed = force >= threshold * self.weight and elapsed >= cfg.early_touchdown * (self._swing.t1 - self._phase_start)
+        # (The force is read once it can count: a walker's step() reads the robot only when asked.)
+        landed = elapsed >= cfg.early_touchdown * (self._swing.t1 - self._phase_start) and forces.get(swing, 0.0) >= threshold * self.weight
         if landed and late:  # a light load counts only on a sole down at the stance sole's height
             height = self._sole_world(swing).translation[2] - self._sole_world(self._stance).translation[2]
             landed = height < cfg.late_touchdown_height

@@ -63,8 +63,9 @@ __all__ = ["Phase", "WalkerConfig", "WalkerState", "WalkingController"]
 class _FootForces(Mapping[str, float]):
     """The measured normal force per side (N), each read from the robot (``contact_wrench``) the
     first time it is asked for: the contact schedule reads the swinging foot's in single support
-    only, so a tick reads at most one of them (two reads a tick were ~5 % of a walking step; on an
-    estimating robot each also computes the feet's poses). The robot does not change during a
+    only, once a touch-down can count (``early_touchdown`` of the swing), so a tick reads at most
+    one of them (two reads a tick were ~5 % of a walking step; on an estimating robot each also
+    computes the feet's poses). The robot does not change during a
     tick, so the values are those a read before it gives."""
 
     __slots__ = ("_robot", "_links", "_read")
@@ -332,8 +333,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
 
     def step(self, robot: Robot) -> WbcResult:
         """Read ``robot`` (state, foot forces), run one tick, command its joint torques. The foot
-        forces are read when the schedule asks for them (:class:`_FootForces`: the swinging foot's in
-        single support, none in the other phases), the same values as read beforehand."""
+        forces are read when the schedule asks for them (:class:`_FootForces`: the swinging foot's late
+        in a swing, none otherwise), the same values as read beforehand."""
         q, v = robot.generalized_state()
         result = self.update(q, v, robot.time(), _FootForces(robot, self._force_links))
         robot.set_joint_torques(result.tau)
