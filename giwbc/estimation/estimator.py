@@ -110,6 +110,21 @@ class EstimatorConfig:
     pivot_velocity: bool = False  # a stance foot's velocity is its centre of pressure's (the point it rolls about), not
     # its sole centre's: v_cop = v_centre + w_foot x r_cop, the CoP from the leg's efforts clamped to the sole; a
     # turning foot's position (slip noise) is then trusted less, its pivot velocity not
+    force_inertia: bool = False  # effort-based foot forces with the legs' inertial term: the joints' accelerations
+    # (their velocities differentiated) and the base's (accelerometer, gyro differentiated), both low-passed by
+    # force_inertia_time; without it a swinging leg's own dynamics read as ground force (G1: 60-200 N on a leg whose
+    # foot is in the air, what a touch-down detector takes for a landing)
+    force_inertia_time: float = 0.005  # s
+    force_max_speed: float = 0.0  # m/s: a foot whose sole centre moves faster than this (estimated, world) carries no
+    # force, one at half this speed or slower its full estimated force, linearly between: a loaded foot stands (G1
+    # walking: 99 % of loaded ticks under 0.2-0.8 m/s on every plant variant), while the effort-based force of a swinging
+    # leg is wrong most when it moves fast (false readings over 60 N at a median 1 m/s); 0: off
+    roll_velocity_rate: float = 0.0  # rad/s: a stance foot turning faster than this has its confidence divided by
+    # 1 + (rate / roll_velocity_rate)^2 (its instantaneous rate or its low-passed one, the larger) for its velocity row
+    # and its slip noise (its position may follow it): a sole rolling on a rim, rocking or sinking into a soft floor
+    # turns about a point that neither its centre nor its CoP from the efforts finds (0.1-0.4 m/s at 3-7 rad/s), and its
+    # sole centre moves; the IMU carries the base velocity through the few tens of ms the roll lasts (0: off; it
+    # overrides foot_roll_velocity)
     gyro_range: float = math.radians(2000.0)  # rad/s
     accel_range: float = 16.0 * 9.80665  # m/s^2
     max_dt: float = 0.02  # s: a longer gap between IMU samples is flagged (TIME_GAP)
@@ -155,6 +170,10 @@ class EstimatorConfig:
             raise ValueError("foot_twist and foot_twist_time must be > 0")
         if not self.ground_pull_time > 0:
             raise ValueError("ground_pull_time must be > 0")
+        if not self.force_inertia_time > 0 or not self.force_max_speed >= 0:
+            raise ValueError("force_inertia_time must be > 0 and force_max_speed >= 0")
+        if not self.roll_velocity_rate >= 0:
+            raise ValueError("roll_velocity_rate must be >= 0")
         if not (self.foot_roll_rate >= 0 and self.flat_still_time >= 0 and self.foot_roll_time >= 0):
             raise ValueError("foot_roll_rate, foot_roll_time and flat_still_time must be >= 0")
 
@@ -181,6 +200,7 @@ class EstimatorConfig:
 ANY_FEET: dict[str, object] = {
     "foot_roll_rate": 1.0, "foot_roll_velocity": False, "pivot_velocity": True, "ground_pull": 0.0,
     "velocity_gate_power": 2.0, "flat_max_tilt": math.radians(1.5),
+    "force_inertia": True, "force_max_speed": 1.0, "roll_velocity_rate": 0.5,
 }
 
 
@@ -266,6 +286,7 @@ class StateEstimator:
             n_feet, c.contact_on * weight, c.contact_off * weight, c.contact_filter_time, c.contact_full * weight
         )
         self._imu_rotation = tuple(self.kinematics.imu_rotation.ravel().tolist())  # IMU frame in base frame, row by row
+        self._imu_offset_base = tuple(self.kinematics.imu_position.tolist())  # IMU position in the base frame
         self._imu_to_base = tuple(so3.quat_conjugate(so3.matrix_to_quat(self.kinematics.imu_rotation)).tolist())
         self._gravity = tuple(GRAVITY.tolist())
         leg_joints = [self.kinematics.leg_joints(i) for i in range(n_feet)]
@@ -304,6 +325,7 @@ class StateEstimator:
         self._flat = [False] * self.kinematics.n_feet
         self._still_since = [-math.inf] * self.kinematics.n_feet  # s: when each foot last turned faster than foot_roll_rate
         self._rate2 = [0.0] * self.kinematics.n_feet  # (rad/s)^2: each foot's squared angular rate, low-passed
+        self._velocity_rate2 = [0.0] * self.kinematics.n_feet  # the same for roll_velocity_rate
         self._specific_force_lp: list[float] | None = None  # world frame, low-passed
         self._leg_velocity_lp: list[float] | None = None  # IMU velocity from the stance legs, world, low-passed
         self.reference = "none"  # the orientation reference of the last update: feet, orientation_output, gravity
@@ -313,6 +335,9 @@ class StateEstimator:
         self._velocities = np.zeros(self._dofs)
         self._efforts = np.zeros(self._dofs)
         self._forces = np.zeros((self.kinematics.n_feet, 3))
+        self._joint_velocity_lp: np.ndarray | None = None  # force_inertia: low-passed joint velocities ...
+        self._joint_acceleration = np.zeros(self._dofs)  # ... and their derivative
+        self._base_motion_lp: list[float] | None = None  # low-passed base angular velocity (base frame), IMU acceleration (world)
         self._pivot_velocities = np.zeros((self.kinematics.n_feet, 3))
         self._foot_lists: tuple[list, list, list, list] | None = None
         self._estimate = self._initial_estimate()
@@ -398,7 +423,11 @@ class StateEstimator:
         use_efforts = measurement.contact_forces is None
         try:
             efforts = self._efforts if use_efforts else None
-            self.kinematics.compute(base_quaternion, base_omega, self._positions, self._velocities, efforts)
+            base_acceleration = None
+            if c.force_inertia and use_efforts:
+                base_acceleration = self._leg_accelerations(base_rotation, base_omega, accel, dt)
+            self.kinematics.compute(base_quaternion, base_omega, self._positions, self._velocities, efforts,
+                                    base_acceleration, self._joint_acceleration)
         except np.linalg.LinAlgError:  # a leg at a singularity: no effort-based forces this update
             use_efforts, effort_ok = False, np.zeros_like(effort_ok)
         self._foot_lists = None  # this update's kinematics as Python floats, made on first use
@@ -414,6 +443,9 @@ class StateEstimator:
             loads = positions_trust = still
         else:
             positions_trust = loads
+        velocity_trust = loads
+        if c.roll_velocity_rate > 0.0:  # a turning foot's velocity and its standing still both trusted less
+            velocity_trust = positions_trust = self._rolling_velocity_trust(loads, dt)
         self._correct_orientation(orientation, accel, base_rotation, flags, still, use_efforts, position_ok, dt)
         if accel is not None:
             window = self.standstill.add(now, gyro, accel, self._positions, min(loads))
@@ -431,7 +463,7 @@ class StateEstimator:
             self._restart_filter, self._restart_pending = True, False
             self.filter.predict(None if accel is None else self._world_acceleration(base_rotation, accel), dt, positions_trust)
             self.filter.correct(
-                self.kinematics.foot_positions, velocities, loads, position_ok, velocity_ok,
+                self.kinematics.foot_positions, velocities, velocity_trust, position_ok, velocity_ok,
                 0.0 if c.ground_height is None else c.ground_height,
             )
         else:
@@ -439,7 +471,7 @@ class StateEstimator:
             if not any(flags):
                 monitor.flag(Fault.NO_STANCE_FOOT, "no foot in contact: base velocity from the IMU alone")
             self.filter.correct(
-                self.kinematics.foot_positions, velocities, loads, position_ok, velocity_ok,
+                self.kinematics.foot_positions, velocities, velocity_trust, position_ok, velocity_ok,
                 0.0 if c.ground_height is None else c.ground_height,
             )
             if c.ground_pull is not None:
@@ -758,6 +790,9 @@ class StateEstimator:
                 self._forces[:] = self.kinematics.foot_wrenches[:, :3]
             else:
                 self._forces[valid] = self.kinematics.foot_wrenches[valid, :3]
+            self._forces[self._forces[:, 2] < 0.0] = 0.0  # the ground pushes, never pulls: a foot "pulling" carries nothing
+            if self.config.force_max_speed > 0.0:
+                self._forces *= self._standing_share()[:, None]
         else:
             given = measurement.contact_forces
             measured = np.asarray(given, float) if given is not None else np.full(len(effort_ok), np.nan)
@@ -783,6 +818,68 @@ class StateEstimator:
         ax, ay, az = so3.rotate(base_rotation, so3.rotate(self._imu_rotation, accel))
         gx, gy, gz = self._gravity
         return (ax + gx, ay + gy, az + gz)
+
+    def _leg_accelerations(
+        self, rotation: so3.Matrix3, omega: so3.Vector3, accel: list[float] | None, dt: float
+    ) -> list[float]:
+        """Config ``force_inertia``: update the low-passed joint accelerations (``self._joint_acceleration``,
+        the derivative of the joint velocities' first-order low-pass) and return the base's
+        acceleration (base frame: the origin's linear acceleration without gravity, then the angular
+        acceleration), low-passed alike: the accelerometer's specific force (bias removed) rotated to
+        the world plus gravity, moved from the IMU to the base origin, and the gyro differentiated.
+        No accelerometer: the linear part is taken as zero (the quasi-static estimate's assumption)."""
+        tau = self.config.force_inertia_time
+        alpha, rate = (dt / (tau + dt), 1.0 / (tau + dt)) if dt > 0.0 else (1.0, 0.0)
+        velocities = self._velocities
+        if self._joint_velocity_lp is None:
+            self._joint_velocity_lp = velocities.copy()
+        change = velocities - self._joint_velocity_lp
+        self._joint_velocity_lp += alpha * change
+        np.multiply(change, rate, out=self._joint_acceleration)
+        if accel is not None:
+            bx, by, bz = self._accel_bias
+            ax, ay, az = self._world_acceleration(rotation, (accel[0] - bx, accel[1] - by, accel[2] - bz))
+        else:
+            ax = ay = az = 0.0
+        wx, wy, wz = omega
+        lp = self._base_motion_lp
+        if lp is None or dt <= 0.0:
+            self._base_motion_lp = lp = [wx, wy, wz, ax, ay, az]
+            return [*so3.rotate_back(rotation, (ax, ay, az)), 0.0, 0.0, 0.0]
+        dwx, dwy, dwz = wx - lp[0], wy - lp[1], wz - lp[2]
+        for k, value in enumerate((wx, wy, wz, ax, ay, az)):
+            lp[k] += alpha * (value - lp[k])
+        alpha_x, alpha_y, alpha_z = rate * dwx, rate * dwy, rate * dwz  # base angular acceleration, base frame
+        lx, ly, lz = so3.rotate_back(rotation, (lp[3], lp[4], lp[5]))  # the IMU's acceleration, base frame
+        # the base origin's: the IMU's less the lever terms alpha x r + w x (w x r), r the IMU's offset (base frame)
+        r = self._imu_offset_base
+        tx, ty, tz = so3.cross_floats((alpha_x, alpha_y, alpha_z), r)
+        cx, cy, cz = so3.cross_floats((lp[0], lp[1], lp[2]), so3.cross_floats((lp[0], lp[1], lp[2]), r))
+        return [lx - tx - cx, ly - ty - cy, lz - tz - cz, alpha_x, alpha_y, alpha_z]
+
+    def _standing_share(self) -> np.ndarray:
+        """Config ``force_max_speed``: per foot, the share of its effort-based force kept: 1 while its
+        sole centre's estimated world speed (the filter's IMU velocity plus the foot's relative one) is
+        at most half ``force_max_speed``, 0 from ``force_max_speed`` on, linear between."""
+        speed = np.linalg.norm(self.kinematics.foot_velocities + self.filter.x[:, 1], axis=1)
+        limit = self.config.force_max_speed
+        return np.clip(2.0 - 2.0 * speed / limit, 0.0, 1.0)
+
+    def _rolling_velocity_trust(self, loads: list[float], dt: float) -> list[float]:
+        """Config ``roll_velocity_rate``: each stance foot's confidence for its velocity row, divided by
+        ``1 + (rate / roll_velocity_rate)^2`` (so its noise variance grows by that squared), ``rate``
+        the larger of the sole's angular rate now and low-passed (``foot_roll_time``): the instant
+        catches a roll's start, the low-pass holds the trust down through its end."""
+        alpha = dt / (self.config.foot_roll_time + dt) if dt > 0.0 else 1.0
+        scale = 1.0 / self.config.roll_velocity_rate**2
+        rate2, trusted = self._velocity_rate2, []
+        for i, ((wx, wy, wz), load) in enumerate(zip(self._kinematics_lists()[2], loads)):
+            w2 = wx * wx + wy * wy + wz * wz
+            if not math.isfinite(w2):
+                w2 = rate2[i]
+            rate2[i] += alpha * (w2 - rate2[i])
+            trusted.append(load / (1.0 + max(w2, rate2[i]) * scale) if load > 0.0 else 0.0)
+        return trusted
 
     def _still_feet(self, loads: list[float], dt: float) -> list[float]:
         """Stance confidences less for a turning foot (module doc, point 2): a sole that rolls on

@@ -36,9 +36,11 @@ class LegKinematics:
     After :meth:`compute`, ``foot_positions[i]`` is foot ``i``'s sole centre minus the IMU position
     and ``foot_velocities[i]`` its velocity relative to an IMU that does not translate (both world
     axes), ``imu_offset`` the IMU position minus the base origin, and ``foot_wrenches[i]``
-    the wrench ``(force, torque)`` the ground exerts at the sole centre, estimated quasi-statically
-    from the leg's joint efforts (``J_leg^T w = g(q) + C(q, v) v - tau``), ``foot_rotations[i]``
-    the sole's orientation in world axes at the given base orientation.
+    the wrench ``(force, torque)`` the ground exerts at the sole centre, estimated from the leg's
+    joint efforts (``J_leg^T w = M(q) a + g(q) + C(q, v) v - tau``: quasi-statically, ``a = 0``,
+    unless :meth:`compute` is given the base's and the joints' accelerations; without them a
+    swinging leg's own inertia and the base's acceleration read as ground force, 50-200 N on the
+    G1), ``foot_rotations[i]`` the sole's orientation in world axes at the given base orientation.
     """
 
     def __init__(self, description: RobotDescription, model: pin.Model | None = None) -> None:
@@ -77,6 +79,7 @@ class LegKinematics:
         self._q[:3] = 0.0
         self._v = np.zeros(legs.nv)
         self._zero = np.zeros(legs.nv)
+        self._a = np.zeros(legs.nv)  # the accelerations of the inertial term, when given
         self._jacobians = np.zeros((n + 1, 6, legs.nv))  # LOCAL_WORLD_ALIGNED, of the feet then the IMU
         self._frame_motion = np.zeros((n + 1, 6))  # their world position and velocity (base at 0, not translating)
         self._relative_motion = np.zeros((n, 6))  # the feet's minus the IMU's
@@ -124,9 +127,15 @@ class LegKinematics:
         joint_positions: np.ndarray,
         joint_velocities: np.ndarray,
         joint_efforts: np.ndarray | None,
+        base_acceleration: Sequence[float] | None = None,
+        joint_accelerations: np.ndarray | None = None,
     ) -> None:
         """Fill the per-foot arrays. ``base_angular_velocity`` is in the base frame; the base
-        orientation only rotates the results into world axes (and orients gravity)."""
+        orientation only rotates the results into world axes (and orients gravity).
+
+        ``base_acceleration`` (base frame: the base origin's linear acceleration, gravity not
+        included, then the angular acceleration) and ``joint_accelerations`` (description order),
+        given together, add the legs' inertial term to the wrenches (each None: quasi-static)."""
         model, data, q, v, n = self._legs, self._legs_data, self._q, self._v, self.n_feet
         joints = self._leg_model_joints
         q[3:7] = base_quaternion
@@ -146,7 +155,12 @@ class LegKinematics:
         np.matmul(jacobians[:n, 3:], v, out=self.foot_angular_velocities)
         np.subtract(motion[:n], motion[n], out=self._relative_motion)
         if joint_efforts is not None:
-            bias = pin.rnea(model, data, q, v, self._zero)[6:] - joint_efforts[joints]
+            a = self._zero
+            if base_acceleration is not None and joint_accelerations is not None:
+                a = self._a
+                a[:6] = base_acceleration
+                a[6:] = joint_accelerations[joints]
+            bias = pin.rnea(model, data, q, v, a)[6:] - joint_efforts[joints]
             if self._block_legs:
                 *_, wrenches, info = lapack.dgesv(jacobians[:n, :, 6:].reshape(6 * n, -1).T, bias)
                 if info > 0:
