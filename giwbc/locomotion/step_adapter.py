@@ -254,7 +254,8 @@ class StepAdapter:
         shortest time, so that whatever time the piece picks the landing is reached; the cheapest
         piece wins)."""
         cx, cy, xx, xy = float(cop[0]), float(cop[1]), float(dcm[0]), float(dcm[1])
-        if not all(math.isfinite(v) for v in (cx, cy, xx, xy, nominal_remaining)):
+        finite = math.isfinite
+        if not (finite(cx) and finite(cy) and finite(xx) and finite(xy) and finite(nominal_remaining)):
             raise ValueError("step adapter inputs must be finite")
         t_lo, t_hi = remaining_range
         if not (0.0 <= t_lo <= t_hi):
