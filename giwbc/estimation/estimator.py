@@ -115,6 +115,8 @@ class EstimatorConfig:
     # force_inertia_time; without it a swinging leg's own dynamics read as ground force (G1: 60-200 N on a leg whose
     # foot is in the air, what a touch-down detector takes for a landing)
     force_inertia_time: float = 0.005  # s
+    pulling_forces: bool = False  # keep an effort-based normal force below zero as estimated (a pull the ground cannot
+    # exert: a leg's unmodelled dynamics); False: such a foot's force reads 0
     force_max_speed: float = 0.0  # m/s: a foot whose sole centre moves faster than this (estimated, world) carries no
     # force, one at half this speed or slower its full estimated force, linearly between: a loaded foot stands (G1
     # walking: 99 % of loaded ticks under 0.2-0.8 m/s on every plant variant), while the effort-based force of a swinging
@@ -194,6 +196,14 @@ class EstimatorConfig:
 #   tilt error max 1.22 -> 0.41 deg);
 # - velocity_gate_power 2: a foot whose velocity contradicts the IMU's beyond the gate is left out
 #   rather than pulling with a bounded force (nominal 0.027 -> 0.019 m/s, point feet 0.034 -> 0.028).
+# - force_inertia: the legs' inertial term in the effort-based foot forces; force_max_speed 1 m/s: a
+#   foot moving faster carries no force (a swinging leg read 100-215 N on capsule feet while in the
+#   air, a false touch-down; replayed walks, seeds 20000-20001, swing-foot force p99 nominal 81 -> 11 N,
+#   capsule 230 -> 16 N, frictional joints 362 -> 36 N);
+# - roll_velocity_rate 0.5 rad/s: a turning stance foot's velocity and standing still trusted less,
+#   the IMU carrying the base through the roll (a foot rocking on its rim or into a soft floor moved
+#   the estimate by 0.2-0.4 m/s: velocity RMS soft floor 0.108 -> 0.040, capsule 0.131 -> 0.027,
+#   nominal 0.017 -> 0.015 m/s; in the closed loop soft_floor walks 4/4 where it ended 4/4).
 # Opt-in (giwbc.runtimes.estimated.EstimatorInLoop uses it): it changes the estimate on the nominal
 # plant too (better: velocity 0.029 -> 0.027 m/s, height drift 7 -> 4 mm) and so the seed-pinned
 # deployment walks; the ground prior is wrong off flat ground.
@@ -790,7 +800,8 @@ class StateEstimator:
                 self._forces[:] = self.kinematics.foot_wrenches[:, :3]
             else:
                 self._forces[valid] = self.kinematics.foot_wrenches[valid, :3]
-            self._forces[self._forces[:, 2] < 0.0] = 0.0  # the ground pushes, never pulls: a foot "pulling" carries nothing
+            if not self.config.pulling_forces:  # the ground pushes, never pulls: a foot "pulling" carries nothing
+                self._forces[self._forces[:, 2] < 0.0] = 0.0
             if self.config.force_max_speed > 0.0:
                 self._forces *= self._standing_share()[:, None]
         else:
