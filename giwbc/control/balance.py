@@ -97,6 +97,13 @@ class BalanceConfig:
     # joints towards their limits.
     joint_limits: bool = False
     joint_limit_margin: float = 0.0  # rad: the bounds keep the joints this far inside their limits
+    # (zone rad, kp N m/rad, kd N m s/rad): a torque back out of the last `zone` before each joint's kept
+    # limit, on top of the QP's (WholeBodyController.set_limit_spring: a foot rolling on its rim turns
+    # with its ankle roll, which the QP's acceleration bounds cannot stop). None: off. Off by default:
+    # (0.05, 600, 10) keeps the walking G1's ankle rolls 0.05-0.1 rad further from their limits on the
+    # rounded, capsule, point and all_at_once plants and leaves the nominal walk bit-identical, but
+    # standing push recovery uses the ankle roll's full range (100 N pushes, seed 20000: 8/8 -> 5/8).
+    limit_spring: tuple[float, float, float] | None = None
     acceleration_regularization: float = 1e-6
     impedance_kp_scale: float = 0.0  # impedance output gains, fractions of the description's kp/kd
     impedance_kd_scale: float = 0.1
@@ -134,6 +141,8 @@ class BalanceController:
             impedance_lookahead=config.impedance_lookahead,
             fallback_kd=description.kd,
         )
+        if config.limit_spring is not None:
+            self.wbc.set_limit_spring(*config.limit_spring)
         max_force = 3.0 * weight if config.max_normal_force is None else config.max_normal_force
         min_force = 0.06 * weight if config.min_normal_force is None else config.min_normal_force
         if config.contact_model == "corners" and config.min_normal_force is None:

@@ -230,6 +230,8 @@ class WholeBodyController:
         self.impedance_lookahead = float(impedance_lookahead)
         self.fallback_decay = float(fallback_decay)
         self.fallback_kd = self.impedance_kd.copy() if fallback_kd is None else _as_joint_array(fallback_kd, nj, "fallback_kd")
+        # (zone rad, kp N m/rad, kd N m s/rad) of set_limit_spring; None: off (a caller may switch it per tick)
+        self.limit_spring: tuple[float, float, float] | None = None
 
         self.tasks: list[WbcTask] = []
         self.force_regularization: ContactForceRegularization | None = ContactForceRegularization()
@@ -582,6 +584,8 @@ class WholeBodyController:
         else:
             tau = np.dot(self._D_tau, x)
             tau += kin.nonlinear_effects[self.n_base :]
+        if self.limit_spring is not None:
+            tau += self._limit_spring_torque(q, v)
         np.minimum(tau, self.torque_limits, out=tau)
         np.maximum(tau, self._neg_limits, out=tau)
         wrenches = self.contact_set.wrenches(x)
@@ -593,6 +597,35 @@ class WholeBodyController:
             WbcTimings(t_pin - start, t_build - t_pin, t_solve - t_build, end - start),
             q[kin.joint_q].copy(), v[kin.joint_v].copy(), self._gains,
         )
+
+    def set_limit_spring(self, zone: float, kp: float, kd: float) -> None:
+        """A joint within ``zone`` rad of its kept position limit (the limit moved in by
+        ``joint_limit_margin``) gets ``−kp (q − q_zone) − kd q̇`` N m on top of the QP's torque,
+        ``q_zone`` the zone's inner edge, the damping only while it moves further in (mirrored
+        at a lower limit); elsewhere nothing (the torque is the QP's, bit for bit).
+
+        Why not the QP's acceleration bounds (``joint_limits``): they act through the model, in
+        which a stance foot is flat on the floor, so holding an ankle off its limit means moving
+        the whole body. A real foot that rolls on its rim (a rounded or pointed sole) turns with
+        its ankle roll joint, and only a torque at that joint turns it back: this spring is that
+        torque, a soft stop before the hard one (which the plant applies and the model ignores)."""
+        if not (math.isfinite(zone) and zone > 0.0 and math.isfinite(kp) and kp >= 0.0 and math.isfinite(kd) and kd >= 0.0):
+            raise ValueError(f"limit spring: need zone > 0 rad and finite kp, kd >= 0, got {zone}, {kp}, {kd}")
+        self.limit_spring = (float(zone), float(kp), float(kd))
+
+    def _limit_spring_torque(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """The spring's joint torques (n_joints,) at state ``(q, v)``: zero outside the zones."""
+        zone, kp, kd = self.limit_spring  # type: ignore[misc]
+        kin = self.kin
+        qj, vj = q[kin.joint_q], v[kin.joint_v]
+        upper = qj - (self._q_upper - zone)  # > 0 inside the upper zone
+        lower = (self._q_lower + zone) - qj  # > 0 inside the lower zone
+        tau = np.zeros(self.n_joints)
+        inside_up = upper > 0.0
+        inside_low = lower > 0.0
+        tau[inside_up] = -kp * upper[inside_up] - kd * np.maximum(vj[inside_up], 0.0)
+        tau[inside_low] = kp * lower[inside_low] - kd * np.minimum(vj[inside_low], 0.0)
+        return tau
 
     def _failure_message(self, solution: QpSolution) -> str:
         """The backend's message; with contact forces but no (or a zero-weight) force
