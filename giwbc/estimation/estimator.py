@@ -800,10 +800,13 @@ class StateEstimator:
                 self._forces[:] = self.kinematics.foot_wrenches[:, :3]
             else:
                 self._forces[valid] = self.kinematics.foot_wrenches[valid, :3]
-            if not self.config.pulling_forces:  # the ground pushes, never pulls: a foot "pulling" carries nothing
-                self._forces[self._forces[:, 2] < 0.0] = 0.0
-            if self.config.force_max_speed > 0.0:
-                self._forces *= self._standing_share()[:, None]
+            forces = self._forces
+            shares = self._standing_share() if self.config.force_max_speed > 0.0 else None
+            for i, fz in enumerate(forces[:, 2].tolist()):  # per foot on floats: two feet, where numpy calls cost more
+                if fz < 0.0 and not self.config.pulling_forces:  # the ground pushes, never pulls: a "pulling" foot carries nothing
+                    forces[i] = 0.0
+                elif shares is not None and shares[i] < 1.0:
+                    forces[i] *= shares[i]
         else:
             given = measurement.contact_forces
             measured = np.asarray(given, float) if given is not None else np.full(len(effort_ok), np.nan)
@@ -868,13 +871,13 @@ class StateEstimator:
         cx, cy, cz = so3.cross_floats((lp[0], lp[1], lp[2]), so3.cross_floats((lp[0], lp[1], lp[2]), r))
         return [lx - tx - cx, ly - ty - cy, lz - tz - cz, alpha_x, alpha_y, alpha_z]
 
-    def _standing_share(self) -> np.ndarray:
+    def _standing_share(self) -> list[float]:
         """Config ``force_max_speed``: per foot, the share of its effort-based force kept: 1 while its
         sole centre's estimated world speed (the filter's IMU velocity plus the foot's relative one) is
         at most half ``force_max_speed``, 0 from ``force_max_speed`` on, linear between."""
         speed = np.linalg.norm(self.kinematics.foot_velocities + self.filter.x[:, 1], axis=1)
         limit = self.config.force_max_speed
-        return np.clip(2.0 - 2.0 * speed / limit, 0.0, 1.0)
+        return np.clip(2.0 - 2.0 * speed / limit, 0.0, 1.0).tolist()
 
     def _rolling_velocity_trust(self, loads: list[float], dt: float) -> list[float]:
         """Config ``roll_velocity_rate``: each stance foot's confidence for its velocity row, divided by
