@@ -43,6 +43,9 @@ a soft-limit end) as a fall, and add the estimator's errors: ``estimator_tilt_er
 and its contact decisions against the touch sensors (``estimator_contact_agreement``,
 ``estimator_false_stance``: a foot taken as standing that carries under 20 N, ``estimator_missed_stance``).
 
+``--walker any_floor``: the walker preset for floors and feet it was not tuned on (a friction of 0.5,
+giwbc.locomotion.walker_config.ANY_FLOOR_OPTIONS) instead of its defaults.
+
 Run: ``python benchmarks/robustness.py --runs 10`` (the issue's size: ~hours on 2 vCPUs);
 ``--runs 2 --directions 4`` for a quick table. Use fresh seeds (>= 20000: never tuned on).
 """
@@ -63,6 +66,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from giwbc.apps.evaluation import mcnemar_exact, wilson_interval  # noqa: E402
 from giwbc.errors import EstimatorCalibrationError  # noqa: E402
 from giwbc.locomotion.simulation import Push, simulate_walk  # noqa: E402
+from giwbc.locomotion.walker_config import WALKER_PRESETS, walker_config  # noqa: E402
 from giwbc.plants import NOMINAL, available_variants  # noqa: E402
 from giwbc.randomization.plant_distribution import RANDOM  # noqa: E402
 from giwbc.robot import load  # noqa: E402
@@ -143,12 +147,12 @@ def _rms(values: list[float]) -> float | None:
     return round(float(np.sqrt(np.mean(np.square(values)))), 4) if values else None
 
 
-def run_cell(description, plant: str, command, seconds: float, seeds: list[int]) -> dict:
+def run_cell(description, plant: str, command, seconds: float, seeds: list[int], config=None) -> dict:
     """Runs of one command on one plant: falls, tilt, slip, tracking."""
     falls, tilt, slip, step_rms, tick_xy, tick_yaw = 0, 0.0, 0.0, [], [], []
     for seed in seeds:
         monitor = Monitor(description, command)
-        run = simulate_walk(description, command, seconds, command_start=COMMAND_START, seed=seed,
+        run = simulate_walk(description, command, seconds, command_start=COMMAND_START, seed=seed, config=config,
                             plant=None if plant == NOMINAL else plant, observe=monitor)
         falls += run.fell
         tilt, slip = max(tilt, monitor.max_tilt), max(slip, monitor.max_slip)
@@ -162,7 +166,7 @@ def run_cell(description, plant: str, command, seconds: float, seeds: list[int])
             "step_tracking_rms": _rms(step_rms), "tick_tracking_rms": _rms(tick_xy), "tick_yaw_rate_rms": _rms(tick_yaw)}
 
 
-def run_pushes(description, plant: str, force: float, directions: int, seeds: list[int], judge_after: float) -> dict:
+def run_pushes(description, plant: str, force: float, directions: int, seeds: list[int], judge_after: float, config=None) -> dict:
     """Standing pushes, stepping allowed: success = not fallen ``judge_after`` s after the push ends."""
     successes, n, tilt, slip = 0, 0, 0.0, 0.0
     seconds = PUSH_START + PUSH_DURATION + judge_after
@@ -170,7 +174,7 @@ def run_pushes(description, plant: str, force: float, directions: int, seeds: li
         for k in range(directions):
             push = Push(PUSH_START, force, 2 * math.pi * k / directions, PUSH_DURATION)
             monitor = Monitor(description, (0.0, 0.0, 0.0))
-            run = simulate_walk(description, (0.0, 0.0, 0.0), seconds, pushes=(push,), command_start=None, seed=seed,
+            run = simulate_walk(description, (0.0, 0.0, 0.0), seconds, pushes=(push,), command_start=None, seed=seed, config=config,
                                 plant=None if plant == NOMINAL else plant, observe=monitor)
             successes += not run.fell
             n += 1
@@ -375,6 +379,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--push-force", type=float, default=100.0)
     parser.add_argument("--directions", type=int, default=8)
     parser.add_argument("--judge-after", type=float, default=3.0, help="s after the push ends when success is judged")
+    parser.add_argument("--walker", default=None, choices=sorted(set(WALKER_PRESETS) - {"deployment"}),
+                        help="a walker preset over the walker's own options (e.g. any_floor: a friction of 0.5); with --estimator / "
+                             "--policy, over the policy's walker options")
     parser.add_argument("--estimator", action="store_true", help="the walker on the estimated state (AHRS), through G1Walk-v0")
     parser.add_argument("--policy", default=None, help="a G1Walk policy .onnx: walker alone vs this policy, paired (same seeds, same plant "
                         "draws), in the policy's own training conditions (implies the env path)")
@@ -383,6 +390,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--plants random (a plant drawn per episode) runs through G1Walk-v0: add --estimator or --policy")
     env_mode = args.estimator or args.policy is not None
     conditions = env_conditions(args.policy) if env_mode else {}
+    walker = None if args.walker is None else walker_config(args.walker)
+    if env_mode and args.walker is not None:
+        own = conditions.get("walker")
+        conditions["walker"] = {**(WALKER_PRESETS[own] if isinstance(own, str) else dict(own or {})), **WALKER_PRESETS[args.walker]}
 
     def env_cell(run, *arguments) -> dict:  # one arm, or with --policy both arms paired
         if policy is None:
@@ -406,19 +417,19 @@ def main(argv: list[str] | None = None) -> int:
         row: dict[str, dict] = {}
         if "stand" in args.protocols:
             row["stand"] = (env_cell(run_env_cell, description, plant, (0.0, 0.0, 0.0), args.stand_seconds, seeds) if env_mode
-                            else run_cell(description, plant, (0.0, 0.0, 0.0), args.stand_seconds, seeds))
+                            else run_cell(description, plant, (0.0, 0.0, 0.0), args.stand_seconds, seeds, walker))
         if "walk" in args.protocols:
             for name in args.commands:
                 command = WALK_COMMANDS[name]
                 row[f"walk_{name}"] = (env_cell(run_env_cell, description, plant, command, args.walk_seconds, seeds) if env_mode
-                                       else run_cell(description, plant, command, args.walk_seconds, seeds))
+                                       else run_cell(description, plant, command, args.walk_seconds, seeds, walker))
         if "push" in args.protocols:
             row["push"] = (env_cell(run_env_pushes, description, plant, args.push_force, args.directions, push_seeds, args.judge_after)
-                           if env_mode else run_pushes(description, plant, args.push_force, args.directions, push_seeds, args.judge_after))
+                           if env_mode else run_pushes(description, plant, args.push_force, args.directions, push_seeds, args.judge_after, walker))
         table[plant] = row
         print(f"{plant}: {json.dumps(row)}", file=sys.stderr, flush=True)
     mode = "policy" if args.policy else "estimator" if args.estimator else "truth"
-    print(json.dumps({"benchmark": "robustness", "robot": args.robot, "mode": mode, "policy": args.policy, "seeds": [seeds[0], seeds[-1]] if seeds else [],
+    print(json.dumps({"benchmark": "robustness", "robot": args.robot, "mode": mode, "walker": args.walker, "policy": args.policy, "seeds": [seeds[0], seeds[-1]] if seeds else [],
                       "stand_seconds": args.stand_seconds, "walk_seconds": args.walk_seconds, "commands": {k: WALK_COMMANDS[k] for k in args.commands},
                       "push": {"force_N": args.push_force, "duration_s": PUSH_DURATION, "start_s": PUSH_START, "directions": args.directions,
                                "judged_after_s": args.judge_after},

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 import pinocchio as pin
@@ -105,8 +106,10 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
     def __init__(self, description: RobotDescription, config: WalkerConfig | None = None, model: pin.Model | None = None) -> None:
         self.config = config = config or WalkerConfig()
         self.description = description
-        self.balance = BalanceController(description, config.balance, model)
+        balance = config.balance if config.friction is None else replace(config.balance, mu=config.friction)
+        self.balance = BalanceController(description, balance, model)
         self.wbc = self.balance.wbc
+        self._standing_spring = self.wbc.limit_spring  # BalanceConfig.limit_spring: what holds while not walking
         self.model = self.wbc.model
         self._data = self.model.createData()
         contacts = {c.name: c for c in self.balance.contacts}
@@ -328,6 +331,9 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self.state.dcm_ref, self.state.cop = xi_ref, cop
         self.state.com, self.state.com_velocity = self._com, self._com_velocity
         self.state.phase, self.state.stance = self._phase, self._stance
+        spring = self.config.walking_limit_spring
+        if spring is not None:
+            self.wbc.limit_spring = spring if self.walking and not self._recovering else self._standing_spring
         self.last_result = self.wbc.update(q, v, t)
         return self.last_result
 

@@ -31,14 +31,27 @@ class WalkerConfig:
     """Gait, gains and switching thresholds of :class:`~giwbc.locomotion.walker.WalkingController`."""
 
     gait: GaitConfig = field(default_factory=GaitConfig)
-    # proxsuite gets 20 outer iterations (default 10): the ticks of a contact switch need more
+    # proxsuite gets 20 outer iterations (default 10): the ticks of a contact switch need more.
     balance: BalanceConfig = field(default_factory=lambda: BalanceConfig(min_normal_force=5.0, solver_settings={"max_iter": 20}))
+    # The friction coefficient the WBC plans every foot force with (None: ``balance.mu``, 0.8); a floor
+    # not known to grip that well: the "any_floor" preset (ANY_FLOOR_OPTIONS).
+    friction: float | None = None
     com_height: float | None = None  # m above the soles; default: the standing pose's
     dcm_gain: float = 5.0  # s⁻¹, walking
     standing_dcm_gain: float = 8.0  # s⁻¹, standing (stiffer: feet-in-place balance)
     com_height_kp: float = 100.0
     swing_apex: float = 0.07  # m
     swing_weight: float = 2.0  # walking: low, the CoM task keeps the priority
+    # The WBC's joint-limit spring (zone rad, kp N m/rad, kd N m s/rad: WholeBodyController.set_limit_spring)
+    # while the walker walks (not standing, not recovering from a push: there the ankles need their full
+    # range; BalanceConfig.limit_spring holds then). A foot rolling on a rim turns with its ankle roll,
+    # which only a torque at that joint turns back; on the nominal plant the walk is bit for bit the
+    # same (no joint enters the zone). None: off, the default: with the friction and swing gain above,
+    # (0.05, 600, 10) did not help on the truth (tuning seeds 20001-20002, 0.3 / 0.5 / -0.3 m/s and
+    # turning, 12 s, 5 variants: 3 falls of 40 with it, 1 without) nor on the estimate (G1Walk, 0.3 m/s,
+    # seeds 20000-20002, capsule / point / all_at_once / frictional feet: 6 of 12 ends either way).
+    # (README, "Why the feet rock, and a joint-limit spring".)
+    walking_limit_spring: tuple[float, float, float] | None = None
     recovery_swing_weight: float = 10.0  # recovering from a push: the foot must get there
     swing_kp: float = 400.0
     contact_ramp: float = 0.04  # s, force ramp at lift-off and touch-down
@@ -167,6 +180,11 @@ class WalkerConfig:
     def __post_init__(self) -> None:
         if self.preview_steps < 1:
             raise ValueError("preview_steps must be >= 1")
+        if self.friction is not None and not (math.isfinite(self.friction) and self.friction > 0.0):
+            raise ValueError(f"friction must be None or a finite coefficient > 0, got {self.friction!r}")
+        spring = self.walking_limit_spring
+        if spring is not None and not (len(spring) == 3 and all(math.isfinite(float(x)) for x in spring) and spring[0] > 0 and min(spring[1:]) >= 0):
+            raise ValueError(f"walking_limit_spring must be None or (zone > 0 rad, kp >= 0 N m/rad, kd >= 0 N m s/rad), got {spring!r}")
         if not (0.0 < self.min_swing <= self.gait.single_support <= self.max_swing):
             raise ValueError("need 0 < min_swing <= single_support <= max_swing")
         if self.contact_ramp < 0 or self.contact_ramp >= self.gait.double_support + 1e-12 and self.contact_ramp > 0.5:
@@ -246,12 +264,28 @@ DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
     # The walking-push steps (issue 38) are measured on the MuJoCo ground truth only: off on the estimate.
     "walking_recovery_error": math.inf, "push_swap_error": math.inf,
 })  # fmt: skip
-WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS})
+# A floor the walker does not know to grip (a gym mat, rubber tiles, painted concrete: mu ~0.6) or feet it
+# was not built for. With BalanceConfig's mu = 0.8 (each horizontal axis of the force pyramid; 1.13 along
+# a diagonal) the WBC put 1.1x a foot's load tangentially on a foot ramping out and 0.47x on the stance
+# foot at lift-off; on the plant variants (robots/g1/plants) the feet slid 50-300 mm in a 100 N push.
+# mu = 0.5 plans inside any such floor; the softer swing (250, as deployed) because at 400 its lift-off
+# asked the stance foot for more than 0.5 allows and the G1 drifted sideways (0.5 m/s: vy -0.02 m/s).
+# Measured on the MuJoCo truth, tuning seeds 20001-20002, default -> any_floor: 100 N x 0.2 s standing
+# pushes in 8 directions recovered 46 -> 70 of 80 on the capsule / point / rounded feet, soft floor
+# and all_at_once plants (soft floor 5 -> 12 of 16), nominal 16 -> 16; walks (0.3, 0.5, -0.3 m/s,
+# turning 0.3 rad/s, 12 s) fell 11 -> 1 of 56 on the 7 variants, 0 -> 0 of 8 nominal, per-step tracking
+# RMS on the nominal plant 0.021 / 0.024 / 0.063 / 0.020 -> 0.015 / 0.032 / 0.041 / 0.021. Not the
+# default: it gives up pushes a gripping floor allows (a 150 N back-diagonal push, lateral pushes while
+# walking: tests/test_locomotion_recovery_reach.py, test_walk_lateral_push.py, test_deploy_walk.py fail
+# with it). Both at once need the friction measured (slip detection), not assumed.
+ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType({"friction": 0.5, "swing_kp": 250.0})
+WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS, "any_floor": ANY_FLOOR_OPTIONS})
 
 
 def walker_config(options: "Mapping[str, Any] | str | None" = None, base: WalkerConfig | None = None) -> WalkerConfig:
     """A :class:`WalkerConfig` from ``options``: field values (a mapping), a preset's name
-    (``"deployment"``: :data:`DEPLOYMENT_OPTIONS`, the walker on an estimated state), or None
+    (``"deployment"``: :data:`DEPLOYMENT_OPTIONS`, the walker on an estimated state; ``"any_floor"``:
+    :data:`ANY_FLOOR_OPTIONS`, a floor or feet the walker was not tuned on), or None
     (the defaults); applied over ``base`` (default ``WalkerConfig()``)."""
     config = base if base is not None else WalkerConfig()
     if options is None:
