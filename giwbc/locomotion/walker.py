@@ -109,7 +109,6 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         balance = config.balance if config.friction is None else replace(config.balance, mu=config.friction)
         self.balance = BalanceController(description, balance, model)
         self.wbc = self.balance.wbc
-        self._standing_spring = self.wbc.limit_spring  # BalanceConfig.limit_spring: what holds while not walking
         self.model = self.wbc.model
         self._data = self.model.createData()
         contacts = {c.name: c for c in self.balance.contacts}
@@ -333,7 +332,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self.state.phase, self.state.stance = self._phase, self._stance
         spring = self.config.walking_limit_spring
         if spring is not None:
-            self.wbc.limit_spring = spring if self.walking and not self._recovering else self._standing_spring
+            # not walking: BalanceConfig.limit_spring (what the WBC was built with)
+            self.wbc.limit_spring = spring if self.walking and not self._recovering else self.balance.config.limit_spring
         self.last_result = self.wbc.update(q, v, t)
         return self.last_result
 
