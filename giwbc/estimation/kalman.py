@@ -20,9 +20,10 @@ fixed: a missing measurement (a swing foot's velocity, a leg with bad encoders) 
 in ``H`` and a zero residual, which carries no information, so arrays stay the same shape and
 every update costs the same.
 
-The filter runs once per control tick on matrices of a few rows, where each numpy call costs more
-than its arithmetic: work arrays are allocated once and updated in place, and per-foot scalars
-are plain floats.
+The filter runs once per control tick on matrices of a few rows, where each numpy call would cost
+more than its arithmetic: a prediction and a correction are one compiled call each
+(:func:`giwbc.estimation.kernels.kalman_predict`, :func:`~giwbc.estimation.kernels.kalman_correct`)
+on arrays allocated once and updated in place.
 """
 
 from __future__ import annotations
@@ -31,9 +32,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import lapack
 
-from giwbc.robot.so3 import as_floats
+from giwbc.estimation import kernels
 
 __all__ = ["LegKalmanFilter", "LegKalmanNoise"]
 
@@ -60,18 +60,14 @@ class LegKalmanNoise:
 
 
 class _AxisGroup:
-    """Axes ``axes`` (a slice of x, y, z) sharing measurement rows ``H`` and so one covariance ``P``."""
+    """Axes ``axes`` (a slice of x, y, z) sharing measurement rows (their number: ``rows``) and so one
+    covariance ``P`` (a view of the filter's stacked covariances)."""
 
-    def __init__(self, axes: slice, H: np.ndarray) -> None:
-        rows, states = H.shape
+    def __init__(self, axes: slice, rows: int, P: np.ndarray) -> None:
+        states = P.shape[0]
         self.axes = axes
         self.rows = rows
-        self.H_full = H
-        self.H = H.copy()  # H_full with the rows of missing measurements zeroed
-        self.P = np.eye(states)
-        self.P_diagonal = self.P.reshape(-1)[:: states + 1]  # a view
-        self.S = np.zeros((rows, rows))
-        self.S_diagonal = self.S.reshape(-1)[:: rows + 1]  # a view
+        self.P = P
         # For base_covariance: entry (3 i + a, 3 j + a) of the (6, 6) matrix is P[i, j] (i, j < 2)
         # for each axis a of the group, as flat indices into both.
         pairs = [(axis, i, j) for axis in range(axes.start, axes.stop) for i in (0, 1) for j in (0, 1)]
@@ -100,16 +96,27 @@ class LegKalmanFilter:
             H[n + i, 1] = -1.0  # foot velocity relative to the IMU = -imu velocity (a stance foot is still)
             if use_ground_height:
                 H[2 * n + i, 2 + i] = 1.0  # foot height (z axis only)
-        if use_ground_height:
-            self._groups = (_AxisGroup(slice(0, 2), H[: 2 * n].copy()), _AxisGroup(slice(2, 3), H))
-        else:
-            self._groups = (_AxisGroup(slice(0, 3), H),)
+        groups = ((slice(0, 2), 2 * n), (slice(2, 3), 3 * n)) if use_ground_height else ((slice(0, 3), 2 * n),)
+        self._P = np.zeros((len(groups), states, states))  # per group
+        self._H = np.zeros((len(groups), len(H), states))  # per group, its rows first
+        for g, (_, rows) in enumerate(groups):
+            self._H[g, :rows] = H[:rows]
+            self._P[g] = np.eye(states)
+        self._group_rows = np.array([rows for _, rows in groups], dtype=np.int64)
+        self._group_axes = np.array([(axes.start, axes.stop) for axes, _ in groups], dtype=np.int64)
+        self._groups = tuple(_AxisGroup(axes, rows, self._P[g]) for g, (axes, rows) in enumerate(groups))
         self._axis_groups = tuple(g for g in self._groups for _ in range(g.axes.start, g.axes.stop))  # per axis
         self._z = np.zeros((3, len(H)))
+        self._used = np.ones(len(H), dtype=np.bool_)
         variances = np.ones(len(H))
         variances[:n] = self.noise.foot_position**2
         variances[2 * n :] = self.noise.ground_height**2
         self._variances = variances  # measurement noise per row (velocity rows set per update)
+        noise = self.noise
+        self._process_noise = np.array([noise.acceleration, noise.missing_acceleration, noise.position, noise.stance_foot,
+                                        noise.swing_foot])
+        self._acceleration = np.zeros(3)
+        self._stance = np.zeros(n)
         self._corrections = 0
 
     @property
@@ -135,28 +142,11 @@ class LegKalmanFilter:
 
         ``stance``: per foot, 0 for swing, else the confidence (0, 1] that it stands still; a
         stance foot's slip noise grows as its confidence drops, up to the swing noise."""
-        noise, x = self.noise, self.x
-        ax, ay, az = (0.0, 0.0, 0.0) if acceleration is None else acceleration
-        half_dt2 = 0.5 * dt * dt
-        (px, vx), (py, vy), (pz, vz) = x[:, :2].tolist()  # plain floats: cheaper than numpy on 3-vectors
-        x[:, :2] = (
-            (px + (vx * dt + half_dt2 * ax), vx + ax * dt),
-            (py + (vy * dt + half_dt2 * ay), vy + ay * dt),
-            (pz + (vz * dt + half_dt2 * az), vz + az * dt),
-        )
-        # Q is diagonal: position, velocity (acceleration noise), then each foot's slip.
-        stance_std, swing_std = noise.stance_foot, noise.swing_foot
-        acceleration_std = noise.acceleration if acceleration is not None else noise.missing_acceleration
-        process = [noise.position**2 * dt, acceleration_std**2 * dt]
-        for confidence in as_floats(stance):
-            std = min(stance_std / max(confidence, 1e-6), swing_std)
-            process.append(std * std * dt)
-        for group in self._groups:
-            # F P F^T with F = I + dt e_0 e_1^T (position += dt velocity): a row, then a column operation.
-            P = group.P
-            P[0] += dt * P[1]
-            P[:, 0] += dt * P[:, 1]
-            group.P_diagonal += process
+        known = acceleration is not None
+        if known:
+            self._acceleration[:] = acceleration
+        self._stance[:] = stance
+        kernels.kalman_predict(self.x, self._P, self._acceleration, known, dt, self._stance, self._process_noise)
 
     def correct(
         self,
@@ -171,63 +161,22 @@ class LegKalmanFilter:
         relative to a non-translating IMU (world axes, (n_feet, 3)). ``stance`` as in
         :meth:`predict`: velocity (and ground height) rows count for stance feet only, their
         noise scaled by 1 / confidence; invalid legs are left out."""
-        n, z = self.n_feet, self._z
-        confidences = as_floats(stance)
+        n, z, used = self.n_feet, self._z, self._used
+        self._stance[:] = stance
         z[:, :n] = foot_positions.T
         z[:, n : 2 * n] = foot_velocities.T
-        positions_used = position_valid.tolist()
-        velocities_used = [c > 0.0 and ok for c, ok in zip(confidences, velocity_valid.tolist())]
-        used = positions_used + velocities_used
+        used[:n] = position_valid
+        np.logical_and(self._stance > 0.0, velocity_valid, out=used[n : 2 * n])
         if self.use_ground_height:
             z[2, 2 * n :] = ground_height
-            used += [c > 0.0 and ok for c, ok in zip(confidences, positions_used)]
-        everything = all(used)
-        if not everything:
-            z[:, np.logical_not(used)] = 0.0
-        self._variances[n : 2 * n] = self._velocity_variances(confidences, foot_velocities)
-        for group in self._groups:
-            H = group.H_full
-            if not everything:
-                H = group.H
-                np.multiply(group.H_full, np.array(used[: group.rows])[:, None], out=H)
-            self._correct_group(group, H, z[group.axes, : group.rows])
-        self._corrections += 1
-        if self._corrections % 16 == 0:  # keep P symmetric against rounding
-            for group in self._groups:
-                group.P[:] = 0.5 * (group.P + group.P.T)
-
-    def _correct_group(self, group: _AxisGroup, H: np.ndarray, z: np.ndarray) -> None:
-        """The Kalman update of ``group``'s axes with measurements ``z`` (axes, rows)."""
-        x, P = self.x[group.axes], group.P  # x: a view
-        residual = z - x @ H.T
-        HP = H @ P
-        np.matmul(HP, H.T, out=group.S)
-        group.S_diagonal += self._variances[: group.rows]
-        *_, gain_t, info = lapack.dgesv(group.S, HP)  # K^T = S^-1 H P (S symmetric)
-        if info != 0:
+            np.logical_and(self._stance > 0.0, used[:n], out=used[2 * n :])
+        corrections = kernels.kalman_correct(
+            self.x, self._P, self._H, self._group_rows, self._group_axes, z, used, self._variances, self._stance,
+            foot_velocities, self.noise.foot_velocity**2, self.velocity_gate, self.gate_power, self._corrections,
+        )
+        if corrections < 0:
             raise np.linalg.LinAlgError("singular innovation covariance")
-        x += residual @ gain_t
-        P -= gain_t.T @ HP
-
-    def _velocity_variances(self, confidences: list[float], foot_velocities: np.ndarray) -> list[float]:
-        """Noise variance of each foot's velocity row: the encoder noise over the squared
-        confidence, scaled by the normalized innovation beyond the gate (a foot that slips or
-        bounces contradicts the IMU-propagated velocity: a Huber-like robust update).
-        Plain floats: a few per foot."""
-        base, gate, power = self.noise.foot_velocity**2, self.velocity_gate, self.gate_power
-        vx, vy, vz = self.x[:, 1].tolist()
-        px, py, pz = (group.P.item(1, 1) for group in self._axis_groups)  # IMU velocity variance per axis
-        variances = []
-        for confidence, (fx, fy, fz) in zip(confidences, foot_velocities.tolist()):
-            confidence = max(confidence, 1e-3)
-            variance = base / (confidence * confidence)
-            if gate > 0:
-                rx, ry, rz = fx + vx, fy + vy, fz + vz  # innovation: the foot's velocity + the IMU's (zero if still)
-                nis = rx * rx / (px + variance) + ry * ry / (py + variance) + rz * rz / (pz + variance)
-                if nis > gate:
-                    variance *= nis / gate if power == 1.0 else (nis / gate) ** power
-            variances.append(variance)
-        return variances
+        self._corrections = corrections
 
     @property
     def imu_position(self) -> np.ndarray:

@@ -1,5 +1,7 @@
 """Leg kinematics from encoders: where each foot is and how it moves relative to the IMU, and what
-force it carries, from one Pinocchio pass (joint Jacobians + RNEA) per update.
+force it carries, from one compiled pass per update (forward kinematics, frame Jacobians and the
+legs' RNEA in :func:`giwbc.estimation.kernels.leg_kinematics`, over tables read from the Pinocchio
+model once; the tests check it against Pinocchio's own algorithms).
 
 Everything is expressed in world-aligned axes (the estimated base orientation) with the base
 origin held at zero, so a stance foot's relative position and velocity are exactly the
@@ -17,11 +19,11 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
+from giwbc.estimation import kernels
 from giwbc.robot.description import RobotDescription
 
 __all__ = ["LegKinematics", "sole_frame_name"]
 
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 IMU_FRAME = "estimator_imu"  # the frame this module adds at the IMU (the base origin without one)
 
 
@@ -62,7 +64,7 @@ class LegKinematics:
         # joint's RNEA torque depends on the bodies it carries only) at about half the cost.
         leg_set = set().union(*chains)
         legs = model if len(leg_set) == model.njoints - 2 else _legs_only(model, leg_set)
-        self._legs, self._legs_data = legs, legs.createData()
+        self._legs = legs
         self._frames = tuple(legs.getFrameId(name) for name in (*soles, IMU_FRAME))  # the feet, then the IMU
         # Index maps: description joint order -> the reduced model's joints, and each leg's
         # joints -> columns of the reduced model's velocity (slices where contiguous).
@@ -75,6 +77,14 @@ class LegKinematics:
         # square system (a foot's Jacobian is zero on the other legs' joints), solved in one call.
         self._block_legs = all(len(c) == 6 for c in chains) and sum(map(len, chains)) == len(leg_set) == legs.nv - 6
         n = len(chains)
+        # The compiled pass's tables and index arrays (kernels.leg_kinematics)
+        self._tables = kernels.joint_tables(legs, list(self._frames))
+        self._gravity = np.array(legs.gravity.linear, dtype=float)
+        self._index = np.array([description_index[legs.names[j]] for j in range(2, legs.njoints)], dtype=np.int64)
+        self._leg_column_table = (np.array([[leg_v[model.names[j]] for j in chain] for chain in chains], dtype=np.int64)
+                                  if self._block_legs else np.zeros((n, 6), dtype=np.int64))
+        self._bias = np.zeros(legs.nv - 6)  # RNEA torques less the efforts, the reduced model's joint order
+        self._no_joint_values = np.zeros(len(description_index))
         self._q = pin.neutral(legs)
         self._q[:3] = 0.0
         self._v = np.zeros(legs.nv)
@@ -136,39 +146,28 @@ class LegKinematics:
         ``base_acceleration`` (base frame: the base origin's linear acceleration, gravity not
         included, then the angular acceleration) and ``joint_accelerations`` (description order),
         given together, add the legs' inertial term to the wrenches (each None: quasi-static)."""
-        model, data, q, v, n = self._legs, self._legs_data, self._q, self._v, self.n_feet
-        joints = self._leg_model_joints
+        q, v, n = self._q, self._v, self.n_feet
         q[3:7] = base_quaternion
-        q[7:] = joint_positions[joints]
         v[3:6] = base_angular_velocity
-        v[6:] = joint_velocities[joints]
-        pin.computeJointJacobians(model, data, q)
-        motion, jacobians = self._frame_motion, self._jacobians
-        rotations = self.foot_rotations
-        for i, frame in enumerate(self._frames):
-            placement = pin.updateFramePlacement(model, data, frame)
-            motion[i, :3] = placement.translation
-            if i < n:
-                rotations[i] = placement.rotation
-            jacobians[i] = pin.getFrameJacobian(model, data, frame, _LWA)
-        np.matmul(jacobians[:, :3], v, out=motion[:, 3:])
-        np.matmul(jacobians[:n, 3:], v, out=self.foot_angular_velocities)
-        np.subtract(motion[:n], motion[n], out=self._relative_motion)
+        a, mode = self._zero, 0
         if joint_efforts is not None:
-            a = self._zero
+            mode = kernels.DYNAMICS | (kernels.SOLVE if self._block_legs else 0)
             if base_acceleration is not None and joint_accelerations is not None:
                 a = self._a
                 a[:6] = base_acceleration
-                a[6:] = joint_accelerations[joints]
-            bias = pin.rnea(model, data, q, v, a)[6:] - joint_efforts[joints]
-            if self._block_legs:
-                *_, wrenches, info = lapack.dgesv(jacobians[:n, :, 6:].reshape(6 * n, -1).T, bias)
-                if info > 0:
-                    raise np.linalg.LinAlgError(f"leg of foot {self.contact_names[(info - 1) // 6]!r} is singular")
-                self.foot_wrenches[:] = wrenches.reshape(n, 6)
-            else:
-                for i in range(n):
-                    self.foot_wrenches[i] = self._leg_wrench(i, bias)
+                mode |= kernels.INERTIAL
+        none = self._no_joint_values
+        singular = kernels.leg_kinematics(
+            *self._tables, self._gravity, self._leg_column_table, self._index, q, v, a, joint_positions, joint_velocities,
+            none if joint_efforts is None else joint_efforts, none if joint_accelerations is None else joint_accelerations, mode,
+            self._jacobians, self._frame_motion, self._relative_motion, self.foot_rotations, self.foot_angular_velocities,
+            self._bias, self.foot_wrenches,
+        )
+        if singular:
+            raise np.linalg.LinAlgError(f"leg of foot {self.contact_names[singular - 1]!r} is singular")
+        if joint_efforts is not None and not self._block_legs:
+            for i in range(n):
+                self.foot_wrenches[i] = self._leg_wrench(i, self._bias)
 
     def _leg_wrench(self, foot: int, bias: np.ndarray) -> np.ndarray:
         """The wrench at ``foot`` that its leg's ``bias`` torques (RNEA minus efforts) balance."""
