@@ -52,6 +52,7 @@ from giwbc.estimation.calibration import CalibrationReport, StandstillConfig, St
 from giwbc.estimation.contacts import ContactDetector
 from giwbc.estimation.faults import HOLDING_FAULTS, Fault, FaultMonitor, FaultReport
 from giwbc.estimation.headings import FootHeadings
+from giwbc.estimation import kernels
 
 _HOLDING = int(HOLDING_FAULTS)
 GRAVITY_NORM = 9.81
@@ -309,6 +310,7 @@ class StateEstimator:
         self._all_feet.flags.writeable = False
         self._leg_joint_index = np.flatnonzero(self._leg_mask.any(axis=0))
         self._sole_half = [(c.half_length, c.half_width) for c in description.contacts]
+        self._sole_half_array = np.array(self._sole_half, dtype=float)
         self._flat_cos = math.cos(min(self.config.flat_max_tilt, math.pi))  # a sole's world z-z component at least this
         self.standstill = StandstillDetector(c.standstill, self._leg_joint_index)
         self.headings = FootHeadings(n_feet, c.foot_twist, c.foot_twist_time)
@@ -336,8 +338,8 @@ class StateEstimator:
         self._still_since = [-math.inf] * self.kinematics.n_feet  # s: when each foot last turned faster than foot_roll_rate
         self._rate2 = [0.0] * self.kinematics.n_feet  # (rad/s)^2: each foot's squared angular rate, low-passed
         self._velocity_rate2 = [0.0] * self.kinematics.n_feet  # the same for roll_velocity_rate
-        self._specific_force_lp: list[float] | None = None  # world frame, low-passed
-        self._leg_velocity_lp: list[float] | None = None  # IMU velocity from the stance legs, world, low-passed
+        self._up_lp = np.zeros(6)  # low-passed, world: the specific force, then the IMU velocity from the stance legs
+        self._up_started = False  # whether _up_lp holds a first sample
         self.reference = "none"  # the orientation reference of the last update: feet, orientation_output, gravity
         self._output_heading: list[float] | None = None  # low-passed (cos, sin) of the base heading the orientation output gives
         self._time: float | None = None
@@ -345,9 +347,11 @@ class StateEstimator:
         self._velocities = np.zeros(self._dofs)
         self._efforts = np.zeros(self._dofs)
         self._forces = np.zeros((self.kinematics.n_feet, 3))
-        self._joint_velocity_lp: np.ndarray | None = None  # force_inertia: low-passed joint velocities ...
+        self._joint_velocity_lp = np.zeros(self._dofs)  # force_inertia: low-passed joint velocities ...
         self._joint_acceleration = np.zeros(self._dofs)  # ... and their derivative
-        self._base_motion_lp: list[float] | None = None  # low-passed base angular velocity (base frame), IMU acceleration (world)
+        self._base_motion_lp = np.zeros(6)  # low-passed base angular velocity (base frame), IMU acceleration (world)
+        self._inertia_started = False  # whether the two low-passes above hold a first sample
+        self._base_acceleration = np.zeros(6)  # the base's acceleration (base frame: linear, angular) they give
         self._pivot_velocities = np.zeros((self.kinematics.n_feet, 3))
         self._foot_lists: tuple[list, list, list, list] | None = None
         self._estimate = self._initial_estimate()
@@ -603,30 +607,13 @@ class StateEstimator:
         """The accelerometer's gravity (IMU frame): its specific force less its calibrated bias,
         less the IMU acceleration the stance legs measure. Both are low-passed alike in the world
         frame (the acceleration as the derivative of the low-passed leg velocity), so the legs'
-        velocity noise is not differentiated."""
-        ax, ay, az = accel
-        bx, by, bz = self._accel_bias
-        fx, fy, fz = so3.rotate(base_rotation, so3.rotate(self._imu_rotation, (ax - bx, ay - by, az - bz)))
-        total = sum(loads)  # swing feet have 0
-        if total > 0.0:
-            vx = vy = vz = 0.0
-            for (ux, uy, uz), w in zip(self._kinematics_lists()[3], loads):
-                vx -= w * ux; vy -= w * uy; vz -= w * uz  # noqa: E702 - a still stance foot: IMU velocity = -its relative velocity
-            vx, vy, vz = vx / total, vy / total, vz / total
-        else:
-            vx, vy, vz = self.filter.x[:, 1].tolist()
-        force, velocity = self._specific_force_lp, self._leg_velocity_lp
-        if force is None or velocity is None:
-            self._specific_force_lp, self._leg_velocity_lp = [fx, fy, fz], [vx, vy, vz]
-            mx, my, mz = fx, fy, fz
-        else:
-            tau = self.config.accel_compensation_time
-            alpha, rate = dt / (tau + dt), 1.0 / (tau + dt)
-            dvx, dvy, dvz = vx - velocity[0], vy - velocity[1], vz - velocity[2]
-            velocity[0] += alpha * dvx; velocity[1] += alpha * dvy; velocity[2] += alpha * dvz  # noqa: E702
-            force[0] += alpha * (fx - force[0]); force[1] += alpha * (fy - force[1]); force[2] += alpha * (fz - force[2])  # noqa: E702
-            mx, my, mz = force[0] - rate * dvx, force[1] - rate * dvy, force[2] - rate * dvz
-        return so3.rotate_back(self._imu_rotation, so3.rotate_back(base_rotation, (mx, my, mz)))
+        velocity noise is not differentiated (:func:`giwbc.estimation.kernels.compensated_up`)."""
+        tau = self.config.accel_compensation_time
+        alpha, rate = (dt / (tau + dt), 1.0 / (tau + dt)) if self._up_started else (1.0, 0.0)
+        up = kernels.compensated_up(tuple(accel), self._accel_bias, base_rotation, self._imu_rotation, tuple(loads),
+                                    self.kinematics.foot_velocities, self.filter.x, self._up_lp, not self._up_started, alpha, rate)
+        self._up_started = True
+        return up
 
     def _standstill_window(self, window: StandstillWindow, output: list[float] | None, base_rotation: so3.Matrix3, flags: list[bool]) -> None:
         """A standstill window ended: the start-up calibration, or a zero-velocity update of the
@@ -691,7 +678,7 @@ class StateEstimator:
             self._output_offset = quaternion_error(output, imu.tolist())
             offset = math.sqrt(sum(e * e for e in self._output_offset))
         self.headings.reset()
-        self._specific_force_lp = self._leg_velocity_lp = None
+        self._up_started = False
         self._restart_pending = True
         self.standstill.blocks = c.standstill.blocks  # later windows: zero-velocity updates
         self.calibration = CalibrationReport(
@@ -835,49 +822,38 @@ class StateEstimator:
 
     def _leg_accelerations(
         self, rotation: so3.Matrix3, omega: so3.Vector3, accel: list[float] | None, dt: float
-    ) -> list[float]:
+    ) -> np.ndarray:
         """Config ``force_inertia``: update the low-passed joint accelerations (``self._joint_acceleration``,
         the derivative of the joint velocities' first-order low-pass) and return the base's
         acceleration (base frame: the origin's linear acceleration without gravity, then the angular
         acceleration), low-passed alike: the accelerometer's specific force (bias removed) rotated to
         the world plus gravity, moved from the IMU to the base origin, and the gyro differentiated.
-        No accelerometer: the linear part is taken as zero (the quasi-static estimate's assumption)."""
+        No accelerometer: the linear part is taken as zero (the quasi-static estimate's assumption).
+        One compiled call (:func:`giwbc.estimation.kernels.leg_accelerations`)."""
         tau = self.config.force_inertia_time
         alpha, rate = (dt / (tau + dt), 1.0 / (tau + dt)) if dt > 0.0 else (1.0, 0.0)
-        velocities = self._velocities
-        if self._joint_velocity_lp is None:
-            self._joint_velocity_lp = velocities.copy()
-        change = velocities - self._joint_velocity_lp
-        self._joint_velocity_lp += alpha * change
-        np.multiply(change, rate, out=self._joint_acceleration)
         if accel is not None:
             bx, by, bz = self._accel_bias
-            ax, ay, az = self._world_acceleration(rotation, (accel[0] - bx, accel[1] - by, accel[2] - bz))
-        else:
-            ax = ay = az = 0.0
-        wx, wy, wz = omega
-        lp = self._base_motion_lp
-        if lp is None or dt <= 0.0:
-            self._base_motion_lp = lp = [wx, wy, wz, ax, ay, az]
-            return [*so3.rotate_back(rotation, (ax, ay, az)), 0.0, 0.0, 0.0]
-        dwx, dwy, dwz = wx - lp[0], wy - lp[1], wz - lp[2]
-        for k, value in enumerate((wx, wy, wz, ax, ay, az)):
-            lp[k] += alpha * (value - lp[k])
-        alpha_x, alpha_y, alpha_z = rate * dwx, rate * dwy, rate * dwz  # base angular acceleration, base frame
-        lx, ly, lz = so3.rotate_back(rotation, (lp[3], lp[4], lp[5]))  # the IMU's acceleration, base frame
-        # the base origin's: the IMU's less the lever terms alpha x r + w x (w x r), r the IMU's offset (base frame)
-        r = self._imu_offset_base
-        tx, ty, tz = so3.cross_floats((alpha_x, alpha_y, alpha_z), r)
-        cx, cy, cz = so3.cross_floats((lp[0], lp[1], lp[2]), so3.cross_floats((lp[0], lp[1], lp[2]), r))
-        return [lx - tx - cx, ly - ty - cy, lz - tz - cz, alpha_x, alpha_y, alpha_z]
+            accel = (accel[0] - bx, accel[1] - by, accel[2] - bz)
+        kernels.leg_accelerations(
+            self._velocities, self._joint_velocity_lp, self._joint_acceleration, self._base_motion_lp, not self._inertia_started,
+            dt <= 0.0, omega, (0.0, 0.0, 0.0) if accel is None else accel, accel is not None, rotation, self._imu_rotation,
+            self._imu_offset_base, self._gravity, alpha, rate, self._base_acceleration,
+        )
+        self._inertia_started = True
+        return self._base_acceleration
 
     def _standing_share(self) -> list[float]:
         """Config ``force_max_speed``: per foot, the share of its effort-based force kept: 1 while its
         sole centre's estimated world speed (the filter's IMU velocity plus the foot's relative one) is
         at most half ``force_max_speed``, 0 from ``force_max_speed`` on, linear between."""
-        speed = np.linalg.norm(self.kinematics.foot_velocities + self.filter.x[:, 1], axis=1)
         limit = self.config.force_max_speed
-        return np.clip(2.0 - 2.0 * speed / limit, 0.0, 1.0).tolist()
+        vx, vy, vz = self.filter.x[:, 1].tolist()
+        shares = []
+        for ux, uy, uz in self._kinematics_lists()[3]:  # plain floats: two feet
+            sx, sy, sz = ux + vx, uy + vy, uz + vz
+            shares.append(min(max(2.0 - 2.0 * math.sqrt(sx * sx + sy * sy + sz * sz) / limit, 0.0), 1.0))
+        return shares
 
     def _rolling_velocity_trust(self, loads: list[float], dt: float) -> list[float]:
         """Config ``roll_velocity_rate``: each stance foot's confidence for its velocity row, divided by
@@ -927,38 +903,16 @@ class StateEstimator:
         stance feet standing on the flat ground, each foot weighted by how still it is (a rolling
         foot's sole centre is above the ground). The filter measures heights only relative to each
         other, so a common shift is its unobservable direction: nothing it measures is contradicted."""
-        states = self.filter.x[2]
-        error = weight = 0.0
-        ground = self.config.ground_pull
-        for standing, trust, height in zip(flags, still, states[2:].tolist()):
-            if standing:
-                error += trust * (ground - height)
-                weight += trust
-        if weight > 0.0:
-            shift = min(dt / self.config.ground_pull_time * min(weight, 1.0), 1.0) * error / weight
-            states += shift
-            states[1] -= shift  # the velocity is not a height
+        kernels.pull_to_ground(self.filter.x, tuple(flags), tuple(still), self.config.ground_pull, dt / self.config.ground_pull_time)
 
     def _pivot_velocity(self) -> np.ndarray:
         """Per foot, the velocity (relative to a non-translating IMU, world axes) of its centre of
         pressure, the point of the sole that stays put when the foot rolls on an edge or a point
         (config ``pivot_velocity``): ``v_centre + w_foot x r``, ``r`` the CoP from the sole centre on
-        the sole plane, from the leg's wrench, clamped to the sole's half sizes. Plain floats."""
-        rows = []
-        for i, ((fx, fy, fz, tx, ty, tz), rotation, (wx, wy, wz), (vx, vy, vz)) in enumerate(zip(*self._kinematics_lists())):
-            (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotation
-            normal = m02 * fx + m12 * fy + m22 * fz  # force along the sole normal
-            if normal <= 1e-6:
-                rows.append((vx, vy, vz))
-                continue
-            # the wrench's torque in the sole frame: CoP (px, py) on the sole plane
-            sx, sy = m00 * tx + m10 * ty + m20 * tz, m01 * tx + m11 * ty + m21 * tz
-            half_length, half_width = self._sole_half[i]
-            px = min(max(-sy / normal, -half_length), half_length)
-            py = min(max(sx / normal, -half_width), half_width)
-            rx, ry, rz = m00 * px + m01 * py, m10 * px + m11 * py, m20 * px + m21 * py  # world axes
-            rows.append((vx + wy * rz - wz * ry, vy + wz * rx - wx * rz, vz + wx * ry - wy * rx))
-        self._pivot_velocities[:] = rows
+        the sole plane, from the leg's wrench, clamped to the sole's half sizes (a compiled kernel)."""
+        kin = self.kinematics
+        kernels.pivot_velocities(kin.foot_wrenches, kin.foot_rotations, kin.foot_angular_velocities, kin.foot_velocities,
+                                 self._sole_half_array, self._pivot_velocities)
         return self._pivot_velocities
 
     def _stance_confidence(self, flags: list[bool]) -> list[float]:
@@ -995,16 +949,10 @@ class StateEstimator:
         confidence: np.ndarray, faults: FaultReport,
     ) -> Estimate:
         kf = self.filter
-        omega_world = so3.rotate(rotation, omega_local)
-        (px, vx), (py, vy), (pz, vz) = kf.x[:, :2].tolist()  # IMU position and velocity
-        ox, oy, oz = offset = self.kinematics.imu_offset.tolist()
-        lever_x, lever_y, lever_z = so3.cross_floats(omega_world, offset)
-        position = (px - ox, py - oy, pz - oz)
-        velocity = (vx - lever_x, vy - lever_y, vz - lever_z)
-        base = BaseState(np.array(position), np.array(quaternion), np.array(velocity), np.array(omega_world))
-        q, v = np.empty(self._nq), np.empty(self._nv)
-        q[:7], q[7:] = position + quaternion, self._positions
-        v[:6], v[6:] = so3.rotate_back(rotation, velocity) + omega_local, self._velocities
+        q, v, state = np.empty(self._nq), np.empty(self._nv), np.empty(13)
+        kernels.assemble_state(kf.x, self.kinematics.imu_offset, rotation, quaternion, omega_local, self._positions,
+                               self._velocities, q, v, state)
+        base = BaseState(state[0:3], state[3:7], state[7:10], state[10:13])  # views of this estimate's own array
         return Estimate(self._time, base, q, v, stance, confidence, self._forces.copy(), kf.base_covariance(),
                         np.array(self.orientation.gyro_bias_floats), faults, ready=self._ready)
 

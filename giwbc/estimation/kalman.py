@@ -161,18 +161,11 @@ class LegKalmanFilter:
         relative to a non-translating IMU (world axes, (n_feet, 3)). ``stance`` as in
         :meth:`predict`: velocity (and ground height) rows count for stance feet only, their
         noise scaled by 1 / confidence; invalid legs are left out."""
-        n, z, used = self.n_feet, self._z, self._used
         self._stance[:] = stance
-        z[:, :n] = foot_positions.T
-        z[:, n : 2 * n] = foot_velocities.T
-        used[:n] = position_valid
-        np.logical_and(self._stance > 0.0, velocity_valid, out=used[n : 2 * n])
-        if self.use_ground_height:
-            z[2, 2 * n :] = ground_height
-            np.logical_and(self._stance > 0.0, used[:n], out=used[2 * n :])
         corrections = kernels.kalman_correct(
-            self.x, self._P, self._H, self._group_rows, self._group_axes, z, used, self._variances, self._stance,
-            foot_velocities, self.noise.foot_velocity**2, self.velocity_gate, self.gate_power, self._corrections,
+            self.x, self._P, self._H, self._group_rows, self._group_axes, self._z, self._used, self._variances, self._stance,
+            foot_positions, foot_velocities, position_valid, velocity_valid, float(ground_height), self.noise.foot_velocity**2,
+            self.velocity_gate, self.gate_power, self._corrections,
         )
         if corrections < 0:
             raise np.linalg.LinAlgError("singular innovation covariance")

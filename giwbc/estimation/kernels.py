@@ -28,7 +28,7 @@ import numba
 import numpy as np
 import pinocchio as pin
 
-__all__ = ["compiled", "joint_tables", "kalman_correct", "kalman_predict", "leg_kinematics", "reference"]
+__all__ = ["compiled", "joint_tables", "kalman_correct", "kalman_predict", "leg_kinematics", "pivot_velocities", "reference"]
 
 FREE_FLYER, REVOLUTE, PRISMATIC = 1, 2, 3
 DYNAMICS, SOLVE, INERTIAL = 1, 2, 4  # leg_kinematics' mode bits: the RNEA bias, the feet's wrenches, the inertial term
@@ -384,18 +384,32 @@ def kalman_predict(
 @compiled
 def kalman_correct(
     x: np.ndarray, P: np.ndarray, H_full: np.ndarray, group_rows: np.ndarray, group_axes: np.ndarray, z: np.ndarray,
-    used: np.ndarray, variances: np.ndarray, confidences: np.ndarray, foot_velocities: np.ndarray,
-    velocity_noise: float, gate: float, power: float, corrections: int,
+    used: np.ndarray, variances: np.ndarray, confidences: np.ndarray, foot_positions: np.ndarray, foot_velocities: np.ndarray,
+    position_valid: np.ndarray, velocity_valid: np.ndarray, ground_height: float, velocity_noise: float, gate: float,
+    power: float, corrections: int,
 ) -> int:
-    """:meth:`~giwbc.estimation.kalman.LegKalmanFilter.correct` on its arrays, in place: the stance
-    feet's velocity noise (``variances[n:2n]``: encoder noise over the squared confidence, grown
-    beyond the chi-square ``gate``), then per axis group ``g`` (its axes ``group_axes[g]``, its
-    first ``group_rows[g]`` rows of ``H_full[g]``, those not ``used`` zeroed) the Kalman update
-    ``K^T = S^-1 H P``, ``x += (z - H x) K^T``, ``P -= K H P``, every 16th correction
-    (``corrections`` + 1) followed by symmetrizing ``P``. Returns the new correction count, or -1
-    when an innovation covariance is singular (nothing after it updated)."""
+    """:meth:`~giwbc.estimation.kalman.LegKalmanFilter.correct` on its arrays, in place: the
+    measurements ``z`` (per axis: the feet's positions, velocities, then, with ground rows, the
+    ``ground_height``) and which rows are ``used`` (a valid position; a valid velocity or a ground
+    height of a stance foot, ``confidences`` > 0), the stance feet's velocity noise
+    (``variances[n:2n]``: encoder noise over the squared confidence, grown beyond the chi-square
+    ``gate``), then per axis group ``g`` (its axes ``group_axes[g]``, its first ``group_rows[g]``
+    rows of ``H_full[g]``, those not used zeroed) the Kalman update ``K^T = S^-1 H P``,
+    ``x += (z - H x) K^T``, ``P -= K H P``, every 16th correction (``corrections`` + 1) followed by
+    symmetrizing ``P``. Returns the new correction count, or -1 when an innovation covariance is
+    singular (nothing after it updated)."""
     n = confidences.shape[0]
     groups, states = P.shape[0], P.shape[1]
+    for i in range(n):
+        stance = confidences[i] > 0.0
+        used[i] = position_valid[i]
+        used[n + i] = stance and velocity_valid[i]
+        if z.shape[1] > 2 * n:
+            used[2 * n + i] = stance and position_valid[i]
+            z[2, 2 * n + i] = ground_height
+        for axis in range(3):
+            z[axis, i] = foot_positions[i, axis]
+            z[axis, n + i] = foot_velocities[i, axis]
     # the velocity rows' noise: each axis's IMU velocity variance from its group's P
     axis_variance = np.empty(3)
     for g in range(groups):
@@ -489,3 +503,185 @@ def kalman_correct(
                     P[g, r, c] = mean
                     P[g, c, r] = mean
     return corrections
+
+
+@compiled
+def pivot_velocities(
+    wrenches: np.ndarray, rotations: np.ndarray, angular_velocities: np.ndarray, velocities: np.ndarray, half_sizes: np.ndarray,
+    out: np.ndarray,
+) -> None:
+    """Per foot, the velocity of its centre of pressure (``v_centre + w_foot x r``, ``r`` the CoP from
+    the sole centre on the sole plane, from the wrench ``(force, torque)`` at the sole centre, clamped
+    to the sole's ``half_sizes`` (length, width)) into ``out``; a foot whose force along its sole
+    normal is not positive keeps its centre's velocity. All world axes; ``rotations``: the soles'."""
+    for i in range(wrenches.shape[0]):
+        fx, fy, fz, tx, ty, tz = wrenches[i, 0], wrenches[i, 1], wrenches[i, 2], wrenches[i, 3], wrenches[i, 4], wrenches[i, 5]
+        m = rotations[i]
+        vx, vy, vz = velocities[i, 0], velocities[i, 1], velocities[i, 2]
+        normal = m[0, 2] * fx + m[1, 2] * fy + m[2, 2] * fz  # force along the sole normal
+        if normal <= 1e-6:
+            out[i, 0], out[i, 1], out[i, 2] = vx, vy, vz
+            continue
+        sx, sy = m[0, 0] * tx + m[1, 0] * ty + m[2, 0] * tz, m[0, 1] * tx + m[1, 1] * ty + m[2, 1] * tz  # torque, sole frame
+        half_length, half_width = half_sizes[i, 0], half_sizes[i, 1]
+        px = min(max(-sy / normal, -half_length), half_length)
+        py = min(max(sx / normal, -half_width), half_width)
+        rx, ry, rz = m[0, 0] * px + m[0, 1] * py, m[1, 0] * px + m[1, 1] * py, m[2, 0] * px + m[2, 1] * py  # world axes
+        wx, wy, wz = angular_velocities[i, 0], angular_velocities[i, 1], angular_velocities[i, 2]
+        out[i, 0] = vx + wy * rz - wz * ry
+        out[i, 1] = vy + wz * rx - wx * rz
+        out[i, 2] = vz + wx * ry - wy * rx
+
+
+@compiled
+def leg_accelerations(
+    velocities: np.ndarray, joint_lp: np.ndarray, joint_accelerations: np.ndarray, base_lp: np.ndarray, restart_joints: bool,
+    restart_base: bool, omega: tuple, accel: tuple, has_accel: bool, rotation: tuple, imu_rotation: tuple, imu_offset: tuple,
+    gravity: tuple, alpha: float, rate: float, out: np.ndarray,
+) -> None:
+    """The state estimator's ``force_inertia`` accelerations, in place: the joints' (``joint_lp``, the
+    joint ``velocities`` low-passed by ``alpha``, and ``joint_accelerations``, its derivative: the
+    change times ``rate``; ``restart_joints``: ``joint_lp`` starts at ``velocities``) and the base's
+    into ``out`` (base frame: the origin's linear acceleration without gravity, then the angular
+    one): ``base_lp`` low-passes the base angular velocity ``omega`` (base frame) and the IMU's
+    world acceleration (the bias-free specific force ``accel`` rotated by ``imu_rotation`` then
+    ``rotation``, both 3 x 3 row by row, plus ``gravity``; 0 without ``has_accel``), the angular
+    acceleration is the angular velocity's change times ``rate``, and the IMU's acceleration moves
+    to the base origin by the lever terms ``alpha x r + w x (w x r)`` (``r``: ``imu_offset``, base
+    frame). ``restart_base``: the low-pass starts here (no derivative: zero angular acceleration)."""
+    if restart_joints:
+        joint_lp[:] = velocities
+    for k in range(velocities.shape[0]):
+        change = velocities[k] - joint_lp[k]
+        joint_lp[k] += alpha * change
+        joint_accelerations[k] = change * rate
+    m, i = rotation, imu_rotation
+    if has_accel:
+        sx, sy, sz = accel[0], accel[1], accel[2]
+        bx, by, bz = i[0] * sx + i[1] * sy + i[2] * sz, i[3] * sx + i[4] * sy + i[5] * sz, i[6] * sx + i[7] * sy + i[8] * sz
+        ax = m[0] * bx + m[1] * by + m[2] * bz + gravity[0]
+        ay = m[3] * bx + m[4] * by + m[5] * bz + gravity[1]
+        az = m[6] * bx + m[7] * by + m[8] * bz + gravity[2]
+    else:
+        ax = ay = az = 0.0
+    wx, wy, wz = omega[0], omega[1], omega[2]
+    if restart_base:
+        base_lp[0], base_lp[1], base_lp[2], base_lp[3], base_lp[4], base_lp[5] = wx, wy, wz, ax, ay, az
+        out[0] = m[0] * ax + m[3] * ay + m[6] * az
+        out[1] = m[1] * ax + m[4] * ay + m[7] * az
+        out[2] = m[2] * ax + m[5] * ay + m[8] * az
+        out[3] = out[4] = out[5] = 0.0
+        return
+    dwx, dwy, dwz = wx - base_lp[0], wy - base_lp[1], wz - base_lp[2]
+    base_lp[0] += alpha * (wx - base_lp[0])
+    base_lp[1] += alpha * (wy - base_lp[1])
+    base_lp[2] += alpha * (wz - base_lp[2])
+    base_lp[3] += alpha * (ax - base_lp[3])
+    base_lp[4] += alpha * (ay - base_lp[4])
+    base_lp[5] += alpha * (az - base_lp[5])
+    alpha_x, alpha_y, alpha_z = rate * dwx, rate * dwy, rate * dwz  # base angular acceleration, base frame
+    px, py, pz = base_lp[3], base_lp[4], base_lp[5]
+    lx, ly, lz = m[0] * px + m[3] * py + m[6] * pz, m[1] * px + m[4] * py + m[7] * pz, m[2] * px + m[5] * py + m[8] * pz
+    rx, ry, rz = imu_offset[0], imu_offset[1], imu_offset[2]
+    tx, ty, tz = alpha_y * rz - alpha_z * ry, alpha_z * rx - alpha_x * rz, alpha_x * ry - alpha_y * rx
+    ox, oy, oz = base_lp[0], base_lp[1], base_lp[2]
+    ux, uy, uz = oy * rz - oz * ry, oz * rx - ox * rz, ox * ry - oy * rx  # w x r
+    cx, cy, cz = oy * uz - oz * uy, oz * ux - ox * uz, ox * uy - oy * ux  # w x (w x r)
+    out[0], out[1], out[2] = lx - tx - cx, ly - ty - cy, lz - tz - cz
+    out[3], out[4], out[5] = alpha_x, alpha_y, alpha_z
+
+
+@compiled
+def assemble_state(
+    x: np.ndarray, imu_offset: np.ndarray, rotation: tuple, quaternion: tuple, omega_local: tuple, positions: np.ndarray,
+    velocities: np.ndarray, q: np.ndarray, v: np.ndarray, state: np.ndarray,
+) -> None:
+    """The estimate's base state from the filter's IMU position and velocity (``x[:, 0]``,
+    ``x[:, 1]``, world), the IMU's offset from the base origin (world axes), the base ``rotation``
+    (3 x 3 row by row), ``quaternion`` (xyzw) and angular velocity ``omega_local`` (base frame):
+    ``state`` = position, quaternion, linear velocity (the IMU's less ``w x offset``), angular
+    velocity (world); and Pinocchio's ``q = [position, quaternion, positions]``, ``v = [R^T
+    velocity, omega_local, velocities]``."""
+    m = rotation
+    lx, ly, lz = omega_local[0], omega_local[1], omega_local[2]
+    wx, wy, wz = m[0] * lx + m[1] * ly + m[2] * lz, m[3] * lx + m[4] * ly + m[5] * lz, m[6] * lx + m[7] * ly + m[8] * lz
+    ox, oy, oz = imu_offset[0], imu_offset[1], imu_offset[2]
+    px, py, pz = x[0, 0] - ox, x[1, 0] - oy, x[2, 0] - oz
+    vx, vy, vz = x[0, 1] - (wy * oz - wz * oy), x[1, 1] - (wz * ox - wx * oz), x[2, 1] - (wx * oy - wy * ox)
+    state[0], state[1], state[2] = px, py, pz
+    for k in range(4):
+        state[3 + k] = quaternion[k]
+        q[3 + k] = quaternion[k]
+    state[7], state[8], state[9] = vx, vy, vz
+    state[10], state[11], state[12] = wx, wy, wz
+    q[0], q[1], q[2] = px, py, pz
+    v[0] = m[0] * vx + m[3] * vy + m[6] * vz
+    v[1] = m[1] * vx + m[4] * vy + m[7] * vz
+    v[2] = m[2] * vx + m[5] * vy + m[8] * vz
+    v[3], v[4], v[5] = lx, ly, lz
+    for k in range(positions.shape[0]):
+        q[7 + k] = positions[k]
+        v[6 + k] = velocities[k]
+
+
+@compiled
+def compensated_up(
+    accel: tuple, bias: tuple, rotation: tuple, imu_rotation: tuple, loads: tuple, foot_velocities: np.ndarray, x: np.ndarray,
+    lp: np.ndarray, restart: bool, alpha: float, rate: float,
+) -> tuple[float, float, float]:
+    """The accelerometer's gravity (IMU frame) for the state estimator's gravity reference: the
+    specific force ``accel`` less its ``bias``, rotated to the world (``imu_rotation`` then the base
+    ``rotation``, 3 x 3 row by row), less the IMU's acceleration the stance legs measure: the IMU
+    velocity ``-sum(load u) / sum(load)`` over the feet's relative velocities ``u`` (the filter's,
+    ``x[:, 1]``, without a loaded foot) low-passed by ``alpha`` in ``lp[3:]`` and differentiated
+    (its change times ``rate``), the specific force low-passed alike in ``lp[:3]`` (``restart``:
+    both start here, no derivative)."""
+    ax, ay, az = accel[0] - bias[0], accel[1] - bias[1], accel[2] - bias[2]
+    i, m = imu_rotation, rotation
+    bx, by, bz = i[0] * ax + i[1] * ay + i[2] * az, i[3] * ax + i[4] * ay + i[5] * az, i[6] * ax + i[7] * ay + i[8] * az
+    fx, fy, fz = m[0] * bx + m[1] * by + m[2] * bz, m[3] * bx + m[4] * by + m[5] * bz, m[6] * bx + m[7] * by + m[8] * bz
+    total = 0.0
+    for k in range(len(loads)):
+        total += loads[k]
+    if total > 0.0:
+        vx = vy = vz = 0.0
+        for k in range(len(loads)):
+            w = loads[k]
+            vx -= w * foot_velocities[k, 0]
+            vy -= w * foot_velocities[k, 1]
+            vz -= w * foot_velocities[k, 2]  # a still stance foot: IMU velocity = -its relative velocity
+        vx, vy, vz = vx / total, vy / total, vz / total
+    else:
+        vx, vy, vz = x[0, 1], x[1, 1], x[2, 1]
+    if restart:
+        lp[0], lp[1], lp[2], lp[3], lp[4], lp[5] = fx, fy, fz, vx, vy, vz
+        mx, my, mz = fx, fy, fz
+    else:
+        dvx, dvy, dvz = vx - lp[3], vy - lp[4], vz - lp[5]
+        lp[3] += alpha * dvx
+        lp[4] += alpha * dvy
+        lp[5] += alpha * dvz
+        lp[0] += alpha * (fx - lp[0])
+        lp[1] += alpha * (fy - lp[1])
+        lp[2] += alpha * (fz - lp[2])
+        mx, my, mz = lp[0] - rate * dvx, lp[1] - rate * dvy, lp[2] - rate * dvz
+    wx, wy, wz = m[0] * mx + m[3] * my + m[6] * mz, m[1] * mx + m[4] * my + m[7] * mz, m[2] * mx + m[5] * my + m[8] * mz
+    return (i[0] * wx + i[3] * wy + i[6] * wz, i[1] * wx + i[4] * wy + i[7] * wz, i[2] * wx + i[5] * wy + i[8] * wz)
+
+
+@compiled
+def pull_to_ground(x: np.ndarray, flags: tuple, still: tuple, ground: float, step: float) -> None:
+    """The state estimator's ``ground_pull``: the filter's height states ``x[2]`` (the IMU's and
+    every foot's; not the velocity) shifted together toward ``ground`` by the stance feet
+    (``flags``), each weighted by ``still``, by the share ``min(step * min(weight, 1), 1)``
+    (``step``: dt over the pull's time constant) of the weighted mean error."""
+    error = weight = 0.0
+    for k in range(len(flags)):
+        if flags[k]:
+            error += still[k] * (ground - x[2, 2 + k])
+            weight += still[k]
+    if weight > 0.0:
+        shift = min(step * min(weight, 1.0), 1.0) * error / weight
+        for k in range(x.shape[1]):
+            if k != 1:  # the velocity is not a height
+                x[2, k] += shift
