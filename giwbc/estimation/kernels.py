@@ -78,7 +78,7 @@ def joint_tables(model: pin.Model, frames: list[int]) -> tuple[np.ndarray, np.nd
             if suffix in _AXES:
                 axis = _AXES[suffix]
             elif suffix in ("evoluteUnaligned", "rismaticUnaligned"):
-                axis = tuple(float(c) for c in np.asarray(joint.axis, float))
+                axis = tuple(float(c) for c in np.asarray(joint.extract().axis, float))
             else:
                 raise NotImplementedError(f"leg kinematics kernel: joint {model.names[j]!r} is a {kind}")
         else:
