@@ -212,6 +212,8 @@ def test_small_kernels_compiled_equal_their_python_function(trial: int) -> None:
                                       (0.0, 0.0, -9.81), 0.3, 140.0, np.zeros(6)),
         "compensated_up": lambda: (vector(), vector(), rotation, imu_rotation, (float(trial > 1), 0.4), rng.normal(size=(2, 3)),
                                    rng.normal(size=(3, 4)), rng.normal(size=6), trial == 0, 0.02, 9.8),
+        "effort_forces": lambda: (rng.normal(0.0, 200.0, (2, 6)), np.array([True, trial != 2]), rng.normal(0.0, 0.6, (2, 3)),
+                                  rng.normal(0.0, 0.3, (3, 4)), 1.0 if trial else 0.0, trial == 4, rng.normal(0.0, 50.0, (2, 3))),
         "pull_to_ground": lambda: (rng.normal(size=(3, 4)), (True, trial > 2), (0.7, 0.2), 0.0, 0.004),
         "assemble_state": lambda: (rng.normal(size=(3, 4)), rng.normal(size=3), rotation, tuple(rng.normal(size=4).tolist()),
                                    vector(), rng.normal(size=29), rng.normal(size=29), np.zeros(36), np.zeros(35), np.zeros(13)),
@@ -248,7 +250,7 @@ def test_kernels_compile_without_a_writable_cache_folder(tmp_path: Path) -> None
 
 
 KERNELS = ("leg_kinematics", "kalman_predict", "kalman_correct", "pivot_velocities", "leg_accelerations", "compensated_up",
-           "pull_to_ground", "assemble_state")
+           "pull_to_ground", "assemble_state", "effort_forces")
 
 
 @pytest.mark.slow
@@ -292,6 +294,7 @@ def test_estimates_of_a_closed_loop_walk_compiled_equal_uncompiled(g1: RobotDesc
                 "contacts": np.array([e.contacts for e in estimates])}
 
     compiled = replay()
+    assert set(KERNELS) == {name for name in kernels.__all__ if hasattr(getattr(kernels, name), "py_func")}  # every kernel
     for name in KERNELS:
         monkeypatch.setattr(kernels, name, kernels.reference(getattr(kernels, name)))
     python = replay()

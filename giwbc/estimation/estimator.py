@@ -783,17 +783,10 @@ class StateEstimator:
         """Ground forces per foot (world) and the contact flags used by this update."""
         if use_efforts:
             valid = effort_ok
-            if valid is self._all_feet:
-                self._forces[:] = self.kinematics.foot_wrenches[:, :3]
-            else:
-                self._forces[valid] = self.kinematics.foot_wrenches[valid, :3]
-            forces = self._forces
-            shares = self._standing_share() if self.config.force_max_speed > 0.0 else None
-            for i, fz in enumerate(forces[:, 2].tolist()):  # per foot on floats: two feet, where numpy calls cost more
-                if fz < 0.0 and not self.config.pulling_forces:  # the ground pushes, never pulls: a "pulling" foot carries nothing
-                    forces[i] = 0.0
-                elif shares is not None and shares[i] < 1.0:
-                    forces[i] *= shares[i]
+            # the legs' wrenches' forces (valid legs), a "pulling" foot carrying nothing (the ground pushes, never pulls)
+            # unless pulling_forces, and the standing share of force_max_speed (a compiled kernel)
+            kernels.effort_forces(self.kinematics.foot_wrenches, valid, self.kinematics.foot_velocities, self.filter.x,
+                                  self.config.force_max_speed, self.config.pulling_forces, self._forces)
         else:
             given = measurement.contact_forces
             measured = np.asarray(given, float) if given is not None else np.full(len(effort_ok), np.nan)
@@ -842,18 +835,6 @@ class StateEstimator:
         )
         self._inertia_started = True
         return self._base_acceleration
-
-    def _standing_share(self) -> list[float]:
-        """Config ``force_max_speed``: per foot, the share of its effort-based force kept: 1 while its
-        sole centre's estimated world speed (the filter's IMU velocity plus the foot's relative one) is
-        at most half ``force_max_speed``, 0 from ``force_max_speed`` on, linear between."""
-        limit = self.config.force_max_speed
-        vx, vy, vz = self.filter.x[:, 1].tolist()
-        shares = []
-        for ux, uy, uz in self._kinematics_lists()[3]:  # plain floats: two feet
-            sx, sy, sz = ux + vx, uy + vy, uz + vz
-            shares.append(min(max(2.0 - 2.0 * math.sqrt(sx * sx + sy * sy + sz * sz) / limit, 0.0), 1.0))
-        return shares
 
     def _rolling_velocity_trust(self, loads: list[float], dt: float) -> list[float]:
         """Config ``roll_velocity_rate``: each stance foot's confidence for its velocity row, divided by

@@ -21,6 +21,7 @@ joints (one coordinate each, any axis) below a free flyer: :func:`joint_tables` 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -28,7 +29,10 @@ import numba
 import numpy as np
 import pinocchio as pin
 
-__all__ = ["compiled", "joint_tables", "kalman_correct", "kalman_predict", "leg_kinematics", "pivot_velocities", "reference"]
+__all__ = [
+    "assemble_state", "compensated_up", "compiled", "effort_forces", "joint_tables", "kalman_correct", "kalman_predict", "leg_accelerations",
+    "leg_kinematics", "pivot_velocities", "pull_to_ground", "reference",
+]
 
 FREE_FLYER, REVOLUTE, PRISMATIC = 1, 2, 3
 DYNAMICS, SOLVE, INERTIAL = 1, 2, 4  # leg_kinematics' mode bits: the RNEA bias, the feet's wrenches, the inertial term
@@ -685,3 +689,29 @@ def pull_to_ground(x: np.ndarray, flags: tuple, still: tuple, ground: float, ste
         for k in range(x.shape[1]):
             if k != 1:  # the velocity is not a height
                 x[2, k] += shift
+
+
+@compiled
+def effort_forces(
+    wrenches: np.ndarray, valid: np.ndarray, foot_velocities: np.ndarray, x: np.ndarray, max_speed: float, pulling: bool,
+    forces: np.ndarray,
+) -> None:
+    """The state estimator's effort-based ground forces (world) in place: each ``valid`` leg's
+    wrench's force (the others keep theirs), then per foot: a negative normal force (a pull the
+    ground cannot exert) reads 0 unless ``pulling``; with ``max_speed`` > 0 the force is scaled by
+    the foot's standing share, 1 while its sole centre's world speed (the filter's IMU velocity
+    ``x[:, 1]`` plus the foot's relative ``foot_velocities``) is at most half ``max_speed``, 0 from
+    ``max_speed`` on, linear between."""
+    for i in range(forces.shape[0]):
+        if valid[i]:
+            forces[i, 0], forces[i, 1], forces[i, 2] = wrenches[i, 0], wrenches[i, 1], wrenches[i, 2]
+    for i in range(forces.shape[0]):
+        if forces[i, 2] < 0.0 and not pulling:
+            forces[i, 0] = forces[i, 1] = forces[i, 2] = 0.0
+        elif max_speed > 0.0:
+            sx, sy, sz = foot_velocities[i, 0] + x[0, 1], foot_velocities[i, 1] + x[1, 1], foot_velocities[i, 2] + x[2, 1]
+            share = min(max(2.0 - 2.0 * math.sqrt(sx * sx + sy * sy + sz * sz) / max_speed, 0.0), 1.0)
+            if share < 1.0:
+                forces[i, 0] *= share
+                forces[i, 1] *= share
+                forces[i, 2] *= share
