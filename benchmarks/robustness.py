@@ -382,6 +382,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--walker", default=None, choices=sorted(set(WALKER_PRESETS) - {"deployment"}),
                         help="a walker preset over the walker's own options (e.g. any_floor: a friction of 0.5); with --estimator / "
                              "--policy, over the policy's walker options")
+    parser.add_argument("--walker-options", default=None, type=json.loads, metavar="JSON",
+                        help='WalkerConfig fields over --walker (or the defaults), e.g. \'{"friction": 0.6}\'')
     parser.add_argument("--estimator", action="store_true", help="the walker on the estimated state (AHRS), through G1Walk-v0")
     parser.add_argument("--policy", default=None, help="a G1Walk policy .onnx: walker alone vs this policy, paired (same seeds, same plant "
                         "draws), in the policy's own training conditions (implies the env path)")
@@ -390,10 +392,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--plants random (a plant drawn per episode) runs through G1Walk-v0: add --estimator or --policy")
     env_mode = args.estimator or args.policy is not None
     conditions = env_conditions(args.policy) if env_mode else {}
-    walker = None if args.walker is None else walker_config(args.walker)
-    if env_mode and args.walker is not None:
+    options = {**(WALKER_PRESETS[args.walker] if args.walker is not None else {}), **(args.walker_options or {})}
+    walker = walker_config(options) if options else None
+    if env_mode and options:
         own = conditions.get("walker")
-        conditions["walker"] = {**(WALKER_PRESETS[own] if isinstance(own, str) else dict(own or {})), **WALKER_PRESETS[args.walker]}
+        conditions["walker"] = {**(WALKER_PRESETS[own] if isinstance(own, str) else dict(own or {})), **options}
 
     def env_cell(run, *arguments) -> dict:  # one arm, or with --policy both arms paired
         if policy is None:
@@ -429,7 +432,7 @@ def main(argv: list[str] | None = None) -> int:
         table[plant] = row
         print(f"{plant}: {json.dumps(row)}", file=sys.stderr, flush=True)
     mode = "policy" if args.policy else "estimator" if args.estimator else "truth"
-    print(json.dumps({"benchmark": "robustness", "robot": args.robot, "mode": mode, "walker": args.walker, "policy": args.policy, "seeds": [seeds[0], seeds[-1]] if seeds else [],
+    print(json.dumps({"benchmark": "robustness", "robot": args.robot, "mode": mode, "walker": args.walker, "walker_options": args.walker_options, "policy": args.policy, "seeds": [seeds[0], seeds[-1]] if seeds else [],
                       "stand_seconds": args.stand_seconds, "walk_seconds": args.walk_seconds, "commands": {k: WALK_COMMANDS[k] for k in args.commands},
                       "push": {"force_N": args.push_force, "duration_s": PUSH_DURATION, "start_s": PUSH_START, "directions": args.directions,
                                "judged_after_s": args.judge_after},

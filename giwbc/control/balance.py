@@ -57,6 +57,9 @@ class BalanceConfig:
     solver_settings: dict = field(default_factory=dict)
     contact_model: str = "surface"  # "surface" (6D wrench cone) or "corners" (4 pyramids)
     mu: float = 0.8
+    # m: the feet's yaw moment kept within torsion x normal force (None: what the sole's friction
+    # allows, mu (X + Y) f_z for a rectangle); a compliant floor turns a stance foot well inside that.
+    torsion: float | None = None
     # Normal-force bounds per contact (per corner for "corners"), N. Default minimum: 6 % of the
     # weight per contact, so that no foot is ever asked to carry (almost) nothing: under a push the
     # CoM then gives way instead of unloading a foot to the point where it rolls or lifts.
@@ -160,6 +163,7 @@ class BalanceController:
             roll_kp=config.roll_kp,
             roll_supports=config.roll_supports,
             learn_step=config.sole_learning_step,
+            torsion=config.torsion,
         )
         for contact in self.contacts:
             self.wbc.add_contact(contact, ramp_time=config.contact_ramp_time)

@@ -338,7 +338,9 @@ class WrenchConeContact(Contact):
     The support is the whole polygon until :meth:`watch` finds the foot rolling: then it is the
     edge or corner the foot stands on (the friction rows switch in place, same row count), the
     CoP constrained there, and the motion rows get pose feedback ``roll_kp`` back towards the
-    placement the contact was made at (the foot is not pushed further over)."""
+    placement the contact was made at (the foot is not pushed further over). ``torsion`` (m):
+    ``|τ_z| ≤ torsion · f_z`` on every support (:class:`~giwbc.control.sole.SoleSupport`); None: the
+    yaw moment the polygon's friction allows."""
 
     def __init__(
         self,
@@ -352,6 +354,7 @@ class WrenchConeContact(Contact):
         roll_supports: bool = True,
         learn_step: float = 0.0,
         learn_min: float = 0.01,
+        torsion: float | None = None,
         **kwargs: object,
     ) -> None:
         mu = float(kwargs.get("mu", DEFAULT_FRICTION))  # type: ignore[arg-type]
@@ -359,7 +362,10 @@ class WrenchConeContact(Contact):
             raise ValueError(f"contact {name!r}: friction coefficient mu must be > 0, got {mu}")
         if not (math.isfinite(roll_kp) and roll_kp >= 0.0):
             raise ValueError(f"contact {name!r}: roll_kp must be >= 0, got {roll_kp}")
-        self.support = SoleSupport(vertices, mu, full_rows=full_rows)
+        if torsion is not None and not (math.isfinite(torsion) and torsion > 0.0):
+            raise ValueError(f"contact {name!r}: torsion must be None or a lever arm > 0 m, got {torsion!r}")
+        self.torsion = torsion
+        self.support = SoleSupport(vertices, mu, full_rows=full_rows, torsion=torsion)
         self.roll = roll
         self.roll_kp = float(roll_kp)
         if not (math.isfinite(learn_step) and learn_step >= 0.0 and learn_min > 0.0):
@@ -496,7 +502,7 @@ class WrenchConeContact(Contact):
         self._extents = (x_min, x_max, y_min, y_max)
         centre = np.array([0.5 * (x_min + x_max), 0.5 * (y_min + y_max)])
         rectangle = SoleRectangle(centre, np.array([1.0, 0.0]), 0.5 * (x_max - x_min), 0.5 * (y_max - y_min))
-        self.support = SoleSupport(rectangle.corners(), self.mu, full_rows=rectangle.cone(self.mu))
+        self.support = SoleSupport(rectangle.corners(), self.mu, full_rows=rectangle.cone(self.mu), torsion=self.torsion)
         self.learned_rolls += 1
         self.support_mode = FULL
         self.friction_version += 1
@@ -621,7 +627,7 @@ def sole_frame(rectangle: object) -> tuple[pin.SE3, np.ndarray]:
 
 def foot_contacts(
     description: object, model: str = "surface", *, scale: float = 1.0, roll: RollDetector | None = None, roll_kp: float = 0.0,
-    roll_supports: bool = True, learn_step: float = 0.0, **kwargs: object
+    roll_supports: bool = True, learn_step: float = 0.0, torsion: float | None = None, **kwargs: object
 ) -> list[Contact]:
     """One contact per ``ContactRectangle`` of a robot description (``model``: surface | corners).
 
@@ -631,10 +637,13 @@ def foot_contacts(
     pressure off the very edge of the real sole, where any model error rolls the foot. ``roll``
     (surface model): watch the feet for rolling and stand a rolled foot on its edge or corner
     (``roll_supports``), with pose feedback ``roll_kp``; ``learn_step`` (m, rectangular soles): move
-    the edge a foot rolled over inward by this much at each roll (:class:`WrenchConeContact`).
+    the edge a foot rolled over inward by this much at each roll (:class:`WrenchConeContact`);
+    ``torsion`` (m, surface model): the yaw moment bound ``|τ_z| ≤ torsion · f_z``.
     """
     if model not in ("surface", "corners"):
         raise ValueError(f"unknown contact model {model!r}; choose from ['corners', 'surface']")
+    if torsion is not None and model == "corners":
+        raise ValueError("torsion bounds the surface contact model's yaw moment: the corners model has none to bound")
     if not 0.0 < scale <= 1.0:
         raise ValueError(f"scale must be in (0, 1], got {scale}")
     contacts: list[Contact] = []
@@ -650,10 +659,10 @@ def foot_contacts(
             else:
                 contact = CornerContact.from_rectangle(rectangle, scale=scale, **kwargs)
         elif sole:
-            contact = PolygonContact.from_sole(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, **kwargs)
+            contact = PolygonContact.from_sole(rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, torsion=torsion, **kwargs)
         else:
             contact = SurfaceContact.from_rectangle(
-                rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, learn_step=learn_step, **kwargs
+                rectangle, scale=scale, roll=roll, roll_kp=roll_kp, roll_supports=roll_supports, learn_step=learn_step, torsion=torsion, **kwargs
             )
         contacts.append(contact)
     return contacts

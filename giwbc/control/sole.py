@@ -19,6 +19,10 @@ rest of its sole: its CoP lives on that edge. Each edge of the polygon gets a th
 precomputed and padded to one row count, so switching support rewrites a contact's friction rows
 in place (no new QP layout).
 
+**Torsion** (optional): ``|τ_z| ≤ torsion · f_z`` on every support, below the yaw moment the
+polygon's friction allows (``μ (X + Y) f_z`` for a rectangle): a compliant or creeping floor
+turns a stance foot under a yaw moment far inside its sliding friction.
+
 **Roll detection** (:class:`RollDetector`): the foot's rotation since the contact was made and its
 angular velocity (contact frame) give the sole's tilt predicted ``lookahead`` s ahead; above
 ``tilt_on`` the foot is on the edge (or corner) the tilt lowers most, back to the full polygon once
@@ -105,7 +109,10 @@ class SoleSupport:
         full_rows: np.ndarray | None = None,
         edge_width: float = 0.01,
         corner_size: float = 0.015,
+        torsion: float | None = None,
     ) -> None:
+        if torsion is not None and not (math.isfinite(torsion) and torsion > 0.0):
+            raise ValueError(f"torsion must be None or a finite lever arm > 0 m, got {torsion!r}")
         polygon = hull_2d(vertices)
         if len(polygon) < 3:
             raise ValueError("a sole polygon needs at least 3 vertices not on one line")
@@ -136,6 +143,10 @@ class SoleSupport:
             rectangle = SoleRectangle(v + bisector * (CORNER_SETBACK + 0.5 * corner_size), bisector, 0.5 * corner_size, half_width)
             modes.append(SupportMode("corner", (i,), rectangle.corners()))
             cones.append(rectangle.cone(mu))
+        if torsion is not None:  # |τ_z| <= torsion · f_z on every support: a floor that grips less in yaw
+            yaw_rows = np.array([[0.0, 0.0, -torsion, 0.0, 0.0, 1.0], [0.0, 0.0, -torsion, 0.0, 0.0, -1.0]]) / math.hypot(torsion, 1.0)
+            cones = [np.vstack([cone, yaw_rows]) for cone in cones]
+        self.torsion = torsion
         self.modes = modes
         self.counts = [len(cone) for cone in cones]
         self.n_rows = max(self.counts)

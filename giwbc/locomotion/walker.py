@@ -49,6 +49,7 @@ from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, VelocityComman
 from giwbc.locomotion.lipm import natural_frequency
 from giwbc.locomotion.push_recovery import PushRecovery
 from giwbc.locomotion.residuals import Residuals
+from giwbc.locomotion.rolling_foot import cop_on_raised_side, lateral_rise
 from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter
 from giwbc.locomotion.support import convex_hull, sole_corners, sole_polygon
 from giwbc.locomotion.swing import SwingTrajectory
@@ -107,8 +108,10 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self.config = config = config or WalkerConfig()
         self.description = description
         balance = config.balance if config.friction is None else replace(config.balance, mu=config.friction)
+        balance = balance if config.torsion is None else replace(balance, torsion=config.torsion)
         self.balance = BalanceController(description, balance, model)
         self.wbc = self.balance.wbc
+        self.wbc.relax_joint_limits = self.wbc.relax_joint_limits or config.relax_joint_limits
         self.model = self.wbc.model
         self._data = self.model.createData()
         contacts = {c.name: c for c in self.balance.contacts}
@@ -223,6 +226,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._recovering = False
         self._crouch = 0.0
         self._swap_at = math.nan  # when a push last swapped the feet's roles in double support (push_recovery)
+        self._quick_land: tuple[float, float] | None = None  # (lift-off, touch-down) of a quick landing (push_recovery)
         self._lead_after: float | None = None  # set at the first tick: start_settle_time after it
         self._xi_previous: np.ndarray | None = None
         self._xi_rate: np.ndarray | None = None
@@ -317,6 +321,11 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         controller = self.dcm_controller
         controller.gain = self.config.standing_dcm_gain if self._phase is Phase.STAND else self.config.dcm_gain
         cop = controller.desired_cop(xi, xi_ref, xi_rate_ref, support)
+        if self.config.roll_cop_tilt > 0.0 and self._phase is Phase.SINGLE:  # a stance foot rolling on its rim
+            foot = self.feet[self._stance]
+            cop, moved = cop_on_raised_side(cop, foot.position, foot.yaw, lateral_rise(self._sole_world(self._stance).rotation),
+                                            math.radians(self.config.roll_cop_tilt), self.config.roll_cop_margin)
+            self.state.rolled_ticks += moved
         self._last_cop = cop
         acceleration = controller.com_acceleration(self._com, cop)
         # The CoM task's horizontal rows have no damping (set in reset): their position error

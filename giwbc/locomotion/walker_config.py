@@ -36,6 +36,9 @@ class WalkerConfig:
     # The friction coefficient the WBC plans every foot force with (None: ``balance.mu``, 0.8); a floor
     # not known to grip that well: the "any_floor" preset (ANY_FLOOR_OPTIONS).
     friction: float | None = None
+    # m: the feet's yaw moment kept within torsion x normal force (None: ``balance.torsion``, i.e. what
+    # the sole's friction allows); a compliant floor turns a loaded foot under far less (BalanceConfig).
+    torsion: float | None = None
     com_height: float | None = None  # m above the soles; default: the standing pose's
     dcm_gain: float = 5.0  # s⁻¹, walking
     standing_dcm_gain: float = 8.0  # s⁻¹, standing (stiffer: feet-in-place balance)
@@ -53,6 +56,15 @@ class WalkerConfig:
     # (README, "Why the feet rock, and a joint-limit spring".)
     walking_limit_spring: tuple[float, float, float] | None = None
     recovery_swing_weight: float = 10.0  # recovering from a push: the foot must get there
+    # deg (0: off): in single support, a stance sole tilted more than this across it (rolled onto a rim:
+    # giwbc.locomotion.rolling_foot) has the CoP the walker asks held ``roll_cop_margin`` m on its raised
+    # side of the centre line, where the foot still pushes (the ankle brings it back flat).
+    roll_cop_tilt: float = 0.0
+    roll_cop_margin: float = 0.0
+    # The WBC solves a tick again without its joint-limit bounds when they leave its QP without a
+    # solution (WholeBodyController.relax_joint_limits: a foot rolling on a rim or a point turns its
+    # ankle faster than the bounds allow) instead of falling back to decaying torques.
+    relax_joint_limits: bool = False
     swing_kp: float = 400.0
     contact_ramp: float = 0.04  # s, force ramp at lift-off and touch-down
     start_shift: float = 0.3  # s, double support before the first step (weight shift)
@@ -176,12 +188,33 @@ class WalkerConfig:
     push_reach_speed: float = 0.0
     push_reach_slack: float = 0.05
     push_min_swing: float = 0.15
+    # A walking recovery while a foot swings and the DCM (plus the disturbance lead) is more than
+    # ``quick_land_margin`` m (inf: off) outward of the stance sole's centre line, across it: the
+    # swinging foot cannot catch it (it would cross the stance leg), so it lands at once, beside the
+    # stance foot at the landing box's narrowest width, within ``quick_land_reach`` m of where it is
+    # (the DCM's own progress along the stance foot), ``quick_land_time`` s from now at the earliest
+    # and no sooner than ``push_min_swing`` after lift-off; the stance foot then steps out after the
+    # force ramp (the recovery's next step, its reach from the DCM): two steps, no crossing.
+    quick_land_margin: float = math.inf
+    quick_land_time: float = 0.08
+    quick_land_reach: float = 0.15
+    # Walking, in double support, a walking recovery's first step: the foot on the side the DCM error
+    # (with the lead) points to, across the heading, steps when that lateral part is at least
+    # ``side_step_fraction`` of the error (inf: off, the standing recovery's choice by score).
+    side_step_fraction: float = math.inf
+    # Walking, a recovery whose capture point is back inside the feet at a touch-down: the walk goes on
+    # with the foot just landed carrying and the other stepping after this long a double support (s;
+    # inf: a stand first, then the walk's start_shift — a split as wide as the recovery's step sank
+    # meanwhile).
+    recovery_walk_on: float = math.inf
 
     def __post_init__(self) -> None:
         if self.preview_steps < 1:
             raise ValueError("preview_steps must be >= 1")
         if self.friction is not None and not (math.isfinite(self.friction) and self.friction > 0.0):
             raise ValueError(f"friction must be None or a finite coefficient > 0, got {self.friction!r}")
+        if self.torsion is not None and not (math.isfinite(self.torsion) and self.torsion > 0.0):
+            raise ValueError(f"torsion must be None or a finite lever arm > 0 m, got {self.torsion!r}")
         spring = self.walking_limit_spring
         if spring is not None and not (len(spring) == 3 and all(math.isfinite(float(x)) for x in spring) and spring[0] > 0 and min(spring[1:]) >= 0):
             raise ValueError(f"walking_limit_spring must be None or (zone > 0 rad, kp >= 0 N m/rad, kd >= 0 N m s/rad), got {spring!r}")
@@ -208,6 +241,13 @@ class WalkerConfig:
             raise ValueError(f"need finite push_reach_speed >= 0 (m/s, 0: off) and push_reach_slack >= 0 (m), got {self.push_reach_speed}, {self.push_reach_slack}")
         if not (0.0 < self.push_min_swing <= self.min_swing):
             raise ValueError(f"push_min_swing must be in (0, min_swing = {self.min_swing}] s, got {self.push_min_swing}")
+        if not (self.quick_land_margin > -0.5 and 0.0 < self.quick_land_time < 0.5 and 0.0 <= self.quick_land_reach < math.inf):
+            raise ValueError(f"need quick_land_margin > -0.5 m (inf: off), quick_land_time in (0, 0.5) s and a finite quick_land_reach >= 0 m, got "
+                             f"{self.quick_land_margin}, {self.quick_land_time}, {self.quick_land_reach}")
+        if not self.recovery_walk_on >= 0.0:
+            raise ValueError(f"recovery_walk_on must be >= 0 s (inf: off), got {self.recovery_walk_on}")
+        if not self.side_step_fraction >= 0.0:
+            raise ValueError(f"side_step_fraction must be >= 0 (inf: off), got {self.side_step_fraction}")
         if not self.walking_recovery_error > 0.0:
             raise ValueError(f"walking_recovery_error must be > 0 (m, inf: off), got {self.walking_recovery_error}")
         if not (self.push_swap_error > 0.0 and math.isfinite(self.push_swap_margin) and self.push_swap_margin >= 0.0):
@@ -278,7 +318,13 @@ DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
 # default: it gives up pushes a gripping floor allows (a 150 N back-diagonal push, lateral pushes while
 # walking: tests/test_locomotion_recovery_reach.py, test_walk_lateral_push.py, test_deploy_walk.py fail
 # with it). Both at once need the friction measured (slip detection), not assumed.
-ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType({"friction": 0.5, "swing_kp": 250.0})
+# With the estimator in the loop (G1Walk-v0, 0.3 m/s) the point-footed plants ended on an ankle roll's soft
+# limit: a loaded foot rolled onto its toe-heel diagonal, and at a lift-off the QP's joint-limit bounds
+# on its fast-turning ankle had no solution (the fallback let the ankle go). So any_floor also holds a
+# rolled stance foot's CoP on its raised side (roll_cop_tilt 6 deg) and solves such a tick without the
+# bounds (relax_joint_limits). Tuning seeds 20000-20003: ends on all_at_once + point_feet 7 -> 2 of 8;
+# the nominal walk unchanged (no foot rolls 6 deg, no QP fails). README, "Plants the controller was not tuned on".
+ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType({"friction": 0.5, "swing_kp": 250.0, "roll_cop_tilt": 6.0, "relax_joint_limits": True})
 WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS, "any_floor": ANY_FLOOR_OPTIONS})
 
 
@@ -316,7 +362,9 @@ class WalkerState:
     recovery_steps: int = 0
     early_touchdowns: int = 0
     push_swaps: int = 0  # double supports where a push made the other foot step (WalkerConfig.push_swap_error)
+    quick_landings: int = 0  # swings a walking push toward the stance side brought down at once (WalkerConfig.quick_land_margin)
     late_touchdowns: int = 0
+    rolled_ticks: int = 0  # single-support ticks whose CoP a rolled stance foot moved (WalkerConfig.roll_cop_tilt)
     notes: list[str] = field(default_factory=list)
     # The swing target before and after the step residual (:meth:`~giwbc.locomotion.walker.WalkingController.set_step_residual`).
     planned_target: np.ndarray = field(default_factory=lambda: np.full(2, np.nan))
