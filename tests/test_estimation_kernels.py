@@ -302,3 +302,33 @@ def test_estimates_of_a_closed_loop_walk_compiled_equal_uncompiled(g1: RobotDesc
     for name in ("q", "v", "forces", "covariance"):
         scale = float(np.max(np.abs(python[name])))
         np.testing.assert_allclose(compiled[name], python[name], rtol=0, atol=1e-9 * scale, err_msg=name)
+
+
+@pytest.mark.parametrize("trial", range(4))
+def test_sensor_model_kernels_compiled_equal_their_python_function(trial: int) -> None:
+    """The AHRS sensor model's per-physics-step kernels (giwbc.robot.noise) on random truths and
+    errors (mounting, bias walks, ranges, orientation output off in one trial), compiled and not:
+    the same sample and bias walk; the encoder's quantization leaves multiples of its resolution."""
+    from giwbc.robot import noise
+
+    rng = np.random.default_rng(200 + trial)
+    quaternion = rng.normal(size=4)
+    constants = np.concatenate([np.linalg.qr(rng.normal(size=(3, 3)))[0].reshape(-1), quaternion / np.linalg.norm(quaternion),
+                                rng.normal(0.0, 0.01, 3), (1e-4, 1e-3 * trial, 1e-2, 0.01, 0.05, 3.0 if trial else np.inf, 40.0, 0.005)])
+    imu_args = (quaternion / np.linalg.norm(quaternion), rng.normal(0.0, 2.0, 3), rng.normal(0.0, 15.0, 3), 12.5, 0.05,
+                rng.normal(size=15), rng.normal(0.0, 0.01, 3), rng.normal(0.0, 0.1, 3), constants, trial != 1, trial != 2, trial != 3,
+                np.zeros(10))
+    n = 29
+    joint_args = (rng.normal(size=15 + 3 * n), np.abs(rng.normal(0.0, 0.01, (3, n))), rng.normal(size=n), rng.normal(0.0, 0.01, n),
+                  trial % 2 == 0, 0.0 if trial == 3 else 3.8e-4, rng.normal(size=n), rng.normal(size=n), np.zeros((3, n)))
+    for kernel, arguments in ((noise._measure_imu_kernel, imu_args), (noise._measure_joints, joint_args)):
+        copies = [a.copy() if isinstance(a, np.ndarray) else a for a in arguments]
+        kernel(*arguments)
+        kernels.reference(kernel)(*copies)
+        for mine, theirs in zip(arguments, copies):
+            if isinstance(mine, np.ndarray):
+                np.testing.assert_allclose(mine, theirs, rtol=1e-14, atol=1e-15)
+    if trial != 3:
+        steps = joint_args[-1][0] / 3.8e-4
+        np.testing.assert_allclose(steps, np.round(steps), rtol=0, atol=1e-6)
+    assert np.isnan(imu_args[-1][:4]).all() == (trial == 2)

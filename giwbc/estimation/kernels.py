@@ -6,13 +6,11 @@ calls of about a microsecond each (Pinocchio's passes were 7 of the kinematics' 
 numpy glue on 3- to 18-vectors; the Kalman update, 4 x 4 matrices, 40 µs). Compiled with numba, a
 kernel costs its dispatch (~0.1 µs an argument) and its arithmetic.
 
-Each kernel is a plain Python function compiled by :func:`compiled`; ``kernel.py_func`` is the
-same function uncompiled (what the tests compare the compiled one with). The compiled code is
-cached on disk (numba's ``cache=True``: next to this file, else the user's cache folder, or
-``NUMBA_CACHE_DIR``); with no writable cache folder it compiles at the first call of each process.
-No ``fastmath``: IEEE arithmetic in a fixed order, so a rollout stays bit for bit reproducible on
-one machine (results differ from the previous numpy/LAPACK implementation by rounding only: its
-own sums, its own LU in place of OpenBLAS's).
+Each kernel is a plain Python function compiled by :func:`giwbc.util.jit.compiled` (numba,
+``cache=True``, no ``fastmath``); ``reference(kernel)`` is the same function uncompiled (what the
+tests compare the compiled one with). Results differ from the previous numpy/LAPACK implementation
+by rounding only (their own sums, their own LU in place of OpenBLAS's); a rollout stays bit for bit
+reproducible on one machine.
 
 Conventions: Pinocchio's (free-flyer ``q = [p, quat_xyzw, joints]``, ``v = [v_local, w_local,
 joints]``; spatial vectors ``(linear, angular)``). The kinematics supports revolute and prismatic
@@ -22,12 +20,11 @@ joints (one coordinate each, any axis) below a free flyer: :func:`joint_tables` 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any
 
-import numba
 import numpy as np
 import pinocchio as pin
+
+from giwbc.util.jit import compiled, reference
 
 __all__ = [
     "assemble_state", "compensated_up", "compiled", "effort_forces", "joint_tables", "kalman_correct", "kalman_predict", "leg_accelerations",
@@ -37,21 +34,6 @@ __all__ = [
 FREE_FLYER, REVOLUTE, PRISMATIC = 1, 2, 3
 DYNAMICS, SOLVE, INERTIAL = 1, 2, 4  # leg_kinematics' mode bits: the RNEA bias, the feet's wrenches, the inertial term
 _AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
-
-
-def compiled(function: Callable[..., Any]) -> Callable[..., Any]:
-    """``function`` compiled by numba in nopython mode, cached on disk where a cache folder is
-    writable (a read-only installation without ``NUMBA_CACHE_DIR`` or a user cache folder compiles
-    at the first call instead of failing)."""
-    try:
-        return numba.njit(cache=True, nogil=True)(function)
-    except RuntimeError:  # numba: "cannot cache function ...: no locator available"
-        return numba.njit(nogil=True)(function)
-
-
-def reference(kernel: Callable[..., Any]) -> Callable[..., Any]:
-    """The uncompiled Python function of ``kernel`` (itself under ``NUMBA_DISABLE_JIT``)."""
-    return getattr(kernel, "py_func", kernel)
 
 
 def joint_tables(model: pin.Model, frames: list[int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

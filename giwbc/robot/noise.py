@@ -34,9 +34,10 @@ from dataclasses import asdict, dataclass, fields
 
 import numpy as np
 
-from giwbc.robot.so3 import as_floats, exp, matrix_to_quat, quat_multiply_floats, rotate_back
+from giwbc.robot.so3 import exp, matrix_to_quat
 from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper
 from giwbc.errors import NotMeasuredError
+from giwbc.util.jit import compiled
 
 __all__ = ["IMU_PROFILES", "NoisyRobot", "NotMeasuredError", "SensorErrors", "SensorModel", "SensorNoiseConfig"]
 
@@ -251,18 +252,26 @@ class SensorModel:
         self._rng = rng
         self._imu = imu
         self._dofs = robot.dofs
-        # IMU state and constants as Python floats: one sample per physics step, where numpy's
-        # per-call overhead on 3-vectors would cost more than the arithmetic.
-        self._gyro_bias = np.broadcast_to(np.asarray(errors.gyro_bias, dtype=float), (3,)).tolist()
-        self._accel_bias = np.broadcast_to(np.asarray(errors.accel_bias, dtype=float), (3,)).tolist()
+        # The IMU's state (biases, random-walked in place) and constants as arrays for the compiled
+        # sample (_measure_imu_kernel): one sample per physics step, where numpy's per-call overhead on
+        # 3-vectors would cost more than the arithmetic.
+        self._gyro_bias = np.broadcast_to(np.asarray(errors.gyro_bias, dtype=float), (3,)).copy()
+        self._accel_bias = np.broadcast_to(np.asarray(errors.accel_bias, dtype=float), (3,)).copy()
         mounting = np.broadcast_to(np.asarray(errors.mounting, dtype=float), (3,))
         self._mounting = exp(mounting) if mounting.any() else None  # actual IMU frame in the nominal one
         self._mounting_quaternion = matrix_to_quat(self._mounting) if self._mounting is not None else None
-        self._mounting_rows = tuple(self._mounting.ravel().tolist()) if self._mounting is not None else None
-        self._mounting_floats = tuple(self._mounting_quaternion.tolist()) if self._mounting_quaternion is not None else None
         self._orientation_bias = np.broadcast_to(np.asarray(errors.orientation_bias, dtype=float), (3,)).copy()
         self._orientation_error = bool(self._orientation_bias.any() or errors.heading_drift)
-        self._bias_floats = tuple(self._orientation_bias.tolist())
+        # [0:9] the mounting rotation (row by row), [9:13] its quaternion, [13:16] the orientation output's
+        # bias; then heading drift, gyro and accel bias walks, noises and ranges, orientation noise
+        self._imu_constants = np.concatenate([
+            self._mounting.reshape(-1) if self._mounting is not None else np.eye(3).reshape(-1),
+            self._mounting_quaternion if self._mounting_quaternion is not None else (0.0, 0.0, 0.0, 1.0),
+            self._orientation_bias,
+            (errors.heading_drift, errors.gyro_bias_walk, errors.accel_bias_walk, errors.gyro_noise, errors.accel_noise,
+             errors.gyro_range, errors.accel_range, errors.orientation_noise),
+        ]).astype(float)
+        self._imu_flags = (self._mounting is not None, bool(errors.orientation_output), self._orientation_error)
         self._joint_bias = np.broadcast_to(np.asarray(errors.joint_position_bias, dtype=float), (self._dofs,)).copy()
         self._joint_bias_any = bool(self._joint_bias.any())
         # The joints' three noise stds as one (3, dofs) array: one product with the draws' (3, dofs) view.
@@ -275,20 +284,20 @@ class SensorModel:
     @property
     def gyro_bias(self) -> np.ndarray:
         """The gyro's bias now (rad/s, IMU frame): the turn-on bias plus its random walk so far."""
-        return np.array(self._gyro_bias)
+        return self._gyro_bias.copy()
 
     @gyro_bias.setter
     def gyro_bias(self, value: np.ndarray) -> None:
-        self._gyro_bias = np.broadcast_to(np.asarray(value, dtype=float), (3,)).tolist()
+        self._gyro_bias = np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
 
     @property
     def accel_bias(self) -> np.ndarray:
         """The accelerometer's bias now (m/s^2, IMU frame)."""
-        return np.array(self._accel_bias)
+        return self._accel_bias.copy()
 
     @accel_bias.setter
     def accel_bias(self, value: np.ndarray) -> None:
-        self._accel_bias = np.broadcast_to(np.asarray(value, dtype=float), (3,)).tolist()
+        self._accel_bias = np.broadcast_to(np.asarray(value, dtype=float), (3,)).copy()
 
     def restart(self) -> None:
         """Forget the buffered samples (the robot was reset)."""
@@ -341,66 +350,100 @@ class SensorModel:
             jitter = min(bound, max(-bound, e.sample_jitter * float(rng.standard_normal())))
         imu = None
         if self._imu:
-            imu = self._measure_imu(robot.imu(), elapsed, draws[:15].tolist(), jitter)
+            imu = self._measure_imu(robot.imu(), elapsed, draws[:15], jitter)
             if dropped and self._buffer:
                 imu = self._buffer[-1].imu
-        # (In place on the draws and on new arrays: the same products and sums as std * draw + truth.)
-        noise = draws[15:].reshape(3, n)
-        noise *= self._joint_noise
-        positions = robot.joint_positions()
-        positions = positions + self._joint_bias if self._joint_bias_any else positions.copy()
-        positions += noise[0]
-        resolution = e.encoder_resolution
-        if resolution > 0:
-            np.divide(positions, resolution, out=positions)
-            np.round(positions, out=positions)
-            positions *= resolution
-        velocities = np.add(robot.joint_velocities(), noise[1])
-        efforts = np.add(robot.joint_efforts(), noise[2])
-        return _Sample(imu, positions, velocities, efforts)
+        joints = np.empty((3, n))  # positions, velocities, efforts: one array, read through views
+        _measure_joints(draws, self._joint_noise, robot.joint_positions(), self._joint_bias, self._joint_bias_any,
+                        float(e.encoder_resolution), robot.joint_velocities(), robot.joint_efforts(), joints)
+        return _Sample(imu, joints[0], joints[1], joints[2])
 
     def _measure_imu(self, truth: ImuReading, elapsed: float, draws: Sequence[float], jitter: float = 0.0) -> ImuReading:
         """``draws``: 15 standard normals (gyro, gyro walk, accel, accel walk, orientation);
-        ``jitter``: the timestamp's error (s). On Python floats (3-vectors and quaternions), the
+        ``jitter``: the timestamp's error (s). One compiled call (:func:`_measure_imu_kernel`), the
         same arithmetic as the numpy reference in tests/test_sensor_noise.py."""
-        e, walk = self.errors, math.sqrt(max(elapsed, 0.0))
-        quaternion = as_floats(truth.quaternion)
-        gyro_true, accel_true = as_floats(truth.angular_velocity), as_floats(truth.linear_acceleration)
-        if self._mounting_rows is not None:  # the IMU's actual frame is rotated in its nominal one
-            quaternion = quat_multiply_floats(quaternion, self._mounting_floats)
-            gyro_true = rotate_back(self._mounting_rows, gyro_true)
-            accel_true = rotate_back(self._mounting_rows, accel_true)
-        gb, ab = self._gyro_bias, self._accel_bias
-        if e.gyro_bias_walk:
-            k = e.gyro_bias_walk * walk
-            gb = self._gyro_bias = [gb[0] + k * draws[3], gb[1] + k * draws[4], gb[2] + k * draws[5]]
-        if e.accel_bias_walk:
-            k = e.accel_bias_walk * walk
-            ab = self._accel_bias = [ab[0] + k * draws[9], ab[1] + k * draws[10], ab[2] + k * draws[11]]
-        sg, sa = e.gyro_noise, e.accel_noise
-        g0, g1, g2 = gyro_true
-        a0, a1, a2 = accel_true
-        gyro = (g0 + gb[0] + sg * draws[0], g1 + gb[1] + sg * draws[1], g2 + gb[2] + sg * draws[2])
-        accel = (a0 + ab[0] + sa * draws[6], a1 + ab[1] + sa * draws[7], a2 + ab[2] + sa * draws[8])
-        if e.gyro_range < math.inf:
-            r = e.gyro_range
-            gyro = tuple(min(max(g, -r), r) for g in gyro)
-        if e.accel_range < math.inf:
-            r = e.accel_range
-            accel = tuple(min(max(a, -r), r) for a in accel)
-        if not e.orientation_output:
-            return ImuReading(np.full(4, np.nan), np.array(gyro), np.array(accel), truth.time + jitter)
-        if self._orientation_error:  # world-frame error: constant tilt, heading drifting with time
-            bx, by, bz = self._bias_floats
-            quaternion = quat_multiply_floats(_rotation_quaternion(bx, by, bz + e.heading_drift * float(truth.time)), quaternion)
-        if e.orientation_noise:
-            o = e.orientation_noise
-            quaternion = quat_multiply_floats(quaternion, _rotation_quaternion(o * draws[12], o * draws[13], o * draws[14]))
-        # One array for the three channels, read through views (one allocation instead of three).
-        values = np.array((*quaternion, *gyro, *accel))
+        values = np.empty(10)  # one array for the three channels, read through views (one allocation instead of three)
+        mounted, output, tilted = self._imu_flags
+        _measure_imu_kernel(np.asarray(truth.quaternion, float), np.asarray(truth.angular_velocity, float),
+                            np.asarray(truth.linear_acceleration, float), float(truth.time), math.sqrt(max(elapsed, 0.0)),
+                            np.asarray(draws, float), self._gyro_bias, self._accel_bias, self._imu_constants, mounted, output,
+                            tilted, values)
         return ImuReading(values[:4], values[4:7], values[7:], truth.time + jitter)
 
 
+@compiled
+def _measure_imu_kernel(
+    quaternion: np.ndarray, gyro_true: np.ndarray, accel_true: np.ndarray, time: float, walk: float, draws: np.ndarray,
+    gyro_bias: np.ndarray, accel_bias: np.ndarray, constants: np.ndarray, mounted: bool, output: bool, tilted: bool,
+    values: np.ndarray,
+) -> None:
+    """One IMU sample from the truth into ``values`` (quaternion xyzw, gyro, accelerometer): the
+    IMU's actual frame rotated in its nominal one (``mounted``: ``constants[0:9]``, its quaternion
+    ``[9:13]``), the biases random-walked in place by ``walk`` = sqrt(elapsed s) times the walk
+    densities, white noise, saturation at the ranges, and the orientation output's errors (``tilted``:
+    a world-frame tilt ``[13:16]`` and a heading drifting at ``[16]`` rad/s over ``time``; its noise
+    as a small body-frame rotation); without an ``output`` the quaternion is NaN. ``draws``: 15
+    standard normals (gyro, gyro walk, accel, accel walk, orientation)."""
+    c = constants
+    qx, qy, qz, qw = quaternion[0], quaternion[1], quaternion[2], quaternion[3]
+    g0, g1, g2 = gyro_true[0], gyro_true[1], gyro_true[2]
+    a0, a1, a2 = accel_true[0], accel_true[1], accel_true[2]
+    if mounted:  # q * mounting; the rates and the specific force in the actual frame (mounting^T v)
+        bx, by, bz, bw = c[9], c[10], c[11], c[12]
+        qx, qy, qz, qw = (qw * bx + qx * bw + qy * bz - qz * by, qw * by - qx * bz + qy * bw + qz * bx,
+                          qw * bz + qx * by - qy * bx + qz * bw, qw * bw - qx * bx - qy * by - qz * bz)
+        g0, g1, g2 = c[0] * g0 + c[3] * g1 + c[6] * g2, c[1] * g0 + c[4] * g1 + c[7] * g2, c[2] * g0 + c[5] * g1 + c[8] * g2
+        a0, a1, a2 = c[0] * a0 + c[3] * a1 + c[6] * a2, c[1] * a0 + c[4] * a1 + c[7] * a2, c[2] * a0 + c[5] * a1 + c[8] * a2
+    if c[17]:
+        k = c[17] * walk
+        for i in range(3):
+            gyro_bias[i] = gyro_bias[i] + k * draws[3 + i]
+    if c[18]:
+        k = c[18] * walk
+        for i in range(3):
+            accel_bias[i] = accel_bias[i] + k * draws[9 + i]
+    sg, sa, gr, ar = c[19], c[20], c[21], c[22]
+    gyro = (g0 + gyro_bias[0] + sg * draws[0], g1 + gyro_bias[1] + sg * draws[1], g2 + gyro_bias[2] + sg * draws[2])
+    accel = (a0 + accel_bias[0] + sa * draws[6], a1 + accel_bias[1] + sa * draws[7], a2 + accel_bias[2] + sa * draws[8])
+    for i in range(3):
+        values[4 + i] = min(max(gyro[i], -gr), gr) if gr < math.inf else gyro[i]
+        values[7 + i] = min(max(accel[i], -ar), ar) if ar < math.inf else accel[i]
+    if not output:
+        for i in range(4):
+            values[i] = math.nan
+        return
+    if tilted:  # world-frame error: constant tilt, heading drifting with time; error * q
+        bx, by, bz, bw = _rotation_quaternion(c[13], c[14], c[15] + c[16] * time)
+        qx, qy, qz, qw = (bw * qx + bx * qw + by * qz - bz * qy, bw * qy - bx * qz + by * qw + bz * qx,
+                          bw * qz + bx * qy - by * qx + bz * qw, bw * qw - bx * qx - by * qy - bz * qz)
+    o = c[23]
+    if o:
+        bx, by, bz, bw = _rotation_quaternion(o * draws[12], o * draws[13], o * draws[14])
+        qx, qy, qz, qw = (qw * bx + qx * bw + qy * bz - qz * by, qw * by - qx * bz + qy * bw + qz * bx,
+                          qw * bz + qx * by - qy * bx + qz * bw, qw * bw - qx * bx - qy * by - qz * bz)
+    values[0], values[1], values[2], values[3] = qx, qy, qz, qw
+
+
+@compiled
+def _measure_joints(
+    draws: np.ndarray, noise: np.ndarray, positions: np.ndarray, bias: np.ndarray, biased: bool, resolution: float,
+    velocities: np.ndarray, efforts: np.ndarray, out: np.ndarray,
+) -> None:
+    """The joints' sample into ``out`` (3, n): positions (plus their ``bias`` when ``biased``) plus
+    noise, quantized to the encoder's ``resolution`` (round half to even; 0: none), velocities and
+    efforts plus noise; the noise is ``noise`` (3, n: the stds) times the draws after the IMU's 15."""
+    n = positions.shape[0]
+    for j in range(n):
+        value = positions[j] + bias[j] if biased else positions[j]
+        value = value + noise[0, j] * draws[15 + j]
+        if resolution > 0:
+            value = np.rint(value / resolution) * resolution
+        out[0, j] = value
+        out[1, j] = velocities[j] + noise[1, j] * draws[15 + n + j]
+        out[2, j] = efforts[j] + noise[2, j] * draws[15 + 2 * n + j]
+
+
+@compiled
 def _rotation_quaternion(x: float, y: float, z: float) -> tuple[float, float, float, float]:
     """The unit quaternion ``(x, y, z, w)`` (``w >= 0`` for angles up to pi) of the rotation vector ``(x, y, z)``."""
     angle = math.sqrt(x * x + y * y + z * z)
