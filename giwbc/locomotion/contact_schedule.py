@@ -65,8 +65,11 @@ class ContactSchedule:
             self._walking_push(t, xi)
         if cfg.step_adaptation and t < self._swing.t1 - 0.03:
             self._adapt_step(t, xi)
-        late = t >= self._swing.t1 and cfg.late_touchdown_force is not None
-        threshold = cfg.late_touchdown_force if late else cfg.touchdown_force
+        # A quick landing (push_recovery) counts from its touch-down time on once the sole is down, loaded
+        # or not: its stance foot is tipping away from it, and it would wait out late_touchdown unloaded.
+        quick = t >= self._swing.t1 and self._quick_land is not None and self._quick_land[0] == self._phase_start
+        late = t >= self._swing.t1 and (cfg.late_touchdown_force is not None or quick)
+        threshold = 0.0 if quick else cfg.late_touchdown_force if late else cfg.touchdown_force
         # (The force is read once it can count: a walker's step() reads the robot only when asked.)
         landed = elapsed >= cfg.early_touchdown * (self._swing.t1 - self._phase_start) and forces.get(swing, 0.0) >= threshold * self.weight
         if landed and late:  # a light load counts only on a sole down at the stance sole's height

@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from giwbc.locomotion.footsteps import Footstep, other_side, side_sign
-from giwbc.locomotion.planar import distance2
+from giwbc.locomotion.planar import distance2, rotate
 from giwbc.locomotion.step_adapter import StepAdjustment, StepFrame, SwingReach
 from giwbc.locomotion.support import clip_to_polygon, signed_distance
 from giwbc.locomotion.walker_config import Phase
@@ -158,6 +158,8 @@ class PushRecovery:
         # (feet 0.6-0.75 m apart, the pelvis rolled over; 100 N, tuning seeds 0-199: 199/200 vs
         # 185/200; 150 N, 0-99: 67 vs 68; adding the disturbance lead as well: 34/100 at 150 N).
         assert self._nominal_target is not None
+        if self._recovering and self.walking and self._quick_landing(t, stance):
+            return self._quick_adjustment(t, stance, frame, box)
         edge = self._recovering and cfg.recovery_cop != "centre"
         cop_hold = clip_to_polygon(dcm, self.support_polygon((self._stance,))) if edge else stance.position
         reach = None
@@ -170,6 +172,40 @@ class PushRecovery:
         if edge and cfg.recovery_cop == "auto" and float(stance.to_local(adjustment.position)[0]) >= box[0][1] - 1e-6:
             adjustment = self.adapter.adapt_in(frame, stance.position, dcm, self._phase_end - t, box, remaining_range)  # type: ignore[union-attr]
         return adjustment
+
+    # --- the quick landing (a walking push toward the stance side) --------------------------------
+    def _quick_landing(self, t: float, stance: Footstep) -> bool:
+        """Whether the swinging foot lands at once (:attr:`~giwbc.locomotion.walker_config.WalkerConfig.quick_land_margin`):
+        the DCM plus the disturbance lead is that far outward of the ``stance`` sole's centre line, on
+        the side the swinging foot cannot reach without crossing the stance leg. Decided once per
+        swing: held to its touch-down."""
+        cfg = self.config
+        if not math.isfinite(cfg.quick_land_margin):
+            return False
+        if self._quick_land is not None and self._quick_land[0] == self._phase_start:
+            return True
+        led = stance.to_local(np.array(self._led(self.state.dcm)))
+        if side_sign(stance.side) * float(led[1]) <= cfg.quick_land_margin:
+            return False
+        elapsed = t - self._phase_start
+        self._quick_land = (self._phase_start, t + max(cfg.push_min_swing - elapsed, cfg.quick_land_time))
+        self.state.quick_landings += 1
+        return True
+
+    def _quick_adjustment(self, t: float, stance: Footstep, frame: StepFrame, box: tuple[tuple[float, float], tuple[float, float]]) -> StepAdjustment:
+        """The quick landing: beside the stance foot at the box's narrowest width (or ``quick_land_width``), along it at the led
+        DCM's place within ``quick_land_reach`` of the foot's own, at the touch-down decided."""
+        cfg = self.config
+        assert self._quick_land is not None
+        swing = other_side(stance.side)
+        foot = stance.to_local(self._sole_world(swing).translation[:2])
+        led = stance.to_local(np.array(self._led(self.state.dcm)))
+        (x_lo, x_hi), (y_lo, y_hi) = box
+        y = min(y_lo, cfg.quick_land_width) if side_sign(swing) > 0 else max(y_hi, -cfg.quick_land_width)
+        fx = float(foot[0])
+        x = min(max(float(led[0]), fx - cfg.quick_land_reach, x_lo), fx + cfg.quick_land_reach, x_hi)
+        wx, wy = rotate(frame.c, frame.s, x, y)
+        return StepAdjustment(np.array([frame.ox + wx, frame.oy + wy]), max(self._quick_land[1] - t, 0.02), frame, (float(led[0]), float(led[1]), x, y))
 
     # --- pushes while walking ----------------------------------------------------------------------
     def _walking_push(self, t: float, xi: np.ndarray) -> None:
@@ -250,6 +286,11 @@ class PushRecovery:
             double = max(cfg.contact_ramp, 1e-3) if self.walking else max(cfg.gait.double_support, cfg.contact_ramp)
             self._begin_double(t, stance=landed, duration=double)
             self.state.recovery_steps += 1
+        elif self.walking and math.isfinite(cfg.recovery_walk_on):
+            # Walking: the walk goes on from here, the foot just landed carrying and the other stepping
+            # after a short double support (a nominal step: it closes the recovery's split).
+            self._recovering = False
+            self._begin_double(t, stance=landed, duration=max(cfg.recovery_walk_on, cfg.contact_ramp, 1e-3))
         else:
             self._recovering = False
             self._settle(t)

@@ -198,10 +198,7 @@ class WalkerConfig:
     quick_land_margin: float = math.inf
     quick_land_time: float = 0.08
     quick_land_reach: float = 0.15
-    # Walking, in double support, a walking recovery's first step: the foot on the side the DCM error
-    # (with the lead) points to, across the heading, steps when that lateral part is at least
-    # ``side_step_fraction`` of the error (inf: off, the standing recovery's choice by score).
-    side_step_fraction: float = math.inf
+    quick_land_width: float = 0.17  # m, the stance sole centre to the quick landing's, across (at most the box's narrowest)
     # Walking, a recovery whose capture point is back inside the feet at a touch-down: the walk goes on
     # with the foot just landed carrying and the other stepping after this long a double support (s;
     # inf: a stand first, then the walk's start_shift — a split as wide as the recovery's step sank
@@ -244,10 +241,10 @@ class WalkerConfig:
         if not (self.quick_land_margin > -0.5 and 0.0 < self.quick_land_time < 0.5 and 0.0 <= self.quick_land_reach < math.inf):
             raise ValueError(f"need quick_land_margin > -0.5 m (inf: off), quick_land_time in (0, 0.5) s and a finite quick_land_reach >= 0 m, got "
                              f"{self.quick_land_margin}, {self.quick_land_time}, {self.quick_land_reach}")
+        if not 0.1 <= self.quick_land_width < 0.5:
+            raise ValueError(f"quick_land_width must be in [0.1, 0.5) m, got {self.quick_land_width}")
         if not self.recovery_walk_on >= 0.0:
             raise ValueError(f"recovery_walk_on must be >= 0 s (inf: off), got {self.recovery_walk_on}")
-        if not self.side_step_fraction >= 0.0:
-            raise ValueError(f"side_step_fraction must be >= 0 (inf: off), got {self.side_step_fraction}")
         if not self.walking_recovery_error > 0.0:
             raise ValueError(f"walking_recovery_error must be > 0 (m, inf: off), got {self.walking_recovery_error}")
         if not (self.push_swap_error > 0.0 and math.isfinite(self.push_swap_margin) and self.push_swap_margin >= 0.0):
