@@ -165,6 +165,10 @@ class WholeBodyController:
     impedance_kp, impedance_kd, impedance_lookahead: the impedance output (module docstring).
     fallback_decay: factor applied to the last good torques per failed tick.
     fallback_kd: damping of the fallback impedance command (default: ``impedance_kd``).
+    relax_joint_limits: when the QP with the joint-limit bounds has no solution, solve it again
+    without them (counted in ``relaxed_solves``) before falling back. A foot rolling on a rim or a
+    point turns its ankle faster than the bounds' horizon allows, and their box then contradicts the
+    contact rows (the model's foot is flat): the fallback's decaying torques let the ankle go at once.
 
     A :class:`ContactForceRegularization` (weight 1e-5, the weight shared by the contacts) is on
     from construction: with two or more contacts the forces are otherwise not unique (the QP's
@@ -191,6 +195,7 @@ class WholeBodyController:
         impedance_lookahead: float = 0.0,
         fallback_decay: float = 0.9,
         fallback_kd: float | np.ndarray | None = None,
+        relax_joint_limits: bool = False,
     ) -> None:
         if not (dt > 0 and math.isfinite(dt)):
             raise ValueError(f"dt must be > 0, got {dt}")
@@ -230,6 +235,8 @@ class WholeBodyController:
         self.impedance_lookahead = float(impedance_lookahead)
         self.fallback_decay = float(fallback_decay)
         self.fallback_kd = self.impedance_kd.copy() if fallback_kd is None else _as_joint_array(fallback_kd, nj, "fallback_kd")
+        self.relax_joint_limits = bool(relax_joint_limits)  # (a caller may switch it)
+        self.relaxed_solves = 0  # ticks solved without the joint-limit bounds (relax_joint_limits)
         # (zone rad, kp N m/rad, kd N m s/rad) of set_limit_spring; None: off (a caller may switch it per tick)
         self.limit_spring: tuple[float, float, float] | None = None
 
@@ -509,6 +516,18 @@ class WholeBodyController:
         if self.joint_limits:
             self._joint_limit_bounds(p)
 
+    def _solve_without_limits(self) -> QpSolution:
+        """The last built problem solved again with its joint-limit bounds open (the next build
+        writes them anew); the relaxed solve counted."""
+        p = self.problem
+        assert p is not None and p.lb is not None and p.ub is not None
+        p.lb.fill(-np.inf)
+        p.ub.fill(np.inf)
+        solution = self.solver.solve(p)
+        if solution.ok:
+            self.relaxed_solves += 1
+        return solution
+
     def _joint_limit_bounds(self, p: QpProblem) -> None:
         """q̈ bounds that stop each joint at its position limit within the horizon ``T``
         (``q + v T + ½ q̈ T² ≤ q_max``) and keep its velocity inside its limit (``|v + q̈ T| ≤ v_max``);
@@ -536,6 +555,7 @@ class WholeBodyController:
         self.ticks = 0
         self._last_tau = None
         self.failures = 0
+        self.relaxed_solves = 0
         self.consecutive_failures = 0
         self.contact_set.reset()
         self._layout_dirty = True
@@ -573,6 +593,8 @@ class WholeBodyController:
         self._assemble(t)
         t_build = clock()
         solution = self.solver.solve(self.problem)  # type: ignore[arg-type]
+        if not solution.ok and self.joint_limits and self.relax_joint_limits:
+            solution = self._solve_without_limits()
         t_solve = clock()
         if not solution.ok:
             return self._fallback(q, v, t, WbcStatus.QP_FAILED, solution, self._failure_message(solution), start, timings=(t_pin, t_build, t_solve))
