@@ -319,7 +319,7 @@ DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
 # limit: a loaded foot rolled onto its toe-heel diagonal, and at a lift-off the QP's joint-limit bounds
 # on its fast-turning ankle had no solution (the fallback let the ankle go). So any_floor also holds a
 # rolled stance foot's CoP on its raised side (roll_cop_tilt 6 deg) and solves such a tick without the
-# bounds (relax_joint_limits). Tuning seeds 20000-20003: ends on all_at_once + point_feet 7 -> 2 of 8;
+# bounds (relax_joint_limits). Tuning seeds 20000-20003: ends on all_at_once + point_feet 7 -> 3 of 8;
 # the nominal walk unchanged (no foot rolls 6 deg, no QP fails). README, "Plants the controller was not tuned on".
 ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType({"friction": 0.5, "swing_kp": 250.0, "roll_cop_tilt": 6.0, "relax_joint_limits": True})
 WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS, "any_floor": ANY_FLOOR_OPTIONS})
