@@ -314,7 +314,25 @@ class StateEstimator:
         self._flat_cos = math.cos(min(self.config.flat_max_tilt, math.pi))  # a sole's world z-z component at least this
         self.standstill = StandstillDetector(c.standstill, self._leg_joint_index)
         self.headings = FootHeadings(n_feet, c.foot_twist, c.foot_twist_time)
+        self._warm_up()
         self.reset()
+
+    def _warm_up(self) -> None:
+        """Run this configuration's compiled kernels once now (:mod:`~giwbc.estimation.kernels`): the
+        first call in a process compiles a kernel (~13 s for all on a fresh machine) or loads it from
+        numba's disk cache (~0.3 s), which must not happen in a real-time loop's first cycles.
+        Three synthetic updates at the default pose, standing: a start, a normal one, one with a bad
+        encoder (the fault path's argument types); :meth:`reset` forgets them."""
+        self.reset()
+        positions = self.description.default_positions.astype(float)
+        zeros = np.zeros(self._dofs)
+        imu = self.kinematics.imu_rotation.T @ np.array([0.0, 0.0, -GRAVITY[2]])
+        for k in range(3):
+            bad = positions.copy()
+            if k == 2:
+                bad[self._leg_joint_index[0]] = np.nan
+            reading = ImuReading(so3.matrix_to_quat(self.kinematics.imu_rotation), np.zeros(3), imu, 0.002 * k)
+            self.update(Measurement(reading, bad, zeros, zeros))
 
     # --- public ---------------------------------------------------------------------------
     def reset(self) -> None:
