@@ -280,6 +280,17 @@ class SensorModel:
         self._draw_count = 15 + 3 * self._dofs
         self._buffer: deque[_Sample] = deque(maxlen=errors.latency + 1)
         self._sample_time: float | None = None
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Run the compiled sample once now, on copies (no draw taken, no state changed): the first
+        call in a process compiles it or loads it from numba's cache, which must not happen in a
+        real-time loop (the actuator emulator samples its IMU in one)."""
+        draws, n = np.zeros(self._draw_count), self._dofs
+        _measure_imu_kernel(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.zeros(3), 0.0, 0.0, draws[:15], self._gyro_bias.copy(),
+                            self._accel_bias.copy(), self._imu_constants, *self._imu_flags, np.empty(10))
+        _measure_joints(draws, self._joint_noise, np.zeros(n), self._joint_bias, self._joint_bias_any, 0.0, np.zeros(n), np.zeros(n),
+                        np.empty((3, n)))
 
     @property
     def gyro_bias(self) -> np.ndarray:
