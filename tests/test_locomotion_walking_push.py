@@ -160,15 +160,15 @@ def _landings(g1, config: WalkerConfig):
 def test_a_push_toward_the_stance_side_brings_the_swinging_foot_down_at_once_beside_it(g1):
     """The swinging (right) foot cannot catch a push to the left without crossing the left leg: with
     the quick landing it comes down within quick_land_time of the decision (plus the push's
-    detection) beside the left foot, on its own side, at about quick_land_width; without it, it
+    detection) beside the left foot, on its own side, at about quick_land_width; without it (off), it
     lands where and when the plan had it, 0.08 s later. (Whether the robot then stays up is the
     benchmark's business: 30 N s toward the stance foot mid-swing is at the edge of what the G1's
     next step can reach.)"""
-    quick, n_quick = _landings(g1, WalkerConfig(quick_land_margin=0.08, quick_land_width=0.13))
-    plain, n_plain = _landings(g1, WalkerConfig())
+    quick, n_quick = _landings(g1, WalkerConfig())  # (the defaults: 0.08 m, 0.12 m)
+    plain, n_plain = _landings(g1, WalkerConfig(quick_land_margin=math.inf))
     assert n_quick == 1 and n_plain == 0
     (t_q, foot_q, at_q, other_q), (t_p, foot_p, _, _) = next(x for x in quick if x[0] > 2.839), next(x for x in plain if x[0] > 2.839)
     assert foot_q == foot_p == "right"
     assert t_q < 2.839 + 0.13 and t_p - t_q > 0.05
     across = float(at_q[1] - other_q[1])  # the heading is about +x: left of the left foot is +y
-    assert -0.16 < across < -0.10  # right of the left foot, not crossed, ~0.13 m
+    assert -0.15 < across < -0.09  # right of the left foot, not crossed, ~0.12 m

@@ -194,15 +194,25 @@ class WalkerConfig:
     # stance foot at the landing box's narrowest width, within ``quick_land_reach`` m of where it is
     # (the DCM's own progress along the stance foot), ``quick_land_time`` s from now at the earliest
     # and no sooner than ``push_min_swing`` after lift-off; the stance foot then steps out after the
-    # force ramp (the recovery's next step, its reach from the DCM): two steps, no crossing.
-    quick_land_margin: float = math.inf
+    # force ramp (the recovery's next step, its reach from the DCM): two steps, no crossing. The
+    # closer the quick landing to the stance foot (``quick_land_width``, m between the soles' centres,
+    # at most the box's narrowest), the nearer its CoP to the DCM and the shorter the split the next
+    # step needs. Gait-phase protocol (30 N s, 8 directions x 5 phases), tuning seeds 700-702, stepping
+    # in place / walking 0.5 m/s: off 58 / 58 of 120; 0.08 m and 0.12 m 70 / 60; on seed 700 alone
+    # (off 20 / 19 of 40): margin 0.0 at the box's 0.17 m 15 / 17, 0.08 at 0.17 m 22 / 21, 0.04 at
+    # 0.12 m 24 / 19. Unpushed walking never recovers, so never lands quickly: bit for bit the same.
+    # (Tried and dropped: in double support, the foot on the side of the DCM error's lateral part
+    # stepping first — 3 / 2 of 40, a backward push read as lateral stepped a foot out sideways and
+    # the DCM followed it; a recovery box 0.9 m wide, 12 / 18; 0.6 m long, walking 20 of 40.)
+    quick_land_margin: float = 0.08
     quick_land_time: float = 0.08
     quick_land_reach: float = 0.15
-    quick_land_width: float = 0.17  # m, the stance sole centre to the quick landing's, across (at most the box's narrowest)
+    quick_land_width: float = 0.12
     # Walking, a recovery whose capture point is back inside the feet at a touch-down: the walk goes on
     # with the foot just landed carrying and the other stepping after this long a double support (s;
-    # inf: a stand first, then the walk's start_shift — a split as wide as the recovery's step sank
-    # meanwhile).
+    # inf: off, a stand first, then the walk's start_shift). Off: on seed 700, 0.1 s gave 21 / 20 of 40
+    # alone and 25 / 20 with the quick landing (24 / 21 without): a wide split sank during the stand,
+    # and as much during the step that was to close it (the stance hip at its torque limit).
     recovery_walk_on: float = math.inf
 
     def __post_init__(self) -> None:
