@@ -214,6 +214,9 @@ def test_small_kernels_compiled_equal_their_python_function(trial: int) -> None:
                                    rng.normal(size=(3, 4)), rng.normal(size=6), trial == 0, 0.02, 9.8),
         "effort_forces": lambda: (rng.normal(0.0, 200.0, (2, 6)), np.array([True, trial != 2]), rng.normal(0.0, 0.6, (2, 3)),
                                   rng.normal(0.0, 0.3, (3, 4)), 1.0 if trial else 0.0, trial == 4, rng.normal(0.0, 50.0, (2, 3))),
+        "detect_contacts": lambda: (np.array([rng.normal(0.0, 200.0), np.nan if trial == 1 else 300.0]), np.array([trial != 2, True]),
+                                    rng.uniform(0.0, 400.0, 2), trial != 0, 0.17, 40.0, 20.0, np.array([trial % 2 == 0, True]),
+                                    np.zeros(2, bool)),
         "pull_to_ground": lambda: (rng.normal(size=(3, 4)), (True, trial > 2), (0.7, 0.2), 0.0, 0.004),
         "assemble_state": lambda: (rng.normal(size=(3, 4)), rng.normal(size=3), rotation, tuple(rng.normal(size=4).tolist()),
                                    vector(), rng.normal(size=29), rng.normal(size=29), np.zeros(36), np.zeros(35), np.zeros(13)),
@@ -250,7 +253,7 @@ def test_kernels_compile_without_a_writable_cache_folder(tmp_path: Path) -> None
 
 
 KERNELS = ("leg_kinematics", "kalman_predict", "kalman_correct", "pivot_velocities", "leg_accelerations", "compensated_up",
-           "pull_to_ground", "assemble_state", "effort_forces")
+           "pull_to_ground", "assemble_state", "effort_forces", "detect_contacts")
 
 
 @pytest.mark.slow

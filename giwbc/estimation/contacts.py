@@ -10,9 +10,9 @@ controller's contact plan can override the result per update.
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
+
+from giwbc.estimation import kernels
 
 __all__ = ["ContactDetector"]
 
@@ -48,38 +48,27 @@ class ContactDetector:
 
     def reset(self) -> None:
         self.contacts = np.full(self.n_feet, self.initial)
-        self._filtered: list[float] | None = None  # low-passed normal forces; None until the first update
+        self._filtered = np.zeros(self.n_feet)  # low-passed normal forces, once started (the first update)
+        self._started = False
+        self._usable = np.ones(self.n_feet, dtype=bool)
 
     @property
     def forces(self) -> np.ndarray | None:
         """Low-passed normal forces (N); None until the first update."""
-        return None if self._filtered is None else np.array(self._filtered)
+        return self._filtered.copy() if self._started else None
 
     def update(self, normal_forces: np.ndarray, dt: float, valid: np.ndarray | None = None) -> np.ndarray:
         """New flags from ``normal_forces`` measured ``dt`` s after the previous ones; feet whose
         force is not ``valid`` (or not finite) keep their flag. Returns a new array each update.
 
-        Per foot on Python floats: a handful of scalars, where numpy calls would cost more."""
-        measured = np.asarray(normal_forces, float).tolist()
-        usable = [True] * self.n_feet if valid is None else np.asarray(valid, bool).tolist()
-        if self._filtered is None:
-            filtered = [force if math.isfinite(force) else 0.0 for force in measured]
-        else:
-            alpha = 1.0 if self.time_constant == 0 else dt / (self.time_constant + dt)
-            filtered = self._filtered
-            for i, (force, ok) in enumerate(zip(measured, usable)):
-                step = alpha * (force - filtered[i])
-                if ok and math.isfinite(step):
-                    filtered[i] += step
-        self._filtered = filtered
-        on, off = self.on_force, self.off_force
-        self.contacts = np.array(
-            [
-                (contact or (ok and force > on)) and not (ok and force < off)
-                for contact, force, ok in zip(self.contacts.tolist(), filtered, usable)
-            ]
-        )
-        return self.contacts
+        One compiled call (:func:`giwbc.estimation.kernels.detect_contacts`)."""
+        alpha = 1.0 if self.time_constant == 0 else dt / (self.time_constant + dt)
+        contacts = np.empty(self.n_feet, dtype=bool)
+        kernels.detect_contacts(np.asarray(normal_forces, float), self._usable if valid is None else np.asarray(valid, bool),
+                                self._filtered, self._started, alpha, self.on_force, self.off_force, self.contacts, contacts)
+        self._started = True
+        self.contacts = contacts
+        return contacts
 
     def confidence(self) -> np.ndarray:
         """Per foot, in [0, 1]: how loaded the foot is between ``off_force`` and ``full_force``."""
@@ -87,7 +76,7 @@ class ContactDetector:
 
     def confidence_floats(self) -> list[float]:
         """:meth:`confidence` as Python floats."""
-        if self._filtered is None:
+        if not self._started:
             return [1.0] * self.n_feet
         off, span = self.off_force, self.full_force - self.off_force
-        return [min(max((force - off) / span, 0.0), 1.0) for force in self._filtered]
+        return [min(max((force - off) / span, 0.0), 1.0) for force in self._filtered.tolist()]

@@ -27,7 +27,7 @@ import pinocchio as pin
 from giwbc.util.jit import compiled, reference
 
 __all__ = [
-    "assemble_state", "compensated_up", "compiled", "effort_forces", "joint_tables", "kalman_correct", "kalman_predict", "leg_accelerations",
+    "assemble_state", "compensated_up", "compiled", "detect_contacts", "effort_forces", "joint_tables", "kalman_correct", "kalman_predict", "leg_accelerations",
     "leg_kinematics", "pivot_velocities", "pull_to_ground", "reference",
 ]
 
@@ -697,3 +697,26 @@ def effort_forces(
                 forces[i, 0] *= share
                 forces[i, 1] *= share
                 forces[i, 2] *= share
+
+
+@compiled
+def detect_contacts(
+    measured: np.ndarray, usable: np.ndarray, filtered: np.ndarray, started: bool, alpha: float, on: float, off: float,
+    previous: np.ndarray, contacts: np.ndarray,
+) -> None:
+    """:class:`~giwbc.estimation.contacts.ContactDetector`'s update: the ``measured`` normal forces
+    low-passed into ``filtered`` by ``alpha`` (not ``started``: ``filtered`` starts at them, a
+    non-finite one at 0; a foot not ``usable`` or whose step is not finite keeps its value), then
+    per foot a Schmitt trigger from its ``previous`` flag into ``contacts``: on above ``on``, off
+    below ``off`` (a foot not usable keeps its flag)."""
+    for i in range(measured.shape[0]):
+        force = measured[i]
+        if not started:
+            filtered[i] = force if math.isfinite(force) else 0.0
+        else:
+            step = alpha * (force - filtered[i])
+            if usable[i] and math.isfinite(step):
+                filtered[i] += step
+        ok = usable[i]
+        value = filtered[i]
+        contacts[i] = (previous[i] or (ok and value > on)) and not (ok and value < off)
