@@ -217,6 +217,10 @@ def test_small_kernels_compiled_equal_their_python_function(trial: int) -> None:
         "detect_contacts": lambda: (np.array([rng.normal(0.0, 200.0), np.nan if trial == 1 else 300.0]), np.array([trial != 2, True]),
                                     rng.uniform(0.0, 400.0, 2), trial != 0, 0.17, 40.0, 20.0, np.array([trial % 2 == 0, True]),
                                     np.zeros(2, bool)),
+        "still_feet": lambda: (rng.normal(0.0, 2.0, (2, 3)), (0.8 * trial / 4, 0.0), rng.uniform(0.0, 4.0, 2), np.array([-np.inf, 1.0]),
+                               2.5, 0.1, 1.0, 0.1, np.zeros(2)),
+        "rolling_trust": lambda: (np.array([[np.nan if trial == 1 else 0.3, 0.1, 2.0], [0.0, 0.0, 0.1]]), (0.9, 0.5 * (trial % 2)),
+                                  rng.uniform(0.0, 4.0, 2), 0.1, 4.0, np.zeros(2)),
         "pull_to_ground": lambda: (rng.normal(size=(3, 4)), (True, trial > 2), (0.7, 0.2), 0.0, 0.004),
         "assemble_state": lambda: (rng.normal(size=(3, 4)), rng.normal(size=3), rotation, tuple(rng.normal(size=4).tolist()),
                                    vector(), rng.normal(size=29), rng.normal(size=29), np.zeros(36), np.zeros(35), np.zeros(13)),
@@ -253,7 +257,7 @@ def test_kernels_compile_without_a_writable_cache_folder(tmp_path: Path) -> None
 
 
 KERNELS = ("leg_kinematics", "kalman_predict", "kalman_correct", "pivot_velocities", "leg_accelerations", "compensated_up",
-           "pull_to_ground", "assemble_state", "effort_forces", "detect_contacts")
+           "pull_to_ground", "assemble_state", "effort_forces", "detect_contacts", "still_feet", "rolling_trust")
 
 
 @pytest.mark.slow

@@ -353,9 +353,10 @@ class StateEstimator:
         self._output_offset = (0.0, 0.0, 0.0)  # rotation vector (IMU frame) from the orientation output to the estimate
         self.headings.reset()
         self._flat = [False] * self.kinematics.n_feet
-        self._still_since = [-math.inf] * self.kinematics.n_feet  # s: when each foot last turned faster than foot_roll_rate
-        self._rate2 = [0.0] * self.kinematics.n_feet  # (rad/s)^2: each foot's squared angular rate, low-passed
-        self._velocity_rate2 = [0.0] * self.kinematics.n_feet  # the same for roll_velocity_rate
+        self._still_since = np.full(self.kinematics.n_feet, -math.inf)  # s: when each foot last turned faster than foot_roll_rate
+        self._rate2 = np.zeros(self.kinematics.n_feet)  # (rad/s)^2: each foot's squared angular rate, low-passed
+        self._velocity_rate2 = np.zeros(self.kinematics.n_feet)  # the same for roll_velocity_rate
+        self._trust = np.zeros(self.kinematics.n_feet)  # the foot-trust kernels' output
         self._up_lp = np.zeros(6)  # low-passed, world: the specific force, then the IMU velocity from the stance legs
         self._up_started = False  # whether _up_lp holds a first sample
         self.reference = "none"  # the orientation reference of the last update: feet, orientation_output, gravity
@@ -585,13 +586,14 @@ class StateEstimator:
         wrenches = lists[0] if use_efforts else None
         rotations = lists[1]
         valid = [True] * len(flags) if position_ok is self._all_feet else position_ok.tolist()
+        still_since = self._still_since.tolist()
         ex = ey = ez = 0.0
         count = 0
         yaw_error, yaw_count = 0.0, 0
         for i, (standing, load) in enumerate(zip(flags, loads)):
             loaded = standing and load >= min_load and valid[i]
             (m00, m01, m02), (m10, m11, m12), (m20, m21, m22) = rotations[i]
-            flat = loaded and now - self._still_since[i] >= still_time
+            flat = loaded and now - still_since[i] >= still_time
             if loaded:  # a loaded foot keeps its heading, even rolling on an edge, unless it twists (a slip)
                 yaw_error += headings.update(i, now, math.atan2(m10, m00))
                 yaw_count += 1
@@ -860,33 +862,18 @@ class StateEstimator:
         the larger of the sole's angular rate now and low-passed (``foot_roll_time``): the instant
         catches a roll's start, the low-pass holds the trust down through its end."""
         alpha = dt / (self.config.foot_roll_time + dt) if dt > 0.0 else 1.0
-        scale = 1.0 / self.config.roll_velocity_rate**2
-        rate2, trusted = self._velocity_rate2, []
-        for i, ((wx, wy, wz), load) in enumerate(zip(self._kinematics_lists()[2], loads)):
-            w2 = wx * wx + wy * wy + wz * wz
-            if not math.isfinite(w2):
-                w2 = rate2[i]
-            rate2[i] += alpha * (w2 - rate2[i])
-            trusted.append(load / (1.0 + max(w2, rate2[i]) * scale) if load > 0.0 else 0.0)
-        return trusted
+        kernels.rolling_trust(self.kinematics.foot_angular_velocities, tuple(loads), self._velocity_rate2, alpha,
+                              1.0 / self.config.roll_velocity_rate**2, self._trust)
+        return self._trust.tolist()
 
     def _still_feet(self, loads: list[float], dt: float) -> list[float]:
         """Stance confidences less for a turning foot (module doc, point 2): a sole that rolls on
         an edge or point, rocks or slips is neither flat nor a still point (its frame moves). The
         squared rate is low-passed (``foot_roll_time``): gyro and encoder noise alone is no turn."""
         alpha = dt / (self.config.foot_roll_time + dt) if dt > 0.0 else 1.0
-        scale = 1.0 / self.config.foot_roll_rate**2
-        rate2, since, now, least = self._rate2, self._still_since, self._time, self.config.contact_min_confidence
-        trusted = []
-        for i, ((wx, wy, wz), load) in enumerate(zip(self._kinematics_lists()[2], loads)):
-            w2 = wx * wx + wy * wy + wz * wz
-            if math.isfinite(w2):
-                rate2[i] += alpha * (w2 - rate2[i])
-            turning = rate2[i] * scale
-            if turning > 1.0:
-                since[i] = now  # turning: still from here on at the earliest
-            trusted.append(max(load / (1.0 + turning), least) if load > 0.0 else 0.0)
-        return trusted
+        kernels.still_feet(self.kinematics.foot_angular_velocities, tuple(loads), self._rate2, self._still_since, self._time, alpha,
+                           1.0 / self.config.foot_roll_rate**2, self.config.contact_min_confidence, self._trust)
+        return self._trust.tolist()
 
     def _kinematics_lists(self) -> tuple[list, list, list, list]:
         """This update's foot wrenches, rotations, angular velocities and velocities as Python floats

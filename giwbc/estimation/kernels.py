@@ -28,7 +28,7 @@ from giwbc.util.jit import compiled, reference
 
 __all__ = [
     "assemble_state", "compensated_up", "compiled", "detect_contacts", "effort_forces", "joint_tables", "kalman_correct", "kalman_predict", "leg_accelerations",
-    "leg_kinematics", "pivot_velocities", "pull_to_ground", "reference",
+    "leg_kinematics", "pivot_velocities", "pull_to_ground", "reference", "rolling_trust", "still_feet",
 ]
 
 FREE_FLYER, REVOLUTE, PRISMATIC = 1, 2, 3
@@ -720,3 +720,41 @@ def detect_contacts(
         ok = usable[i]
         value = filtered[i]
         contacts[i] = (previous[i] or (ok and value > on)) and not (ok and value < off)
+
+
+@compiled
+def still_feet(
+    angular_velocities: np.ndarray, loads: tuple, rate2: np.ndarray, since: np.ndarray, now: float, alpha: float, scale: float,
+    least: float, out: np.ndarray,
+) -> None:
+    """The state estimator's stance confidences less for a turning foot (``foot_roll_rate``): each
+    sole's squared angular rate low-passed into ``rate2`` by ``alpha`` (a non-finite one skipped),
+    ``turning`` = that times ``scale`` (1 / foot_roll_rate^2); a foot turning (``turning`` > 1) is
+    still from ``now`` at the earliest (``since``); into ``out``: ``max(load / (1 + turning),
+    least)`` for a loaded foot, 0 for the others."""
+    for i in range(rate2.shape[0]):
+        wx, wy, wz = angular_velocities[i, 0], angular_velocities[i, 1], angular_velocities[i, 2]
+        w2 = wx * wx + wy * wy + wz * wz
+        if math.isfinite(w2):
+            rate2[i] += alpha * (w2 - rate2[i])
+        turning = rate2[i] * scale
+        if turning > 1.0:
+            since[i] = now
+        load = loads[i]
+        out[i] = max(load / (1.0 + turning), least) if load > 0.0 else 0.0
+
+
+@compiled
+def rolling_trust(angular_velocities: np.ndarray, loads: tuple, rate2: np.ndarray, alpha: float, scale: float, out: np.ndarray) -> None:
+    """The state estimator's ``roll_velocity_rate`` trust: each loaded foot's ``load`` over ``1 +
+    rate^2 * scale`` (``scale``: 1 / roll_velocity_rate^2), ``rate^2`` the larger of the sole's
+    squared angular rate now (the low-passed one when not finite) and low-passed (``rate2``, by
+    ``alpha``), into ``out`` (0 for a foot not loaded)."""
+    for i in range(rate2.shape[0]):
+        wx, wy, wz = angular_velocities[i, 0], angular_velocities[i, 1], angular_velocities[i, 2]
+        w2 = wx * wx + wy * wy + wz * wz
+        if not math.isfinite(w2):
+            w2 = rate2[i]
+        rate2[i] += alpha * (w2 - rate2[i])
+        load = loads[i]
+        out[i] = load / (1.0 + max(w2, rate2[i]) * scale) if load > 0.0 else 0.0
