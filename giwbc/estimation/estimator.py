@@ -372,7 +372,7 @@ class StateEstimator:
         self._inertia_started = False  # whether the two low-passes above hold a first sample
         self._base_acceleration = np.zeros(6)  # the base's acceleration (base frame: linear, angular) they give
         self._pivot_velocities = np.zeros((self.kinematics.n_feet, 3))
-        self._foot_lists: tuple[list, list, list, list] | None = None
+        self._foot_lists: tuple[list, list] | None = None
         self._estimate = self._initial_estimate()
 
     @property
@@ -875,13 +875,12 @@ class StateEstimator:
                            1.0 / self.config.foot_roll_rate**2, self.config.contact_min_confidence, self._trust)
         return self._trust.tolist()
 
-    def _kinematics_lists(self) -> tuple[list, list, list, list]:
-        """This update's foot wrenches, rotations, angular velocities and velocities as Python floats
-        (converted once: several per-foot steps read them)."""
+    def _kinematics_lists(self) -> tuple[list, list]:
+        """This update's foot wrenches and rotations as Python floats (converted once, on first use:
+        the flat-feet reference reads them per foot; the compiled steps read the arrays)."""
         if self._foot_lists is None:
             kin = self.kinematics
-            self._foot_lists = (kin.foot_wrenches.tolist(), kin.foot_rotations.tolist(), kin.foot_angular_velocities.tolist(),
-                                kin.foot_velocities.tolist())
+            self._foot_lists = (kin.foot_wrenches.tolist(), kin.foot_rotations.tolist())
         return self._foot_lists
 
     def _pull_to_ground(self, flags: list[bool], still: list[float], dt: float) -> None:
