@@ -24,7 +24,10 @@ shortest swing and the foot came down 0.27 m short and late. Now a DCM error (wi
 lead) beyond ``walking_recovery_error`` hands the steps to the recovery above — the foot on the
 push's side steps now in double support, a swinging foot comes down on the adapter's spot and the
 other steps on — with only the force ramp between steps, then the walk goes on; below it, in double
-support, ``push_swap_error`` may swap the feet's roles. The adapter can also keep a pushed landing
+support, ``push_swap_error`` may swap the feet's roles. A push toward the stance side while a foot swings (the DCM with
+the lead ``quick_land_margin`` outward of the stance sole) is a two-step catch with no crossing: the swinging foot comes
+down at once beside the stance foot (the quick landing, ``quick_land_width`` from it), and the stance foot steps out
+next, its reach from the DCM. The adapter can also keep a pushed landing
 within the swinging foot's reach (``push_reach_speed``, :class:`~giwbc.locomotion.step_adapter.SwingReach`; off by default).
 """
 
