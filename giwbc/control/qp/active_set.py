@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from giwbc.control.qp.kernels import kkt_check, kkt_fill, warm
 from giwbc.control.qp.problem import QpProblem
 
 
@@ -90,6 +91,7 @@ class ActiveSetGuess:
         self.polish_failures = 0
         self.solves = 0
         self.reset()
+        warm()  # (the compiled KKT kernels, once a process: not in a control loop's first ticks)
 
     def reset(self) -> None:
         """Forget the active set (the next :meth:`try_solve` starts from an empty one) and the
@@ -128,7 +130,11 @@ class ActiveSetGuess:
     # --- per-tick preparation --------------------------------------------------------------------
     def _prepare(self, p: QpProblem) -> None:
         """Stacked ``[A; C; I]`` rows and their bounds for this tick (views when the problem's
-        ``A`` and ``C`` are adjacent in one buffer, as the controller lays them out)."""
+        ``A`` and ``C`` are adjacent in one buffer, as the controller lays them out).
+        ``ValueError`` for a gradient or Hessian of the wrong shape (the compiled KKT assembly
+        reads them unchecked)."""
+        if p.g.shape != (p.n,) or p.H.shape != (p.n, p.n):
+            raise ValueError(f"QP g has shape {p.g.shape} and H {p.H.shape}, expected ({p.n},) and ({p.n}, {p.n})")
         arrays = self._prepared_arrays
         if self._change is not None:  # the set found at the tick after a declaration change
             if len(self._changes) >= 32:
@@ -140,8 +146,6 @@ class ActiveSetGuess:
             if p.fixed is not self._fixed_source:
                 self._recall(p.fixed)
                 self._reduce(p)
-            elif self._keep is not None and self._h_source is not p.H:
-                self._stale = True  # a new H array: the reduced system's block views must be made again
             np.copyto(self._eq_limits, p.b)
             pair = self._lu_source[2]
             if pair is not None:
@@ -224,7 +228,6 @@ class ActiveSetGuess:
         self._fixed_source = fixed = p.fixed
         self._fixed_key = _signature(fixed)
         self._stale = True
-        self._h_source: np.ndarray | None = None  # the H the current block views copy from
         n, ne = p.n, p.n_eq
         if fixed is not None and p.lb is not None:
             if np.isfinite(p.lb[fixed[0]]).any() or np.isfinite(p.ub[fixed[0]]).any():  # type: ignore[index]
@@ -235,15 +238,15 @@ class ActiveSetGuess:
             if len(self._reductions) >= 32:
                 self._reductions = {}
             reduction = self._reductions[key] = self._reduction(fixed, n, ne)
-        self._keep, self._keep_eq, self._n_keep, self._ne_keep, self._runs, self._dead, self._h_blocks = reduction
+        self._keep, self._keep_eq, self._n_keep, self._ne_keep, self._dead, self._columns = reduction
         if self._dead is not None:
             self._set_live(self.active, self.upper)  # (last tick's set may hold them)
 
     def _reduction(self, fixed: tuple | None, n: int, ne: int) -> tuple:
         """What :meth:`_reduce` keeps of a declaration: the kept variables and equality rows,
-        their counts, the runs of kept variables, the mask of dead rows, a cache of ``H`` blocks."""
+        their counts, the mask of dead rows, the kept columns (all when none is fixed)."""
         if fixed is None or not len(fixed[0]):
-            return None, np.arange(ne), n, ne, [], None, {}
+            return None, np.arange(ne), n, ne, None, np.arange(n)
         keep = np.ones(n, dtype=bool)
         keep[fixed[0]] = False
         keep_eq = np.ones(ne, dtype=bool)
@@ -253,13 +256,7 @@ class ActiveSetGuess:
         if len(fixed) > 2 and len(fixed[2]):
             dead = np.zeros(self._m, dtype=bool)
             dead[fixed[2]] = True
-        # The kept variables as runs of consecutive indices (KKT start, stop, problem start):
-        # H[keep][:, keep] is one block copy per pair of runs (faster than a gather).
-        breaks = np.flatnonzero(np.diff(kept) != 1) + 1
-        starts = np.concatenate([[0], breaks])
-        stops = np.concatenate([breaks, [len(kept)]])
-        runs = [(int(a), int(b), int(kept[a])) for a, b in zip(starts, stops)]
-        return kept, kept_eq, len(kept), len(kept_eq), runs, dead, {}
+        return kept, kept_eq, len(kept), len(kept_eq), dead, kept
 
     def _fill_rows(self, p: QpProblem) -> None:
         """Copy ``A``, ``C`` and the bounds into the guess's own stacked buffers."""
@@ -280,8 +277,6 @@ class ActiveSetGuess:
         k = len(active)
         rows_a = self._active_rows = ne + active
         self._eq_rows = np.concatenate((keep_eq, rows_a))
-        if self._keep is not None:  # [A; C_a] restricted to the kept columns, as one take
-            self._e_index = self._eq_rows[:, None] * p.n + self._keep[None, :]
         # The right-hand side of [A; C_a]: b, then the active bound of each row, from _limits.
         self._rhs_index = np.concatenate((keep_eq, rows_a + len(self._lo) * upper))
         # Multiplier signs, negated: − at an upper bound, + at a lower one; _solve_active drops
@@ -290,24 +285,9 @@ class ActiveSetGuess:
         key = (k, n, ne_kept)
         if key not in self._kkt:
             size = n + ne_kept + k
-            K, rhs = np.zeros((size, size)), np.zeros(size)
-            E = K[n:, :n]
-            rows = len(self._r)
-            check = self._check
-            self._kkt[key] = (
-                K, rhs, K.T, K[:n, :n], E, E.T, K[:n, n:], K[n:, n:],
-                rhs[:n], rhs[n:], check[:rows], check[rows : 2 * rows], check[2 * rows : 2 * rows + k], check[: 2 * rows + k],
-            )
+            K = np.zeros((size, size))
+            self._kkt[key] = (K, np.zeros(size), K.T, n)
         self._views = self._kkt[key]
-        if self._keep is not None:
-            blocks = self._h_blocks.get(key)
-            if blocks is None or blocks[0] is not p.H:
-                K_H, H = self._views[3], p.H
-                runs = self._runs
-                pairs = [(K_H[a:b, c:d], H[sa : sa + b - a, sc : sc + d - c]) for a, b, sa in runs for c, d, sc in runs]
-                blocks = self._h_blocks[key] = (H, pairs)
-            self._h_pairs = blocks[1]
-            self._h_source = p.H
         self._stale = False
 
     # --- the solve ---------------------------------------------------------------------------------
@@ -473,29 +453,13 @@ class ActiveSetGuess:
         self.solves += 1
         if self._stale:
             self._refresh_active(p)
-        ne = self._ne_keep
         k = len(self.active)
         stack = self._stack
         keep = self._keep
-        K, rhs, KT, K_H, K_E, K_ET_source, K_ET, K_Z, rhs_g, rhs_e, over, under, signed, checked = self._views
-        # K is overwritten by the factorisation: every block is written again.
-        if keep is None:
-            n = p.n
-            np.copyto(K_H, p.H)
-            stack.take(self._eq_rows, axis=0, out=K_E, mode="clip")  # (the method: no Python wrapper)
-            np.negative(p.g, out=rhs_g)
-        else:  # the fixed variables and their rows eliminated
-            n = self._n_keep
-            for block, source in self._h_pairs:
-                np.copyto(block, source)
-            stack.reshape(-1).take(self._e_index, out=K_E, mode="clip")
-            p.g.take(keep, out=rhs_g, mode="clip")
-            np.negative(rhs_g, out=rhs_g)
-        np.copyto(K_ET, K_ET_source)
-        K_Z.fill(0.0)
-        if regularize:
-            K_Z.flat[:: ne + k + 1] = -1e-4 * self.tolerance
-        self._limits.take(self._rhs_index, out=rhs_e, mode="clip")
+        K, rhs, KT, n = self._views
+        # K is overwritten by the factorisation: the kernel writes every block again.
+        kkt_fill(K, rhs, p.H, p.g, stack, self._columns, self._eq_rows, self._limits, self._rhs_index,
+                 -1e-4 * self.tolerance if regularize else 0.0)
         # K is symmetric: its transpose is a Fortran-ordered view LAPACK factorises in place.
         # (Eliminating the diagonal force block first makes the LU 12 rows smaller, 25 → 19 µs,
         # but costs eight more numpy calls than it saves: measured slower.)
@@ -507,24 +471,17 @@ class ActiveSetGuess:
         else:
             x = np.zeros(p.n)
             x.put(keep, solution[:n])
-        multipliers = solution[n + ne :]  # of the active inequality rows
+        multipliers = solution[n + self._ne_keep :]  # of the active inequality rows
         ne = p.n_eq  # (the checks below are on every row)
         tol = self.tolerance if tol is None else tol
         r, check = self._r, self._check
         rows = len(r)
         np.dot(stack, x, out=r)
-        np.subtract(r, self._hi, out=over)
-        np.subtract(self._lo, r, out=under)
+        # The signs from this tick's limits (in the kernel): a row pinned (l = u) last tick may be
+        # open now in the same problem refilled in place, with the same active set (no refresh).
+        worst = kkt_check(r, self._lo, self._hi, check, self._active_rows, self._sign_open, multipliers, optimal and k > 0)
         if not optimal:
-            checked = check[: 2 * rows]
             k = 0
-        elif k:
-            # The signs from this tick's limits: a row pinned (l = u) last tick may be open now in
-            # the same problem refilled in place, with the same active set (no refresh).
-            rows_a = self._active_rows
-            self._sign = np.where(self._lo[rows_a] + 0.0 == self._hi[rows_a], 0.0, self._sign_open)
-            np.multiply(multipliers, self._sign, out=signed)
-        worst = float(checked[checked.argmax()]) if rows or k else -math.inf  # (argmax: 4× faster than max)
         if worst <= tol:
             return x
         if not math.isfinite(worst) or (ne and max(check[:ne].max(), check[rows : rows + ne].max()) > tol):
