@@ -62,6 +62,8 @@ import pinocchio as pin
 
 from giwbc.control.contact_set import ContactSet, ContactSlot
 from giwbc.control.contacts import Contact
+from giwbc.control.kernels import dynamics_rows
+from giwbc.control.kernels import warm as warm_kernels
 from giwbc.control.kinodynamics import Kinodynamics
 from giwbc.control.qp import QpProblem, QpSolution, QpSolver, QpStatus, make_solver
 from giwbc.control.tasks import ContactForceRegularization, WbcTask, TaskStack
@@ -212,6 +214,7 @@ class WholeBodyController:
         self.dt = float(dt)
         kin = self.kin
         self.nv, self.n_base, self.n_joints = kin.nv, kin.n_base, kin.n_joints
+        warm_kernels(kin.mass_matrix)  # (compiled once a process: not in a control loop's first ticks)
         self.solver = make_solver(solver, **(solver_settings or {})) if isinstance(solver, str) else solver
         nj = self.n_joints
         limits = model.effortLimit[self.n_base :] if torque_limits is None else np.asarray(torque_limits, dtype=float)
@@ -491,20 +494,21 @@ class WholeBodyController:
         stack.hessian(self._H_qq, self._h_diag_q)
         stack.gradient(self._g_q)
 
-        # Equation of motion block D = [M, −JᵀΦ]: base rows (equalities), torque rows.
-        self._D_M[...] = kin.mass_matrix
-        if nb:
-            np.negative(h[:nb], out=self._b_base)
+        # Equation of motion block D = [M, −JᵀΦ]: base rows (equalities), torque rows; every
+        # joint limited (the G1): M, −h_b and the torque rows' limits in one compiled call.
+        if self._torque_all:
+            dynamics_rows(self._D_M, kin.mass_matrix, h, self._b_base, self._tau_lo, self._tau_hi, self._l_torque, self._u_torque)
+        else:
+            self._D_M[...] = kin.mass_matrix
+            if nb:
+                np.negative(h[:nb], out=self._b_base)
 
         # Contacts: ramps, motion rows, −JᵀΦ columns; the force regularisation when it changed.
         self.contact_set.assemble(t, self.force_regularization)
 
-        # Torque limits: τ_min − h_j ≤ M_j q̈ − (JᵀΦ)_j f ≤ τ_max − h_j.
-        hj = h[nb:]
-        if self._torque_all:
-            np.subtract(self._tau_lo, hj, out=self._l_torque)
-            np.subtract(self._tau_hi, hj, out=self._u_torque)
-        else:
+        # Torque limits: τ_min − h_j ≤ M_j q̈ − (JᵀΦ)_j f ≤ τ_max − h_j (all limited: written above).
+        if not self._torque_all:
+            hj = h[nb:]
             p.A[self._base_b] = self._D[:nb]
             if len(self._torque_idx):
                 idx = self._torque_idx
