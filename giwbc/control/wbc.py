@@ -27,11 +27,13 @@ answers are then polished by the same deterministic KKT solve, and its iteration
 and a tick's time is bounded even when the robot falls. :meth:`WholeBodyController.reset` (and
 :meth:`~giwbc.control.balance.BalanceController.reset`) return to the freshly constructed state.
 
-Per tick (G1, 47 variables, 18 equalities, 63 inequalities; medians, one core): Pinocchio's
-``computeAllTerms`` ~17 µs; the assembly ~55 µs — a handful of numpy calls per task on one
-stacked Jacobian, the base orientation's constant Hessian ``w I`` on the diagonal, both feet in
-one batch, views of the problem and of Pinocchio's ``Data`` prepared once; the KKT guess ~50 µs
-(its ``dgesv`` on the 65 × 65 system ~25 µs); ~140 µs in all.
+Per tick (G1 standing, 47 variables, 18 equalities, 63 inequalities; ``benchmarks/wbc_tick.py``
+medians, one core): Pinocchio's ``computeAllTerms`` ~12 µs; the assembly ~21 µs — a handful of
+numpy calls per task on one stacked Jacobian, the base orientation's constant Hessian ``w I`` on
+the diagonal, both feet in one batch, the equation of motion's rows in one compiled kernel
+(:mod:`giwbc.control.kernels`), views of the problem and of Pinocchio's ``Data`` prepared once;
+the KKT guess ~24 µs (its ``dgesv`` ~16 µs, the system's assembly and check compiled:
+:mod:`giwbc.control.qp.kernels`); ~60 µs in all.
 
 Contacts can be added and removed at run time (their slots, ramps and force shares:
 :mod:`giwbc.control.contact_set`): a contact's normal-force upper bound ramps over
