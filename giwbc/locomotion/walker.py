@@ -107,8 +107,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
     def __init__(self, description: RobotDescription, config: WalkerConfig | None = None, model: pin.Model | None = None) -> None:
         self.config = config = config or WalkerConfig()
         self.description = description
-        balance = config.balance if config.friction is None else replace(config.balance, mu=config.friction)
-        balance = balance if config.torsion is None else replace(balance, torsion=config.torsion)
+        floor = {name: value for name, value in (("mu", config.friction), ("torsion", config.torsion)) if value is not None}
+        balance = replace(config.balance, **floor) if floor else config.balance
         self.balance = BalanceController(description, balance, model)
         self.wbc = self.balance.wbc
         self.wbc.relax_joint_limits = self.wbc.relax_joint_limits or config.relax_joint_limits
