@@ -76,6 +76,10 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
                         help="dds, with --release-service: select the released mode again once the motors are off")
     parser.add_argument("--service-timeout", type=seconds(60.0), default=5.0, help="s the release (or the restore) may take")
     parser.add_argument("--emulate", action="store_true", help="rehearse on the actuator emulator instead of the configured buses")
+    parser.add_argument("--plant", default=None, metavar="NAME|FILE",
+                        help="with --emulate: the emulated robot's plant, a shipped variant of the robot (e.g. lagged_actuators, "
+                             "frictional_joints: robots/<robot>/plants), a variant .toml or an MJCF file of the same robot "
+                             "(default: the description's own model)")  # fmt: skip
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
                         help="with --emulate: in the control loop's thread on virtual buses (lockstep), or in its own process (real time)")
     parser.add_argument("--seconds", type=seconds(MAX_SECONDS, allow_zero=True), default=10.0,
@@ -183,6 +187,7 @@ def deploy_options(args: argparse.Namespace) -> DeployOptions:
         foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk, walker=walker,
         transport=getattr(args, "transport", "can"), release_service=getattr(args, "release_service", False),
         restore_service=getattr(args, "restore_service", False), service_timeout=getattr(args, "service_timeout", 5.0),
+        plant=getattr(args, "plant", None),
     )  # fmt: skip
 
 

@@ -123,7 +123,8 @@ def open_dds(plan: DdsPlan, description: RobotDescription, options: Any, config:
         except HardwareConfigError as error:
             raise DeployError(f"the DDS emulator's motor models: {error}") from error
         service = EMULATED_SERVICE if options.release_service else None
-        emulator = DdsEmulatorProcess(plan, motors, description, config, faults=dds_faults, service=service)
+        emulator = DdsEmulatorProcess(plan, motors, description, config, faults=dds_faults, service=service,
+                                      plant=getattr(options, "plant", None))
         plan = emulator.host_plan()
         say(f"emulated G1 behind DDS in its own process (domain {plan.domain} on loopback, rt/lowcmd / rt/lowstate"
             + (f"; its locomotion service runs mode {service!r})" if service else ")"))

@@ -64,6 +64,9 @@ class DeployOptions:
     release_service: bool = False  # dds: release the robot's locomotion service (motion switcher) before enabling motors
     restore_service: bool = False  # dds, with release_service: select the released mode again once the motors are off
     service_timeout: float = 5.0  # s the release (or the restore) may take before the run is refused
+    # with emulate: the emulated robot's plant (giwbc.plants.resolve_plant: a shipped variant's name such as
+    # "lagged_actuators", a variant .toml or an MJCF file of the same robot); None: the description's own model
+    plant: str | None = None
 
     def __post_init__(self) -> None:
         if self.controller is None:
@@ -76,6 +79,11 @@ class DeployOptions:
         if self.restore_service and not self.release_service:
             raise ConfigError("--restore-service selects the mode --release-service released: give both")
         _check_number("service_timeout", self.service_timeout, low=0.0, low_open=True, high=60.0, unit="s")
+        if self.plant is not None:
+            if not (isinstance(self.plant, str) and self.plant.strip()):
+                raise ConfigError(f"plant must be a variant name or a .toml / MJCF path, got {self.plant!r}")
+            if not self.emulate:
+                raise ConfigError("--plant chooses the emulated robot's plant: it needs --emulate (on hardware the robot is the plant)")
         if self.task is not None:
             _check_choice("task", self.task, TASKS)
         _check_number("seconds", self.seconds, low=0.0)

@@ -93,6 +93,7 @@ from giwbc.hal.can_robot import CanRobot
 from giwbc.hal.dds.plan import DdsPlan
 from giwbc.hal.hardware import HardwareConfigError, load_hardware
 from giwbc.hal.imu import imu_source_for
+from giwbc.plants import Plant, plant_label, resolve_plant
 from giwbc.apps.deploy_walk_log import WalkerRecorder
 from giwbc.robot.description import RobotDescription, RobotDescriptionError, load
 from giwbc.robot.noise import SensorNoiseConfig
@@ -111,6 +112,19 @@ def scene_channels(description: RobotDescription, joint_names: Sequence[str], ra
         return None
     live = LiveServer(port) if port is not None else None
     return SceneChannels(description, joint_names, rate=rate if rate > 0 else 1.0, live=live, log=rate > 0)
+
+
+def emulated_plant(options: DeployOptions, description: RobotDescription, model: Any) -> Plant | None:
+    """The emulated robot's plant (``options.plant``), built and checked before anything starts
+    (an unknown variant, a bad file or a plant that does not fit the robot: one line, exit 2)."""
+    if options.plant is None:
+        return None
+    if model is not None:
+        raise DeployError("give the emulated robot's plant once: options.plant or the model argument, not both")
+    try:
+        return resolve_plant(description, options.plant)
+    except RobotDescriptionError as error:  # PlantMismatchError included
+        raise DeployError(f"--plant {options.plant}: {error}") from error
 
 
 def deploy(
@@ -169,6 +183,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     dds = isinstance(plan, DdsPlan)
     if not dds:
         plan = choose_imu(plan, options.imu, options.emulate, options.emulator_mode)
+    plant = emulated_plant(options, description, model)
     if not options.emulate and plan.imu.source == "emulated":
         raise DeployError(
             f"{hardware}: [imu] source = \"emulated\" exists only on the actuator emulator: rehearse with --emulate, or set "
@@ -203,6 +218,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             first_run, safety = first_run_settings(safety, say)
         if options.emulate:
             config = options.emulator or EmulatorConfig()
+            if plant is not None:
+                say(f"emulated plant: {plant_label(plant)} (not the controller's model: {options.plant})")
             if sensors is not None and config.imu is None:
                 config = replace(config, imu=sensors)
             if first_run is not None:
@@ -213,7 +230,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 pass  # the DDS emulator starts with the robot (below, open_dds)
             elif options.emulator_mode == "process":
                 rt = None if options.rt_priority is None else max(1, options.rt_priority - 1)  # just below the loop
-                emulator = EmulatorProcess(plan, description, config, rt_priority=rt)
+                emulator = EmulatorProcess(plan, description, config, rt_priority=rt, plant=options.plant)
                 host_plan, peer = emulator.host_plan(), None
                 say("emulated actuators in their own process on giwbc-unix channels (real time; replies read at the next cycle)")
             else:
@@ -226,7 +243,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                     truth = truth.with_imu(plan.imu)
                 # Unpaced (simulated time): no wall-clock deadline on the replies either (see the host's sends below).
                 unpaced = {} if options.realtime else {"send_deadline": math.inf}
-                emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None else None, **unpaced)
+                emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None and plant is None else None,
+                                            plant=plant, **unpaced)  # fmt: skip
                 host_plan, peer = on_channels(plan, emulator.host_plan()), emulator
                 say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
             if not dds:
