@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from giwbc.locomotion.kernels import clip_cop_along_ray, dcm_evaluate
 from giwbc.locomotion.lipm import dcm_at_linear_cop
 from giwbc.locomotion.support import clip_along_ray
 
@@ -88,6 +89,8 @@ class DcmReference:
         self._floats = [
             (float(seg.duration), start, xi0, *cop) for seg, start, xi0, cop in zip(segments, self._starts, initial, cops)
         ]
+        # The same numbers as rows (kernels.dcm_evaluate): duration, start, ξ0, CoP start, CoP end.
+        self._table = np.array([(duration, start, *xi0, *cop_start, *cop_end) for duration, start, xi0, cop_start, cop_end in self._floats], dtype=float)
 
     def segment_index(self, t: float) -> int:
         return max(0, min(bisect.bisect_right(self._starts, t) - 1, len(self.segments) - 1))
@@ -95,8 +98,17 @@ class DcmReference:
     def evaluate(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(ξ_ref, ξ̇_ref, p_ref)`` at time ``t`` (before the start: the start; after the end: rest).
 
-        :func:`~giwbc.locomotion.lipm.dcm_at_linear_cop` on plain floats (every tick: numpy's
-        per-call overhead on 2-vectors was most of its cost), the same operations in the same order."""
+        :func:`~giwbc.locomotion.lipm.dcm_at_linear_cop` element by element (every tick: numpy's
+        per-call overhead on 2-vectors was most of its cost), the same operations in the same order,
+        compiled (:func:`~giwbc.locomotion.kernels.dcm_evaluate`; the three are views of one new array)."""
+        if t >= self.end_time:
+            return self.terminal.copy(), np.zeros(2), self.terminal.copy()
+        out = np.empty(6)
+        dcm_evaluate(float(t), self._table, self.omega, out)
+        return out[0:2], out[2:4], out[4:6]
+
+    def _evaluate_floats(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`evaluate` on Python floats (the implementation the kernel replaced; for the tests)."""
         if t >= self.end_time:
             return self.terminal.copy(), np.zeros(2), self.terminal.copy()
         i = self.segment_index(t)
@@ -139,8 +151,15 @@ class DcmController:
         controller wants), else to the nearest point."""
         omega, k = self.omega, self.gain / self.omega
         x, y = float(xi[0]), float(xi[1])
-        cop = np.array([x - float(xi_rate_ref[0]) / omega + k * (x - float(xi_ref[0])), y - float(xi_rate_ref[1]) / omega + k * (y - float(xi_ref[1]))])
-        return cop if support is None else clip_along_ray((x, y), cop, support)
+        px, py = x - float(xi_rate_ref[0]) / omega + k * (x - float(xi_ref[0])), y - float(xi_rate_ref[1]) / omega + k * (y - float(xi_ref[1]))
+        if support is None:
+            return np.array([px, py])
+        if support.dtype == np.float64 and support.ndim == 2 and support.flags.c_contiguous:
+            # Compiled when the CoP needs no clip (most ticks); clip_along_ray answers the rest.
+            out = np.empty(2)
+            if clip_cop_along_ray(x, y, px, py, support, out):
+                return out
+        return clip_along_ray((x, y), np.array([px, py]), support)
 
     def com_acceleration(self, com: np.ndarray, cop: np.ndarray) -> np.ndarray:
         """``c̈ = ω² (c − p)`` (horizontal)."""

@@ -16,6 +16,8 @@ import math
 
 import numpy as np
 
+from giwbc.locomotion.kernels import SWING_COLUMNS, swing_state
+
 
 def quintic(t0: float, t1: float, start: tuple[float, float, float], end: tuple[float, float, float]) -> np.ndarray:
     """Coefficients (6,) in ``s = t − t0`` of the quintic with the given (position, velocity,
@@ -86,6 +88,20 @@ class SwingTrajectory:
             [t0, self.apex_time, t1],
             [_quintic(t0, self.apex_time, (start[2], *zero), (self.apex_height, *zero)), _quintic(self.apex_time, t1, (self.apex_height, *zero), (target[2], *zero))],
         )
+        self._table = np.zeros((4, SWING_COLUMNS))  # the chains for the compiled state (kernels.swing_state)
+        self._state = np.empty((4, 3))
+        self._tabulate()
+
+    def _tabulate(self) -> None:
+        """Write the four chains (x, y, z, yaw) into the kernel's table (after every change of them)."""
+        table = self._table
+        x, y, yaw = self._axes
+        for row, chain in enumerate((x, y, self._z, yaw)):
+            pieces = chain._floats
+            table[row, 0] = len(pieces)
+            table[row, 1: 1 + len(chain.knots)] = chain.knots
+            for index, piece in enumerate(pieces):
+                table[row, 4 + 6 * index: 10 + 6 * index] = piece
 
     def evaluate(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(x, y, z, yaw) position, velocity and acceleration at ``t`` (held at rest outside the swing)."""
@@ -93,13 +109,17 @@ class SwingTrajectory:
         return np.array([x[0], y[0], z[0], yaw[0]]), np.array([x[1], y[1], z[1], yaw[1]]), np.array([x[2], y[2], z[2], yaw[2]])
 
     def state(self, t: float) -> tuple[tuple[float, float, float], ...]:
-        """:meth:`evaluate`'s numbers as floats, per coordinate (x, y, z, yaw): (position, velocity, acceleration)."""
-        x, y, yaw = self._axes
-        if not x.knots[0] <= t <= x.knots[-1]:
-            return x(t), y(t), self._z(t), yaw(t)
-        # (Inside the swing: x, y and yaw are one quintic each over the same interval, :meth:`retarget`.)
-        s = t - x.knots[0]
-        return _evaluate(x._floats[0], s), _evaluate(y._floats[0], s), self._z(t), _evaluate(yaw._floats[0], s)
+        """:meth:`evaluate`'s numbers as floats, per coordinate (x, y, z, yaw): (position, velocity,
+        acceleration); the chains' values (:class:`_Chain`), computed by the compiled
+        :func:`~giwbc.locomotion.kernels.swing_state` (every tick of a swing)."""
+        x, y, z, yaw = self.state_rows(t)
+        return tuple(x), tuple(y), tuple(z), tuple(yaw)
+
+    def state_rows(self, t: float) -> list[list[float]]:
+        """:meth:`state` as four lists (x, y, z, yaw) of (position, velocity, acceleration)."""
+        out = self._state
+        swing_state(float(t), self._table, out)
+        return out.tolist()
 
     def retarget(self, t: float, target: np.ndarray | None = None, touchdown: float | None = None, min_remaining: float = 0.02) -> None:
         """From time ``t`` on, go to ``target`` (default: the current one) landing at
@@ -131,3 +151,5 @@ class SwingTrajectory:
             self._z = _Chain([t, touchdown], [_quintic(t, touchdown, now[2], (target[2], *end))])
             apex_time = t
         self.apex_time, self.t1 = apex_time, touchdown
+        self._table[:] = 0.0
+        self._tabulate()

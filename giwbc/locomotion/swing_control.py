@@ -106,7 +106,7 @@ class SwingControl:
         swing = other_side(self._stance)
         assert self._swing is not None
         # (Plain floats: the same numbers as the swing's evaluate() arrays.)
-        (px, vx, ax), (py, vy, ay), (pz, vz, az_), (yaw, wz, az) = self._swing.state(t)
+        (px, vx, ax), (py, vy, ay), (pz, vz, az_), (yaw, wz, az) = self._swing.state_rows(t)
         if t > self._swing.t1:  # late: keep descending
             late = t - self._swing.t1
             pz -= self.config.descent_speed * late

@@ -46,6 +46,7 @@ from giwbc.control.wbc import WbcResult
 from giwbc.locomotion.contact_schedule import ContactSchedule
 from giwbc.locomotion.dcm import DcmController, DcmReference
 from giwbc.locomotion.footsteps import Footstep, FootstepPlanner, VelocityCommand
+from giwbc.locomotion.kernels import warm_up
 from giwbc.locomotion.lipm import natural_frequency
 from giwbc.locomotion.push_recovery import PushRecovery
 from giwbc.locomotion.residuals import Residuals
@@ -128,6 +129,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._sole = {side: pin.SE3(c.offset) for side, c in self.contacts.items()}
         self._sole_inverse = {side: c.offset.inverse() for side, c in self.contacts.items()}
         self._hips, self._leg_length = self._leg_geometry()
+        warm_up()  # the tick's compiled kernels, loaded or compiled now rather than at a first tick
         self.weight = description.total_mass * 9.81
         # ``config`` is the one walking now: ``base_config`` (the constructor's) but for a command
         # beyond its base gait's limits, its ``for_command`` (faster cadence, longer steps).

@@ -227,7 +227,7 @@ class PerturbedRobot(RobotWrapper):
 
     def _forward(self, kind: str, payload: Any) -> None:
         if kind == "torques":
-            self.robot.set_joint_torques(payload)
+            self.robot._send_joint_torques(payload)  # checked by set_joint_torques (a fresh array)
         else:
             self.robot.set_joint_impedance(payload)
 

@@ -17,6 +17,7 @@ Conventions (shared with Pinocchio, which the controller uses):
 from __future__ import annotations
 
 import abc
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -173,7 +174,9 @@ class Robot(abc.ABC):
         array = np.array(torques, dtype=float)
         if array.shape != (self.dofs,):
             raise ConfigError(f"expected {self.dofs} joint torques, got shape {array.shape}")
-        if not np.isfinite(array).all():
+        # (A finite sum of squares means every entry is finite: one BLAS call per tick, not the
+        # element-wise test and numpy's ``all`` wrapper; an overflowing one is checked entry by entry.)
+        if not math.isfinite(array.dot(array)) and not np.isfinite(array).all():
             raise NonFiniteCommand(f"joint torques are not finite: {array}")
         return array
 
@@ -287,7 +290,9 @@ class RobotWrapper(Robot):
 
     # --- commands -------------------------------------------------------------------------------
     def _send_joint_torques(self, torques: np.ndarray) -> None:
-        self.robot.set_joint_torques(torques)
+        # (Checked once, by this wrapper's set_joint_torques: the wrapped robot has the same joints,
+        # so its backend gets the fresh, checked array without a second check.)
+        self.robot._send_joint_torques(torques)
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
         self.robot.set_joint_impedance(command)

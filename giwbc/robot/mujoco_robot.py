@@ -62,6 +62,15 @@ class MujocoRobot(DescribedRobot):
         actuated = description.actuated
         self._actuated = actuated
         self._acts = _as_slice(binding.actuators)
+        # generalized_state's gathers: Pinocchio's q = [p, quat_xyzw, joints], v = [v_world, ω, joints]
+        # (the base's linear velocity rotated into its frame afterwards), one fancy index each
+        qpos_index, qvel_index = np.arange(m.nq)[self._qpos], np.arange(m.nv)[self._qvel]
+        if self.floating_base:
+            b, d = self._base_qpos, self._base_dof
+            qpos_index = np.concatenate([np.arange(b, b + 3), np.arange(b + 4, b + 7), [b + 3], qpos_index])
+            qvel_index = np.concatenate([np.arange(d, d + 6), qvel_index])
+        self._q_gather, self._v_gather = qpos_index.astype(np.intp), qvel_index.astype(np.intp)
+        self._conjugate = np.empty(4)  # scratch: the base orientation's conjugate (wxyz)
         self._body_ids: dict[str, int] = {}
         self._merged: dict[str, Carrier] = {}  # links the plant merged into a parent, and where they sit in it
         self._sensor_slices = {
@@ -153,16 +162,13 @@ class MujocoRobot(DescribedRobot):
 
     def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
         data = self.data
+        q, v = data.qpos[self._q_gather], data.qvel[self._v_gather]  # new arrays, the quaternion reordered
         if not self.floating_base:
-            return data.qpos[self._qpos].copy(), data.qvel[self._qvel].copy()
+            return q, v
         b, d = self._base_qpos, self._base_dof
-        base_q, base_v = data.qpos[b: b + 7], data.qvel[d: d + 6]
-        q = np.concatenate([base_q, data.qpos[self._qpos]])  # then reorder the quaternion and rotate the base velocity
-        v = np.concatenate([base_v, data.qvel[self._qvel]])
-        q[3:6], q[6] = base_q[4:7], base_q[3]
-        conjugate = np.empty(4)
-        mujoco.mju_negQuat(conjugate, base_q[3:7])
-        mujoco.mju_rotVecQuat(v[:3], base_v[:3], conjugate)
+        conjugate = self._conjugate
+        mujoco.mju_negQuat(conjugate, data.qpos[b + 3: b + 7])
+        mujoco.mju_rotVecQuat(v[:3], data.qvel[d: d + 3], conjugate)
         return q, v
 
     def link_pose(self, link: str) -> tuple[np.ndarray, np.ndarray]:
