@@ -10,7 +10,8 @@ import pytest
 
 from giwbc.locomotion import kernels
 from giwbc.locomotion.dcm import CopSegment, DcmController, DcmReference, walking_cop_plan
-from giwbc.locomotion.support import clip_along_ray, convex_hull, sole_corners
+from giwbc.locomotion.planar import dot2, fma
+from giwbc.locomotion.support import clip_along_ray, convex_hull, signed_distance, sole_corners
 from giwbc.locomotion.swing import SwingTrajectory
 from giwbc.util.jit import reference
 
@@ -99,25 +100,41 @@ def _random_hull(rng: np.random.Generator) -> np.ndarray:
 
 
 @pytest.mark.parametrize("path", KERNEL_PATHS)
-def test_clip_along_ray_answers_as_the_python_clip_or_defers(path) -> None:
+def test_clip_along_ray_is_the_python_clip_bit_for_bit(path) -> None:
+    """Every case: the CoP inside, clipped where the ray leaves the polygon (an edge rate rounded as
+    numpy's gemv), the DCM outside (the nearest point), a two-vertex support."""
     rng = np.random.default_rng(20372)
     kernel = path(kernels.clip_cop_along_ray)
-    answered = deferred = 0
-    for _ in range(2000):
-        hull = _random_hull(rng)
-        center = hull.mean(axis=0)
-        origin = center + rng.normal(0.0, 0.05, 2)
+    cases = {"inside": 0, "along the ray": 0, "nearest": 0}
+    for _ in range(3000):
+        hull = _random_hull(rng) if rng.random() < 0.9 else rng.uniform(-0.2, 0.2, (2, 2))
+        origin = hull.mean(axis=0) + rng.normal(0.0, 0.05, 2)
         point = origin + rng.normal(0.0, rng.choice([0.01, 0.05, 0.3]), 2)
-        out = np.full(2, -7.0)
-        if kernel(float(origin[0]), float(origin[1]), float(point[0]), float(point[1]), hull, out):
-            assert _bits(out) == _bits(clip_along_ray(origin, point, hull))
-            answered += 1
-        else:
-            assert out.tolist() == [-7.0, -7.0]  # untouched: the caller's Python clip answers
-            deferred += 1
-    assert answered > 500 and deferred > 200  # both paths exercised
-    two = np.array([[0.0, 0.0], [1.0, 0.0]])
-    assert not kernel(0.5, 0.0, 0.6, 0.1, two, np.empty(2))  # a segment: the Python clip's case
+        out = np.empty(2)
+        assert kernel(float(origin[0]), float(origin[1]), float(point[0]), float(point[1]), hull, kernels.FUSED_ROWS, out)
+        expected = clip_along_ray(origin, point, hull)
+        assert _bits(out) == _bits(expected), (origin, point, hull)
+        inside = len(hull) > 2 and signed_distance(origin, hull) <= 0.0
+        cases["inside" if _bits(expected) == _bits(point) else "along the ray" if inside else "nearest"] += 1
+    assert min(cases.values()) > 300, cases
+    assert not kernel(0.5, 0.0, 0.6, 0.1, np.array([[0.0, 0.0]]), kernels.FUSED_ROWS, np.empty(2))  # one point: Python's
+
+
+@pytest.mark.parametrize("path", KERNEL_PATHS)
+def test_edge_rate_rounds_as_numpy_gemv(path) -> None:
+    """The clip's edge rate, fused or not, against planar's numpy-probed rounding (dot2) and the
+    exact fma, on random values and on rows where the fused and plain roundings differ."""
+    rng = np.random.default_rng(20374)
+    kernel = path(kernels._edge_rate)
+    a = 1.0 + 2.0**-30
+    rows = [(a, 1.0, a, -1.0), *(tuple(rng.normal(0.0, 10.0 ** rng.integers(-3, 3), 4)) for _ in range(5000))]
+    differ = 0
+    for ey, ex, dx, dy in rows:
+        assert kernel(ey, ex, dx, dy, True) == fma(ey, dx, -ex * dy)
+        assert kernel(ey, ex, dx, dy, False) == ey * dx + -ex * dy
+        assert kernel(ey, ex, dx, dy, kernels.FUSED_ROWS) == dot2(ey, -ex, dx, dy)
+        differ += fma(ey, dx, -ex * dy) != ey * dx + -ex * dy
+    assert differ > 100  # the two roundings were told apart
 
 
 def test_desired_cop_is_the_python_clip_bit_for_bit() -> None:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from giwbc.locomotion.kernels import clip_cop_along_ray, dcm_evaluate
+from giwbc.locomotion.kernels import FUSED_ROWS, clip_cop_along_ray, dcm_evaluate
 from giwbc.locomotion.lipm import dcm_at_linear_cop
 from giwbc.locomotion.support import clip_along_ray
 
@@ -155,9 +155,9 @@ class DcmController:
         if support is None:
             return np.array([px, py])
         if support.dtype == np.float64 and support.ndim == 2 and support.flags.c_contiguous:
-            # Compiled when the CoP needs no clip (most ticks); clip_along_ray answers the rest.
+            # clip_along_ray compiled (its same operations and rounding); a one-point support in Python
             out = np.empty(2)
-            if clip_cop_along_ray(x, y, px, py, support, out):
+            if clip_cop_along_ray(x, y, px, py, support, FUSED_ROWS, out):
                 return out
         return clip_along_ray((x, y), np.array([px, py]), support)
 

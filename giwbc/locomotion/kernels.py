@@ -15,9 +15,14 @@ import math
 
 import numpy as np
 
+from llvmlite import ir
+from numba.core import types
+from numba.extending import intrinsic, overload
+
+from giwbc.locomotion.planar import _ROW, fma
 from giwbc.util.jit import compiled
 
-__all__ = ["DCM_COLUMNS", "SWING_COLUMNS", "clip_cop_along_ray", "dcm_evaluate", "swing_state", "warm_up"]
+__all__ = ["DCM_COLUMNS", "FUSED_ROWS", "SWING_COLUMNS", "clip_cop_along_ray", "dcm_evaluate", "fused_multiply_add", "swing_state", "warm_up"]
 
 # A swing's table row per coordinate (x, y, z, yaw): the number of quintic pieces (1 or 2), the
 # chain's knots (3, the last unused for one piece), then each piece's six coefficients in s = t − knot.
@@ -93,33 +98,108 @@ def dcm_evaluate(t: float, table: np.ndarray, omega: float, out: np.ndarray) -> 
         out[4 + axis] = sx + (ex - sx) * (tau / duration)
 
 
+def fused_multiply_add(a: float, b: float, c: float) -> float:
+    """``a·b + c`` rounded once: :func:`giwbc.locomotion.planar.fma` in Python, LLVM's ``llvm.fma``
+    (IEEE fused multiply-add: the same correctly rounded value) inside a kernel."""
+    return fma(a, b, c)
+
+
+@intrinsic
+def _llvm_fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
+    signature = types.float64(types.float64, types.float64, types.float64)
+
+    def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
+        double = ir.DoubleType()
+        function = builder.module.declare_intrinsic("llvm.fma", [double], ir.FunctionType(double, [double, double, double]))
+        return builder.call(function, args)
+
+    return signature, codegen
+
+
+@overload(fused_multiply_add)
+def _fused_multiply_add_compiled(a, b, c):  # type: ignore[no-untyped-def]
+    def implementation(a, b, c):  # type: ignore[no-untyped-def]
+        return _llvm_fma(float(a), float(b), float(c))
+
+    return implementation
+
+
+# How this machine's numpy rounds a row of a (k, 2) @ (2,) product (giwbc.locomotion.planar):
+# the clip's edge rates are computed the same way.
+FUSED_ROWS = _ROW is fma
+
+
 @compiled
-def clip_cop_along_ray(ox: float, oy: float, px: float, py: float, hull: np.ndarray, out: np.ndarray) -> bool:
-    """:func:`giwbc.locomotion.support.clip_along_ray` of ``(px, py)`` from ``(ox, oy)`` into the CCW
-    ``hull`` (k ≥ 3 vertices) when its answer needs no fused multiply-add: ``out`` and True; False
-    (``out`` untouched) when ``(ox, oy)`` is outside the hull or the ray meets an edge before the
-    point (the caller's Python function answers those: rounding like numpy's ``gemv``)."""
+def _edge_rate(ey: float, ex: float, dx: float, dy: float, fused: bool) -> float:
+    """:func:`giwbc.locomotion.planar.dot2` ``(ey, −ex, dx, dy)``: numpy's rounding of that row."""
+    if fused:
+        return fused_multiply_add(ey, dx, -ex * dy)
+    return ey * dx + -ex * dy
+
+
+@compiled
+def _clip_nearest(px: float, py: float, hull: np.ndarray, out: np.ndarray) -> None:
+    """:func:`giwbc.locomotion.support._clip` (k ≥ 2): ``(px, py)`` when inside, else the nearest
+    boundary point (:func:`~giwbc.locomotion.support._nearest`, its conditions for min and max)."""
     k = hull.shape[0]
-    if k < 3:
-        return False
-    dx, dy = px - ox, py - oy
+    outside = False
     for index in range(k):
         following = index + 1 if index + 1 < k else 0
         x, y = hull[index, 0], hull[index, 1]
         ex, ey = hull[following, 0] - x, hull[following, 1] - y
-        inside = (ox - x) * ey + (oy - y) * -ex
-        if inside > 0.0:
-            return False
+        if not (px - x) * ey + (py - y) * -ex <= 0.0:
+            outside = True
+            break
+    if not outside:
+        out[0], out[1] = px, py
+        return
+    best, bx, by = math.inf, 0.0, 0.0
+    for index in range(k):
+        following = index + 1 if index + 1 < k else 0
+        x, y = hull[index, 0], hull[index, 1]
+        ex, ey = hull[following, 0] - x, hull[following, 1] - y
+        length2 = ex * ex + ey * ey
+        s = ((px - x) * ex + (py - y) * ey) / (1e-18 if 1e-18 > length2 else length2)
+        s = 0.0 if 0.0 > s else s
+        s = 1.0 if s > 1.0 else s
+        cx, cy = x + s * ex, y + s * ey
+        distance = (cx - px) * (cx - px) + (cy - py) * (cy - py)
+        if distance < best:
+            best, bx, by = distance, cx, cy
+    out[0], out[1] = bx, by
+
+
+@compiled
+def clip_cop_along_ray(ox: float, oy: float, px: float, py: float, hull: np.ndarray, fused: bool, out: np.ndarray) -> bool:
+    """:func:`giwbc.locomotion.support.clip_along_ray` of ``(px, py)`` from ``(ox, oy)`` into the
+    CCW ``hull`` of k ≥ 2 vertices, into ``out``: True. ``fused``: :data:`FUSED_ROWS` (the edge
+    rates rounded as numpy's ``gemv``). False (``out`` untouched) for fewer vertices: the caller's
+    Python function answers."""
+    k = hull.shape[0]
+    if k < 2:
+        return False
+    dx, dy = px - ox, py - oy
+    s = 1.0
+    for index in range(k):
+        following = index + 1 if index + 1 < k else 0
+        x, y = hull[index, 0], hull[index, 1]
+        ex, ey = hull[following, 0] - x, hull[following, 1] - y
+        inside = (ox - x) * ey + (oy - y) * -ex  # origin against the outward normal (e_y, −e_x): <= 0 inside
+        if inside > 0.0 or k < 3:
+            _clip_nearest(px, py, hull, out)
+            return True
         a, b = ey * dx, ex * dy
         if a - b <= -4e-16 * (abs(a) + abs(b)):
             continue
         if -inside >= (a - b) + 1e-15 * (abs(a) + abs(b)) + 1e-300:
             continue
-        return False
-    out[0] = ox + 1.0 * dx
-    out[1] = oy + 1.0 * dy
+        rate = _edge_rate(ey, ex, dx, dy, fused)
+        if rate > 0.0:
+            ratio = -inside / rate
+            s = ratio if ratio < s else s  # min(s, ratio)
+    out[0] = ox + s * dx
+    out[1] = oy + s * dy
     return True
-
 
 def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel here for the argument types the walker
@@ -128,4 +208,6 @@ def warm_up() -> None:
     table[:, 0], table[:, 2] = 1.0, 1.0
     swing_state(0.5, table, np.empty((4, 3)))
     dcm_evaluate(0.5, np.array([[1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]]), 3.5, np.empty(6))
-    clip_cop_along_ray(0.0, 0.0, 0.1, 0.1, np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]]), np.empty(2))
+    square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    for origin, point in (((0.0, 0.0), (0.1, 0.1)), ((0.0, 0.0), (2.0, 0.5)), ((3.0, 0.0), (2.0, 0.5))):
+        clip_cop_along_ray(*origin, *point, square, FUSED_ROWS, np.empty(2))

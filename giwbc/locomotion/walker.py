@@ -246,8 +246,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
     # --- measurements ------------------------------------------------------------------------------
     def _measure(self, q: np.ndarray, v: np.ndarray) -> None:
         data = self._data
-        pin.centerOfMass(self.model, data, q, v, False)
-        self._com = np.array(data.com[0])
+        self._com = pin.centerOfMass(self.model, data, q, v, False)  # (a new array: data.com[0]'s values)
         self._com_velocity = np.array(data.vcom[0])
 
     def _sole_world(self, side: str) -> pin.SE3:
@@ -301,7 +300,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         ``wbc.failures``); it never raises. Wrong shapes raise ``ValueError``."""
         q = np.asarray(q, dtype=float)
         v = np.asarray(v, dtype=float)
-        if not math.isfinite(float(q.sum() + v.sum())):
+        # (A finite sum of squares: every entry finite, one BLAS call; otherwise the sum decides.)
+        if not math.isfinite(q.dot(q) + v.dot(v)) and not math.isfinite(float(q.sum() + v.sum())):
             self.last_result = self.wbc.update(q, v, t)
             return self.last_result
         if not self._anchored:
