@@ -6,6 +6,8 @@ still ends in a clear start-up fault instead."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -16,6 +18,7 @@ from giwbc.robot.noise import SensorNoiseConfig
 from giwbc.runlog import read_log
 from giwbc.runtimes.phases import StartupConfig
 
+ROOT = Path(__file__).resolve().parents[1]
 STARTUP = StartupConfig(settle_time=0.05, ramp_time=0.5, shutdown_time=0.3, off_delay=0.1)
 
 
@@ -78,3 +81,27 @@ def test_a_robot_that_never_stands_still_is_not_handed_to_the_controller(g1, mod
     assert fault.kind is FaultKind.STARTUP and "did not calibrate within 2 s" in fault.message
     assert "still waiting for a standstill on both feet" in fault.message
     assert "running" not in outcome.result.phase_times
+
+
+def test_the_walking_policy_sees_gravity_from_the_estimate_on_an_imu_without_orientation(g1, model, tmp_path) -> None:
+    """A MEMS IMU reports no orientation (a NaN quaternion): the policy's gravity observation comes
+    from the calibrated estimate (EstimatedRobot.imu), so its first action is finite (it was NaN,
+    the run stopped by ``nonfinite_policy`` at the hand-over) and it walks on the estimate."""
+    from giwbc.apps.deploy import load_policy
+    from giwbc.apps.deploy_walk import WalkCommand
+
+    policy, metadata = load_policy(str(ROOT / "policies" / "g1_walk_residual.onnx"))
+    gravity: list[np.ndarray] = []
+
+    def observed(observation: np.ndarray) -> np.ndarray:
+        gravity.append(np.asarray(observation[:3], float).copy())  # gravity_imu/x, y, z: the observation's first three
+        return policy(observation)
+
+    options = _options(tmp_path, seconds=1.0, walk=WalkCommand(vx=0.3), scene_rate=0.0)
+    outcome = deploy(options, policy=observed, policy_metadata=metadata, model=model, description=g1, out=None)
+    assert outcome.exit_code == 0, outcome.message
+    assert len(gravity) >= 40 and np.isfinite(gravity).all()
+    # standing up: gravity points down the IMU's (nearly base-aligned) z axis, within a few degrees
+    tilt = np.degrees(np.arccos(np.clip(-np.array(gravity)[:, 2] / np.linalg.norm(gravity, axis=1), -1, 1)))
+    assert tilt.max() < 8.0, tilt.max()
+    assert outcome.standing["stood"]

@@ -8,8 +8,8 @@ import numpy as np
 import pinocchio as pin
 
 from giwbc.estimation.estimator import Estimate, StateEstimator
-from giwbc.robot.interface import BaseState, ContactWrench, Robot, RobotWrapper
-from giwbc.robot.so3 import cross
+from giwbc.robot.interface import BaseState, ContactWrench, ImuReading, Robot, RobotWrapper, quat_to_matrix
+from giwbc.robot.so3 import cross, matrix_to_quat
 
 
 class EstimatedRobot(RobotWrapper):
@@ -67,6 +67,21 @@ class EstimatedRobot(RobotWrapper):
     # --- estimated ------------------------------------------------------------------------
     def base_state(self) -> BaseState:
         return self.estimate.base
+
+    def imu(self) -> ImuReading:
+        """The robot's IMU sample; from an IMU without an orientation output (an all-NaN quaternion:
+        a MEMS gyro and accelerometer) its orientation is the estimate's (the base's, carried to the
+        IMU frame), once the estimator is calibrated: what a task's gravity observation needs, on
+        the robot as in simulation (it was NaN, and a policy's action with it)."""
+        reading = self.robot.imu()
+        quaternion = reading.quaternion
+        if not np.isnan(quaternion).all():
+            return reading
+        estimate = self.estimate
+        if not estimate.ready:
+            return reading
+        rotation = quat_to_matrix(estimate.base.quaternion) @ self.estimator.kinematics.imu_rotation
+        return ImuReading(matrix_to_quat(rotation), reading.angular_velocity, reading.linear_acceleration, reading.time)
 
     def generalized_state(self) -> tuple[np.ndarray, np.ndarray]:
         """The estimate's Pinocchio ``(q, v)`` (joints as the estimator last read them)."""
