@@ -45,6 +45,7 @@ from giwbc.control.tasks import (
     PostureTask,
 )
 from giwbc.control.wbc import WbcResult, WholeBodyController
+from giwbc.control.yaw_momentum import LimbYawMomentumTask
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
 
@@ -90,6 +91,11 @@ class BalanceConfig:
     posture_weight: float = 0.05
     angular_momentum_weight: float = 0.0  # > 0 adds the momentum-damping task
     angular_momentum_kd: float = 10.0
+    # > 0 adds the limbs' yaw momentum task (giwbc.control.yaw_momentum): the yaw momentum the joints
+    # make (a swinging leg) decays at ``limb_yaw_momentum_kd`` 1/s, taken by the trunk and arms instead
+    # of a yaw moment on the stance foot, which a compliant floor does not hold (the foot turns).
+    limb_yaw_momentum_weight: float = 0.0
+    limb_yaw_momentum_kd: float = 20.0
     # Contact-force regularisation towards the static weight split of the CoM target: large enough
     # to make the CoM compliant to pushes (the feet keep sharing the load), small enough to track
     # commanded CoM motion.
@@ -181,6 +187,10 @@ class BalanceController:
         if config.angular_momentum_weight > 0:
             self.momentum_task = AngularMomentumTask(weight=config.angular_momentum_weight, kd=config.angular_momentum_kd)
             self.wbc.add_task(self.momentum_task)
+        self.limb_yaw_task: LimbYawMomentumTask | None = None
+        if config.limb_yaw_momentum_weight > 0:
+            self.limb_yaw_task = LimbYawMomentumTask(weight=config.limb_yaw_momentum_weight, kd=config.limb_yaw_momentum_kd)
+            self.wbc.add_task(self.limb_yaw_task)
         self.force_regularization = ContactForceRegularization(weight=config.force_weight)
         self.wbc.add_task(self.force_regularization)
         self.nominal_com: np.ndarray | None = None

@@ -108,7 +108,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
     def __init__(self, description: RobotDescription, config: WalkerConfig | None = None, model: pin.Model | None = None) -> None:
         self.config = config = config or WalkerConfig()
         self.description = description
-        floor = {name: value for name, value in (("mu", config.friction), ("torsion", config.torsion)) if value is not None}
+        overrides = (("mu", config.friction), ("torsion", config.torsion), ("limb_yaw_momentum_weight", config.yaw_momentum_weight))
+        floor = {name: value for name, value in overrides if value is not None}
         balance = replace(config.balance, **floor) if floor else config.balance
         self.balance = BalanceController(description, balance, model)
         self.wbc = self.balance.wbc

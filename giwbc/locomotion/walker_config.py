@@ -39,6 +39,10 @@ class WalkerConfig:
     # m: the feet's yaw moment kept within torsion x normal force (None: ``balance.torsion``, i.e. what
     # the sole's friction allows); a compliant floor turns a loaded foot under far less (BalanceConfig).
     torsion: float | None = None
+    # The limbs' yaw momentum task's weight (None: ``balance.limb_yaw_momentum_weight``, off): a swinging
+    # leg's yaw momentum taken by the trunk and arms, not by a yaw moment on the stance foot
+    # (giwbc.control.yaw_momentum; any_floor: a compliant floor turns a loaded foot under that moment).
+    yaw_momentum_weight: float | None = None
     com_height: float | None = None  # m above the soles; default: the standing pose's
     dcm_gain: float = 5.0  # s⁻¹, walking
     standing_dcm_gain: float = 8.0  # s⁻¹, standing (stiffer: feet-in-place balance)
@@ -222,6 +226,8 @@ class WalkerConfig:
             raise ValueError(f"friction must be None or a finite coefficient > 0, got {self.friction!r}")
         if self.torsion is not None and not (math.isfinite(self.torsion) and self.torsion > 0.0):
             raise ValueError(f"torsion must be None or a finite lever arm > 0 m, got {self.torsion!r}")
+        if self.yaw_momentum_weight is not None and not (math.isfinite(self.yaw_momentum_weight) and self.yaw_momentum_weight >= 0.0):
+            raise ValueError(f"yaw_momentum_weight must be None or a finite weight >= 0, got {self.yaw_momentum_weight!r}")
         spring = self.walking_limit_spring
         if spring is not None and not (len(spring) == 3 and all(math.isfinite(float(x)) for x in spring) and spring[0] > 0 and min(spring[1:]) >= 0):
             raise ValueError(f"walking_limit_spring must be None or (zone > 0 rad, kp >= 0 N m/rad, kd >= 0 N m s/rad), got {spring!r}")
@@ -331,7 +337,15 @@ DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
 # rolled stance foot's CoP on its raised side (roll_cop_tilt 6 deg) and solves such a tick without the
 # bounds (relax_joint_limits). Tuning seeds 20000-20003: ends on all_at_once + point_feet 7 -> 3 of 8;
 # the nominal walk unchanged (no foot rolls 6 deg, no QP fails). README, "Plants the controller was not tuned on".
-ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType({"friction": 0.5, "swing_kp": 250.0, "roll_cop_tilt": 6.0, "relax_joint_limits": True})
+# A compliant floor turns a loaded stance foot under a yaw moment far inside its friction (MuJoCo's soft
+# contact creeps: soft_floor, 5 -> 55 deg in 0.16 s under the 10-20 N m the WBC planned at each lift-off
+# to hold the base's heading against the swinging leg, a fall two steps later). yaw_momentum_weight 3
+# (giwbc.control.yaw_momentum) lets the trunk and arms take the swing leg's yaw momentum instead. Tuning
+# seeds 20000-20001 (truth, 8 directions x 2 of 100 N x 0.2 s): pushes soft floor 12 -> 16, capsule feet
+# 13 -> 16, point feet 14 -> 15 of 16; soft-floor walks (0.3 / 0.5 m/s, 20 s, 20000-20004) 3 -> 0 falls of 10.
+ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType(
+    {"friction": 0.5, "swing_kp": 250.0, "roll_cop_tilt": 6.0, "relax_joint_limits": True, "yaw_momentum_weight": 3.0}
+)
 WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS, "any_floor": ANY_FLOOR_OPTIONS})
 
 
