@@ -108,7 +108,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
     def __init__(self, description: RobotDescription, config: WalkerConfig | None = None, model: pin.Model | None = None) -> None:
         self.config = config = config or WalkerConfig()
         self.description = description
-        overrides = (("mu", config.friction), ("torsion", config.torsion), ("limb_yaw_momentum_weight", config.yaw_momentum_weight))
+        overrides = (("mu", config.friction), ("torsion", config.torsion), ("limb_yaw_momentum_weight", config.yaw_momentum_weight),
+                     ("contact_kd", config.contact_kd))
         floor = {name: value for name, value in overrides if value is not None}
         balance = replace(config.balance, **floor) if floor else config.balance
         self.balance = BalanceController(description, balance, model)

@@ -43,6 +43,11 @@ class WalkerConfig:
     # leg's yaw momentum taken by the trunk and arms, not by a yaw moment on the stance foot
     # (giwbc.control.yaw_momentum; any_floor: a compliant floor turns a loaded foot under that moment).
     yaw_momentum_weight: float | None = None
+    # 1/s: the damping on the contact motion rows (None: ``balance.contact_kd``, 20): the WBC asks each
+    # loaded foot's twist J v to decay at this rate, a hard constraint. On an estimated state J v carries
+    # the estimate's base rate (a few ms late, or led: EstimatorConfig.omega_lead) times the leg's length,
+    # and a point or rim foot really turns: the damping then feeds a late rate back at high gain.
+    contact_kd: float | None = None
     com_height: float | None = None  # m above the soles; default: the standing pose's
     dcm_gain: float = 5.0  # s⁻¹, walking
     standing_dcm_gain: float = 8.0  # s⁻¹, standing (stiffer: feet-in-place balance)
@@ -226,6 +231,8 @@ class WalkerConfig:
             raise ValueError(f"friction must be None or a finite coefficient > 0, got {self.friction!r}")
         if self.torsion is not None and not (math.isfinite(self.torsion) and self.torsion > 0.0):
             raise ValueError(f"torsion must be None or a finite lever arm > 0 m, got {self.torsion!r}")
+        if self.contact_kd is not None and not (math.isfinite(self.contact_kd) and self.contact_kd >= 0.0):
+            raise ValueError(f"contact_kd must be None or a finite damping >= 0 (1/s), got {self.contact_kd!r}")
         if self.yaw_momentum_weight is not None and not (math.isfinite(self.yaw_momentum_weight) and self.yaw_momentum_weight >= 0.0):
             raise ValueError(f"yaw_momentum_weight must be None or a finite weight >= 0, got {self.yaw_momentum_weight!r}")
         spring = self.walking_limit_spring
