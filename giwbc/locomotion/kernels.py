@@ -5,8 +5,10 @@ Each kernel is the Python code it replaced, written over arrays (``giwbc.util.ji
 no ``fastmath``), with the same IEEE operations in the same order, so a rollout is bit for bit what it
 was (``min``/``max`` written as the conditions Python's builtins evaluate, NaN included). A kernel
 writes into an output array its caller owns: numba boxes a returned tuple of floats slower
-(~1.2 µs for six) than the caller reads an array it made (~0.2 µs). The uncompiled functions
-(:func:`giwbc.util.jit.reference`) are what the tests compare the compiled ones with.
+(~1.2 µs for six) than the caller reads an array it made (~0.2 µs). Where the Python rounds as
+numpy's ``gemv`` does (a fused multiply-add, :mod:`giwbc.locomotion.planar`), the kernel fuses the
+same product with LLVM's ``fma``. The uncompiled functions (:func:`giwbc.util.jit.reference`) are
+what the tests compare the compiled ones with.
 """
 
 from __future__ import annotations
@@ -106,6 +108,7 @@ def fused_multiply_add(a: float, b: float, c: float) -> float:
 
 @intrinsic
 def _llvm_fma(typingctx, a, b, c):  # type: ignore[no-untyped-def]
+    """``llvm.fma.f64`` (hardware FMA where the CPU has it, else libm's ``fma``: correctly rounded either way)."""
     signature = types.float64(types.float64, types.float64, types.float64)
 
     def codegen(context, builder, sig, args):  # type: ignore[no-untyped-def]
