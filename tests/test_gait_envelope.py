@@ -302,3 +302,57 @@ def test_the_g1_walks_forward_while_turning_without_sideways_drift(g1):
     vx, vy, wz = np.mean(rows, axis=0)
     assert vx == pytest.approx(0.5, rel=0.05) and wz == pytest.approx(0.5, rel=0.05)
     assert abs(vy) < 0.03
+
+
+def _cycle_velocity(planner: FootstepPlanner, command: VelocityCommand, steps: int = 12) -> np.ndarray:
+    """The feet's middle's velocity (m/s) over the last cycle of ``steps`` planned steps, in the feet's mean heading."""
+    half = 0.5 * planner.config.step_width
+    feet = {"left": Footstep("left", [0.0, half]), "right": Footstep("right", [0.0, -half])}
+    stance = feet["right"] if planner.first_swing_side(command) == "left" else feet["left"]
+    poses = []
+    for _ in range(steps):
+        stance = planner.next_step(stance, command)
+        feet[stance.side] = stance
+        left, right = feet["left"], feet["right"]
+        poses.append((0.5 * (left.position + right.position), left.yaw + 0.5 * (right.yaw - left.yaw)))
+    (m0, h0), (m1, h1) = poses[-3], poses[-1]
+    heading = 0.5 * (h0 + h1)
+    d = (m1 - m0) / (2.0 * planner.config.step_period)
+    return np.array([math.cos(heading) * d[0] + math.sin(heading) * d[1], -math.sin(heading) * d[0] + math.cos(heading) * d[1]])
+
+
+def test_the_planner_offset_moves_every_landing_in_the_steps_heading_and_the_plans_velocity_by_itself():
+    """The walker's drift correction (FootstepPlanner.offset): each landing moved by offset x T along
+    and across the step's mean heading, a zero command component included (the correction of the
+    command's components cannot move those); the turn compensation does not undo it, so a turning
+    plan's cycle velocity goes by the offset."""
+    planner = FootstepPlanner(BASE)
+    T = BASE.step_period
+    stance = Footstep("right", [0.1, -0.12], 0.3)
+    command = VelocityCommand(0.3, 0.0, 0.4)
+    plain = planner.next_step(stance, command)
+    planner.offset = (-0.05, 0.1)
+    moved = planner.next_step(stance, command)
+    heading = 0.3 + 0.5 * (plain.yaw - 0.3)
+    c, s = math.cos(heading), math.sin(heading)
+    assert moved.yaw == plain.yaw and moved.side == plain.side
+    assert moved.position == pytest.approx(plain.position + T * np.array([c * -0.05 - s * 0.1, s * -0.05 + c * 0.1]), abs=1e-12)
+    for command in (VelocityCommand(0.3, 0.0, 0.4), VelocityCommand(0.0, 0.08, -0.5), VelocityCommand(0.3, 0.15, 0.0)):
+        planner.offset = (0.0, 0.0)
+        before = _cycle_velocity(planner, command)
+        planner.offset = (-0.05, 0.1)
+        after = _cycle_velocity(planner, command)
+        assert after - before == pytest.approx([-0.05, 0.1], abs=0.01)
+
+
+@pytest.mark.slow
+def test_the_g1_walks_a_lateral_and_turning_command_within_five_percent(g1):
+    """(0.3, 0.2, 0.5): forward, sideways and turning at once (before the drift correction it walked
+    (0.317, 0.13, 0.50): the lateral 35 % short): the mean after 3 s within 5 % (or 0.03 m/s) of each
+    component; no fall."""
+    rows, observe = _heading_frame_mean(3.0)
+    run = simulate_walk(g1, (0.3, 0.2, 0.5), 10.0, seed=1, observe=observe)
+    assert not run.fell and not run.notes
+    mean = np.mean(rows, axis=0)
+    command = np.array([0.3, 0.2, 0.5])
+    assert np.all(np.abs(mean - command) <= np.maximum(0.05 * command, 0.03)), mean

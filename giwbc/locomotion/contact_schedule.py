@@ -30,6 +30,8 @@ ENVELOPE_SETTLE_STEPS = 3
 ENVELOPE_WINDOW_STEPS = 4  # steps (whole cycles: the feet's middle sways within one), the velocity is measured over
 ENVELOPE_VELOCITY_GAIN = 0.3
 ENVELOPE_MAX_CORRECTION = 0.25
+ENVELOPE_DRIFT_GAIN = 0.2  # sideways or turning: the fraction of the velocity error added to the planner's offset per touch-down
+ENVELOPE_MAX_DRIFT = 0.15  # m/s, the planner's offset (FootstepPlanner.offset) at most
 ENVELOPE_MAX_TURN = 1.3  # the closed-loop heading's turn per step, at most this × the planned one
 
 
@@ -165,10 +167,10 @@ class ContactSchedule:
         the steps' and the DCM preview's) integrates the difference, ``ENVELOPE_VELOCITY_GAIN`` of it
         per touch-down within ``ENVELOPE_MAX_CORRECTION``, after ``ENVELOPE_SETTLE_STEPS`` touch-downs.
         The step adapter lands the envelope's steps where the DCM goes: walking backward at 0.5 m/s,
-        0.24 m for 0.17 m planned (-0.61 m/s; corrected -0.52, tuning seed 1). Forward only: sideways
-        the per-cycle velocity varies too much (0.03-0.64 m/s at 0.4) and the corrected walk tracked
-        worse (0.35-0.38 vs 0.39-0.45); across the command (a turning walk's drift) the correction did
-        not move the drift."""
+        0.24 m for 0.17 m planned (-0.61 m/s; corrected -0.52, tuning seed 1). A command with a
+        lateral or turning component is corrected in both axes by the planner's offset
+        (:attr:`~giwbc.locomotion.footsteps.FootstepPlanner.offset`, ``ENVELOPE_DRIFT_GAIN`` within
+        ``ENVELOPE_MAX_DRIFT``), measured on the CoM step by step; a straight one as before."""
         if distance2(self.state.dcm, self.state.dcm_ref) > self.config.stiff_swing_error:
             # Pushed: the measurement restarts (a push's velocity is not the gait's: walking backward
             # at 0.5 m/s, 80 N forward, the integrated push fell 3 s later).
@@ -177,22 +179,44 @@ class ContactSchedule:
         left, right = self.feet["left"], self.feet["right"]
         middle = 0.5 * (left.position + right.position)
         heading = left.yaw + 0.5 * wrap_angle(right.yaw - left.yaw)
-        self._touchdowns.append((t, middle, heading))
+        self._touchdowns.append((t, middle, heading, self._com[:2].copy()))
         if len(self._touchdowns) < ENVELOPE_SETTLE_STEPS + 2:
             return
-        t0, middle0, heading0 = self._touchdowns[max(ENVELOPE_SETTLE_STEPS, len(self._touchdowns) - 1 - ENVELOPE_WINDOW_STEPS)]
+        first = max(ENVELOPE_SETTLE_STEPS, len(self._touchdowns) - 1 - ENVELOPE_WINDOW_STEPS)
         if ENVELOPE_WINDOW_STEPS % 2:
             raise AssertionError("the velocity window must span whole cycles")
-        mean = heading0 + 0.5 * wrap_angle(heading - heading0)
-        c, s = math.cos(mean), math.sin(mean)
-        dx, dy = (float(middle[0]) - float(middle0[0])) / (t - t0), (float(middle[1]) - float(middle0[1])) / (t - t0)
         command, (cx, cy) = self.command, self.planner.correction
         limit = ENVELOPE_MAX_CORRECTION
-        # (Not forward beside a lateral command: the longer steps cost lateral, (0.5, 0.2, 0) walked vy
-        # 0.155, not 0.181; backward beside one, uncorrected, (-0.5, 0.083, 0) walked -0.595.)
-        if command.vx < 0.0 or (command.vx > 0.0 and command.vy == 0.0):
+        if command.vy == 0.0 and command.yaw_rate == 0.0:
+            if command.vx == 0.0:
+                return
+            t0, middle0, heading0, _ = self._touchdowns[first]
+            mean = heading0 + 0.5 * wrap_angle(heading - heading0)
+            c, s = math.cos(mean), math.sin(mean)
+            dx, dy = (float(middle[0]) - float(middle0[0])) / (t - t0), (float(middle[1]) - float(middle0[1])) / (t - t0)
             cx = min(max(cx + ENVELOPE_VELOCITY_GAIN * (command.vx - (c * dx + s * dy)), -limit), limit)
-        self.planner.correction = (cx, cy)
+            self.planner.correction = (cx, cy)
+            return
+        # Sideways or turning: the CoM's velocity along and across the heading, step by step (each
+        # step's displacement in its own mean heading: over a turned window the chord alone reads 8 %
+        # slow at 1 rad/s; the CoM, not the feet's middle: on the feet's, (0.5, 0.2, 0) walked vy 0.171,
+        # on the CoM's 0.192), both corrected by the planner's offset (a zero component too: the drift
+        # of a turning walk; tuning seed 20500, 12 s: (0.3, 0.2, 0.5) walked vy 0.14 -> 0.19,
+        # (-0.108, 0, 0.5) drifted 0.045 -> -0.013, (0.5, 0.2, 0) vx 0.464 -> 0.479).
+        along = across = 0.0
+        for (_, _, h0, m0), (_, _, h1, m1) in zip(self._touchdowns[first:-1], self._touchdowns[first + 1:]):
+            mean = h0 + 0.5 * wrap_angle(h1 - h0)
+            c, s = math.cos(mean), math.sin(mean)
+            ddx, ddy = float(m1[0]) - float(m0[0]), float(m1[1]) - float(m0[1])
+            along += c * ddx + s * ddy
+            across += -s * ddx + c * ddy
+        span = t - self._touchdowns[first][0]
+        along, across = along / span, across / span
+        ox, oy = self.planner.offset
+        gain, bound = ENVELOPE_DRIFT_GAIN, ENVELOPE_MAX_DRIFT
+        ox = min(max(ox + gain * (command.vx - along), -bound), bound)
+        oy = min(max(oy + gain * (command.vy - across), -bound), bound)
+        self.planner.offset = (ox, oy)
 
     def _touch_down(self, t: float) -> None:
         """The swing foot landed (or ran out of time): its contact ramps in; then settle, or the

@@ -294,6 +294,11 @@ class FootstepPlanner:
         # (vx, vy) m/s added to a command's non-zero components when stepping (at most half of each,
         # never flipping its sign): a walker's velocity correction; (0, 0): none.
         self.correction = (0.0, 0.0)
+        # (x, y) m/s, in the step's mean heading: every planned landing moved by this × the step period
+        # after the plan (the turn compensation does not undo it), so the feet's middle goes this much
+        # faster along / across the heading whatever the command's components (zero ones too): a
+        # walker's drift correction; (0, 0): none.
+        self.offset = (0.0, 0.0)
         self._compensated: dict[tuple[float, float, float], VelocityCommand] = {}  # turn_compensated's
 
     def limits(self) -> dict[str, tuple[float, float]]:
@@ -351,7 +356,13 @@ class FootstepPlanner:
             command = self.corrected(command)
         if command.yaw_rate != 0.0:
             command = self.turn_compensated(command)
-        return self._step(stance, command, leading_yaw)
+        step = self._step(stance, command, leading_yaw)
+        if self.offset == (0.0, 0.0):
+            return step
+        T = self.config.step_period
+        heading = stance.yaw + 0.5 * wrap_angle(step.yaw - stance.yaw)
+        x, y = rotate(math.cos(heading), math.sin(heading), self.offset[0] * T, self.offset[1] * T)
+        return Footstep(step.side, [float(step.position[0]) + x, float(step.position[1]) + y], step.yaw)
 
     @property
     def forward_reach(self) -> float:

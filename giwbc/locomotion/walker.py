@@ -179,7 +179,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
             self._touchdowns = []
             self.config = self.base_config.for_command(clamped.command)
             self.planner = self._base_planner if self.config is self.base_config else FootstepPlanner(self.config.gait)
-            self._base_planner.correction = (0.0, 0.0)
+            self._base_planner.correction = self._base_planner.offset = (0.0, 0.0)
         self.command = clamped.command
         self._in_place = bool(step_in_place)
         self.state.notes.extend(clamped.notes)
@@ -195,7 +195,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         they are, no step planned."""
         q = self.description.default_configuration() if q is None else np.asarray(q, dtype=float)
         self.config, self.planner = self.base_config, self._base_planner
-        self._base_planner.correction = (0.0, 0.0)
+        self._base_planner.correction = self._base_planner.offset = (0.0, 0.0)
         self.balance.reset(q)
         for task in self.swing_tasks.values():
             self._remove_swing_task(task)
@@ -238,7 +238,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._last_tick = 0.0
         self._nominal_feet: dict[str, Footstep] = {}
         self._yaw_goal: tuple[float, float] | None = None  # (time, heading) the envelope's turning counts from
-        self._touchdowns: list[tuple[float, np.ndarray, float]] = []  # (time, feet's middle, heading), while walking
+        self._touchdowns: list[tuple[float, np.ndarray, float, np.ndarray]] = []  # (time, feet's middle, heading, CoM xy), while walking
         self._planned_for: tuple[np.ndarray, float] | None = None
         self._reference: DcmReference | None = None
         self._time = 0.0
