@@ -174,7 +174,22 @@ class PushRecovery:
         adjustment = self.adapter.adapt_in(frame, cop_hold, dcm, self._phase_end - t, box, remaining_range, reach)  # type: ignore[union-attr]
         if edge and cfg.recovery_cop == "auto" and float(stance.to_local(adjustment.position)[0]) >= box[0][1] - 1e-6:
             adjustment = self.adapter.adapt_in(frame, stance.position, dcm, self._phase_end - t, box, remaining_range)  # type: ignore[union-attr]
+        if self._recovering and math.isfinite(cfg.recovery_max_split):
+            adjustment = self._within_split(stance, adjustment, box)
         return adjustment
+
+    def _within_split(self, stance: Footstep, adjustment: StepAdjustment, box: tuple[tuple[float, float], tuple[float, float]]) -> StepAdjustment:
+        """``adjustment`` with its landing drawn toward the stance sole's centre to at most ``recovery_max_split``
+        from it (the landing box's narrowest width kept), the touch-down time unchanged: the box's corners
+        are beyond the leg's reach."""
+        x, y = (float(v) for v in stance.to_local(adjustment.position))
+        split = math.hypot(x, y)
+        limit = self.config.recovery_max_split
+        if split <= limit:
+            return adjustment
+        (_, _), (y_lo, y_hi) = box
+        scale = limit / split
+        return adjustment.landing_moved(x * scale, min(max(y * scale, y_lo), y_hi))
 
     # --- the quick landing (a walking push toward the stance side) --------------------------------
     def _quick_landing(self, t: float, stance: Footstep) -> bool:

@@ -66,6 +66,13 @@ class StepAdjustment:
         ex, ey, ux, uy = self._stance_values
         return np.array(rotate(frame.c, frame.s, ex - ux, ey - uy))
 
+    def landing_moved(self, x: float, y: float) -> StepAdjustment:
+        """The same touch-down time and predicted DCM with the landing at ``(x, y)`` in the stance sole's frame."""
+        frame = self._frame
+        ex, ey, _, _ = self._stance_values
+        wx, wy = rotate(frame.c, frame.s, x, y)
+        return StepAdjustment(np.array([frame.ox + wx, frame.oy + wy]), self.remaining_time, frame, (ex, ey, x, y))
+
 
 def solve_box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
     """``argmin ½ zᵀHz + gᵀz`` s.t. ``lower ≤ z ≤ upper`` for a small positive-definite ``H``:
