@@ -11,7 +11,8 @@ disturbance held a little longer (a push still acting), leaves the support polyg
 still stand on steps first; it aims at the capture point predicted for its touch-down, shifted
 outward by ``recovery_offset``, in the (wider) recovery landing box; the step adapter refines the
 landing with the CoP held on the stance sole's edge nearest the DCM (or its centre, see
-``recovery_cop``). While a foot swings *backward*, the CoM height reference drops so that the
+``recovery_cop``), at most ``recovery_max_split`` from the stance sole's centre (the box's corners are
+beyond the leg's reach; the other foot steps next if the DCM runs on). While a foot swings *backward*, the CoM height reference drops so that the
 landing spot stays within the leg's reach (the reach crouch). At each touch-down the recovery
 settles once the capture point is back inside both feet, or the other foot steps on.
 
