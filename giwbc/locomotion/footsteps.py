@@ -20,7 +20,8 @@ A turning plan is *compensated* (:meth:`FootstepPlanner.turn_compensated`): the 
 with are those whose steps' cycle, seen in the feet's mean heading, goes at the command's — each
 step goes along its stance sole's heading and the feet turn about a sole, which alone would walk
 (0.5, 0, 0.5) at (0.546, -0.057). A walker's velocity correction (:attr:`FootstepPlanner.correction`)
-comes on top.
+comes on top, and its drift correction (:attr:`FootstepPlanner.offset`: every landing moved along and
+across the step's heading after the compensation, so a zero component is corrected too).
 """
 
 from __future__ import annotations
