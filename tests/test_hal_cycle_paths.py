@@ -78,6 +78,60 @@ def test_steady_decode_falls_back_on_what_the_key_does_not_cover(protocols):
     _assert_same(warm.decode(swapped, batch), MitReplyDecoder(protocols).decode(swapped, batch))
 
 
+def test_steady_kernel_compiled_equals_its_python(protocols):
+    """giwbc.hal.kernels.steady_replies compiled against its plain Python function, bit for bit, on
+    random payloads (every field), a changed key byte or bus (refused), an undefined CubeMars error
+    byte (refused) and a batch of another length (refused)."""
+    from giwbc.hal.kernels import KEY_BYTES, steady_replies
+    from giwbc.util.jit import reference
+
+    rng = np.random.default_rng(10)
+    warm = MitReplyDecoder(protocols)
+    batch, bus = _replies(protocols, rng)
+    warm.decode(bus, batch)
+    constants = warm._steady[0]
+    m = len(batch)
+    cubemars = np.flatnonzero(constants[6])
+    assert len(cubemars)
+
+    def run(kernel, octets, on):
+        values, extra, error = np.full((m, 3), np.nan), np.full((3, m), np.nan), np.full(m, -7, dtype=np.int64)
+        ok = kernel(octets, on, *constants, values, extra, error)
+        return ok, values, extra, error
+
+    def same(octets, on):
+        a, b = run(steady_replies, octets, on), run(reference(steady_replies), octets, on)
+        assert a[0] == b[0]
+        if a[0]:
+            for x, y in zip(a[1:], b[1:]):
+                np.testing.assert_array_equal(x, y)
+        return a
+
+    for _ in range(30):
+        octets = batch.view(np.uint8).reshape(m, 16).copy()
+        octets[:, 9:14] = rng.integers(0, 256, size=(m, 5))  # random position, velocity, torque counts
+        octets[:, 14] = rng.integers(0, 256, m)
+        octets[:, 15] = np.where(np.isin(np.arange(m), cubemars), rng.integers(0, 8, m), rng.integers(0, 256, m))
+        ok, values, extra, error = same(octets, bus)
+        assert ok and np.isfinite(values).all()
+        decoded = MitReplyDecoder(protocols).decode(bus, octets.view(batch.dtype).reshape(m))
+        np.testing.assert_array_equal(values, decoded.state)
+        np.testing.assert_array_equal(extra[0], decoded.temperature)
+        np.testing.assert_array_equal(extra[1], decoded.rotor_temperature)
+        np.testing.assert_array_equal(extra[2], decoded.voltage)
+        np.testing.assert_array_equal(error, decoded.error_code)
+        changed = octets.copy()
+        changed[rng.integers(m), KEY_BYTES[rng.integers(len(KEY_BYTES))]] ^= 1 << int(rng.integers(8))
+        assert not same(changed, bus)[0]
+        moved = bus.copy()
+        moved[rng.integers(m)] += 1
+        assert not same(octets, moved)[0]
+        undefined = octets.copy()
+        undefined[rng.choice(cubemars), 15] = 200
+        assert not same(undefined, bus)[0]
+        assert not same(octets[:-1], bus[:-1])[0]
+
+
 def test_block_encoder_equals_the_field_encoder(protocols):
     rng = np.random.default_rng(9)
     codec = MultiBusCodec(protocols)

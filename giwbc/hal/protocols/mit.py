@@ -58,7 +58,6 @@ offset), while other public hosts subtract 40. It depends on the firmware: verif
 from __future__ import annotations
 
 import math
-import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from types import MappingProxyType
@@ -67,6 +66,7 @@ from typing import Any, Mapping
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from giwbc.hal.kernels import steady_key, steady_replies, warm_up
 from giwbc.hal.motor import RANGE_FIELDS, MotorConfig
 from giwbc.hal.protocols.base import (
     ActuatorProtocol,
@@ -96,8 +96,6 @@ _LEVELS_F = np.array(COMMAND_LEVELS, dtype=float)
 _SHIFTS_U = np.array(_SHIFTS, dtype=np.uint64)
 _FIELD_UNITS = np.uint64(1) << _SHIFTS_U  # each field's lowest bit in the 64-bit word
 _P_LEVELS, _VT_LEVELS = 65535, 4095
-_LITTLE_ENDIAN = sys.byteorder == "little"  # the steady decode reads frames as native 64-bit words
-_KEY_MASK = np.array([0x000000FFFFFFFFFF, 0xFF], dtype=np.uint64)  # a frame's can_id and len; its payload's byte 0
 
 ENTER_MOTOR_MODE = b"\xff" * 7 + b"\xfc"
 EXIT_MOTOR_MODE = b"\xff" * 7 + b"\xfd"
@@ -601,7 +599,8 @@ class MitReplyDecoder:
         # The steady state repeats: each cycle the same motors reply on the same buses with the same
         # ids, lengths and byte 0. What follows from those alone (the lookup, the checks, the
         # constants) is kept from the last batch of all replies and reused while they repeat.
-        self._steady: tuple[bytes, tuple[NDArray[Any], ...]] | None = None
+        self._steady: tuple[Any, ...] | None = None  # (the kernel's constants, then the fields handed out)
+        warm_up()  # the steady decode's kernel compiled (or loaded) now, not in a first steady cycle
 
     def decode(self, bus: ArrayLike, batch: NDArray[Any]) -> DecodedReplies:
         """Decode ``batch`` (:data:`~giwbc.hal.frames.FRAME` records); ``bus[k]`` is the index (in
@@ -610,14 +609,12 @@ class MitReplyDecoder:
         n = self.n_motors
         bus = np.asarray(bus, dtype=np.int64).reshape(m)
         steady = self._steady
-        if steady is not None and _LITTLE_ENDIAN and batch.flags.c_contiguous:
-            # The frames as (head, payload) 64-bit words: the key is the head's id and length and
-            # the payload's byte 0 (a little-endian word's low byte), with the buses.
-            raw = batch.view(np.uint64).reshape(m, 2)
-            if bus.tobytes() == steady[0] and (raw & _KEY_MASK).tobytes() == steady[1]:
-                decoded = self._decode_steady(raw, *steady[2])
-                if decoded is not None:
-                    return decoded
+        if steady is not None and batch.flags.c_contiguous and batch.dtype.itemsize == 16:
+            # The key (ids, lengths, byte 0, buses) compared and the payloads decoded in one
+            # compiled call over the frames' bytes (giwbc.hal.kernels).
+            decoded = self._decode_steady(batch.view(np.uint8).reshape(m, 16), bus, *steady)
+            if decoded is not None:
+                return decoded
         word = batch["data"].view(">u8").reshape(m).astype(np.uint64)
         length = batch["len"]
         can_id = batch["can_id"]
@@ -679,36 +676,35 @@ class MitReplyDecoder:
         # candidate. (A CubeMars reply's error code is its byte 7, undefined ones corrupt: checked
         # again on every batch.)
         self._steady = None
-        if m and _LITTLE_ENDIAN and not maybe_special.any() and bool((k < n).all()):
+        if m and not maybe_special.any() and bool((k < n).all()):
             cubemars = self._is_cubemars[k]
-            kept = [verdict, decoded.index, decoded.motor_id, t[:, 1:6:2], t[:, 0:6:2], t[:, 6], t[:, 8], t[:, 7], error, status]
+            kept = [verdict, decoded.index, decoded.motor_id, error, status]
             kept = [a.copy() for a in kept]
             for a in kept:  # handed out as they are by every steady decode: nobody may write into them
                 a.flags.writeable = False
             limit = np.where(cubemars, CUBEMARS_MAX_ERROR, np.iinfo(np.int64).max)  # byte 7 above it: corrupt
-            key = (np.ascontiguousarray(batch).view(np.uint64).reshape(m, 2) & _KEY_MASK).tobytes()
-            self._steady = (bus.tobytes(), key, (*kept, (cubemars, limit) if cubemars.any() else None))
+            octets = np.ascontiguousarray(batch).view(np.uint8).reshape(m, -1)
+            constants = (
+                bus.copy(), steady_key(octets), np.ascontiguousarray(t[:, 1:6:2]), np.ascontiguousarray(t[:, 0:6:2]),
+                np.ascontiguousarray(t[:, [6, 8, 7]].T), error.copy(), cubemars, limit,
+            )  # fmt: skip
+            self._steady = (constants, *kept)
         return decoded
 
-    def _decode_steady(self, raw: NDArray[np.uint64], verdict: NDArray[Any], index: NDArray[Any], motor_id: NDArray[Any],
-                       scale: NDArray[Any], low: NDArray[Any], temperature: NDArray[Any], rotor: NDArray[Any],
-                       volts: NDArray[Any], error: NDArray[Any], status: NDArray[Any],
-                       cubemars: tuple[NDArray[np.bool_], NDArray[np.int64]] | None) -> DecodedReplies | None:  # fmt: skip
-        """:meth:`decode` of a batch (``raw``: its frames as (head, payload) 64-bit words) whose key
-        repeats the kept one's: the same arithmetic on the payload, the rest handed out from the
-        kept batch (read-only arrays); None when a CubeMars reply carries an undefined error byte
-        (the full decode says corrupt)."""
-        payload = raw[:, 1]
-        octets = raw.view(np.uint8).reshape(-1, 16)  # each frame's bytes: the payload is bytes 8..15
-        d6, d7 = octets[:, 14], octets[:, 15]
-        if cubemars is not None:
-            rows, limit = cubemars  # the CubeMars rows, and byte 7's largest defined error code per row
-            if np.count_nonzero(d7 > limit):
-                return None
-            error = np.where(rows, d7, error)
-        word = payload.byteswap()  # the big-endian word of :meth:`decode`
-        values = ((word[:, None] >> self._SHIFTS) & self._MASKS) * scale + low
-        return DecodedReplies(verdict, index, motor_id, values, d6 + temperature, d7 + rotor, error, d6 * volts, status)
+    def _decode_steady(self, octets: NDArray[np.uint8], bus: NDArray[np.int64], constants: tuple[NDArray[Any], ...],
+                       verdict: NDArray[Any], index: NDArray[Any], motor_id: NDArray[Any], error: NDArray[Any],
+                       status: NDArray[Any]) -> DecodedReplies | None:  # fmt: skip
+        """:meth:`decode` of a batch (``octets``: its frames' bytes) whose key repeats the kept
+        one's: the same arithmetic on the payload (:func:`~giwbc.hal.kernels.steady_replies`), the
+        rest handed out from the kept batch (read-only arrays); None when the key differs or a
+        CubeMars reply carries an undefined error byte (the full decode says corrupt)."""
+        m = octets.shape[0]
+        values = np.empty((m, 3))
+        extra = np.empty((3, m))
+        error_out = np.empty(m, dtype=np.int64)
+        if not steady_replies(octets, np.ascontiguousarray(bus), *constants, values, extra, error_out):
+            return None
+        return DecodedReplies(verdict, index, motor_id, values, extra[0], extra[1], error_out, extra[2], status)
 
 
 def _as_bytes(data: Any) -> bytes:

@@ -1,0 +1,96 @@
+"""Compiled kernels of the CAN cycle's steady path (issue 37): a steady reply batch's key check and
+payload arithmetic in one call, over the frames' raw bytes.
+
+In the steady state every cycle's replies repeat the last batch's ids, lengths, byte 0 and buses;
+:class:`~giwbc.hal.protocols.mit.MitReplyDecoder` keeps what follows from those and decodes only
+the payloads. Done in numpy that is about twenty small-array calls per cycle (the key's two
+comparisons, the bit fields, the temperatures), each paying numpy's per-call overhead; here it is
+one loop over the frames. Same IEEE operations as the numpy form (an exact integer times a float64
+scale plus an offset: no fused multiply-add, numba without ``fastmath``), so every field is equal
+bit for bit; ``tests/test_hal_cycle_paths.py`` compares the compiled kernel, its plain Python
+function (:func:`giwbc.util.jit.reference`) and the full decode on random batches.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from giwbc.util.jit import compiled
+
+__all__ = ["KEY_BYTES", "steady_key", "steady_replies", "warm_up"]
+
+# A frame's key (struct can_frame bytes): the 32-bit can_id (flags included), the length, and the
+# payload's byte 0 (frame byte 8).
+KEY_BYTES = (0, 1, 2, 3, 4, 8)
+
+
+def steady_key(octets: np.ndarray) -> np.ndarray:
+    """The key bytes of frames given as their ``(M, 16)`` raw bytes: ``(M, 6)`` uint8."""
+    return np.ascontiguousarray(octets[:, KEY_BYTES])
+
+
+@compiled
+def steady_replies(
+    octets: np.ndarray,
+    bus: np.ndarray,
+    key_bus: np.ndarray,
+    key: np.ndarray,
+    scale: np.ndarray,
+    low: np.ndarray,
+    fields: np.ndarray,
+    error: np.ndarray,
+    cubemars: np.ndarray,
+    limit: np.ndarray,
+    values: np.ndarray,
+    extra: np.ndarray,
+    error_out: np.ndarray,
+) -> bool:
+    """Decode the replies ``octets`` (``(M, 16)`` uint8, ``struct can_frame`` each) that arrived on
+    ``bus`` when their buses and key bytes (:data:`KEY_BYTES`) equal ``key_bus`` and ``key`` (those
+    of the kept batch): ``values[k]`` = position, velocity, torque counts × ``scale[k]`` +
+    ``low[k]``; ``extra[0, k]`` = byte 6 + ``fields[0, k]`` (temperature), ``extra[1, k]`` = byte 7
+    + ``fields[1, k]`` (rotor temperature), ``extra[2, k]`` = byte 6 × ``fields[2, k]`` (volts);
+    ``error_out[k]`` = byte 7 where ``cubemars[k]``, else ``error[k]``. False (outputs undefined)
+    when the key differs or a CubeMars reply's byte 7 is above ``limit[k]`` (an undefined error code:
+    corrupt): then the full decode decides."""
+    m = octets.shape[0]
+    if bus.shape[0] != m or key_bus.shape[0] != m or key.shape[0] != m:
+        return False
+    for k in range(m):
+        if bus[k] != key_bus[k]:
+            return False
+        o = octets[k]
+        q = key[k]
+        if o[0] != q[0] or o[1] != q[1] or o[2] != q[2] or o[3] != q[3] or o[4] != q[4] or o[8] != q[5]:
+            return False
+    for k in range(m):
+        o = octets[k]
+        b4 = int(o[12])
+        d6 = int(o[14])
+        d7 = int(o[15])
+        if cubemars[k]:
+            if d7 > limit[k]:
+                return False
+            error_out[k] = d7
+        else:
+            error_out[k] = error[k]
+        position = (int(o[9]) << 8) | int(o[10])
+        velocity = (int(o[11]) << 4) | (b4 >> 4)
+        torque = ((b4 & 0xF) << 8) | int(o[13])
+        values[k, 0] = float(position) * scale[k, 0] + low[k, 0]
+        values[k, 1] = float(velocity) * scale[k, 1] + low[k, 1]
+        values[k, 2] = float(torque) * scale[k, 2] + low[k, 2]
+        extra[0, k] = float(d6) + fields[0, k]
+        extra[1, k] = float(d7) + fields[1, k]
+        extra[2, k] = float(d6) * fields[2, k]
+    return True
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's cache) :func:`steady_replies` for the argument types the decoder
+    passes (C-contiguous arrays), so a first compile never lands inside a control cycle (a reply
+    decoder's construction calls it, before any bus is read)."""
+    octets = np.zeros((1, 16), dtype=np.uint8)
+    one = np.zeros(1, dtype=np.int64)
+    steady_replies(octets, one, one, steady_key(octets), np.ones((1, 3)), np.zeros((1, 3)), np.zeros((3, 1)), one,
+                   np.zeros(1, dtype=bool), one, np.empty((1, 3)), np.empty((3, 1)), np.empty(1, dtype=np.int64))  # fmt: skip
