@@ -132,6 +132,40 @@ def test_steady_kernel_compiled_equals_its_python(protocols):
         assert not same(octets[:-1], bus[:-1])[0]
 
 
+def test_steady_joint_state_equals_the_general_update(g1):
+    """giwbc.hal.kernels.joint_state_of_replies (CanRobot's steady cycle: every motor once, in plan
+    order), compiled and as plain Python, against the general path's numpy on random replies: the
+    same q, dq, tau (MotorGroup.states_to_joint), temperatures (the coil's where not NaN) and error
+    codes, bit for bit."""
+    from giwbc.hal.kernels import joint_state_of_replies
+    from giwbc.hal.motor import MotorGroup
+    from giwbc.util.jit import reference
+
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    motors = [m for bus in plan.buses for m in bus.motors]
+    group = MotorGroup(motors)
+    joint = np.array([g1.joint_names.index(m.joint) for m in motors], dtype=np.int64)
+    rng = np.random.default_rng(11)
+    m, n = len(motors), g1.dofs
+    for _ in range(20):
+        state = rng.uniform(-50, 50, (m, 3))
+        rotor = np.where(rng.random(m) < 0.5, np.nan, rng.uniform(20, 90, m))
+        reported = rng.uniform(20, 90, m)
+        error = rng.integers(-1, 8, m)
+        expected = np.zeros((3, n))
+        expected[:, joint] = group.states_to_joint(state).T
+        expected_temperature = np.full(n, np.nan)
+        expected_temperature[joint] = np.where(np.isnan(rotor), reported, rotor)
+        expected_error = np.full(n, -1)
+        expected_error[joint] = error
+        for kernel in (joint_state_of_replies, reference(joint_state_of_replies)):
+            out, temperature, codes = np.zeros((3, n)), np.full(n, np.nan), np.full(n, -1, dtype=np.int64)
+            kernel(state, group._state_scale, group._state_offset, joint, rotor, reported, error, out, temperature, codes)
+            np.testing.assert_array_equal(out, expected)
+            np.testing.assert_array_equal(temperature, expected_temperature)
+            np.testing.assert_array_equal(codes, expected_error)
+
+
 def test_block_encoder_equals_the_field_encoder(protocols):
     rng = np.random.default_rng(9)
     codec = MultiBusCodec(protocols)

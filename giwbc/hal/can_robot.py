@@ -40,6 +40,7 @@ from giwbc.hal.can_imu import CanImu
 from giwbc.hal.frames import GroupReceived, PortGroup, SocketPort
 from giwbc.hal.hardware import HardwarePlan
 from giwbc.hal.imu import ImuSource
+from giwbc.hal.kernels import joint_state_of_replies
 from giwbc.hal.motor import MotorGroup
 from giwbc.hal.protocols import CORRUPT, REPLY, DecodedReplies
 from giwbc.hal.protocols.multibus import MultiBusCodec
@@ -53,7 +54,6 @@ COMMAND, ENTER, EXIT = "command", "enter", "exit"
 _SEND_COLUMNS = [SENT, DROPPED, RETRIES, BUS_ERRORS]  # link counters, in PortGroup.send's outcome order
 assert _SEND_COLUMNS[:3] == [0, 1, 2]  # (exchange adds the first three as one slice)
 _SEND_BUDGET = 5e-3  # s: how long sending may take when the caller gives no deadline
-_EVERY = slice(None)  # every reply row (the steady state: one reply per motor, in plan order)
 
 
 class Peer(Protocol):
@@ -175,6 +175,16 @@ class CanRobot(DescribedRobot):
         self._all_sent_array.flags.writeable = False
 
         self._init_joint_state(description)
+        self._warm_up()
+
+    def _warm_up(self) -> None:
+        """Compile (or load from numba's cache) the steady joint-state update for the arrays this
+        robot passes it (on copies), so a first compile never lands inside a control cycle."""
+        m = len(self.motors)
+        steady = np.zeros((m, 3))
+        joint_state_of_replies(steady, self.group._state_scale, self.group._state_offset, self.joint_index, steady[:, 0].copy(),
+                               steady[:, 1].copy(), np.zeros(m, dtype=np.int64), self._joint_state.copy(), self._temperature.copy(),
+                               self._error.copy())  # fmt: skip
 
     def _init_joint_state(self, description: RobotDescription) -> None:
         """The per-joint state, command and counters every link kind keeps (CAN here, DDS in
@@ -420,35 +430,31 @@ class CanRobot(DescribedRobot):
         newest reply of each motor. Returns (replied per joint, corrupt frames per bus, unknown frames)."""
         decoded, bus, skipped = self._receive(deadline)
         if decoded.index.tobytes() == self._plan_order_bytes:  # the steady state: every motor once, in order
-            state = decoded.state  # a new array: converted in place
-            state *= self.group._state_scale
-            state += self.group._state_offset
-            rows: Any = _EVERY
-            j = self.joint_index
-            corrupt, unknown = self._no_corrupt.copy(), skipped
-        else:
-            corrupt = np.bincount(bus[decoded.verdict == CORRUPT], minlength=len(self.links))
-            rows = np.flatnonzero(decoded.verdict == REPLY)
-            unknown = len(decoded) - len(rows) - int(corrupt.sum()) + skipped
-            index = decoded.index[rows]
-            n = len(self.motors)
-            if len(index) and np.bincount(index, minlength=n).max() > 1:  # a motor replied twice: the newest counts
-                newest = np.full(n, -1, dtype=np.int64)
-                np.maximum.at(newest, index, np.arange(len(index)))
-                keep = newest[newest >= 0]
-                rows, index = rows[keep], index[keep]
-            state = self.group.states_to_joint(decoded.state[rows], index)
-            j = self.joint_index[index]
+            joint_state_of_replies(decoded.state, self.group._state_scale, self.group._state_offset, self.joint_index,
+                                   decoded.rotor_temperature, decoded.temperature, decoded.error_code, self._joint_state,
+                                   self._temperature, self._error)  # fmt: skip
+            self._status[self.joint_index] = decoded.status
+            return self._all_replied, self._no_corrupt.copy(), skipped
+        corrupt = np.bincount(bus[decoded.verdict == CORRUPT], minlength=len(self.links))
+        rows = np.flatnonzero(decoded.verdict == REPLY)
+        unknown = len(decoded) - len(rows) - int(corrupt.sum()) + skipped
+        index = decoded.index[rows]
+        n = len(self.motors)
+        if len(index) and np.bincount(index, minlength=n).max() > 1:  # a motor replied twice: the newest counts
+            newest = np.full(n, -1, dtype=np.int64)
+            np.maximum.at(newest, index, np.arange(len(index)))
+            keep = newest[newest >= 0]
+            rows, index = rows[keep], index[keep]
+        state = self.group.states_to_joint(decoded.state[rows], index)
+        j = self.joint_index[index]
         self._joint_state[:, j] = state.T
         rotor, reported = decoded.rotor_temperature[rows], decoded.temperature[rows]
         self._temperature[j] = np.where(np.isnan(rotor), reported, rotor)  # the coil's where reported
         self._error[j] = decoded.error_code[rows]
         self._status[j] = decoded.status[rows]
-        if rows is not _EVERY:
-            replied = np.zeros(self.description.dofs, dtype=bool)
-            replied[j] = True
-            return replied, corrupt, unknown
-        return self._all_replied, corrupt, unknown
+        replied = np.zeros(self.description.dofs, dtype=bool)
+        replied[j] = True
+        return replied, corrupt, unknown
 
     def _read_imu(self) -> bool:
         if self.imu_source is None:

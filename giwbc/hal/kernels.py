@@ -17,7 +17,7 @@ import numpy as np
 
 from giwbc.util.jit import compiled
 
-__all__ = ["KEY_BYTES", "steady_key", "steady_replies", "warm_up"]
+__all__ = ["KEY_BYTES", "joint_state_of_replies", "steady_key", "steady_replies", "warm_up"]
 
 # A frame's key (struct can_frame bytes): the 32-bit can_id (flags included), the length, and the
 # payload's byte 0 (frame byte 8).
@@ -84,6 +84,32 @@ def steady_replies(
         extra[1, k] = float(d7) + fields[1, k]
         extra[2, k] = float(d6) * fields[2, k]
     return True
+
+
+@compiled
+def joint_state_of_replies(
+    state: np.ndarray,
+    scale: np.ndarray,
+    offset: np.ndarray,
+    joint: np.ndarray,
+    rotor: np.ndarray,
+    reported: np.ndarray,
+    error: np.ndarray,
+    joint_state: np.ndarray,
+    temperature: np.ndarray,
+    joint_error: np.ndarray,
+) -> None:
+    """One reply per motor, in plan order: motor ``k``'s (position, velocity, torque) ``state[k]``
+    to its joint ``joint[k]``'s column of ``joint_state`` (rows q, dq, tau) as ``state × scale +
+    offset`` (two roundings, as ``state *= scale; state += offset``), its temperature (the coil's
+    ``rotor[k]`` where reported, else ``reported[k]``) and its error code."""
+    for k in range(state.shape[0]):
+        j = joint[k]
+        for i in range(3):
+            joint_state[i, j] = state[k, i] * scale[k, i] + offset[k, i]
+        r = rotor[k]
+        temperature[j] = reported[k] if r != r else r
+        joint_error[j] = error[k]
 
 
 def warm_up() -> None:
