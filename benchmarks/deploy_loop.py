@@ -216,10 +216,13 @@ def _steal_seconds() -> dict[str, float]:
 
 def _overrun_causes(stats, period: float) -> dict[str, int]:
     """Why each overrun happened (see the module docstring)."""
-    late = np.asarray(stats.lateness)
-    work = np.asarray(stats.work)
-    cpu = np.asarray(stats.cpu)
-    over = np.asarray(stats.overrun, dtype=bool)
+    # A cycle that began but never reached the clock's done() (the run stopped inside it) has a
+    # lateness and no work: the cycles that ended only.
+    n = min(len(stats.lateness), len(stats.work), len(stats.cpu), len(stats.overrun))
+    late = np.asarray(stats.lateness[:n])
+    work = np.asarray(stats.work[:n])
+    cpu = np.asarray(stats.cpu[:n])
+    over = np.asarray(stats.overrun[:n], dtype=bool)
     late_start = over & (late > 0.25 * period)
     long_work = over & ~late_start
     return {
