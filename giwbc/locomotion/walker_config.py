@@ -235,7 +235,10 @@ class WalkerConfig:
     # 20000-20005 38 / 24 against 41 / 33 of 48 (forward pushes failed); 3 on roll and pitch only 23 / 18; 0.3,
     # 9 / 8; a recovery step's nominal swing 0.28 s (the adapter held the DCM to land on the box's edge late)
     # 18 / 14, the same but not for backward steps 18 / 18; recovery_offset 0 / 0.08 / 0.11 m 12 / 8, 17 / 15,
-    # 15 / 12; a recovery box 0.65 m across 21 / 11.
+    # 15 / 12; a recovery box 0.65 m across 21 / 11. The price: at 25 N s the forward diagonals the adapter
+    # had landed 0.75-0.85 m out, settling on a wide split, now fall more often (tuning seeds, 72 each at
+    # 25 / 30 / 35 N s): off 70 / 61 / 49, 0.75 m 61 / 68 / 66, 0.78 m 57 / 51 / 60; limited only once the
+    # adapter asks for more than 0.85 (0.82) m in a swing, latched: 70 / 55 / 64 (60 / 67 / 65).
     recovery_max_split: float = 0.75
 
     def __post_init__(self) -> None:
