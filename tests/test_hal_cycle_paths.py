@@ -132,6 +132,28 @@ def test_steady_kernel_compiled_equals_its_python(protocols):
         assert not same(octets[:-1], bus[:-1])[0]
 
 
+def test_no_kernel_compiles_in_a_cycle(protocols):
+    """The decoder's construction compiles (or loads) the steady kernel for every type a cycle
+    passes it: frames read from a socket (a read-only view of the bytes, np.frombuffer) and frames
+    built in memory, on read-only or writable bus indices. A compile inside a cycle stalls the loop
+    for up to a second (the watchdog stopped a first run for it)."""
+    from giwbc.hal.kernels import steady_replies
+
+    decoder = MitReplyDecoder(protocols)
+    known = set(steady_replies.signatures)
+    batch, bus = _replies(protocols, np.random.default_rng(12))
+    from_socket = np.frombuffer(batch.tobytes(), dtype=batch.dtype)
+    assert not from_socket.flags.writeable
+    frozen_bus = bus.copy()
+    frozen_bus.flags.writeable = False
+    decoder.decode(bus, batch)  # keeps the steady key
+    for frames in (batch, from_socket):
+        for on in (bus, frozen_bus):
+            decoded = decoder.decode(on, frames)
+            _assert_same(decoded, MitReplyDecoder(protocols).decode(bus, batch))
+    assert set(steady_replies.signatures) == known
+
+
 def test_steady_joint_state_equals_the_general_update(g1):
     """giwbc.hal.kernels.joint_state_of_replies (CanRobot's steady cycle: every motor once, in plan
     order), compiled and as plain Python, against the general path's numpy on random replies: the

@@ -113,10 +113,16 @@ def joint_state_of_replies(
 
 
 def warm_up() -> None:
-    """Compile (or load from numba's cache) :func:`steady_replies` for the argument types the decoder
-    passes (C-contiguous arrays), so a first compile never lands inside a control cycle (a reply
-    decoder's construction calls it, before any bus is read)."""
-    octets = np.zeros((1, 16), dtype=np.uint8)
+    """Compile (or load from numba's cache) :func:`steady_replies` for every argument type the
+    decoder passes (C-contiguous arrays; the frames and the buses writable or read-only: frames read
+    from a socket are a read-only view of its bytes), so a first compile never lands inside a
+    control cycle (a reply decoder's construction calls it, before any bus is read)."""
     one = np.zeros(1, dtype=np.int64)
-    steady_replies(octets, one, one, steady_key(octets), np.ones((1, 3)), np.zeros((1, 3)), np.zeros((3, 1)), one,
-                   np.zeros(1, dtype=bool), one, np.empty((1, 3)), np.empty((3, 1)), np.empty(1, dtype=np.int64))  # fmt: skip
+    for frozen_octets in (False, True):
+        for frozen_bus in (False, True):
+            octets = np.zeros((1, 16), dtype=np.uint8)
+            bus = one.copy()
+            octets.flags.writeable = not frozen_octets
+            bus.flags.writeable = not frozen_bus
+            steady_replies(octets, bus, one, steady_key(octets), np.ones((1, 3)), np.zeros((1, 3)), np.zeros((3, 1)), one,
+                           np.zeros(1, dtype=bool), one, np.empty((1, 3)), np.empty((3, 1)), np.empty(1, dtype=np.int64))  # fmt: skip
