@@ -238,7 +238,8 @@ class WalkerConfig:
     # 15 / 12; a recovery box 0.65 m across 21 / 11. The price: at 25 N s the forward diagonals the adapter
     # had landed 0.75-0.85 m out, settling on a wide split, now fall more often (tuning seeds, 72 each at
     # 25 / 30 / 35 N s): off 70 / 61 / 49, 0.75 m 61 / 68 / 66, 0.78 m 57 / 51 / 60; limited only once the
-    # adapter asks for more than 0.85 (0.82) m in a swing, latched: 70 / 55 / 64 (60 / 67 / 65).
+    # adapter asks for more than 0.85 (0.82) m in a swing, latched: 70 / 55 / 64 (60 / 67 / 65); the forward part kept,
+    # only the lateral part shortened: 66 / 51 / 48 (the forward reach is what the limit takes off).
     recovery_max_split: float = 0.75
 
     def __post_init__(self) -> None:
