@@ -206,6 +206,41 @@ def test_block_encoder_equals_the_field_encoder(protocols):
         codec.encode_rows(rows)
 
 
+def test_held_command_kernel_equals_the_block_encoder(g1, protocols):
+    """giwbc.hal.kernels.held_commands (the held command's frames in one compiled call), compiled and
+    as plain Python, against MotorGroup.commands_to_motor + MultiBusCodec.encode_rows on random joint
+    rows, some beyond the motors' ranges: the same frames byte for byte, the same clamp mask; a NaN
+    is refused (-1), so the general encoder names it."""
+    from giwbc.hal.kernels import held_commands
+    from giwbc.hal.motor import MotorGroup
+    from giwbc.hal.protocols.mit import _LEVELS_F
+    from giwbc.util.jit import reference
+
+    codec = MultiBusCodec(protocols)
+    group = MotorGroup(codec.motors)
+    joint = np.array([g1.joint_names.index(m.joint) for m in codec.motors], dtype=np.int64)
+    encoder, n = codec._encoder, len(codec.motors)
+    rng = np.random.default_rng(13)
+    for _ in range(20):
+        held = np.vstack([rng.uniform(-4, 4, g1.dofs), rng.uniform(-60, 60, g1.dofs), rng.uniform(0, 700, g1.dofs),
+                          rng.uniform(0, 12, g1.dofs), rng.uniform(-400, 400, g1.dofs)])  # fmt: skip
+        expected, expected_clamped = codec.encode_rows(group.commands_to_motor(held.take(joint, axis=1)))
+        assert expected_clamped.any() and not expected_clamped.all()
+        batch, clamped, count = codec.encode_held(held, joint, group._command_scale, group._command_offset)
+        np.testing.assert_array_equal(batch.view(np.uint8), expected.view(np.uint8))
+        np.testing.assert_array_equal(clamped, expected_clamped)
+        assert count == int(expected_clamped.sum())
+        out, mask = np.zeros((n, 16), dtype=np.uint8), np.zeros((n, 5), dtype=bool)
+        args = (held, joint, group._command_scale, group._command_offset, encoder._lo_rows, encoder._hi_rows, encoder._span_rows, _LEVELS_F,
+                codec._template_octets)  # fmt: skip
+        assert reference(held_commands)(*args, out, mask) == count
+        np.testing.assert_array_equal(out, expected.view(np.uint8).reshape(n, 16))
+        np.testing.assert_array_equal(mask, expected_clamped)
+    held[3, joint[5]] = np.nan
+    assert held_commands(*args, out, mask) == -1  # (args holds this held)
+    assert codec.encode_held(held, joint, group._command_scale, group._command_offset) is None
+
+
 def test_the_held_command_encodes_as_any_command_does(g1):
     """CanRobot encodes set_joint_impedance's checked rows directly; a command set any other way
     (the same values in new arrays) goes the general way: the same frames, the same clamps."""

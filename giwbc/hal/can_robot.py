@@ -178,13 +178,15 @@ class CanRobot(DescribedRobot):
         self._warm_up()
 
     def _warm_up(self) -> None:
-        """Compile (or load from numba's cache) the steady joint-state update for the arrays this
-        robot passes it (on copies), so a first compile never lands inside a control cycle."""
+        """Compile (or load from numba's cache) the steady joint-state update and the held command's
+        encoder for the arrays this robot passes them (on copies and zeros), so a first compile never
+        lands inside a control cycle."""
         m = len(self.motors)
         steady = np.zeros((m, 3))
         joint_state_of_replies(steady, self.group._state_scale, self.group._state_offset, self.joint_index, steady[:, 0].copy(),
                                steady[:, 1].copy(), np.zeros(m, dtype=np.int64), self._joint_state.copy(), self._temperature.copy(),
                                self._error.copy())  # fmt: skip
+        self.codec.encode_held(np.zeros((5, self.dofs)), self.joint_index, self.group._command_scale, self.group._command_offset)
 
     def _init_joint_state(self, description: RobotDescription) -> None:
         """The per-joint state, command and counters every link kind keeps (CAN here, DDS in
@@ -314,6 +316,12 @@ class CanRobot(DescribedRobot):
         c = self.command
         held = self._held_rows()
         if held is not None:
+            fast = self.codec.encode_held(held, self.joint_index, self.group._command_scale, self.group._command_offset)
+            if fast is not None:  # one compiled call (a NaN falls through: the general path names it)
+                batch, clamp, n_clamped = fast
+                if n_clamped:
+                    np.add.at(self.clamp_counts, self.joint_index, clamp.astype(np.int64))
+                return batch, n_clamped
             rows = held.take(self.joint_index, axis=1)
         else:
             rows = np.array((c.q_ref, c.v_ref, c.kp, c.kd, c.tau_ff), dtype=float)[:, self.joint_index]

@@ -17,7 +17,7 @@ import numpy as np
 
 from giwbc.util.jit import compiled
 
-__all__ = ["KEY_BYTES", "joint_state_of_replies", "steady_key", "steady_replies", "warm_up"]
+__all__ = ["KEY_BYTES", "held_commands", "joint_state_of_replies", "steady_key", "steady_replies", "warm_up"]
 
 # A frame's key (struct can_frame bytes): the 32-bit can_id (flags included), the length, and the
 # payload's byte 0 (frame byte 8).
@@ -110,6 +110,58 @@ def joint_state_of_replies(
         r = rotor[k]
         temperature[j] = reported[k] if r != r else r
         joint_error[j] = error[k]
+
+
+@compiled
+def held_commands(
+    held: np.ndarray,
+    joint: np.ndarray,
+    scale: np.ndarray,
+    offset: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    span: np.ndarray,
+    levels: np.ndarray,
+    template: np.ndarray,
+    out: np.ndarray,
+    clamped: np.ndarray,
+) -> int:
+    """MIT command frames of the joint-side ``(5, dofs)`` rows ``held`` (q, dq, kp, kd, tau), motor
+    ``k`` driving joint ``joint[k]``: each field to the motor side (``x × scale + offset``), clamped
+    to ``[lo, hi]`` (``clamped[k, i]`` says whether it was), quantized as
+    :meth:`~giwbc.hal.protocols.mit.MitCommandEncoder.encode_rows` does (``ceil((x − lo) × levels /
+    span − 0.5)``) and packed big-endian in bytes 8..15 of ``out[k]`` (``(N, 16)`` uint8), whose
+    bytes 0..7 are ``template[k]``'s. Returns how many fields were clamped, or -1 at a NaN (outputs
+    undefined: the general encoder names it)."""
+    n = joint.shape[0]
+    count = 0
+    for k in range(n):
+        j = joint[k]
+        word = np.uint64(0)
+        for i in range(5):
+            x = held[i, j] * scale[i, k] + offset[i, k]
+            if x != x:
+                return -1
+            low = lo[i, k]
+            high = hi[i, k]
+            below = x < low
+            above = x > high
+            clamped[k, i] = below or above
+            if below or above:
+                count += 1
+            if below:
+                x = low
+            if above:
+                x = high
+            x -= low
+            x *= levels[i]
+            x /= span[i, k]
+            x -= 0.5
+            word |= np.uint64(np.ceil(x)) << np.uint64(48 - 12 * i)
+        for b in range(8):
+            out[k, b] = template[k, b]
+            out[k, 8 + b] = np.uint8((word >> np.uint64(56 - 8 * b)) & np.uint64(0xFF))
+    return count
 
 
 def warm_up() -> None:

@@ -20,6 +20,8 @@ from numpy.typing import NDArray
 
 from giwbc.hal.frames import frames, frames_of
 from giwbc.hal.protocols.base import ActuatorProtocol, DecodedReplies
+from giwbc.hal.kernels import held_commands
+from giwbc.hal.protocols.mit import _LEVELS_F as _LEVELS
 from giwbc.hal.protocols.mit import MitCommandEncoder, MitProtocol, MitReplyDecoder
 
 SPECIAL_FRAMES = ("enter", "exit", "zero")
@@ -44,6 +46,7 @@ class MultiBusCodec:
             self._encoder = MitCommandEncoder(self.motors)
             self._decoder = MitReplyDecoder(self.protocols)  # type: ignore[arg-type]
             self._template = frames(self._can_ids, np.zeros((len(self.motors), 8), dtype=np.uint8))
+            self._template_octets = self._template.view(np.uint8).reshape(len(self.motors), 16)
         self._special: dict[str, NDArray[Any]] = {}
 
     def encode_commands(self, position: Any, velocity: Any, kp: Any, kd: Any, torque: Any) -> tuple[NDArray[Any], NDArray[np.bool_]]:
@@ -72,6 +75,25 @@ class MultiBusCodec:
         out = self._template.copy()
         out.view(np.uint64).reshape(-1, 2)[:, 1] = words.byteswap()  # the payload, big-endian, in bytes 8..15 of each frame
         return out, clamped
+
+    def encode_held(self, held: NDArray[np.float64], joint: NDArray[np.int64], scale: NDArray[np.float64],
+                    offset: NDArray[np.float64]) -> tuple[NDArray[Any], NDArray[np.bool_], int] | None:  # fmt: skip
+        """:meth:`encode_rows` of the joint-side ``(5, dofs)`` rows ``held`` taken at ``joint`` (one
+        column per motor) and brought to the motor side as ``held × scale + offset``, in one compiled
+        call (:func:`~giwbc.hal.kernels.held_commands`): the frames, the clamp mask and how many
+        fields were clamped; None when the buses do not all speak MIT mode or a field is NaN (then
+        take the general path, which names it)."""
+        encoder = self._encoder
+        if encoder is None:
+            return None
+        n = len(self.motors)
+        out = np.empty(n, dtype=self._template.dtype)
+        clamped = np.empty((n, 5), dtype=bool)
+        count = held_commands(held, joint, scale, offset, encoder._lo_rows, encoder._hi_rows, encoder._span_rows, _LEVELS,
+                              self._template_octets, out.view(np.uint8).reshape(n, 16), clamped)  # fmt: skip
+        if count < 0:
+            return None
+        return out, clamped, count
 
     def special_frames(self, kind: str) -> NDArray[Any]:
         """The ``enter`` (motor mode), ``exit`` or ``zero`` frame of every motor."""
