@@ -27,7 +27,7 @@ seeds 1000-1999).
   push); per condition with Wilson 95 % intervals, per phase and per direction.
 * **impulse_grid**: standing (stepping walker), 0.1 s pushes in 8 directions at 25 / 30 / 35 N s
   (``--impulses``), ``--grid-seeds`` seeds per cell (default 3).
-* **envelope**: the 23 commands of ``ENVELOPE_GRID`` (vx 1.0 / -0.5, vy +-0.4, wz +-1.0,
+* **envelope**: the 23 commands of ``ENVELOPE_GRID`` (``--envelope-commands``: some of them; vx 1.0 / -0.5, vy +-0.4, wz +-1.0,
   combinations) for 12 s (``--envelope-seconds``; --full 20 s x 10 seeds): falls, the command
   followed after the clamp, mean heading-frame velocity after the first 3 s against it, tracking per
   step and per tick. Every metric's definition is in the output's ``definitions``.
@@ -337,14 +337,15 @@ def _envelope_run(job: tuple[str, tuple[float, float, float], float, int]) -> di
             **{key: round(getattr(run.per_tick, key), 4) for key in PER_TICK}}
 
 
-def envelope_grid(seconds: float, seeds: list[int], workers: int, progress: bool) -> dict:
-    """Every command of ENVELOPE_GRID for ``seconds`` per seed: falls, command followed, mean velocity vs it, tracking both ways."""
-    jobs = [(name, command, seconds, s) for name, command in ENVELOPE_GRID.items() for s in seeds]
+def envelope_grid(seconds: float, seeds: list[int], workers: int, progress: bool, names: list[str] | None = None) -> dict:
+    """Every command of ENVELOPE_GRID (or those ``names``) for ``seconds`` per seed: falls, command followed, mean velocity vs it, tracking both ways."""
+    grid = ENVELOPE_GRID if names is None else {name: ENVELOPE_GRID[name] for name in names}
+    jobs = [(name, command, seconds, s) for name, command in grid.items() for s in seeds]
     results = _map(_envelope_run, jobs, workers, progress)
     runs = {}
     for (name, *_), r in zip(jobs, results):
         runs.setdefault(name, []).append(r)
-    return {"seconds": seconds, "discard_s": ENVELOPE_DISCARD_S, "seeds": seeds, "commands": len(ENVELOPE_GRID),
+    return {"seconds": seconds, "discard_s": ENVELOPE_DISCARD_S, "seeds": seeds, "commands": len(grid),
             "falls": sum(r["fell"] for r in results), "runs_total": len(results), "within": sum(r["within"] and not r["fell"] for r in results),
             "runs": runs}
 
@@ -364,6 +365,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--grid-seeds", type=int, default=None, help="seeds per cell of gait_phase / impulse_grid / envelope (default 1, --full 3 / 3 / 10)")
     parser.add_argument("--impulse", type=float, default=30.0, help="gait_phase push impulse, N s (over 0.1 s)")
     parser.add_argument("--impulses", type=float, nargs="+", default=[25.0, 30.0, 35.0], help="impulse_grid impulses, N s (over 0.1 s)")
+    parser.add_argument("--envelope-commands", nargs="+", choices=list(ENVELOPE_GRID), default=None, metavar="NAME",
+                        help=f"envelope commands to run (default all): {', '.join(ENVELOPE_GRID)}")
     parser.add_argument("--envelope-seconds", type=float, default=None, help="envelope run length (default 12, --full 20)")
     args = parser.parse_args(argv)
     progress = wants_progress(args)
@@ -445,7 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     if "envelope" in parts:
         n = args.grid_seeds if args.grid_seeds is not None else (10 if args.full else 1)
         length = args.envelope_seconds if args.envelope_seconds is not None else (20.0 if args.full else 12.0)
-        out["envelope_grid"] = envelope_grid(length, [base + i for i in range(n)], args.workers, progress)
+        out["envelope_grid"] = envelope_grid(length, [base + i for i in range(n)], args.workers, progress, args.envelope_commands)
     if parts & {"gait_phase", "impulse_grid", "envelope"}:
         out["definitions"] = METRIC_DEFINITIONS
     out["wall_seconds"] = round(time.perf_counter() - started, 1)
