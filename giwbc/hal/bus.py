@@ -25,6 +25,7 @@ from typing import Any
 import can
 import numpy as np
 
+from giwbc.hal.kernels import warm_up as warm_up_kernels
 from giwbc.hal.frames import FRAME, Received, frame_port, frames, frames_of
 from giwbc.hal.protocols.base import (
     ActuatorProtocol,
@@ -227,6 +228,9 @@ class CanBusLink:
         self.send_timeout = float(send_timeout)
         self.max_retries = int(max_retries)
         self.counts = np.zeros(8, dtype=np.int64)  # see LinkCounters; a robot may replace it by a row of its own array
+        # The reply decode's compiled kernel ready now (compiled once per machine, ~1 s without numba's cache;
+        # then loaded or already in memory): a protocol builds its decoder at its first receive, inside a deadline.
+        warm_up_kernels()
 
     @property
     def counters(self) -> LinkCounters:
