@@ -107,8 +107,9 @@ def split_faults(faults: tuple[Any, ...], dds: bool = True) -> tuple[tuple[Any, 
 
 
 def open_dds(plan: DdsPlan, description: RobotDescription, options: Any, config: EmulatorConfig | None, dds_faults: tuple[DdsFault, ...],
-             say: Callable[[str], None]) -> tuple[DdsRobot, DdsEmulatorProcess | None]:  # fmt: skip
-    """The DDS robot of ``plan`` (on the emulator in its own process with ``options.emulate``)."""
+             say: Callable[[str], None], plant: Any = None) -> tuple[DdsRobot, DdsEmulatorProcess | None]:  # fmt: skip
+    """The DDS robot of ``plan`` (on the emulator in its own process with ``options.emulate``, stepping
+    ``plant``: a :func:`giwbc.plants.resolve_plant` spec, None for the description's model)."""
     if options.imu is not None:
         raise DeployError("--imu chooses the IMU a CAN rehearsal imitates; a DDS robot's IMU is the one in its rt/lowstate")
     if dds_faults and not options.emulate:
@@ -124,7 +125,7 @@ def open_dds(plan: DdsPlan, description: RobotDescription, options: Any, config:
             raise DeployError(f"the DDS emulator's motor models: {error}") from error
         service = EMULATED_SERVICE if options.release_service else None
         emulator = DdsEmulatorProcess(plan, motors, description, config, faults=dds_faults, service=service,
-                                      plant=getattr(options, "plant", None))
+                                      plant=plant)
         plan = emulator.host_plan()
         say(f"emulated G1 behind DDS in its own process (domain {plan.domain} on loopback, rt/lowcmd / rt/lowstate"
             + (f"; its locomotion service runs mode {service!r})" if service else ")"))

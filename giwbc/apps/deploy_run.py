@@ -230,7 +230,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 pass  # the DDS emulator starts with the robot (below, open_dds)
             elif options.emulator_mode == "process":
                 rt = None if options.rt_priority is None else max(1, options.rt_priority - 1)  # just below the loop
-                emulator = EmulatorProcess(plan, description, config, rt_priority=rt, plant=options.plant)
+                emulator = EmulatorProcess(plan, description, config, rt_priority=rt, plant=plant)  # built once, above
                 host_plan, peer = emulator.host_plan(), None
                 say("emulated actuators in their own process on giwbc-unix channels (real time; replies read at the next cycle)")
             else:
@@ -260,7 +260,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
             if options.preflight:
                 check_interfaces(plan, say)
         if dds:
-            can_robot, emulator = open_dds(plan, description, options, config if options.emulate else None, dds_faults, say)
+            can_robot, emulator = open_dds(plan, description, options, config if options.emulate else None, dds_faults, say, plant=plant)
         elif plan.imu.source != "emulated":
             say(f"IMU: {plan.imu.source} ({host_plan.imu.device if plan.imu.source == 'serial' else 'bus ' + str(plan.imu.bus)}), "
                 "read through its driver")  # fmt: skip
