@@ -204,6 +204,7 @@ def clip_cop_along_ray(ox: float, oy: float, px: float, py: float, hull: np.ndar
     out[1] = oy + s * dy
     return True
 
+
 def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel here for the argument types the walker
     passes, so a first compile never lands inside a control tick (a walker's construction calls it)."""
