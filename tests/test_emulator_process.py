@@ -3,6 +3,7 @@ that stops answering ends in damping, the IMU crosses processes intact, the chil
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -109,11 +110,73 @@ def test_a_child_that_cannot_start_is_a_clear_error(g1) -> None:
         EmulatorProcess(plan, g1, bad)
 
 
-def test_deferred_replies_need_motors_with_their_own_clock(g1) -> None:
-    from giwbc.hal.can_robot import CanRobot
+def test_lockstep_replies_read_a_cycle_later_are_the_state_one_period_old(g1) -> None:
+    """``wait_for_replies=False`` with a lockstep peer: the process emulator's timing (replies read
+    at the next cycle) in the emulator's time. Same frames at the same emulator times as a cycle
+    that waits, so the same trajectory: the joint state read at cycle k is, bit for bit, the one the
+    waiting robot read at cycle k - 1; the IMU is not delayed (read after the emulator advanced to
+    the cycle's time, as the process emulator's mailbox gives it)."""
     from giwbc.emulation import ActuatorEmulator
+    from giwbc.hal.can_robot import ENTER, CanRobot
+    from giwbc.robot.standing import pd_hold_command
 
     plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
-    with ActuatorEmulator(plan, g1) as lockstep:
-        with pytest.raises(ValueError, match="lockstep peer"):
-            CanRobot(g1, lockstep.host_plan(), imu=lockstep.imu_channel, peer=lockstep, wait_for_replies=False)
+    period = 1.0 / plan.control_rate
+    runs = {}
+    for wait in (True, False):
+        with ActuatorEmulator(plan, g1) as emulator:
+            # (no wall-clock bounds: a loaded machine must not make a lockstep reply miss its cycle)
+            robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, peer=emulator, wait_for_replies=wait, reply_timeout=10.0,
+                             send_budget=math.inf)  # fmt: skip
+            try:
+                assert robot.reply_lag == (0 if wait else 1)
+                first = robot.exchange(0.0, kind=ENTER)
+                assert first.missing.all() != wait  # nothing to read yet when the replies wait for the next cycle
+                robot.set_joint_impedance(pd_hold_command(g1))
+                q, imu_times = [], []
+                for k in range(1, 30):
+                    report = robot.exchange(k * period)
+                    assert report.complete
+                    q.append(robot.joint_positions())
+                    imu_times.append(robot.imu().time)
+            finally:
+                robot.close()
+        runs[wait] = np.array(q), np.array(imu_times)
+    (q_wait, imu_wait), (q_late, imu_late) = runs[True], runs[False]
+    assert np.abs(np.diff(q_wait, axis=0)).max() > 1e-4  # the joints move (the robot settles under the hold)
+    assert np.array_equal(q_late[1:], q_wait[:-1])
+    assert not np.array_equal(q_late[1:], q_wait[1:])
+    assert np.allclose(imu_wait, np.arange(1, 30) * period) and np.array_equal(imu_late, imu_wait)
+
+
+def test_a_stalled_emulator_process_measures_its_stall(g1) -> None:
+    """The child stopped for 40 ms (SIGSTOP: no CPU, as a machine that gives it none) while the
+    host runs deferred 500 Hz cycles: the stall it brings back covers it, at the time it happened."""
+    import os
+    import signal
+
+    from giwbc.hal.can_robot import ENTER, CanRobot
+    from giwbc.robot.standing import pd_hold_command
+
+    plan = load_hardware(g1.folder / "hardware.toml", 500.0, joint_names=g1.joint_names, interface="virtual")
+    period = 1.0 / plan.control_rate
+    with EmulatorProcess(plan, g1) as emulator:
+        robot = CanRobot(g1, emulator.host_plan(), imu=emulator.imu_channel, wait_for_replies=False)
+        try:
+            start = time.perf_counter()
+            robot.exchange(0.0, kind=ENTER)
+            robot.set_joint_impedance(pd_hold_command(g1))
+            for k in range(1, 150):
+                time.sleep(max(0.0, start + k * period - time.perf_counter()))
+                if k == 75:
+                    os.kill(emulator.pid, signal.SIGSTOP)
+                    time.sleep(0.04)
+                    os.kill(emulator.pid, signal.SIGCONT)
+                robot.exchange(k * period)
+        finally:
+            robot.close()
+    stalls = emulator.stalls
+    assert stalls is not None and emulator.failure is None
+    assert stalls.longest >= 0.035 and stalls.over_period >= 1
+    assert 0.1 < stalls.at < 0.3  # the stop began about 75 periods (0.15 s) after the host's first frame
+

@@ -105,7 +105,8 @@ class CanRobot(DescribedRobot):
     since the last one (the replies to the previous cycle's commands: state one period old), then
     sends. The loop then never blocks on the bus, which suits motors that answer later than a
     fraction of the period (the emulator in its own process); a reply missing at the next cycle
-    counts as missing.
+    counts as missing. With a lockstep ``peer`` it answers after the sends and its replies wait
+    for the next cycle: the same one-cycle reply lag in the emulator's time, deterministic.
     """
 
     def __init__(
@@ -140,8 +141,6 @@ class CanRobot(DescribedRobot):
         self.reply_timeout = float(reply_timeout)
         self.send_budget = float(send_budget)
         self.wait_for_replies = bool(wait_for_replies)
-        if peer is not None and not self.wait_for_replies:
-            raise ValueError("a lockstep peer answers within the cycle: wait_for_replies=False needs motors with a clock of their own")
 
         self.motors = plan.motors
         self.group = MotorGroup(self.motors)
@@ -279,6 +278,8 @@ class CanRobot(DescribedRobot):
             dropped = int(outcomes[:, 1].sum())
         self.send_dropped += dropped
         t1 = sent = time.perf_counter()
+        if deferred and peer is not None:
+            peer.answer(t)  # lockstep, replies read at the next cycle: the process emulator's timing, deterministic
         if not deferred:
             if peer is not None:
                 peer.answer(t)  # the emulator's work is not reply latency: the timeout starts after it
