@@ -109,6 +109,17 @@ def test_overload_is_named_only_for_an_emulated_timing_or_reply_fault_with_evide
     assert overload_note(True, _Result(FaultKind.MISSING_REPLIES), (0.5, 2)) is None  # no evidence
 
 
+def test_an_emulator_process_that_ran_periods_late_is_named_as_the_cause():
+    """A quiet load average, no overrun, but the emulator process measured itself 7.1 ms late
+    (EmulatorStalls): that is the evidence, said with its time; a stall within two periods is none."""
+    from giwbc.emulation.process import EmulatorStalls
+
+    note = overload_note(True, _Result(FaultKind.MISSING_REPLIES), (0.5, 2), EmulatorStalls(7.1e-3, 14.97, 2))
+    assert note is not None and "ran 7.1 ms after its physics step was due, at t = 14.97 s" in note
+    assert overload_note(True, _Result(FaultKind.MISSING_REPLIES), (0.5, 2), EmulatorStalls(3.5e-3, 1.0, 1)) is None
+    assert overload_note(False, _Result(FaultKind.MISSING_REPLIES), (0.5, 2), EmulatorStalls(7.1e-3, 14.97, 2)) is None
+
+
 def test_the_readme_gantry_rehearsal_runs_and_says_what_it_does(tmp_path):
     """The README's gantry step, as written, from a folder of its own (its log lands there)."""
     proc = subprocess.run(

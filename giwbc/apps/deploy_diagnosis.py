@@ -22,6 +22,7 @@ MAX_MESSAGE = 300  # characters of a fault's own message in the summary line
 HOST_FAULTS = (FaultKind.TIMING, FaultKind.MISSING_REPLIES)  # what an overloaded host shows as on the emulator
 OVERRUN_SHARE = 0.01  # a run with more overrunning cycles than this share was starved of CPU
 WORK_OVER_CPU = 2.0  # ... or whose slowest cycles took this many times their own CPU time (waiting for a CPU)
+STALL_PERIODS = 2.0  # an emulator process that ran this many periods late was not given a CPU (its own work is < 1 period)
 
 
 def _joints_by_bus(joints: Sequence[str], plan: HardwarePlan | None) -> str:
@@ -69,11 +70,17 @@ def load_average() -> tuple[float, int] | None:
         return None
 
 
-def overload_evidence(timing: Mapping[str, Any], load: tuple[float, int] | None) -> list[str]:
-    """What says the host could not give the loop (and the emulator) its CPU: more runnable
-    processes than CPUs, overrunning cycles, skipped slots, cycles whose wall time far exceeded
-    their CPU time (the thread waited for a CPU)."""
+def overload_evidence(timing: Mapping[str, Any], load: tuple[float, int] | None, stalls: Any = None) -> list[str]:
+    """What says the host could not give the loop (and the emulator) its CPU: the emulator process
+    running more than :data:`STALL_PERIODS` periods after its physics step was due (``stalls``,
+    :class:`~giwbc.emulation.process.EmulatorStalls`: measured, the strongest evidence), more
+    runnable processes than CPUs, overrunning cycles, skipped slots, cycles whose wall time far
+    exceeded their CPU time (the thread waited for a CPU)."""
     evidence = []
+    period = float(timing.get("period_us") or 0.0) * 1e-6
+    if stalls is not None and period > 0 and stalls.longest > STALL_PERIODS * period:
+        evidence.append(f"the emulator process ran {stalls.longest * 1e3:.1f} ms after its physics step was due, at t = {stalls.at:.2f} s, "
+                        f"{stalls.over_period} time(s) more than a period late")  # fmt: skip
     if load is not None and load[0] >= load[1]:
         evidence.append(f"load average {load[0]:.1f} on {load[1]} CPUs")
     cycles = max(int(timing.get("cycles") or 0), 1)
@@ -88,14 +95,14 @@ def overload_evidence(timing: Mapping[str, Any], load: tuple[float, int] | None)
     return evidence
 
 
-def overload_note(emulated: bool, result: Any, load: tuple[float, int] | None) -> str | None:
+def overload_note(emulated: bool, result: Any, load: tuple[float, int] | None, stalls: Any = None) -> str | None:
     """For an emulated run stopped on timing or missing replies with evidence of an overloaded
-    host: the evidence and what to do; None otherwise (on real motors such a fault is the robot's
-    or the bus's until shown otherwise)."""
+    host (``stalls``: the emulator process's, when it ran in one): the evidence and what to do;
+    None otherwise (on real motors such a fault is the robot's or the bus's until shown otherwise)."""
     fault = getattr(result, "fault", None)
     if not emulated or fault is None or fault.kind not in HOST_FAULTS:
         return None
-    evidence = overload_evidence(result.timing, load)
+    evidence = overload_evidence(result.timing, load, stalls)
     if not evidence:
         return None
     return (f"The host looked overloaded ({', '.join(evidence)}): the emulator got no CPU in time, which is not a robot fault. "

@@ -384,7 +384,7 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
     if result.ok:
         say(message)  # a fault's message is the caller's to print (once, on stderr)
     else:
-        note = overload_note(options.emulate, result, load_average())
+        note = overload_note(options.emulate, result, load_average(), getattr(emulator, "stalls", None))
         if note:
             message += f". {note}"
     return DeployOutcome(

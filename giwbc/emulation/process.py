@@ -12,7 +12,9 @@ cost it. :class:`EmulatorProcess` runs the same emulator in a child process inst
 * the IMU is published through a shared-memory mailbox (:class:`SharedImuChannel`), the
   cross-process form of the in-process ``emulated`` IMU source;
 * faults are injected from the start (``EmulatorConfig.faults``) or with :meth:`add_fault`;
-* :meth:`close` stops the child and brings back its ground truth, counters and CPU time.
+* :meth:`close` stops the child and brings back its ground truth, counters, CPU time and how late it
+  ran (:class:`EmulatorStalls`: a missing-replies stop with the emulator milliseconds late at
+  real-time priority is the machine's, not the motors').
 
 A dry run in this mode is real-time and not bit-reproducible (two clocks); tests that need
 determinism use lockstep. An error in the child is reported by the parent with the child's
@@ -29,7 +31,7 @@ import select
 import time
 import traceback
 import uuid
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from multiprocessing import shared_memory
 from typing import TYPE_CHECKING, Any
 
@@ -118,6 +120,19 @@ class SharedImuChannel:
             self._shm.unlink()
 
 
+@dataclass(frozen=True)
+class EmulatorStalls:
+    """How late the emulator process ran: its wake-ups measured against the physics step that was
+    due (what a timer wake-up is for). A process at real-time priority that still ran milliseconds
+    late was not given a CPU: the machine's doing (other real-time work, a virtual CPU the
+    hypervisor held), not the emulated motors' nor the host's. Emulator time is seconds since the
+    host's first frame."""
+
+    longest: float  # s: the latest a wake-up came after its physics step was due
+    at: float  # emulator time that step was due, s
+    over_period: int  # wake-ups later than one control period
+
+
 class EmulatorProcess(ChildEmulator):
     """An :class:`~giwbc.emulation.emulator.ActuatorEmulator` of ``plan`` in a child process (module docstring).
 
@@ -148,6 +163,7 @@ class EmulatorProcess(ChildEmulator):
         self.imu_channel = SharedImuChannel()
         self.counters: EmulatorCounters | None = None
         self.cpu_seconds: float | None = None  # the child's user + system CPU time, after close()
+        self.stalls: EmulatorStalls | None = None  # how late the child ran, after close()
         self.scheduler = "default"  # the child's scheduling policy, as it could set it
         args = (plan, description, self.config, prefix, self.imu_channel.name, rt_priority, cpu, plant)
         dt, scheduler = self._start(_serve, args, "giwbc-emulator", start_timeout)
@@ -163,7 +179,7 @@ class EmulatorProcess(ChildEmulator):
         self._send(("fault", fault))
 
     def _done(self, payload: Any) -> None:
-        self.truth, self.counters, self.cpu_seconds = payload
+        self.truth, self.counters, self.cpu_seconds, self.stalls = payload
 
     def _release(self) -> None:
         self.imu_channel.close()
@@ -240,12 +256,20 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
     start: float | None = None
     clock = time.perf_counter
     dt = emulator.physics_dt
+    period = 1.0 / plan.control_rate
+    longest, longest_at, over_period = 0.0, 0.0, 0  # wake-ups after a due physics step (EmulatorStalls)
     running = True
     # select(), not poll(): poll's timeouts are whole milliseconds, select's microseconds.
     try:
         while running:
             timeout = None if start is None else max(0.0, start + emulator.time + dt - clock())
             ready, _, _ = select.select([control, *listening, *connected], [], [], timeout)
+            if start is not None:
+                late = clock() - start - emulator.time - dt  # > 0: a physics step was due that long ago
+                if late > longest:
+                    longest, longest_at = late, emulator.time + dt
+                if late > period:
+                    over_period += 1
             frames = False
             for fd in ready:
                 if fd == control:
@@ -278,10 +302,11 @@ def _run(plan: HardwarePlan, description: RobotDescription, config: EmulatorConf
             except can.CanOperationError:
                 running = False  # the host closed its buses
         cpu = os.times()
-        conn.send(("done", (np.array(emulator.truth, dtype=float).reshape(-1, 5), emulator.counters, cpu.user + cpu.system)))
+        stalls = EmulatorStalls(longest, longest_at, over_period)
+        conn.send(("done", (np.array(emulator.truth, dtype=float).reshape(-1, 5), emulator.counters, cpu.user + cpu.system, stalls)))
     finally:
         emulator.close()
         imu.close()
 
 
-__all__ = ["EmulatorProcess", "SharedImuChannel"]
+__all__ = ["EmulatorProcess", "EmulatorStalls", "SharedImuChannel"]
