@@ -396,7 +396,7 @@ class ContactSet:
             c.drift = _classical_acceleration(model, data, c.joint_id, c.placement, LOCAL).vector
             motion[rows : rows + 6] = J
             rows += 6
-        np.dot(motion, v, out=twist)
+        motion.dot(v, out=twist)
         np.multiply(twist, -kd, out=rhs)
         rows = 0
         for slot in self.slot_list:

@@ -252,7 +252,7 @@ class Contact(abc.ABC):
         motion[...] = J
         if self.kd > 0.0:
             twist = self._twist
-            np.dot(J, kin.v, out=twist)
+            J.dot(kin.v, out=twist)  # (ndarray.dot: np.dot without its dispatch)
             np.multiply(twist, -self.kd, out=rhs)
             rhs -= drift
         else:

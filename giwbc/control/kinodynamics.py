@@ -234,7 +234,7 @@ class Kinodynamics:
     def com_drift_into(self, out: np.ndarray) -> None:
         """Write :attr:`com_drift` into ``out`` (3,) (the hot path: no intermediate copy)."""
         if self.free_flyer and self.n_base == 6:
-            np.dot(self._base_rotation, self._nle[:3], out=out)
+            self._base_rotation.dot(self._nle[:3], out=out)
             out *= self._inverse_mass
             out += self.gravity
         else:

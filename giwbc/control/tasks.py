@@ -249,7 +249,7 @@ class TaskStack:
         self._hessian_stale = True
         self._regrouped = False
         self._constant_diagonal: np.ndarray | None = None
-        self._matmul, self._multiply, self._dot = np.matmul, np.multiply, np.dot
+        self._matmul, self._multiply = np.matmul, np.multiply
         self._ones = np.ones(5)
 
     @staticmethod
@@ -313,8 +313,8 @@ class TaskStack:
                 break
             if task.ref_version != ref_versions[i]:  # (a swing foot's, every tick: its rates only)
                 acceleration, velocity = self._rate_rows[i]
-                np.copyto(acceleration, task.acceleration_ref)
-                np.copyto(velocity, task.velocity_ref)
+                acceleration[...] = task.acceleration_ref  # (a slice write: np.copyto without its dispatch)
+                velocity[...] = task.velocity_ref
                 ref_versions[i] = task.ref_version
         if self._hessian_stale:
             self._refresh()
@@ -324,7 +324,7 @@ class TaskStack:
         self._multiply(self._J_rows, self._sw_rows, out=self._Jw_rows)
         self._matmul(self.Jw, kin.v, out=self._jv)
         self._multiply(self._gains, self.signals, out=self._products)
-        self._dot(self._ones, self._products, out=self._nb)  # the column sums (faster than add.reduce)
+        self._ones.dot(self._products, out=self._nb)  # the column sums (faster than add.reduce)
 
     def hessian(self, out: np.ndarray, diagonal: np.ndarray | None = None) -> None:
         """``out = Σ Jᵀ W J + ε I`` (nv, nv), after :meth:`evaluate`; ``diagonal``, a writable
@@ -453,10 +453,10 @@ class FramePoseTask(WbcTask):
             relative = self._relative
             if self._frame_rotation is None:
                 rows[:, 3:6] = rotation if self._all_angular else rotation[angular]
-                np.dot(self._reference_rotation, rotation.T, out=relative)
+                self._reference_rotation.dot(rotation.T, out=relative)
             else:
                 rows[:, 3:6] = rotation[angular]
-                np.dot(self._reference_rotation, (rotation @ self._frame_rotation).T, out=relative)
+                self._reference_rotation.dot((rotation @ self._frame_rotation).T, out=relative)
             if self._all_angular:
                 error[...] = _log3(relative)
             else:
@@ -483,7 +483,7 @@ class FramePoseTask(WbcTask):
             if halves[0] is not error:  # (the controller passes the same rows every tick)
                 halves = self._error_halves = (error, error[:3], error[3:], views[1].T)
             np.subtract(self._reference_translation, views[2], out=halves[1])
-            np.dot(self._reference_rotation, halves[3], out=self._relative)
+            self._reference_rotation.dot(halves[3], out=self._relative)
             halves[2][...] = _log3(self._relative)
             return
         placement = kin.frame_placement(self.frame_id)

@@ -589,7 +589,7 @@ class WholeBodyController:
         if q.shape != kin.q_shape or v.shape != kin.v_shape:
             kin.check_state(q, v)  # raises, naming the wrong shape
         self.ticks += 1
-        if not math.isfinite(float(np.dot(q, q) + np.dot(v, v))):
+        if not math.isfinite(q.dot(q) + v.dot(v)):  # (ndarray.dot: numpy's dot without np.dot's dispatch, ~0.3 µs a call)
             return self._fallback(q, v, self._tick_time(t), WbcStatus.INVALID_STATE, None, "state (q, v) is not finite", start, valid_state=False)
         kin.update(q, v, checked=True)
         t_pin = clock()
@@ -610,7 +610,7 @@ class WholeBodyController:
         if rows is not None and self._torque_all:
             tau = np.add(rows[self._tau_rows], kin.nonlinear_effects[self.n_base :])  # (JᵀΦ … ) x is there already
         else:
-            tau = np.dot(self._D_tau, x)
+            tau = self._D_tau.dot(x)
             tau += kin.nonlinear_effects[self.n_base :]
         if self.limit_spring is not None:
             tau += self._limit_spring_torque(q, v)

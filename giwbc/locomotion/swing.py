@@ -126,7 +126,7 @@ class SwingTrajectory:
         ``touchdown`` (default: the current time), continuing from the state at ``t``."""
         touchdown = self.t1 if touchdown is None else float(touchdown)
         target = self.target if target is None else np.asarray(target, dtype=float).reshape(4)
-        if not (np.all(np.isfinite(target)) and math.isfinite(touchdown)):
+        if not (np.isfinite(target).all() and math.isfinite(touchdown)):  # (the method: np.all without its dispatch)
             raise ValueError("swing re-target must be finite")
         if t >= self.t1:
             return  # already landed (or past it): nothing left to re-plan

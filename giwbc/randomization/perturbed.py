@@ -205,7 +205,10 @@ class PerturbedRobot(RobotWrapper):
 
     # --- commands -------------------------------------------------------------------------------
     def _send_joint_torques(self, torques: np.ndarray) -> None:
-        self._command("torques", torques)
+        if self.latency == 0:  # (_command's and _forward's path, without their two calls: every controller tick)
+            self.robot._send_joint_torques(torques)  # checked by set_joint_torques (a fresh array)
+        else:
+            self._queue.append((self._tick + self.latency, "torques", torques))
 
     def set_joint_impedance(self, command: ImpedanceCommand) -> None:
         command.validate(self.dofs)

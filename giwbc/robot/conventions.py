@@ -11,7 +11,13 @@ import numpy as np
 from giwbc.robot.interface import quat_to_matrix
 
 
+_XYZW = np.array([1, 2, 3, 0])
+_XYZW.flags.writeable = False
+
+
 def wxyz_to_xyzw(quat: np.ndarray) -> np.ndarray:
+    if type(quat) is np.ndarray:
+        return quat[_XYZW]  # (a new array, one gather: the same entries as the list below)
     return np.array([quat[1], quat[2], quat[3], quat[0]])
 
 

@@ -61,6 +61,7 @@ class MujocoRobot(DescribedRobot):
         self._base_qpos, self._base_dof = binding.base_qpos, binding.base_dof
         actuated = description.actuated
         self._actuated = actuated
+        self._all_actuated = bool(actuated.all())
         self._acts = _as_slice(binding.actuators)
         # generalized_state's gathers: Pinocchio's q = [p, quat_xyzw, joints], v = [v_world, ω, joints]
         # (the base's linear velocity rotated into its frame afterwards), one fancy index each
@@ -237,7 +238,8 @@ class MujocoRobot(DescribedRobot):
             bias[self._acts, _BIAS_POSITION] = 0.0
             bias[self._acts, _BIAS_VELOCITY] = 0.0
             self._impedance_active = False
-        self._command = torques[self._actuated]
+        # (torques is the fresh array set_joint_torques checked: kept as it is when every joint is driven)
+        self._command = torques if self._all_actuated else torques[self._actuated]
         if self.actuator_dynamics is None:
             self.data.ctrl[self._acts] = self._command
 

@@ -214,19 +214,31 @@ class SimulatedRuntime(gymnasium.Env[np.ndarray, np.ndarray]):
         end = tick + self.rates.physics_per_agent
         physics_time = controller_time = 0.0
         clock = time.perf_counter
-        while tick < end:
-            if latency:
+        if latency:
+            while tick < end:
                 for due in actions.pop_due(tick):
                     task.set_action(due)
-            if tick % period == 0:
+                if tick % period == 0:
+                    t0 = clock()
+                    task.apply_command()
+                    controller_time += clock() - t0
+                following = min(end, tick - tick % period + period, actions.next_tick())
                 t0 = clock()
-                task.apply_command()
-                controller_time += clock() - t0
-            following = min(end, tick - tick % period + period, actions.next_tick())
-            t0 = clock()
-            robot.step(int(following) - tick)
-            physics_time += clock() - t0
-            tick = self._tick = int(following)
+                robot.step(int(following) - tick)
+                physics_time += clock() - t0
+                tick = self._tick = int(following)
+        else:  # (no action in flight: the same ticks, without the queue's calls)
+            apply_command, advance = task.apply_command, robot.step
+            while tick < end:
+                if tick % period == 0:
+                    t0 = clock()
+                    apply_command()
+                    controller_time += clock() - t0
+                following = min(end, tick - tick % period + period)
+                t0 = clock()
+                advance(following - tick)
+                physics_time += clock() - t0
+                tick = self._tick = following
 
         observation = self._observe()
         reward = float(task.get_reward())
