@@ -54,6 +54,33 @@ def test_options_from_python_are_checked_when_built():
     assert DeployOptions().controller == "wbc" and DeployOptions(first_run=True).controller == "pd"
 
 
+def test_reply_lag_needs_the_emulator_and_fits_its_mode(capsys):
+    with pytest.raises(SystemExit):
+        parse("--emulate", "--reply-lag", "2")
+    assert "--reply-lag" in capsys.readouterr().err
+    assert parse("--emulate", "--reply-lag", "1").reply_lag == 1
+    for values, match in [({"reply_lag": 2, "emulate": True}, "reply_lag must be 0 or 1"), ({"reply_lag": 1}, "needs --emulate"),
+                          ({"reply_lag": 0, "emulate": True, "emulator_mode": "process"}, "next cycle")]:  # fmt: skip
+        with pytest.raises(ConfigError, match=match):
+            DeployOptions(**values)
+
+
+def test_replies_read_at_the_next_cycle_in_lockstep(g1, tmp_path):
+    """``--reply-lag 1`` on the lockstep emulator: the process emulator's timing in the emulator's
+    time. The enable cycle reads no reply yet (they come at the next one), the run is clean; with
+    the default the enable cycle reads every reply."""
+    from giwbc.runlog import read_log
+
+    first = {}
+    for lag in (0, 1):
+        options = DeployOptions(emulate=True, realtime=False, controller="pd", seconds=0.2, reply_lag=lag, log=str(tmp_path / f"{lag}.mcap"))
+        outcome = deploy(options, description=g1, out=None)
+        assert outcome.exit_code == 0, outcome.message
+        replies = read_log(outcome.log_path).topic("/replies")
+        first[lag] = [any(m["missing"]) for m in replies[:3]]
+    assert first[0] == [False, False, False] and first[1] == [True, False, False]
+
+
 def test_a_foot_contact_controller_on_a_gantry_is_refused_before_anything_starts(g1, capsys):
     for controller in ("wbc", "walk"):
         outcome = deploy(DeployOptions(emulate=True, first_run=True, controller=controller), description=g1, out=None)

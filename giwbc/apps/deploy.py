@@ -82,6 +82,10 @@ def add_deploy_command(commands: Any) -> argparse.ArgumentParser:
                              "(default: the description's own model)")  # fmt: skip
     parser.add_argument("--emulator", choices=EMULATOR_MODES, default="lockstep",
                         help="with --emulate: in the control loop's thread on virtual buses (lockstep), or in its own process (real time)")
+    parser.add_argument("--reply-lag", type=integer(0, 1), default=None, metavar="CYCLES",
+                        help="with --emulate: 0, the replies to a cycle's commands are read in that cycle (lockstep's default, as "
+                             "the host does on CAN hardware); 1, at the next cycle, one more period of sense-to-act latency (the "
+                             "process emulator's timing; with lockstep in the emulator's time, deterministic)")  # fmt: skip
     parser.add_argument("--seconds", type=seconds(MAX_SECONDS, allow_zero=True), default=10.0,
                         help=f"s of control after the start-up (ramp, IMU calibration), 0 to {MAX_SECONDS:g}")
     parser.add_argument("--unpaced", action="store_true",
@@ -187,7 +191,7 @@ def deploy_options(args: argparse.Namespace) -> DeployOptions:
         foxglove_port=args.foxglove_port if args.foxglove else None, imu_profile=args.imu_profile, walk=walk, walker=walker,
         transport=getattr(args, "transport", "can"), release_service=getattr(args, "release_service", False),
         restore_service=getattr(args, "restore_service", False), service_timeout=getattr(args, "service_timeout", 5.0),
-        plant=getattr(args, "plant", None),
+        plant=getattr(args, "plant", None), reply_lag=getattr(args, "reply_lag", None),
     )  # fmt: skip
 
 

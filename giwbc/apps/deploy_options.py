@@ -67,6 +67,11 @@ class DeployOptions:
     # with emulate: the emulated robot's plant (giwbc.plants.resolve_plant: a shipped variant's name such as
     # "lagged_actuators", a variant .toml or an MJCF file of the same robot); None: the description's own model
     plant: str | None = None
+    # with emulate: cycles from a command to the read of its replies. 0: the host waits for them in
+    # the cycle (lockstep; what the CAN hardware path does); 1: read at the next cycle, one more
+    # period of sense-to-act latency (what the process emulator does; with lockstep, the same
+    # timing in the emulator's time, deterministic). None: the emulator mode's own (lockstep 0, process 1)
+    reply_lag: int | None = None
 
     def __post_init__(self) -> None:
         if self.controller is None:
@@ -84,6 +89,13 @@ class DeployOptions:
                 raise ConfigError(f"plant must be a variant name or a .toml / MJCF path, got {self.plant!r}")
             if not self.emulate:
                 raise ConfigError("--plant chooses the emulated robot's plant: it needs --emulate (on hardware the robot is the plant)")
+        if self.reply_lag is not None:
+            if self.reply_lag not in (0, 1) or isinstance(self.reply_lag, bool):
+                raise ConfigError(f"reply_lag must be 0 or 1 cycles, got {self.reply_lag!r}")
+            if not self.emulate or self.transport != "can":
+                raise ConfigError("--reply-lag sets when the emulated CAN motors' replies are read: it needs --emulate (CAN)")
+            if self.emulator_mode == "process" and self.reply_lag != 1:
+                raise ConfigError("the emulator process answers on its own clock: its replies are read at the next cycle (--reply-lag 1)")
         if self.task is not None:
             _check_choice("task", self.task, TASKS)
         _check_number("seconds", self.seconds, low=0.0)

@@ -246,7 +246,8 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 emulator = ActuatorEmulator(truth, description, config, model=copy.copy(model) if model is not None and plant is None else None,
                                             plant=plant, **unpaced)  # fmt: skip
                 host_plan, peer = on_channels(plan, emulator.host_plan()), emulator
-                say("emulated actuators on python-can virtual buses (lockstep with the control loop)")
+                say("emulated actuators on python-can virtual buses (lockstep with the control loop"
+                    + ("; replies read at the next cycle)" if options.reply_lag == 1 else ")"))
             if not dds:
                 imu = imu_source_for(host_plan.imu, emulator.imu_channel)
         elif dds:
@@ -282,8 +283,9 @@ def _deploy(options: DeployOptions, policy: Any, metadata: Any, model: Any, desc
                 # run ended clean or on a soft limit by the machine's load (measured: 26-98 frames dropped
                 # per 10 s run beside 4 busy processes, none when idle).
                 budget = {} if options.realtime else {"send_budget": math.inf}
+                next_cycle = options.emulate and (options.emulator_mode == "process" or options.reply_lag == 1)  # replies read a cycle later
                 can_robot = CanRobot(description, host_plan, imu=imu, peer=peer, reply_timeout=options.reply_timeout,
-                                     wait_for_replies=not (options.emulate and options.emulator_mode == "process"), links=links, **budget)
+                                     wait_for_replies=not next_cycle, links=links, **budget)
             except Exception as error:  # noqa: BLE001 - python-can raises interface-specific errors
                 raise DeployError(f"cannot open the CAN buses: {type(error).__name__}: {error}") from error
         if first_run is not None:
