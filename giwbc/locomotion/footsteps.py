@@ -48,8 +48,11 @@ def side_sign(side: str) -> float:
 
 
 def other_side(side: str) -> str:
-    side_sign(side)
-    return "right" if side == "left" else "left"
+    if side == "left":  # (side_sign's check without its call when the side is valid: several times a walker tick)
+        return "right"
+    if side != "right":
+        side_sign(side)  # raises, naming the side
+    return "left"
 
 
 def rotation2(yaw: float) -> np.ndarray:

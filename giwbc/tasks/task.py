@@ -19,7 +19,6 @@ The runtime drives it:
 from __future__ import annotations
 
 import abc
-import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -223,15 +222,12 @@ class Task(abc.ABC):
         if array.shape != space.shape:
             raise InvalidActionError(f"action must have shape {space.shape}, got {array.shape}")
         array = array.astype(np.float64)
-        # (A finite sum of squares: every entry finite, one BLAS call; otherwise entry by entry.)
-        flat = array.ravel()
-        if not math.isfinite(flat.dot(flat)):
-            finite = np.isfinite(array)
-            if not finite.all():
-                raise InvalidActionError(
-                    f"action has non-finite entries at indices {np.flatnonzero(~finite).tolist()}: {array}; "
-                    "the step was not taken and the environment is unchanged"
-                )
+        finite = np.isfinite(array)
+        if not finite.all():
+            raise InvalidActionError(
+                f"action has non-finite entries at indices {np.flatnonzero(~finite).tolist()}: {array}; "
+                "the step was not taken and the environment is unchanged"
+            )
         return np.minimum(np.maximum(array, space.low), space.high)
 
     def observation_names(self) -> tuple[str, ...]:
