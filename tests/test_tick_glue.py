@@ -11,6 +11,7 @@ import giwbc.envs
 from giwbc.locomotion.footsteps import other_side
 from giwbc.robot.conventions import wxyz_to_xyzw
 from giwbc.robot.interface import quat_to_matrix
+from giwbc.tasks.task import ActionBlock, ResidualLayout
 
 
 def _unit_quaternions(count: int, seed: int) -> np.ndarray:
@@ -56,3 +57,16 @@ def test_other_side() -> None:
     assert other_side("left") == "right" and other_side("right") == "left"
     with pytest.raises(ValueError, match="side must be 'left' or 'right', got 'up'"):
         other_side("up")
+
+
+def test_residual_split_clips_as_np_clip_bit_for_bit() -> None:
+    layout = ResidualLayout([ActionBlock("com", 3, 0.05), ActionBlock("posture", 4, (0.1, 0.2, 0.3, 0.4))])
+    rng = np.random.default_rng(39)
+    actions = rng.uniform(-3.0, 3.0, (200, 7))
+    actions[0] = [1.0, -1.0, 0.0, -0.0, 1.0 + 1e-16, np.nextafter(1.0, 2.0), np.nextafter(-1.0, -2.0)]  # edges
+    for action in actions:
+        split = layout.split(action)
+        expected = np.clip(action, -1.0, 1.0) * layout.scales
+        assert np.concatenate([split["com"], split["posture"]]).tobytes() == expected.tobytes()
+        assert np.all(np.abs(split["com"]) <= 0.05)  # within each entry's scale
+    assert layout.split([2.0, 0.5, -2.0, 0.0, 0.0, 0.0, 0.0])["com"].tolist() == [0.05, 0.025, -0.05]  # a list, clipped

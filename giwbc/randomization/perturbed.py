@@ -201,7 +201,7 @@ class PerturbedRobot(RobotWrapper):
     @property
     def pushes_applied(self) -> int:
         """Pushes that have acted on the robot since the reset (started before the current physics step)."""
-        return int(np.searchsorted(self._push_starts, self._tick, side="left"))
+        return int(self._push_starts.searchsorted(self._tick, side="left"))
 
     # --- commands -------------------------------------------------------------------------------
     def _send_joint_torques(self, torques: np.ndarray) -> None:
