@@ -70,3 +70,25 @@ def test_residual_split_clips_as_np_clip_bit_for_bit() -> None:
         assert np.concatenate([split["com"], split["posture"]]).tobytes() == expected.tobytes()
         assert np.all(np.abs(split["com"]) <= 0.05)  # within each entry's scale
     assert layout.split([2.0, 0.5, -2.0, 0.0, 0.0, 0.0, 0.0])["com"].tolist() == [0.05, 0.025, -0.05]  # a list, clipped
+
+
+def test_mujoco_imu_and_efforts_read_what_their_general_paths_read(g1) -> None:
+    from giwbc.robot import MujocoRobot
+    from giwbc.robot.mujoco_model import imu_sensor_names
+
+    robot = MujocoRobot(g1)
+    robot.reset()
+    robot.set_joint_torques(np.random.default_rng(40).uniform(-5.0, 5.0, robot.dofs))
+    robot.step(20)  # moving: every channel non-trivial
+    names = imu_sensor_names()
+    reading = robot.imu()
+    quaternion = robot.sensor(names["quaternion"])
+    assert reading.quaternion.tobytes() == np.array([*quaternion[1:], quaternion[0]]).tobytes()
+    assert reading.angular_velocity.tobytes() == robot.sensor(names["angular_velocity"]).tobytes()
+    assert reading.linear_acceleration.tobytes() == robot.sensor(names["linear_acceleration"]).tobytes()
+    assert reading.time == robot.time() == pytest.approx(0.04) and np.linalg.norm(reading.quaternion) == pytest.approx(1.0)
+    reading.angular_velocity[:] = 1e9  # copies: the next reading is unaffected
+    assert robot.imu().angular_velocity.tobytes() == robot.sensor(names["angular_velocity"]).tobytes()
+    efforts = np.zeros(robot.dofs)
+    efforts[g1.actuated] = robot.data.actuator_force[: int(g1.actuated.sum())]
+    assert robot.joint_efforts().tobytes() == efforts.tobytes() and np.any(efforts != 0.0)

@@ -77,6 +77,9 @@ class MujocoRobot(DescribedRobot):
         self._sensor_slices = {
             m.sensor(i).name: slice(int(m.sensor_adr[i]), int(m.sensor_adr[i] + m.sensor_dim[i])) for i in range(m.nsensor)
         }
+        names = imu_sensor_names()  # the IMU's three channels, when the plant has them all (imu(): one slice each)
+        channels = [self._sensor_slices.get(names[key]) for key in ("quaternion", "angular_velocity", "linear_acceleration")]
+        self._imu_slices = None if None in channels else tuple(channels)
         self._impedance_active = True  # biasprm may hold gains until the first torque command clears them
         self._wrench = np.zeros(6)
         self.actuator_dynamics = actuator_dynamics if actuator_dynamics is not None and actuator_dynamics.active else None
@@ -146,6 +149,8 @@ class MujocoRobot(DescribedRobot):
         return self.data.qvel[self._qvel].copy()
 
     def joint_efforts(self) -> np.ndarray:
+        if self._all_actuated:  # (the zeros below all overwritten: the forces' copy)
+            return self.data.actuator_force[self._acts].copy()
         efforts = np.zeros(self.dofs)
         efforts[self._actuated] = self.data.actuator_force[self._acts]
         return efforts
@@ -218,7 +223,12 @@ class MujocoRobot(DescribedRobot):
         return ContactWrench(np.array(force), np.array(torque), True)
 
     def imu(self) -> ImuReading:
-        names = imu_sensor_names()
+        if self._imu_slices is not None:  # (the sensor() reads below, without their name look-ups: every physics step of a sensor model)
+            sensordata = self.data.sensordata
+            quaternion, angular_velocity, linear_acceleration = self._imu_slices
+            return ImuReading(wxyz_to_xyzw(sensordata[quaternion]), sensordata[angular_velocity].copy(),
+                              sensordata[linear_acceleration].copy(), float(self.data.time))
+        names = imu_sensor_names()  # (raises, naming the missing channel)
         quaternion = wxyz_to_xyzw(self.sensor(names["quaternion"]))
         return ImuReading(
             quaternion, self.sensor(names["angular_velocity"]), self.sensor(names["linear_acceleration"]), self.time()
