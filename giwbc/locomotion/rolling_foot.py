@@ -10,6 +10,15 @@ the measured or estimated state) past ``tilt`` says which side went down. Then t
 on the raised side of the sole's centre line (``margin`` m inside it): the ankle's torque, pushing on
 the side that still touches, brings the foot back flat instead of rolling it further, and the DCM
 error it leaves is the step adapter's.
+
+A stance foot can also turn about the vertical on a floor that does not hold the yaw moment the WBC
+plans on it (a compliant floor creeps far inside its friction: MuJoCo's soft contact, a gym mat).
+:class:`YawSlipWatch` keeps, per single support, how far the stance sole's heading has turned since
+the support began: past ``angle`` the floor is taken as not holding yaw for ``hold`` s (the walker
+then asks the limbs' yaw momentum task for more: giwbc.control.yaw_momentum). On the G1 (truth,
+any_floor, 8 s at 0.3 / 0.5 m/s and turning 0.3 rad/s, seed 20001) a single support's largest turn
+is 1-2 deg on the box-footed plants, 2-5 deg on point feet, 7-12 deg on capsule and rounded feet
+(a rim-rolling sole's heading) and 8-16 deg on the soft floor.
 """
 
 from __future__ import annotations
@@ -43,4 +52,46 @@ def cop_on_raised_side(cop: np.ndarray, position: np.ndarray, yaw: float, rise: 
     return np.array([cop[0] - s * shift, cop[1] + c * shift]), True
 
 
-__all__ = ["cop_on_raised_side", "lateral_rise"]
+def heading(rotation: np.ndarray) -> float:
+    """A sole's heading (rad): the world yaw of its +x axis."""
+    return math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
+
+
+class YawSlipWatch:
+    """Whether a stance foot has lately turned more than ``angle`` rad within one single support
+    (see the module docstring); ``hold`` s after the last such turn it reads False again."""
+
+    def __init__(self, angle: float, hold: float) -> None:
+        if not (math.isfinite(angle) and angle > 0.0):
+            raise ValueError(f"yaw slip angle must be a finite angle > 0, got {angle!r}")
+        if not (hold >= 0.0):
+            raise ValueError(f"yaw slip hold must be >= 0 s, got {hold!r}")
+        self.angle, self.hold = float(angle), float(hold)
+        self.reset()
+
+    def reset(self) -> None:
+        self._support: object = None
+        self._start = 0.0
+        self.turned = 0.0  # rad: the current single support's largest turn so far
+        self.last_slip: float | None = None  # s: when a turn last passed ``angle``
+        self.slips = 0  # single supports in which the stance foot turned past ``angle``
+
+    def update(self, t: float, support: object, yaw: float | None) -> bool:
+        """One tick at ``t``: ``support`` names the single support (a new value starts one: the
+        stance side and its start time), ``yaw`` the stance sole's heading (None: not in single
+        support). Returns whether the floor is taken as not holding yaw now."""
+        if yaw is None:
+            self._support = None
+        else:
+            if support != self._support:
+                self._support, self._start, self.turned = support, yaw, 0.0
+            turned = abs(math.remainder(yaw - self._start, math.tau))
+            if turned > self.angle:
+                if self.turned <= self.angle:
+                    self.slips += 1
+                self.last_slip = t
+            self.turned = max(self.turned, turned)
+        return self.last_slip is not None and t - self.last_slip <= self.hold
+
+
+__all__ = ["YawSlipWatch", "cop_on_raised_side", "heading", "lateral_rise"]

@@ -50,7 +50,7 @@ from giwbc.locomotion.kernels import warm_up
 from giwbc.locomotion.lipm import natural_frequency
 from giwbc.locomotion.push_recovery import PushRecovery
 from giwbc.locomotion.residuals import Residuals
-from giwbc.locomotion.rolling_foot import cop_on_raised_side, lateral_rise
+from giwbc.locomotion.rolling_foot import YawSlipWatch, cop_on_raised_side, heading, lateral_rise
 from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter
 from giwbc.locomotion.support import convex_hull, sole_corners, sole_polygon
 from giwbc.locomotion.swing import SwingTrajectory
@@ -148,6 +148,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self.last_result: WbcResult | None = None  # the last tick's
         self._force_links = {side: contact.link for side, contact in self.contacts.items()}  # (for step()'s _FootForces)
         self._swing_rotation = np.eye(3)  # the swing sole's rotation, rewritten at every tick of a swing (swing_control)
+        # A floor not holding the yaw moment (WalkerConfig.yaw_slip_weight): the limbs' yaw momentum task's weight raised.
+        self._yaw_slip = YawSlipWatch(math.radians(config.yaw_slip_angle), config.yaw_slip_hold) if config.yaw_slip_weight is not None else None
         self._clear_residuals()
 
     def _leg_geometry(self) -> tuple[dict[str, int], float]:
@@ -200,6 +202,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         for task in self.swing_tasks.values():
             self._remove_swing_task(task)
         self._polygons: dict[tuple, np.ndarray] = {}
+        if self._yaw_slip is not None:
+            self._yaw_slip.reset()
         self._heading = math.nan
         self._hip_roll = 0.0
         self._com_kp = self.config.com_height_kp
@@ -347,8 +351,22 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         if spring is not None:
             # not walking: BalanceConfig.limit_spring (what the WBC was built with)
             self.wbc.limit_spring = spring if self.walking and not self._recovering else self.balance.config.limit_spring
+        if self._yaw_slip is not None:
+            self._schedule_yaw_momentum(t)
         self.last_result = self.wbc.update(q, v, t)
         return self.last_result
+
+    def _schedule_yaw_momentum(self, t: float) -> None:
+        """The limbs' yaw momentum task at ``yaw_slip_weight`` while a stance foot lately turned on the floor
+        (or, with ``yaw_recovery``, while recovering from a push), else at its own weight."""
+        single = self._phase is Phase.SINGLE
+        yaw = heading(self._sole_world(self._stance).rotation) if single else None
+        slipping = self._yaw_slip.update(t, (self._stance, self._phase_start) if single else None, yaw)  # type: ignore[union-attr]
+        high = slipping or (self.config.yaw_recovery and self._recovering)
+        task = self.balance.limb_yaw_task
+        weight = self.config.yaw_slip_weight if high else self.balance.config.limb_yaw_momentum_weight
+        if task is not None and task.weight[0] != weight:
+            task.set_weight(weight)
 
     def step(self, robot: Robot) -> WbcResult:
         """Read ``robot`` (state, foot forces), run one tick, command its joint torques. The foot
