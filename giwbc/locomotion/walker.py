@@ -149,7 +149,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._force_links = {side: contact.link for side, contact in self.contacts.items()}  # (for step()'s _FootForces)
         self._swing_rotation = np.eye(3)  # the swing sole's rotation, rewritten at every tick of a swing (swing_control)
         # A floor not holding the yaw moment (WalkerConfig.yaw_slip_weight): the limbs' yaw momentum task's weight raised.
-        self._yaw_slip = YawSlipWatch(math.radians(config.yaw_slip_angle), config.yaw_slip_hold) if config.yaw_slip_weight is not None else None
+        scheduled = config.yaw_slip_weight is not None and self.balance.limb_yaw_task is not None
+        self._yaw_slip = YawSlipWatch(math.radians(config.yaw_slip_angle), config.yaw_slip_hold) if scheduled else None
         self._clear_residuals()
 
     def _leg_geometry(self) -> tuple[dict[str, int], float]:
@@ -365,7 +366,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         high = slipping or (self.config.yaw_recovery and self._recovering)
         task = self.balance.limb_yaw_task
         weight = self.config.yaw_slip_weight if high else self.balance.config.limb_yaw_momentum_weight
-        if task is not None and task.weight[0] != weight:
+        if task.weight[0] != weight:  # type: ignore[union-attr]
             task.set_weight(weight)
 
     def step(self, robot: Robot) -> WbcResult:

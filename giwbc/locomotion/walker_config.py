@@ -46,8 +46,8 @@ class WalkerConfig:
     # The task's weight when the floor does not hold yaw (None: off, yaw_momentum_weight throughout): once
     # a stance sole turned more than ``yaw_slip_angle`` deg within one single support, for ``yaw_slip_hold``
     # s (giwbc.locomotion.rolling_foot.YawSlipWatch), and while recovering from a push when
-    # ``yaw_recovery`` (a recovery step's stance foot carries the largest yaw moments). The task must be on
-    # (yaw_momentum_weight > 0). Elsewhere the lower weight, which the walker on an estimated state needs.
+    # ``yaw_recovery`` (a recovery step's stance foot carries the largest yaw moments). Elsewhere the lower
+    # weight, which the walker on an estimated state needs. Without the task (yaw_momentum_weight 0) nothing.
     yaw_slip_weight: float | None = None
     yaw_slip_angle: float = 10.0
     yaw_slip_hold: float = 10.0
@@ -265,8 +265,6 @@ class WalkerConfig:
         if self.yaw_slip_weight is not None:
             if not (math.isfinite(self.yaw_slip_weight) and self.yaw_slip_weight >= 0.0):
                 raise ValueError(f"yaw_slip_weight must be None or a finite weight >= 0, got {self.yaw_slip_weight!r}")
-            if not (self.yaw_momentum_weight or 0.0) > 0.0 and not self.balance.limb_yaw_momentum_weight > 0.0:
-                raise ValueError("yaw_slip_weight needs the limbs' yaw momentum task on (yaw_momentum_weight > 0)")
             if not (math.isfinite(self.yaw_slip_angle) and 0.0 < self.yaw_slip_angle < 180.0):
                 raise ValueError(f"yaw_slip_angle must be in (0, 180) deg, got {self.yaw_slip_angle!r}")
             if not (math.isfinite(self.yaw_slip_hold) and self.yaw_slip_hold >= 0.0):
