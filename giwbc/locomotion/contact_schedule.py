@@ -135,6 +135,7 @@ class ContactSchedule:
             self._nominal_offset = -side_sign(swing) * cfg.recovery_offset * np.array([-math.sin(target.yaw), math.cos(target.yaw)])
         self._reference = self._step_reference = reference
         self._dcm_shaper.reset()
+        self._lateral_shaper.reset()
         self._engage_swing_task(t, swing)
 
     def _leading_yaw(self, t: float, anchor: Footstep) -> float | None:

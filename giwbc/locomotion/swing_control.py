@@ -65,6 +65,8 @@ class SwingControl:
             return  # the last moments of the swing: the landing is held (WalkerConfig.adapt_freeze_time)
         shaper = self._dcm_shaper
         dcm = shaper(t, xi, self._step_reference.evaluate(t)[0]) if shaper.active and self._step_reference is not None else xi
+        if cfg.adapt_lateral_deadband is not None and shaper.active and self._step_reference is not None:
+            dcm = self._lateral_error_through(t, xi, dcm, stance.yaw)
         frame, box = self._step_frame(stance, swing)
         adjustment = self._landing_adjustment(t, stance, dcm, frame, box, remaining_range)
         target = Footstep(swing, adjustment.position, self._nominal_target.yaw)
@@ -80,6 +82,18 @@ class SwingControl:
             planned = self._planned_for
             if planned is None or distance2(target.position, planned[0]) > cfg.replan_distance or abs(self._swing.t1 - planned[1]) > cfg.replan_time:
                 self._reference = self._plan_single(t, target, self._swing.t1)
+
+    def _lateral_error_through(self, t: float, xi: np.ndarray, dcm: np.ndarray, yaw: float) -> np.ndarray:
+        """``dcm`` (what the adapter sees) with its part across the stance heading ``yaw`` replaced by
+        the nominal DCM's plus the measured ``xi``'s lateral error through the lateral shaper
+        (``WalkerConfig.adapt_lateral_deadband``, low-passed over ``adapt_filter``)."""
+        nominal = self._step_reference.evaluate(t)[0]  # type: ignore[union-attr]
+        nx, ny = -math.sin(yaw), math.cos(yaw)  # the stance heading's left
+        error = nx * float(xi[0] - nominal[0]) + ny * float(xi[1] - nominal[1])
+        shaped = self._lateral_shaper(t, np.array([nominal[0] + nx * error, nominal[1] + ny * error]), nominal)
+        kept = nx * float(dcm[0] - nominal[0]) + ny * float(dcm[1] - nominal[1])
+        lateral = nx * float(shaped[0] - nominal[0]) + ny * float(shaped[1] - nominal[1])
+        return np.array([float(dcm[0]) + nx * (lateral - kept), float(dcm[1]) + ny * (lateral - kept)])
 
     def _step_frame(self, stance: Footstep, swing: str) -> tuple[StepFrame, tuple[tuple[float, float], tuple[float, float]]]:
         """The step adapter's per-step part and the landing box: made at the step's first

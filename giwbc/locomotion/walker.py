@@ -232,6 +232,7 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         self._step_reference: DcmReference | None = None
         self._step_frames: tuple | None = None  # (key, StepFrame, landing box) of the step in flight
         self._dcm_shaper = DcmErrorShaper(self.config.adapt_deadband, self.config.adapt_filter, self.config.adapt_full_error, self.config.adapt_fade_delay)
+        self._lateral_shaper = DcmErrorShaper(self.config.adapt_lateral_deadband or 0.0, self.config.adapt_filter)  # (adapt_lateral_deadband)
         self._recovering = False
         self._crouch = 0.0
         self._swap_at = math.nan  # when a push last swapped the feet's roles in double support (push_recovery)

@@ -115,6 +115,14 @@ class WalkerConfig:
     # s (0: at once): with adapt_full_error, the fading's extra comes in over this long an error beyond
     # the deadband (a push's error lasts, the estimate's swing-end excursion does not).
     adapt_fade_delay: float = 0.0
+    # m (None: off, the lateral error goes through adapt_deadband with the rest): the DCM error's part
+    # across the stance foot's heading reaches the adapter through its own deadband (low-passed over
+    # adapt_filter), the forward part through adapt_deadband. A point or rim foot gives the ankle almost
+    # no lateral CoP: a lateral DCM error inside the common 3 cm deadband then stays (the DCM controller's
+    # CoP saturates on the sole's edge, the foot rolls onto it) and grows over steps until a stance ankle
+    # roll passes its limit; a step placed by it instead re-centres the DCM. Only where the adapter's DCM
+    # is shaped at all (adapt_deadband or adapt_filter > 0: an estimated DCM); else the measured DCM whole.
+    adapt_lateral_deadband: float | None = None
     # s (0: off): in the last this-many seconds before the planned touch-down the landing spot and time
     # are held — a change then is barely reachable by the foot and, on an estimated DCM, is mostly the
     # estimate's own swing-end error (the stance foot rolls).
@@ -278,6 +286,9 @@ class WalkerConfig:
             raise ValueError("contact_ramp must be >= 0 and short")
         if not (self.adapt_deadband >= 0.0 and self.adapt_filter >= 0.0 and self.max_adjustment > 0.0) or not math.isfinite(self.adapt_deadband + self.adapt_filter):
             raise ValueError(f"need finite adapt_deadband, adapt_filter >= 0 and max_adjustment > 0, got {self.adapt_deadband}, {self.adapt_filter}, {self.max_adjustment}")
+        lateral = self.adapt_lateral_deadband
+        if lateral is not None and not (math.isfinite(lateral) and lateral >= 0.0):
+            raise ValueError(f"adapt_lateral_deadband must be None or a finite deadband >= 0 (m), got {lateral!r}")
         if not (math.isfinite(self.adapt_fade_delay) and self.adapt_fade_delay >= 0.0):
             raise ValueError(f"adapt_fade_delay must be finite and >= 0, got {self.adapt_fade_delay}")
         if not (math.isfinite(self.adapt_freeze_time) and self.adapt_freeze_time >= 0.0):
@@ -397,9 +408,15 @@ DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
 # the soft floor; yaw_recovery), 0.3 elsewhere. Tuning seeds 20000-20004 (truth, soft-floor walks 20 s at 0.3
 # m/s): 1 -> 0 falls of 5; on the estimate (0.3 m/s, 20000-20003) point feet 0, capsule 0, all_at_once 3 of 4
 # (3 at 0.3 throughout). README, "Plants the controller was not tuned on".
+# On an estimated DCM (the deployment preset's 3 cm adapter deadband) a point foot's stance (all_at_once)
+# kept a lateral DCM error of 1.5-5 cm over steps: inside the deadband, beyond what its ankle can take back
+# (the DCM controller's CoP, 2.35x the error across the foot, sat on the sole's edge and the foot rolled onto
+# it), so it grew until an ankle roll passed its soft limit. adapt_lateral_deadband 0: the lateral error
+# reaches the step adapter whole (low-passed), the forward keeps the deadband. Tuning seeds 20000-20008
+# (estimate, 0.3 m/s, 20 s): all_at_once ends 6 -> 2 of 9 (1 cm: 20000-20002 as 0); no effect on the truth.
 ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType(
     {"friction": 0.5, "swing_kp": 250.0, "roll_cop_tilt": 6.0, "relax_joint_limits": True, "yaw_momentum_weight": 0.3,
-     "yaw_slip_weight": 3.0, "yaw_slip_angle": 10.0, "yaw_recovery": True}
+     "yaw_slip_weight": 3.0, "yaw_slip_angle": 10.0, "yaw_recovery": True, "adapt_lateral_deadband": 0.0}
 )
 WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS, "any_floor": ANY_FLOOR_OPTIONS})
 
