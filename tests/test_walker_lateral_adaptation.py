@@ -77,3 +77,18 @@ def test_lateral_error_is_low_passed() -> None:
 def test_a_bad_lateral_deadband_is_refused(value: float) -> None:
     with pytest.raises(ValueError, match="adapt_lateral_deadband"):
         WalkerConfig(adapt_lateral_deadband=value)
+
+
+def test_the_channel_acts_on_an_estimated_dcm_only(g1) -> None:
+    """any_floor alone (the walker on the MuJoCo truth) shapes nothing: the adapter takes the measured
+    DCM whole and the lateral channel stays out; over the deployment preset (an estimated DCM, 3 cm
+    deadband) the lateral error gets its own, zero deadband."""
+    from giwbc.locomotion.walker import WalkingController
+    from giwbc.locomotion.walker_config import ANY_FLOOR_OPTIONS, DEPLOYMENT_OPTIONS, walker_config
+
+    truth = WalkingController(g1, walker_config("any_floor"))
+    truth.reset()
+    assert truth.config.adapt_lateral_deadband == 0.0 and not truth._dcm_shaper.active
+    estimate = WalkingController(g1, walker_config({**DEPLOYMENT_OPTIONS, **ANY_FLOOR_OPTIONS}))  # (robustness.py --estimator)
+    estimate.reset()
+    assert estimate._dcm_shaper.active and estimate._lateral_shaper.deadband == 0.0
