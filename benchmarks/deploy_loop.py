@@ -21,7 +21,8 @@ them. Measured over the running phase only:
 - CPU time per cycle (thread time), the host's CAN path alone (drain, encode, send, receive,
   decode, IMU, estimator) and the host's CPU time per CAN frame (one command plus one reply per
   motor and cycle); the emulator's CPU time (its own process, or the loop's thread in lockstep);
-- the bus loads of the hardware plan at that rate;
+- the bus loads of the hardware plan at that rate; ``emulator_stalls``: how late the emulator
+  process ran after a physics step was due (the machine not giving it a CPU shows there);
 - ``work_parts``: the host work split by part, wall time per cycle (p50 / p99 / mean, us): the CAN
   exchange (and inside it ``receive``: reading every bus, decoding the replies and the joint state;
   ``encode``: the commands' frames; ``send``: writing them; ``exchange_other``: the rest of it, the
@@ -381,6 +382,10 @@ def run_rate(description, model, rate: float, seconds: float, controller: str, l
         "spin_us": None if spin is None else 1e6 * spin,
         "cpu_idle": runtime.cpu_idle,
         "emulator_scheduler": emulator.scheduler if mode == "process" else "the loop's thread",
+        # how late the emulator process ran after a physics step was due (EmulatorStalls; CAN process mode)
+        "emulator_stalls": None if getattr(emulator, "stalls", None) is None else {
+            "longest_ms": round(1e3 * emulator.stalls.longest, 3), "at_s": round(emulator.stalls.at, 3),
+            "over_period": emulator.stalls.over_period},
         "ok": result.ok,
         "fault": None if result.fault is None else str(result.fault),
         "cycles": summary["cycles"],
