@@ -63,13 +63,15 @@ class ContactSchedule:
         swing = other_side(self._stance)
         elapsed = t - self._phase_start
         assert self._swing is not None and self._target is not None
-        if self.walking and t < self._swing.t1 - 0.03:
-            self._walking_push(t, xi)
+        if self.walking and (t < self._swing.t1 - 0.03 or cfg.late_swing_push):
+            self._walking_push(t, xi)  # (late_swing_push: to the touch-down, the late wait included)
         if cfg.step_adaptation and t < self._swing.t1 - 0.03:
             self._adapt_step(t, xi)
         # A quick landing (push_recovery) counts from its touch-down time on once the sole is down, loaded
         # or not: its stance foot is tipping away from it, and it would wait out late_touchdown unloaded.
         quick = t >= self._swing.t1 and self._quick_land is not None and self._quick_land[0] == self._phase_start
+        # A walking recovery's swing past its planned touch-down lands as a quick landing does (WalkerConfig.late_swing_push).
+        quick = quick or (t >= self._swing.t1 and cfg.late_swing_push and self._recovering and self.walking)
         late = t >= self._swing.t1 and (cfg.late_touchdown_force is not None or quick)
         threshold = 0.0 if quick else cfg.late_touchdown_force if late else cfg.touchdown_force
         # (The force is read once it can count: a walker's step() reads the robot only when asked.)

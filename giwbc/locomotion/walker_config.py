@@ -240,6 +240,17 @@ class WalkerConfig:
     # alone and 25 / 20 with the quick landing (24 / 21 without): a wide split sank during the stand,
     # and as much during the step that was to close it (the stance hip at its torque limit).
     recovery_walk_on: float = math.inf
+    # Walking, a push late in a swing (issue 38): the walking-push check (walking_recovery_error) runs to the
+    # touch-down, the last 0.03 s of the swing and the late-touchdown wait included, and a swing a walking
+    # recovery caught past its planned touch-down lands as a quick landing does (its sole down at the stance
+    # sole's height, loaded or not; so does any walking recovery's swing past its planned touch-down). Off (the former behaviour), a push in the last 0.03 s of a swing was
+    # seen only at the touch-down, after up to late_touchdown (0.08 s) of waiting: stepping in place, pushed
+    # back at phase 0.4, the robot tipped back over its heels with the swinging foot hovering until the
+    # recovery began with the DCM 0.3 m behind (tuning seed 700). Gait-phase protocol (30 N s, 8 directions x
+    # 5 phases), tuning seeds 700-702, walking 0.5 m/s / stepping in place: off 60 / 74 of 120, on 79 / 90.
+    # Unpushed (the DCM error with the lead under walking_recovery_error) nothing changes, bit for bit;
+    # standing recoveries are not walking: untouched.
+    late_swing_push: bool = True
     # m (inf: off): a recovering foot lands at most this far from the stance sole's centre, drawn toward it (the
     # box's narrowest width kept; the touch-down time the adapter's). The recovery box's corners (0.5 m on,
     # 0.75 m across: 0.9 m) are beyond a G1 leg: a diagonal push's foot landed there, the pelvis rolled, the
