@@ -278,3 +278,90 @@ def test_the_held_command_encodes_as_any_command_does(g1):
         robot.close()
         for _, motor in ends:
             motor.close()
+
+
+def _random_reports(g1, rng, cycles: int, buses: int):
+    """Cycle reports and measurements, mostly quiet, with each anomaly the safety check looks at
+    now and then: an error code, a disabled motor, heat, corrupt frames, silence, a joint beyond its
+    soft limits (NaN too), fast joints, strong torques, a stale IMU, bus-off."""
+    from giwbc.hal.can_robot import CycleReport
+    from giwbc.robot.interface import ImuReading
+
+    n = g1.dofs
+    lo, hi = g1.position_limits
+    q0 = g1.default_configuration()[7:]
+    for k in range(cycles):
+        q = q0 + rng.normal(0, 0.01, n)
+        dq, tau = rng.normal(0, 1.0, n), rng.normal(0, 5.0, n)
+        error, status = np.zeros(n, dtype=np.int64), np.ones(n, dtype=np.int64)
+        temperature = np.where(rng.random(n) < 0.3, np.nan, rng.uniform(30, 60, n))
+        corrupt, stale, missing = np.zeros(buses, dtype=np.int64), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=bool)
+        bus_errors, bus_sent = np.zeros(buses, dtype=np.int64), np.full(buses, 3, dtype=np.int64)
+        j = int(rng.integers(n))
+        anomaly = int(rng.integers(24))
+        if anomaly == 0:
+            error[j] = 3
+        elif anomaly == 1:
+            status[j] = 0
+        elif anomaly == 2:
+            temperature[j] = 120.0
+        elif anomaly == 3:
+            corrupt[int(rng.integers(buses))] = int(rng.integers(1, 4))
+        elif anomaly == 4:
+            stale[j] = int(rng.integers(1, 6))
+            missing[j] = True
+        elif anomaly == 5:
+            q[j] = hi[j] + 0.1 if np.isfinite(hi[j]) else 1e3
+        elif anomaly == 6:
+            q[j] = np.nan
+        elif anomaly == 7:
+            dq[j] = 1e3
+        elif anomaly == 8:
+            tau[j] = 1e4
+        elif anomaly == 9:
+            bus_errors[0], bus_sent[0] = 1, 0
+        imu = None if anomaly == 10 else ImuReading(np.array([0.0, 0.0, 0.0, 1.0]), np.zeros(3), np.array([0.0, 0.0, 9.81]), 0.002 * k)
+        report = CycleReport(k, 0.002 * k, "command", missing, stale, error, temperature, 0, corrupt, 0, 0, 0, anomaly != 11, 0.0, 0.0,
+                             None if anomaly == 12 else status, bus_sent, bus_errors, (None,) * buses)  # fmt: skip
+        for a in (q, dq, tau):
+            a.flags.writeable = False  # as a CAN robot's measured views
+        yield report, q, dq, tau, imu
+
+
+def test_safety_quiet_path_equals_the_full_check(g1, monkeypatch):
+    """SafetySupervisor.check with its compiled quiet path (giwbc.hal.kernels.quiet_joints) against
+    the same check forced down its full path, over one random sequence of cycles with every anomaly
+    it tests: the same faults (kind, message, joints, in order) every cycle and the same history
+    (armed limits, torque counts, corrupt window, IMU staleness, bus-off counts). The kernel's plain
+    Python function answers as the compiled one; no cycle compiles it."""
+    import giwbc.hal.safety as safety
+    from giwbc.hal.kernels import quiet_joints
+    from giwbc.util.jit import reference
+
+    config = safety.SafetyConfig(max_missing_cycles=3, torque_cycles=2, bus_off_cycles=2, max_corrupt_frames=4, corrupt_window=10)
+    buses = 10
+    names = tuple(f"can{b}" for b in range(buses))
+    fast = safety.SafetySupervisor(g1, config, n_buses=buses, bus_names=names)
+    signatures = len(quiet_joints.signatures)
+    full = safety.SafetySupervisor(g1, config, n_buses=buses, bus_names=names)
+    python = safety.SafetySupervisor(g1, config, n_buses=buses, bus_names=names)
+    rng = np.random.default_rng(5)
+    quiet = 0
+    for report, q, dq, tau, imu in _random_reports(g1, rng, 600, buses):
+        expected_full = None
+        with monkeypatch.context() as m:
+            m.setattr(safety, "quiet_joints", lambda *args: False)
+            expected_full = full.check(report, q, dq, tau, imu)
+        got = fast.check(report, q, dq, tau, imu)
+        with monkeypatch.context() as m:
+            m.setattr(safety, "quiet_joints", reference(quiet_joints))
+            got_python = python.check(report, q, dq, tau, imu)
+        quiet += not got
+        for faults in (got, got_python):
+            assert [(f.kind, f.message, f.joints) for f in faults] == [(f.kind, f.message, f.joints) for f in expected_full]
+        for s in (fast, python):
+            for name in ("_armed_limits", "_torque_over", "_corrupt", "_corrupt_total", "_bus_down"):
+                np.testing.assert_array_equal(getattr(s, name), getattr(full, name))
+            assert s._imu_stale == full._imu_stale and s._down_any == full._down_any
+    assert 300 < quiet < 600  # both paths taken, many times
+    assert len(quiet_joints.signatures) == signatures  # warmed up at construction for read-only measurements

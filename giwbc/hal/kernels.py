@@ -17,7 +17,7 @@ import numpy as np
 
 from giwbc.util.jit import compiled
 
-__all__ = ["KEY_BYTES", "held_commands", "joint_state_of_replies", "steady_key", "steady_replies", "warm_up"]
+__all__ = ["KEY_BYTES", "held_commands", "joint_state_of_replies", "quiet_joints", "steady_key", "steady_replies", "warm_up"]
 
 # A frame's key (struct can_frame bytes): the 32-bit can_id (flags included), the length, and the
 # payload's byte 0 (frame byte 8).
@@ -178,3 +178,68 @@ def warm_up() -> None:
             bus.flags.writeable = not frozen_bus
             steady_replies(octets, bus, one, steady_key(octets), np.ones((1, 3)), np.zeros((1, 3)), np.zeros((3, 1)), one,
                            np.zeros(1, dtype=bool), one, np.empty((1, 3)), np.empty((3, 1)), np.empty(1, dtype=np.int64))  # fmt: skip
+
+
+@compiled
+def quiet_joints(
+    error_code: np.ndarray,
+    status: np.ndarray,
+    has_status: bool,
+    temperature: np.ndarray,
+    max_temperature: float,
+    corrupt: np.ndarray,
+    corrupt_total: np.ndarray,
+    stale: np.ndarray,
+    max_missing: int,
+    q: np.ndarray,
+    soft_lower: np.ndarray,
+    soft_upper: np.ndarray,
+    armed: np.ndarray,
+    missing: np.ndarray,
+    dq: np.ndarray,
+    velocity_limit: np.ndarray,
+    tau: np.ndarray,
+    torque_limit: np.ndarray,
+    torque_over: np.ndarray,
+) -> bool:
+    """The safety check's per-joint and per-bus tests in one loop
+    (:meth:`~giwbc.hal.safety.SafetySupervisor.check`): arms the soft limits of the joints inside
+    them (``armed``, as the check does), then True when nothing else would need a look: no error
+    code, no motor reporting state 0 (``has_status``), no temperature above the limit, no corrupt
+    frame this cycle or in the window, no joint silent for ``max_missing`` cycles, no armed joint
+    measured outside its soft limits, no velocity or torque beyond its limit and no torque count
+    running. False: the check's full path decides (and arms the same joints again: idempotent).
+    The comparisons are numpy's (a NaN compares False)."""
+    n = q.shape[0]
+    for j in range(n):
+        if q[j] >= soft_lower[j] and q[j] <= soft_upper[j]:
+            armed[j] = True
+    for b in range(corrupt.shape[0]):
+        if corrupt[b] != 0:
+            return False
+    for b in range(corrupt_total.shape[0]):
+        if corrupt_total[b] != 0:
+            return False
+    for j in range(n):
+        if error_code[j] > 0 or temperature[j] > max_temperature or stale[j] >= max_missing or torque_over[j] != 0:
+            return False
+        if has_status and status[j] == 0:
+            return False
+        if armed[j] and not (q[j] >= soft_lower[j] and q[j] <= soft_upper[j]) and not missing[j]:
+            return False
+        if abs(dq[j]) > velocity_limit[j] or abs(tau[j]) > torque_limit[j]:
+            return False
+    return True
+
+
+def warm_up_quiet_joints(n: int, buses: int) -> None:
+    """Compile (or load from numba's cache) :func:`quiet_joints` for the arrays a cycle passes it:
+    the measurements writable or read-only (a CAN robot's ``measured`` are read-only views), so no
+    first compile lands inside a control cycle."""
+    ints, floats, flags = np.zeros(n, dtype=np.int64), np.zeros(n), np.zeros(n, dtype=bool)
+    for frozen in (False, True):
+        q, dq, tau = np.zeros(n), np.zeros(n), np.zeros(n)
+        for a in (q, dq, tau):
+            a.flags.writeable = not frozen
+        quiet_joints(ints, ints, True, floats, 1.0, np.zeros(buses, dtype=np.int64), np.zeros(buses, dtype=np.int64), ints, 1,
+                     q, floats, floats, flags.copy(), flags, dq, floats, tau, floats, ints)  # fmt: skip

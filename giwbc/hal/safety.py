@@ -35,6 +35,7 @@ import can
 import numpy as np
 
 from giwbc.estimation.orientation import OrientationFilter
+from giwbc.hal.kernels import quiet_joints, warm_up_quiet_joints
 from giwbc.robot.interface import ImpedanceCommand, ImuReading
 
 if TYPE_CHECKING:
@@ -160,6 +161,8 @@ class SafetySupervisor:
         self._tilt_filter = OrientationFilter(orientation_gain=0.0, accel_gain=c.gravity_tilt_gain, bias_gain=0.0,
                                               integral_window=math.radians(10.0))  # fmt: skip
         self._tilt_time = -math.inf  # timestamp of the last IMU sample the tilt filter took
+        self._no_status = np.ones(description.dofs, dtype=np.int64)  # (a report without motor states: nothing disabled)
+        warm_up_quiet_joints(description.dofs, self._corrupt.shape[1])  # compiled here, never in a cycle
 
     def reset(self) -> None:
         self._bus_down[:] = 0
@@ -231,6 +234,17 @@ class SafetySupervisor:
             joints = tuple(names[j] for j in np.flatnonzero(mask)) if mask is not None else ()
             faults.append(Fault(kind, message, cycle, t, joints))
 
+        status = report.status
+        if quiet_joints(report.error_code, self._no_status if status is None else status, status is not None, report.temperature,
+                        c.max_temperature, report.corrupt, self._corrupt_total, report.stale, c.max_missing_cycles, q, self.soft_lower,
+                        self.soft_upper, self._armed_limits, report.missing, dq, self.velocity_limit, tau, self.torque_limit,
+                        self._torque_over):  # fmt: skip
+            # The quiet path (one compiled call): no joint or frame to look at; the buses' drivers and the IMU remain.
+            if report.bus_errors is not None:
+                self._bus_faults(report, add)
+            self._imu_faults(report, imu, add)
+            return faults
+
         error = report.error_code > 0
         if np.count_nonzero(error):
             codes = ", ".join(f"{names[j]}={int(report.error_code[j])}" for j in np.flatnonzero(error))
@@ -263,15 +277,7 @@ class SafetySupervisor:
             extra = f"; {report.late} late frame(s) this cycle" if report.late else ""
             add(FaultKind.MISSING_REPLIES, f"no valid reply for >= {c.max_missing_cycles} cycles: {which}{extra}", silent)
 
-        self._imu_stale = 0 if imu is not None and report.imu_fresh else self._imu_stale + 1
-        if self._imu_stale >= c.imu_timeout_cycles:
-            add(FaultKind.IMU, f"no fresh IMU sample for {self._imu_stale} cycles")
-        elif imu is not None:
-            tilt = self.imu_tilt(imu)
-            if not math.isfinite(tilt) or not all(math.isfinite(v) for v in imu.angular_velocity):
-                add(FaultKind.IMU, f"IMU sample is not finite: {imu}")
-            elif tilt > c.max_tilt:
-                add(FaultKind.FALL, f"base tilt {math.degrees(tilt):.1f}° beyond {math.degrees(c.max_tilt):.1f}°")
+        self._imu_faults(report, imu, add)
 
         inside = (q >= self.soft_lower) & (q <= self.soft_upper)
         self._armed_limits |= inside
@@ -294,6 +300,19 @@ class SafetySupervisor:
                 add(FaultKind.TORQUE_LIMIT, f"beyond torque limits for {c.torque_cycles} cycles: {which}", strong)
         return faults
 
+
+    def _imu_faults(self, report: CycleReport, imu: ImuReading | None, add: Any) -> None:
+        """A stale, broken or tilted IMU sample (the IMU's part of :meth:`check`, in its place)."""
+        c = self.config
+        self._imu_stale = 0 if imu is not None and report.imu_fresh else self._imu_stale + 1
+        if self._imu_stale >= c.imu_timeout_cycles:
+            add(FaultKind.IMU, f"no fresh IMU sample for {self._imu_stale} cycles")
+        elif imu is not None:
+            tilt = self.imu_tilt(imu)
+            if not math.isfinite(tilt) or not all(math.isfinite(v) for v in imu.angular_velocity):
+                add(FaultKind.IMU, f"IMU sample is not finite: {imu}")
+            elif tilt > c.max_tilt:
+                add(FaultKind.FALL, f"base tilt {math.degrees(tilt):.1f}° beyond {math.degrees(c.max_tilt):.1f}°")
 
     def _bus_faults(self, report: CycleReport, add: Any) -> None:
         """Bus-off (every frame of a bus refused by its driver for ``bus_off_cycles``) and driver
