@@ -20,6 +20,13 @@ a worker process of its own (the same script; the envs built once, before the fi
 ``git worktree`` of an older commit) and alternates the two workers round by round, so both are
 measured under the same load; ``current_over_baseline`` divides their medians.
 
+Instructions per agent step (``--instructions STEPS``, needs valgrind): each of the four
+configurations in a process of its own under callgrind, ``STEPS`` zero-action steps counted after 20
+(``instructions``; with ``--baseline``, both trees and ``current_over_baseline``). A count, not a
+time, but one a busy machine does not change: on a loaded 2-vCPU VM the timed rounds above vary by
+up to 30 %, too much to see a few per cent (``--rounds 0 --instructions 50 --baseline DIR``: ~10
+minutes there).
+
 Where the time goes (``--breakdown SECONDS``): the same configurations (but the plain env) stepped
 in this process with the methods of each part wrapped (physics, sensor model, estimator, WBC,
 walker planning, resets: ``BREAKDOWN_PARTS``), each part's exclusive share of a step's time and µs
@@ -61,8 +68,10 @@ import argparse  # noqa: E402
 import json  # noqa: E402
 import multiprocessing as mp  # noqa: E402
 import platform  # noqa: E402
+import shutil  # noqa: E402
 import subprocess  # noqa: E402
 import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
@@ -227,18 +236,21 @@ class PlainG1:
         return observation, reward, bool(height < 0.5), False, {}
 
 
-def relative_envs() -> dict[str, Any]:
-    """The four configurations of the relative measurement, reset with seed 0."""
+def relative_envs(names: tuple[str, ...] = RELATIVE) -> dict[str, Any]:
+    """The configurations of the relative measurement (all four by default), reset with seed 0."""
     from giwbc.policy import OnnxPolicy
 
-    policy = Path(giwbc.__file__).resolve().parents[1] / "policies" / SHIPPED_WALK_POLICY  # the source tree's
-    walk_kwargs = OnnxPolicy(policy).metadata["env_kwargs"]
-    envs: dict[str, Any] = {
-        "plain_g1": PlainG1(),
-        "g1_balance": gymnasium.make(giwbc.envs.G1_BALANCE).unwrapped,
-        "g1_walk": gymnasium.make(giwbc.envs.G1_WALK).unwrapped,
-        "g1_walk_policy": gymnasium.make(giwbc.envs.G1_WALK, **walk_kwargs).unwrapped,
+    def walk_policy() -> Any:
+        policy = Path(giwbc.__file__).resolve().parents[1] / "policies" / SHIPPED_WALK_POLICY  # the source tree's
+        return gymnasium.make(giwbc.envs.G1_WALK, **OnnxPolicy(policy).metadata["env_kwargs"]).unwrapped
+
+    makers: dict[str, Any] = {
+        "plain_g1": PlainG1,
+        "g1_balance": lambda: gymnasium.make(giwbc.envs.G1_BALANCE).unwrapped,
+        "g1_walk": lambda: gymnasium.make(giwbc.envs.G1_WALK).unwrapped,
+        "g1_walk_policy": walk_policy,
     }
+    envs = {name: makers[name]() for name in names}
     for env in envs.values():
         env.reset(seed=0)
     return envs
@@ -329,6 +341,63 @@ def relative(rounds: int, seconds: float, baseline: Path | None) -> dict[str, An
         result["current_over_baseline"] = {
             c: float(np.median([now[c] / then[c] for now, then in zip(measured["current"], measured["baseline"])])) for c in RELATIVE
         }
+    return result
+
+
+# --- instructions per agent step (valgrind's callgrind): a count a busy machine does not change ---------
+INSTRUCTION_WARMUP = 20  # agent steps before the counted ones (caches, solver workspaces, compiled kernels loaded)
+
+
+def _step_zero(env: Any, steps: int) -> None:
+    action = np.zeros(env.action_space.shape, dtype=env.action_space.dtype)
+    for _ in range(steps):
+        _, _, terminated, truncated, _ = env.step(action)
+        if terminated or truncated:
+            env.reset()
+
+
+def _count_worker(name: str, steps: int) -> None:
+    """Inside callgrind started with ``--instr-atstart=no``: build configuration ``name``, step it
+    :data:`INSTRUCTION_WARMUP` times, then count the instructions of ``steps`` more (instrumentation
+    switched on and off around them by ``callgrind_control``)."""
+    env = relative_envs((name,))[name]
+    _step_zero(env, INSTRUCTION_WARMUP)
+    subprocess.run(["callgrind_control", "--instr=on", str(os.getpid())], check=True, capture_output=True)
+    _step_zero(env, steps)
+    subprocess.run(["callgrind_control", "--instr=off", str(os.getpid())], check=True, capture_output=True)
+
+
+def _count(tree: Path, name: str, steps: int, folder: Path) -> float:
+    """User-space instructions per agent step of configuration ``name`` imported from ``tree``."""
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tree), os.environ.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+    command = ["valgrind", "--tool=callgrind", "--instr-atstart=no", f"--callgrind-out-file={folder / 'callgrind.%p'}",
+               sys.executable, str(Path(__file__).resolve()), "--count-worker", name, "--instructions", str(steps)]
+    done = subprocess.run(command, capture_output=True, text=True, env=environment, cwd=str(tree))
+    counted = [line for line in done.stderr.splitlines() if "Collected :" in line]
+    if done.returncode != 0 or not counted:
+        raise RuntimeError(f"callgrind run of {name} in {tree} failed ({done.returncode}): {done.stderr[-2000:]}")
+    return int(counted[-1].split("Collected :")[1]) / steps
+
+
+def instructions(steps: int, baseline: Path | None) -> dict[str, Any]:
+    """Instructions per agent step of every configuration in this tree (and ``baseline``'s): each
+    configuration in its own process under callgrind, zero actions from ``reset(seed=0)``, the
+    steps after :data:`INSTRUCTION_WARMUP` counted. The same code on the same inputs executes the same
+    instructions however loaded the machine is (to within Python's hash randomisation), so a change
+    of a few per cent shows where the timed rounds' spread hides it; it counts work, not time (no
+    cache misses, no instruction-level parallelism). Under callgrind a configuration runs ~50× slower:
+    ~1-3 minutes each here."""
+    if shutil.which("valgrind") is None or shutil.which("callgrind_control") is None:
+        raise SystemExit("--instructions needs valgrind (apt-get install valgrind)")
+    trees = {"current": Path(__file__).resolve().parents[1]}
+    if baseline is not None:
+        trees["baseline"] = baseline.resolve()
+    result: dict[str, Any] = {"unit": "user-space instructions per agent step (callgrind)", "steps": steps, "warmup": INSTRUCTION_WARMUP}
+    with tempfile.TemporaryDirectory() as folder:
+        for tree_name, tree in trees.items():
+            result[tree_name] = {name: _count(tree, name, steps, Path(folder)) for name in RELATIVE}
+    if baseline is not None:
+        result["current_over_baseline"] = {name: result["current"][name] / result["baseline"][name] for name in RELATIVE}
     return result
 
 
@@ -432,6 +501,9 @@ def main() -> None:
     parser.add_argument("--breakdown", type=float, default=0.0, metavar="SECONDS",
                         help="also time each part of a step (physics, sensor model, estimator, WBC, walker, resets) for SECONDS per configuration")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    parser.add_argument("--instructions", type=int, default=0, metavar="STEPS",
+                        help="also count instructions per agent step over STEPS steps of each configuration (valgrind's callgrind; with --baseline, both trees)")
+    parser.add_argument("--count-worker", choices=RELATIVE, default=None, help=argparse.SUPPRESS)
     parser.add_argument("--steps", type=int, default=2000, help="agent steps per measurement of --cases")
     parser.add_argument("--cases", nargs="*", default=[], choices=list(CASES), help="absolute steps/s and time shares (e.g. all of them)")
     parser.add_argument("--scaling-cases", nargs="*", default=[], choices=list(CASES), help="1-vs-2-process scaling")
@@ -441,6 +513,9 @@ def main() -> None:
     if args.worker:
         _worker_loop(args.seconds)
         return
+    if args.count_worker is not None:
+        _count_worker(args.count_worker, args.instructions)
+        return
 
     result: dict[str, Any] = {
         "benchmark": "env_throughput",
@@ -448,6 +523,8 @@ def main() -> None:
     }
     if args.rounds > 0:
         result["relative"] = relative(args.rounds, args.seconds, args.baseline)
+    if args.instructions > 0:
+        result["instructions"] = instructions(args.instructions, args.baseline)
     if args.breakdown > 0:
         result["breakdown"] = breakdown(args.breakdown)
     for name in args.cases:
