@@ -359,14 +359,19 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
         return self.last_result
 
     def _schedule_yaw_momentum(self, t: float) -> None:
-        """The limbs' yaw momentum task at ``yaw_slip_weight`` while a stance foot lately turned on the floor
-        (or, with ``yaw_recovery``, while recovering from a push), else at its own weight."""
+        """The limbs' yaw momentum task at ``yaw_slip_weight`` while a stance foot lately turned on the floor,
+        at ``yaw_recovery_weight`` (if set) while recovering from a push, else at its own weight."""
+        cfg = self.config
         single = self._phase is Phase.SINGLE
         yaw = heading(self._sole_world(self._stance).rotation) if single else None
         slipping = self._yaw_slip.update(t, (self._stance, self._phase_start) if single else None, yaw)  # type: ignore[union-attr]
-        high = slipping or (self.config.yaw_recovery and self._recovering)
         task = self.balance.limb_yaw_task
-        weight = self.config.yaw_slip_weight if high else self.balance.config.limb_yaw_momentum_weight
+        if slipping:
+            weight = cfg.yaw_slip_weight
+        elif self._recovering and cfg.yaw_recovery_weight is not None:
+            weight = cfg.yaw_recovery_weight
+        else:
+            weight = self.balance.config.limb_yaw_momentum_weight
         if task.weight[0] != weight:  # type: ignore[union-attr]
             task.set_weight(weight)
 

@@ -45,13 +45,14 @@ class WalkerConfig:
     yaw_momentum_weight: float | None = None
     # The task's weight when the floor does not hold yaw (None: off, yaw_momentum_weight throughout): once
     # a stance sole turned more than ``yaw_slip_angle`` deg within one single support, for ``yaw_slip_hold``
-    # s (giwbc.locomotion.rolling_foot.YawSlipWatch), and while recovering from a push when
-    # ``yaw_recovery`` (a recovery step's stance foot carries the largest yaw moments). Elsewhere the lower
-    # weight, which the walker on an estimated state needs. Without the task (yaw_momentum_weight 0) nothing.
+    # s (giwbc.locomotion.rolling_foot.YawSlipWatch). While recovering from a push (and no slip seen),
+    # ``yaw_recovery_weight`` (None: unchanged): a recovery step's stance foot carries the largest yaw
+    # moments. Elsewhere the lower weight, which the walker on an estimated state needs. Without the task
+    # (yaw_momentum_weight 0) nothing is scheduled.
     yaw_slip_weight: float | None = None
     yaw_slip_angle: float = 10.0
     yaw_slip_hold: float = 10.0
-    yaw_recovery: bool = False
+    yaw_recovery_weight: float | None = None
     # 1/s: the damping on the contact motion rows (None: ``balance.contact_kd``, 20): the WBC asks each
     # loaded foot's twist J v to decay at this rate, a hard constraint. On an estimated state J v carries
     # the estimate's base rate (a few ms late, or led: EstimatorConfig.omega_lead) times the leg's length,
@@ -288,6 +289,8 @@ class WalkerConfig:
                 raise ValueError(f"yaw_slip_angle must be in (0, 180) deg, got {self.yaw_slip_angle!r}")
             if not (math.isfinite(self.yaw_slip_hold) and self.yaw_slip_hold >= 0.0):
                 raise ValueError(f"yaw_slip_hold must be a finite time >= 0 s, got {self.yaw_slip_hold!r}")
+        if self.yaw_recovery_weight is not None and not (math.isfinite(self.yaw_recovery_weight) and self.yaw_recovery_weight >= 0.0):
+            raise ValueError(f"yaw_recovery_weight must be None or a finite weight >= 0, got {self.yaw_recovery_weight!r}")
         spring = self.walking_limit_spring
         if spring is not None and not (len(spring) == 3 and all(math.isfinite(float(x)) for x in spring) and spring[0] > 0 and min(spring[1:]) >= 0):
             raise ValueError(f"walking_limit_spring must be None or (zone > 0 rad, kp >= 0 N m/rad, kd >= 0 N m s/rad), got {spring!r}")
@@ -416,9 +419,11 @@ DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
 # capsule 38 (34 / 40), point feet 37 (32 / 40). README, "Where issue 41 stands".
 # So the weight is 3 only where the floor is seen not to hold yaw or a push is being caught (yaw_slip_weight,
 # yaw_slip_angle 10 deg: a single support's stance sole turns 1-5 deg on the box and point feet, 8-16 deg on
-# the soft floor; yaw_recovery), 0.3 elsewhere. Tuning seeds 20000-20004 (truth, soft-floor walks 20 s at 0.3
-# m/s): 1 -> 0 falls of 5; on the estimate (0.3 m/s, 20000-20003) point feet 0, capsule 0, all_at_once 3 of 4
-# (3 at 0.3 throughout). README, "Plants the controller was not tuned on".
+# the soft floor), 1 while catching a push (yaw_recovery_weight), 0.3 elsewhere. Tuning seeds 20000-20004
+# (truth, soft-floor walks 20 s at 0.3 m/s): 1 -> 0 falls of 5; on the estimate (0.3 m/s, 20000-20003) point
+# feet 0, capsule 0, all_at_once 3 of 4 (3 at 0.3 throughout). Pushes (20000-20001, 16 of 100 N), recovery
+# weight 0.3 / 1 / 3: soft floor 10 / 15 / 15, point feet 16 / 15 / 14 (fresh 67600-67604 at 3: point feet
+# 38 -> 33 of 40). README, "Plants the controller was not tuned on".
 # On an estimated DCM (the deployment preset's 3 cm adapter deadband) a point foot's stance (all_at_once)
 # kept a lateral DCM error of 1.5-5 cm over steps: inside the deadband, beyond what its ankle can take back
 # (the DCM controller's CoP, 2.35x the error across the foot, sat on the sole's edge and the foot rolled onto
@@ -429,7 +434,7 @@ DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
 # point feet 2 -> 2 (the foot still rocks), all_at_once's estimator tilt error 0.85 -> 1.21 deg; README.
 ANY_FLOOR_OPTIONS: Mapping[str, Any] = MappingProxyType(
     {"friction": 0.5, "swing_kp": 250.0, "roll_cop_tilt": 6.0, "relax_joint_limits": True, "yaw_momentum_weight": 0.3,
-     "yaw_slip_weight": 3.0, "yaw_slip_angle": 10.0, "yaw_recovery": True, "adapt_lateral_deadband": 0.0}
+     "yaw_slip_weight": 3.0, "yaw_slip_angle": 10.0, "yaw_recovery_weight": 1.0, "adapt_lateral_deadband": 0.0}
 )
 WALKER_PRESETS: Mapping[str, Mapping[str, Any]] = MappingProxyType({"deployment": DEPLOYMENT_OPTIONS, "any_floor": ANY_FLOOR_OPTIONS})
 
