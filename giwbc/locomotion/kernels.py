@@ -21,10 +21,13 @@ from llvmlite import ir
 from numba.core import types
 from numba.extending import intrinsic, overload
 
-from giwbc.locomotion.planar import _ROW, fma
+from giwbc.locomotion.planar import _ROW, _ROW_T, fma
 from giwbc.util.jit import compiled
 
-__all__ = ["DCM_COLUMNS", "FUSED_ROWS", "SWING_COLUMNS", "clip_cop_along_ray", "dcm_evaluate", "fused_multiply_add", "swing_state", "warm_up"]
+__all__ = [
+    "DCM_COLUMNS", "FUSED_ROWS", "FUSED_ROWS_T", "STEP_FRAME", "STEP_INPUTS", "STEP_OUTPUTS", "SWING_COLUMNS", "clip_cop_along_ray", "dcm_evaluate",
+    "fused_multiply_add", "step_adapt", "step_qp_solve", "swing_state", "warm_up",
+]
 
 # A swing's table row per coordinate (x, y, z, yaw): the number of quintic pieces (1 or 2), the
 # chain's knots (3, the last unused for one piece), then each piece's six coefficients in s = t − knot.
@@ -130,6 +133,7 @@ def _fused_multiply_add_compiled(a, b, c):  # type: ignore[no-untyped-def]
 # How this machine's numpy rounds a row of a (k, 2) @ (2,) product (giwbc.locomotion.planar):
 # the clip's edge rates are computed the same way.
 FUSED_ROWS = _ROW is fma
+FUSED_ROWS_T = _ROW_T is fma  # and of a transposed view's rows
 
 
 @compiled
@@ -205,6 +209,171 @@ def clip_cop_along_ray(ox: float, oy: float, px: float, py: float, hull: np.ndar
     return True
 
 
+@compiled
+def _row(a0: float, x0: float, rest: float, fused: bool) -> float:
+    """A row of a 2-column numpy product as :mod:`giwbc.locomotion.planar` rounds it: ``a0·x0 + rest``."""
+    if fused:
+        return fused_multiply_add(a0, x0, rest)
+    return a0 * x0 + rest
+
+
+@compiled
+def step_qp_solve(w_u: float, w_s: float, w_b: float, un0: float, un1: float, sigma_nom: float, d0: float, d1: float, k0: float, k1: float,
+                  lo0: float, lo1: float, s_lo: float, hi0: float, hi1: float, s_hi: float, out: np.ndarray) -> bool:
+    """:func:`giwbc.locomotion.step_adapter.solve_step_qp` into ``out`` (u_x, u_y, σ): True; False
+    (``out`` untouched) for an empty box, where the caller raises."""
+    if s_lo > s_hi or lo0 > hi0 or lo1 > hi1:
+        return False
+    total = w_u + w_b
+    a0, a1 = (w_u * un0 + w_b * k0) / total, (w_u * un1 + w_b * k1) / total
+    b0, b1 = w_b * d0 / total, w_b * d1 / total
+    knots = np.empty(6)
+    knots[0], knots[1] = s_lo, s_hi
+    count = 2
+    for axis in range(2):
+        a, b, lo, hi = (a0, b0, lo0, hi0) if axis == 0 else (a1, b1, lo1, hi1)
+        if b != 0.0:
+            for bound in (lo, hi):
+                sigma = (bound - a) / b
+                if s_lo < sigma < s_hi:
+                    knots[count] = sigma
+                    count += 1
+    # sorted(set(...)): an insertion sort, then equal values dropped
+    for i in range(1, count):
+        value = knots[i]
+        j = i - 1
+        while j >= 0 and knots[j] > value:
+            knots[j + 1] = knots[j]
+            j -= 1
+        knots[j + 1] = value
+    unique = 1
+    for i in range(1, count):
+        if knots[i] != knots[unique - 1]:
+            knots[unique] = knots[i]
+            unique += 1
+    pieces = 1 if unique == 1 else unique - 1
+    best_cost = math.inf
+    found = False
+    bz0, bz1, bsigma = 0.0, 0.0, 0.0
+    for piece in range(pieces):
+        left = knots[piece]
+        right = knots[piece + 1] if unique > 1 else knots[0]
+        middle = 0.5 * (left + right)
+        u = a0 + b0 * middle
+        if u < lo0:
+            alpha0, beta0 = lo0, 0.0
+        elif u > hi0:
+            alpha0, beta0 = hi0, 0.0
+        else:
+            alpha0, beta0 = a0, b0
+        u = a1 + b1 * middle
+        if u < lo1:
+            alpha1, beta1 = lo1, 0.0
+        elif u > hi1:
+            alpha1, beta1 = hi1, 0.0
+        else:
+            alpha1, beta1 = a1, b1
+        m0, m1 = d0 - beta0, d1 - beta1
+        num = w_s * sigma_nom
+        num -= w_u * beta0 * (alpha0 - un0) + w_b * m0 * (k0 - alpha0)
+        num -= w_u * beta1 * (alpha1 - un1) + w_b * m1 * (k1 - alpha1)
+        den = w_s
+        den += w_u * beta0 * beta0 + w_b * m0 * m0
+        den += w_u * beta1 * beta1 + w_b * m1 * m1
+        if den > 0.0:
+            sigma = num / den
+            sigma = left if left > sigma else sigma  # max(num / den, left)
+            sigma = right if right < sigma else sigma  # min(..., right)
+        else:
+            sigma = left
+        z0 = alpha0 + beta0 * sigma
+        z0 = lo0 if lo0 > z0 else z0
+        z0 = hi0 if hi0 < z0 else z0
+        z1 = alpha1 + beta1 * sigma
+        z1 = lo1 if lo1 > z1 else z1
+        z1 = hi1 if hi1 < z1 else z1
+        cost = w_u * ((z0 - un0) ** 2 + (z1 - un1) ** 2) + w_s * (sigma - sigma_nom) ** 2
+        cost += w_b * ((d0 * sigma + k0 - z0) ** 2 + (d1 * sigma + k1 - z1) ** 2)
+        if cost < best_cost:
+            best_cost, found = cost, True
+            bz0, bz1, bsigma = z0, z1, sigma
+    if not found:
+        return False
+    out[0], out[1], out[2] = bz0, bz1, bsigma
+    return True
+
+
+# StepAdapter.adapt_in's inputs: a step's frame (StepFrame.values: c, s, origin x, y, u_nom x, y,
+# b_nom x, y) and a tick's (below); its outputs (below).
+STEP_FRAME = 8
+STEP_INPUTS = 20  # cop x, y, dcm x, y, ω, T_min, T_max, T_nom, w_u, w_σ, w_b, x_lo, x_hi, y_lo, y_hi, reach pieces (0: none), foot x, y, speed, slack
+STEP_OUTPUTS = 7  # landing x, y (world), remaining time, ξ_end x, y and u x, y (stance frame)
+
+
+@compiled
+def step_adapt(frame: np.ndarray, inputs: np.ndarray, fused: bool, fused_t: bool, out: np.ndarray) -> bool:
+    """:meth:`giwbc.locomotion.step_adapter.StepAdapter.adapt_in`'s arithmetic (inputs checked by the
+    caller; :data:`STEP_FRAME`, :data:`STEP_INPUTS`, :data:`STEP_OUTPUTS`) into ``out``: True;
+    False for an empty box (the caller raises). ``fused``, ``fused_t``: :data:`FUSED_ROWS`,
+    :data:`FUSED_ROWS_T` (the rotations rounded as :mod:`giwbc.locomotion.planar`'s)."""
+    c, sn, ox, oy, un0, un1, bn0, bn1 = frame[0], frame[1], frame[2], frame[3], frame[4], frame[5], frame[6], frame[7]
+    cx, cy, xx, xy, omega, t_lo, t_hi, nominal = inputs[0], inputs[1], inputs[2], inputs[3], inputs[4], inputs[5], inputs[6], inputs[7]
+    w_u, w_s, w_b = inputs[8], inputs[9], inputs[10]
+    x_lo, x_hi, y_lo, y_hi = inputs[11], inputs[12], inputs[13], inputs[14]
+    x, y = cx - ox, cy - oy
+    p0, p1 = _row(c, x, sn * y, fused_t), _row(-sn, x, c * y, fused_t)
+    x, y = xx - cx, xy - cy
+    d0, d1 = _row(c, x, sn * y, fused_t), _row(-sn, x, c * y, fused_t)
+    sigma_nom = nominal
+    sigma_nom = t_lo if t_lo > sigma_nom else sigma_nom  # max(T_nom, T_min)
+    sigma_nom = t_hi if t_hi < sigma_nom else sigma_nom  # min(..., T_max)
+    sigma_nom = math.exp(omega * sigma_nom)
+    k0, k1 = p0 - bn0, p1 - bn1
+    solution = np.empty(3)
+    pieces = int(inputs[15])
+    if pieces == 0:
+        if not step_qp_solve(w_u, w_s, w_b, un0, un1, sigma_nom, d0, d1, k0, k1, x_lo, y_lo, math.exp(omega * t_lo), x_hi, y_hi,
+                             math.exp(omega * t_hi), solution):
+            return False
+    else:  # SwingReach: the time range in pieces, each with the reach of its shortest time (SwingReach.cut)
+        foot_x, foot_y, speed, slack = inputs[16], inputs[17], inputs[18], inputs[19]
+        n = pieces if t_hi > t_lo else 1
+        best_cost = math.inf
+        found = False
+        piece = np.empty(3)
+        for i in range(n):
+            a, b = t_lo + (t_hi - t_lo) * i / n, t_lo + (t_hi - t_lo) * (i + 1) / n
+            radius = slack + speed * a
+            px_lo, px_hi = foot_x - radius, foot_x + radius
+            px_lo = px_lo if px_lo > x_lo else x_lo  # max(lo, at − radius)
+            px_hi = px_hi if px_hi < x_hi else x_hi  # min(hi, at + radius)
+            if px_lo > px_hi:
+                px_lo = px_hi = x_lo if foot_x < x_lo else x_hi
+            py_lo, py_hi = foot_y - radius, foot_y + radius
+            py_lo = py_lo if py_lo > y_lo else y_lo
+            py_hi = py_hi if py_hi < y_hi else y_hi
+            if py_lo > py_hi:
+                py_lo = py_hi = y_lo if foot_y < y_lo else y_hi
+            if not step_qp_solve(w_u, w_s, w_b, un0, un1, sigma_nom, d0, d1, k0, k1, px_lo, py_lo, math.exp(omega * a), px_hi, py_hi,
+                                 math.exp(omega * b), piece):
+                return False
+            ux, uy, sigma = piece[0], piece[1], piece[2]
+            cost = w_u * ((ux - un0) ** 2 + (uy - un1) ** 2) + w_s * (sigma - sigma_nom) ** 2  # step_cost
+            cost = cost + w_b * ((d0 * sigma + k0 - ux) ** 2 + (d1 * sigma + k1 - uy) ** 2)
+            if cost < best_cost:
+                best_cost, found = cost, True
+                solution[0], solution[1], solution[2] = ux, uy, sigma
+        if not found:
+            return False
+    ux, uy, sigma = solution[0], solution[1], solution[2]
+    out[0] = ox + _row(c, ux, -sn * uy, fused)
+    out[1] = oy + _row(sn, ux, c * uy, fused)
+    out[2] = math.log(sigma) / omega
+    out[3], out[4] = p0 + d0 * sigma, p1 + d1 * sigma
+    out[5], out[6] = ux, uy
+    return True
+
+
 def warm_up() -> None:
     """Compile (or load from numba's cache) every kernel here for the argument types the walker
     passes, so a first compile never lands inside a control tick (a walker's construction calls it)."""
@@ -215,3 +384,7 @@ def warm_up() -> None:
     square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
     for origin, point in (((0.0, 0.0), (0.1, 0.1)), ((0.0, 0.0), (2.0, 0.5)), ((3.0, 0.0), (2.0, 0.5))):
         clip_cop_along_ray(*origin, *point, square, FUSED_ROWS, np.empty(2))
+    frame = np.array([1.0, 0.0, 0.0, 0.0, 0.0, -0.2, 0.0, 0.05])
+    for pieces in (0.0, 12.0):
+        inputs = np.array([0.0, 0.0, 0.05, 0.02, 3.5, 0.1, 0.5, 0.3, 1.0, 0.5, 100.0, -0.3, 0.4, -0.5, -0.1, pieces, 0.0, -0.2, 1.5, 0.05])
+        step_adapt(frame, inputs, FUSED_ROWS, FUSED_ROWS_T, np.empty(STEP_OUTPUTS))

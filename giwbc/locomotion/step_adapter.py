@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from giwbc.locomotion.footsteps import Footstep
+from giwbc.locomotion.kernels import FUSED_ROWS, FUSED_ROWS_T, STEP_OUTPUTS, step_adapt
 from giwbc.locomotion.planar import distance2, rotate, rotate_back
 
 
@@ -201,7 +202,7 @@ class StepFrame:
     """What one step's adaptations share (a swing's every tick): the stance sole's frame and the
     plan's next foot and DCM offset in it — made once per step, for :meth:`StepAdapter.adapt_in`."""
 
-    __slots__ = ("c", "s", "ox", "oy", "u_nom", "b_nom")
+    __slots__ = ("c", "s", "ox", "oy", "u_nom", "b_nom", "values")
 
     def __init__(self, stance: Footstep, nominal_step: np.ndarray, nominal_offset: np.ndarray) -> None:
         (nx, ny), (bx, by) = ((float(v[0]), float(v[1])) for v in (nominal_step, nominal_offset))
@@ -213,6 +214,7 @@ class StepFrame:
         self.c, self.s = c, sn = math.cos(stance.yaw), math.sin(stance.yaw)
         self.u_nom = rotate_back(c, sn, nx - self.ox, ny - self.oy)
         self.b_nom = rotate_back(c, sn, bx, by)
+        self.values = np.array([c, sn, self.ox, self.oy, *self.u_nom, *self.b_nom])  # the compiled adaptation's (kernels.STEP_FRAME)
 
 
 class StepAdapter:
@@ -223,6 +225,7 @@ class StepAdapter:
             raise ValueError(f"omega must be > 0, got {omega}")
         self.omega = float(omega)
         self.weights = weights or StepAdapterWeights()
+        self._out = np.empty(STEP_OUTPUTS)  # the compiled adaptation's outputs (kernels.step_adapt), read at once
 
     def adapt(
         self,
@@ -268,31 +271,16 @@ class StepAdapter:
         if not (0.0 <= t_lo <= t_hi):
             raise ValueError(f"remaining time range must satisfy 0 <= T_min <= T_max, got {remaining_range}")
         w = self.weights
-        c, sn, ox, oy = frame.c, frame.s, frame.ox, frame.oy
-        p = rotate_back(c, sn, cx - ox, cy - oy)
-        d = rotate_back(c, sn, xx - cx, xy - cy)
-        b_nom = frame.b_nom
-        sigma_lo, sigma_hi = math.exp(self.omega * t_lo), math.exp(self.omega * t_hi)
-        sigma_nom = math.exp(self.omega * min(max(nominal_remaining, t_lo), t_hi))
+        # (Compiled, kernels.step_adapt: the same operations as solve_step_qp, SwingReach.cut and
+        # step_cost over the pieces, and planar's rotations, bit for bit.)
         (x_lo, x_hi), (y_lo, y_hi) = box
-        k = (p[0] - b_nom[0], p[1] - b_nom[1])
-        if reach is None:
-            z = solve_step_qp(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (x_lo, y_lo, sigma_lo), (x_hi, y_hi, sigma_hi))
-        else:
-            n = reach.pieces if t_hi > t_lo else 1
-            best_cost = math.inf
-            for i in range(n):
-                a, b = t_lo + (t_hi - t_lo) * i / n, t_lo + (t_hi - t_lo) * (i + 1) / n
-                (px_lo, px_hi), (py_lo, py_hi) = reach.cut(box, a)
-                piece = solve_step_qp(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (px_lo, py_lo, math.exp(self.omega * a)),
-                                      (px_hi, py_hi, math.exp(self.omega * b)))
-                cost = step_cost(w.position, w.timing, w.offset, frame.u_nom, sigma_nom, d, k, (float(piece[0]), float(piece[1]), float(piece[2])))
-                if cost < best_cost:
-                    z, best_cost = piece, cost
-        ux, uy, sigma = float(z[0]), float(z[1]), float(z[2])
-        u_world = rotate(c, sn, ux, uy)
-        ex, ey = p[0] + d[0] * sigma, p[1] + d[1] * sigma  # ξ_end, stance frame
-        return StepAdjustment(np.array([ox + u_world[0], oy + u_world[1]]), math.log(sigma) / self.omega, frame, (ex, ey, ux, uy))
+        inputs = np.array((cx, cy, xx, xy, self.omega, t_lo, t_hi, nominal_remaining, w.position, w.timing, w.offset, x_lo, x_hi, y_lo, y_hi,
+                           *((0.0, 0.0, 0.0, 0.0, 0.0) if reach is None else (reach.pieces, reach.x, reach.y, reach.speed, reach.slack))), dtype=float)
+        out = self._out
+        if not step_adapt(frame.values, inputs, FUSED_ROWS, FUSED_ROWS_T, out):
+            raise ValueError("the step adapter's box is empty (lower bound above upper bound)")
+        wx, wy, remaining, ex, ey, ux, uy = out.tolist()
+        return StepAdjustment(np.array([wx, wy]), remaining, frame, (ex, ey, ux, uy))
 
 
 class DcmErrorShaper:
