@@ -52,19 +52,6 @@ def cop_on_raised_side(cop: np.ndarray, position: np.ndarray, yaw: float, rise: 
     return np.array([cop[0] - s * shift, cop[1] + c * shift]), True
 
 
-def cop_within_band(cop: np.ndarray, position: np.ndarray, yaw: float, band: float) -> tuple[np.ndarray, bool]:
-    """``(cop, moved)``: the CoP ``cop`` (world xy) asked of a stance foot at ``position`` heading
-    ``yaw``, its lateral coordinate in the foot frame clipped to ``[-band, band]`` m (moved only
-    across the foot, its along-foot part kept): what a point or rim sole can hold without rolling."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    dx, dy = float(cop[0] - position[0]), float(cop[1] - position[1])
-    lateral = -s * dx + c * dy
-    if abs(lateral) <= band:
-        return cop, False
-    shift = math.copysign(band, lateral) - lateral
-    return np.array([cop[0] - s * shift, cop[1] + c * shift]), True
-
-
 def heading(rotation: np.ndarray) -> float:
     """A sole's heading (rad): the world yaw of its +x axis."""
     return math.atan2(float(rotation[1, 0]), float(rotation[0, 0]))
@@ -107,4 +94,4 @@ class YawSlipWatch:
         return self.last_slip is not None and t - self.last_slip <= self.hold
 
 
-__all__ = ["YawSlipWatch", "cop_on_raised_side", "cop_within_band", "heading", "lateral_rise"]
+__all__ = ["YawSlipWatch", "cop_on_raised_side", "heading", "lateral_rise"]

@@ -50,7 +50,7 @@ from giwbc.locomotion.kernels import warm_up
 from giwbc.locomotion.lipm import natural_frequency
 from giwbc.locomotion.push_recovery import PushRecovery
 from giwbc.locomotion.residuals import Residuals
-from giwbc.locomotion.rolling_foot import YawSlipWatch, cop_on_raised_side, cop_within_band, heading, lateral_rise
+from giwbc.locomotion.rolling_foot import YawSlipWatch, cop_on_raised_side, heading, lateral_rise
 from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter
 from giwbc.locomotion.support import convex_hull, sole_corners, sole_polygon
 from giwbc.locomotion.swing import SwingTrajectory
@@ -336,9 +336,6 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
             cop, moved = cop_on_raised_side(cop, foot.position, foot.yaw, lateral_rise(self._sole_world(self._stance).rotation),
                                             math.radians(self.config.roll_cop_tilt), self.config.roll_cop_margin)
             self.state.rolled_ticks += moved
-        if self.config.cop_lateral_band is not None and self._phase is Phase.SINGLE:  # what a point / rim sole holds
-            foot = self.feet[self._stance]
-            cop, _ = cop_within_band(cop, foot.position, foot.yaw, self.config.cop_lateral_band)
         self._last_cop = cop
         acceleration = controller.com_acceleration(self._com, cop)
         # The CoM task's horizontal rows have no damping (set in reset): their position error

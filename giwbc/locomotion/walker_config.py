@@ -80,13 +80,6 @@ class WalkerConfig:
     # side of the centre line, where the foot still pushes (the ankle brings it back flat).
     roll_cop_tilt: float = 0.0
     roll_cop_margin: float = 0.0
-    # m (None: off): in single support the CoP the walker asks is held within this far of the stance
-    # sole's centre line (across the foot; its along-foot part kept), after roll_cop_tilt. A point or
-    # rim foot (issue 41) gives almost no lateral CoP: asked for one at the sole's edge it rolls, then
-    # roll_cop_tilt pulls the CoP back to the centre line, and the ankle roll rocks between the two every
-    # step; a band keeps the ask inside what the foot holds and leaves the rest of the lateral DCM error
-    # to the step adapter (adapt_lateral_deadband).
-    cop_lateral_band: float | None = None
     # The WBC solves a tick again without its joint-limit bounds when they leave its QP without a
     # solution (WholeBodyController.relax_joint_limits: a foot rolling on a rim or a point turns its
     # ankle faster than the bounds allow) instead of falling back to decaying torques.
@@ -307,9 +300,6 @@ class WalkerConfig:
             raise ValueError("contact_ramp must be >= 0 and short")
         if not (self.adapt_deadband >= 0.0 and self.adapt_filter >= 0.0 and self.max_adjustment > 0.0) or not math.isfinite(self.adapt_deadband + self.adapt_filter):
             raise ValueError(f"need finite adapt_deadband, adapt_filter >= 0 and max_adjustment > 0, got {self.adapt_deadband}, {self.adapt_filter}, {self.max_adjustment}")
-        band = self.cop_lateral_band
-        if band is not None and not (math.isfinite(band) and band >= 0.0):
-            raise ValueError(f"cop_lateral_band must be None or a finite half-width >= 0 (m), got {band!r}")
         lateral = self.adapt_lateral_deadband
         if lateral is not None and not (math.isfinite(lateral) and lateral >= 0.0):
             raise ValueError(f"adapt_lateral_deadband must be None or a finite deadband >= 0 (m), got {lateral!r}")
