@@ -422,6 +422,19 @@ class WrenchConeContact(Contact):
     def support_polygon(self) -> np.ndarray:
         return self.support.modes[self.support_mode].polygon  # type: ignore[union-attr]
 
+    def set_torsion(self, torsion: float) -> bool:
+        """Bound the yaw moment at ``|τ_z| ≤ torsion · f_z`` from now on (the contact must have been
+        built with a torsion); True when it changed (:attr:`friction_version` moved)."""
+        if self.torsion is None:
+            raise ValueError(f"contact {self.name!r}: built without torsion rows, give it a torsion to change later")
+        if torsion == self.torsion:
+            return False
+        self.support.set_torsion(torsion)  # type: ignore[union-attr]
+        self.torsion = float(torsion)
+        self.friction_version += 1
+        self._friction = self.friction_matrix()
+        return True
+
     def set_support_mode(self, mode: int) -> bool:
         """Stand on support ``mode`` (:attr:`SoleSupport.modes`); True when it changed (the
         friction rows must be written again: :attr:`friction_version` moved)."""

@@ -156,6 +156,19 @@ class SoleSupport:
             self.matrices[i, len(cone) :, 2] = 1.0  # padding: an unbounded copy of the normal-force row
         self.pattern = (self.matrices != 0).any(axis=0)
 
+    def set_torsion(self, torsion: float) -> None:
+        """Rewrite every support's two yaw rows for ``|τ_z| ≤ torsion · f_z`` (same rows, same
+        count: a walker tightens the bound while it recovers from a push). Only a sole built with a
+        torsion has the rows."""
+        if self.torsion is None:
+            raise ValueError("this sole was built without torsion rows: give it a torsion to change later")
+        if not (math.isfinite(torsion) and torsion > 0.0):
+            raise ValueError(f"torsion must be a finite lever arm > 0 m, got {torsion!r}")
+        scale = math.hypot(torsion, 1.0)
+        for matrix, count in zip(self.matrices, self.counts):
+            matrix[count - 2 : count] = np.array([[0.0, 0.0, -torsion, 0.0, 0.0, 1.0], [0.0, 0.0, -torsion, 0.0, 0.0, -1.0]]) / scale
+        self.torsion = float(torsion)
+
     def mode_for_tilt(self, tilt: np.ndarray, edge_angle: float = math.radians(30.0)) -> int:
         """The support a sole tilted by ``tilt`` stands on: ``tilt`` (2,) is the height gradient of
         the sole plane (heights ``h = tilt · p`` of the sole points ``p``, contact frame). The

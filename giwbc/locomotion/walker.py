@@ -55,7 +55,7 @@ from giwbc.locomotion.step_adapter import DcmErrorShaper, StepAdapter
 from giwbc.locomotion.support import convex_hull, sole_corners, sole_polygon
 from giwbc.locomotion.swing import SwingTrajectory
 from giwbc.locomotion.swing_control import SwingControl
-from giwbc.locomotion.walker_config import Phase, WalkerConfig, WalkerState
+from giwbc.locomotion.walker_config import TORSION_LOOSE, Phase, WalkerConfig, WalkerState
 from giwbc.locomotion.walker_references import WalkerReferences
 from giwbc.robot.description import RobotDescription
 from giwbc.robot.interface import Robot
@@ -108,7 +108,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
     def __init__(self, description: RobotDescription, config: WalkerConfig | None = None, model: pin.Model | None = None) -> None:
         self.config = config = config or WalkerConfig()
         self.description = description
-        overrides = (("mu", config.friction), ("torsion", config.torsion), ("limb_yaw_momentum_weight", config.yaw_momentum_weight),
+        torsion = TORSION_LOOSE if config.torsion is None and config.recovery_torsion is not None else config.torsion
+        overrides = (("mu", config.friction), ("torsion", torsion), ("limb_yaw_momentum_weight", config.yaw_momentum_weight),
                      ("contact_kd", config.contact_kd))
         floor = {name: value for name, value in overrides if value is not None}
         balance = replace(config.balance, **floor) if floor else config.balance
@@ -355,6 +356,8 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
             self.wbc.limit_spring = spring if self.walking and not self._recovering else self.balance.config.limit_spring
         if self._yaw_slip is not None:
             self._schedule_yaw_momentum(t)
+        if self.config.recovery_torsion is not None:
+            self._schedule_torsion()
         self.last_result = self.wbc.update(q, v, t)
         return self.last_result
 
@@ -374,6 +377,13 @@ class WalkingController(ContactSchedule, PushRecovery, SwingControl, WalkerRefer
             weight = self.balance.config.limb_yaw_momentum_weight
         if task.weight[0] != weight:  # type: ignore[union-attr]
             task.set_weight(weight)
+
+    def _schedule_torsion(self) -> None:
+        """Every foot's yaw moment bound at ``recovery_torsion`` while recovering from a push, else at
+        the walker's own torsion: a recovery step's stance foot is the one a soft floor turns."""
+        torsion = self.config.recovery_torsion if self._recovering else self.balance.config.torsion
+        for contact in self.contacts.values():
+            contact.set_torsion(torsion)  # type: ignore[attr-defined]
 
     def step(self, robot: Robot) -> WbcResult:
         """Read ``robot`` (state, foot forces), run one tick, command its joint torques. The foot

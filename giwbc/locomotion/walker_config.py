@@ -53,6 +53,12 @@ class WalkerConfig:
     yaw_slip_angle: float = 10.0
     yaw_slip_hold: float = 10.0
     yaw_recovery_weight: float | None = None
+    # m: while recovering from a push, every foot's yaw moment kept within recovery_torsion x normal force
+    # (None: off). A recovery step's stance foot carries the largest yaw moments and a compliant floor turns
+    # it under them (soft floor: a loaded sole turned 20-60 deg and rolled over); walking keeps ``torsion``
+    # (the yaw moment is what holds the heading while a leg swings: a global bound costs tracking). With
+    # ``torsion`` None the feet are built with TORSION_LOOSE (never binding) so that the rows exist.
+    recovery_torsion: float | None = None
     # 1/s: the damping on the contact motion rows (None: ``balance.contact_kd``, 20): the WBC asks each
     # loaded foot's twist J v to decay at this rate, a hard constraint. On an estimated state J v carries
     # the estimate's base rate (a few ms late, or led: EstimatorConfig.omega_lead) times the leg's length,
@@ -289,6 +295,8 @@ class WalkerConfig:
                 raise ValueError(f"yaw_slip_angle must be in (0, 180) deg, got {self.yaw_slip_angle!r}")
             if not (math.isfinite(self.yaw_slip_hold) and self.yaw_slip_hold >= 0.0):
                 raise ValueError(f"yaw_slip_hold must be a finite time >= 0 s, got {self.yaw_slip_hold!r}")
+        if self.recovery_torsion is not None and not (math.isfinite(self.recovery_torsion) and self.recovery_torsion > 0.0):
+            raise ValueError(f"recovery_torsion must be None or a finite lever arm > 0 m, got {self.recovery_torsion!r}")
         if self.yaw_recovery_weight is not None and not (math.isfinite(self.yaw_recovery_weight) and self.yaw_recovery_weight >= 0.0):
             raise ValueError(f"yaw_recovery_weight must be None or a finite weight >= 0, got {self.yaw_recovery_weight!r}")
         spring = self.walking_limit_spring
@@ -379,6 +387,11 @@ class WalkerConfig:
 # (kp 250, not 400): with the process emulator's one-cycle reply delay the stiffer one landed on a
 # sole edge after ~9 steps. From the planned touch-down on, 0.1 of the weight (on a sole down at the
 # stance sole's height) counts as landed: see ``late_touchdown_force``. (tests/test_deploy_walk.py)
+# m: the torsion the feet are built with when only WalkerConfig.recovery_torsion is set: the rows must exist
+# to be tightened later, and at 1 m they never bind (a sole's friction pyramid alone keeps |τ_z| within
+# μ (X + Y) f_z, ~0.07 f_z on the G1's sole).
+TORSION_LOOSE = 1.0
+
 DEPLOYMENT_OPTIONS: Mapping[str, Any] = MappingProxyType({
     "touchdown_force": 0.35, "swing_kp": 250.0, "adapt_deadband": 0.03, "adapt_filter": 0.02, "max_adjustment": 0.1,
     "start_settle_time": 0.5, "late_touchdown_force": 0.1,
