@@ -40,7 +40,7 @@ def test_a_push_in_the_last_moments_of_a_swing_is_caught_before_the_touch_down(g
     """On: the recovery begins while the right foot still swings and the foot lands sooner than the
     unpushed plan (the robot tips back: the sole down, not yet loaded). Off: nothing until the
     touch-down, which waits past the plan for the load (the late wait) with the DCM running back."""
-    on_touchdown, on_recovery = _first_touchdown(g1, WalkerConfig())
+    on_touchdown, on_recovery = _first_touchdown(g1, WalkerConfig(late_swing_push=True))
     off_touchdown, off_recovery = _first_touchdown(g1, WalkerConfig(late_swing_push=False))
     assert on_recovery is not None and IN_PLACE_PUSH.start < on_recovery < on_touchdown
     assert off_recovery is None
@@ -54,11 +54,11 @@ def test_late_swing_push_leaves_unpushed_walking_and_standing_recovery_alone(g1)
     walking_recovery_error) and a standing recovery (not walking)."""
     off = WalkerConfig(late_swing_push=False)
     a = simulate_walk(g1, (0.5, 0.0, 0.0), 2.5, seed=5, config=off)
-    b = simulate_walk(g1, (0.5, 0.0, 0.0), 2.5, seed=5)
+    b = simulate_walk(g1, (0.5, 0.0, 0.0), 2.5, seed=5, config=WalkerConfig(late_swing_push=True))
     assert b.recovery_steps == 0 and a.steps == b.steps > 2 and np.array_equal(a.distance, b.distance)
     push = (Push(1.3, 100.0, math.pi / 2),)
     a = simulate_walk(g1, (0.0, 0.0, 0.0), 2.2, pushes=push, command_start=None, seed=5, config=off)
-    b = simulate_walk(g1, (0.0, 0.0, 0.0), 2.2, pushes=push, command_start=None, seed=5)
+    b = simulate_walk(g1, (0.0, 0.0, 0.0), 2.2, pushes=push, command_start=None, seed=5, config=WalkerConfig(late_swing_push=True))
     assert a.recovery_steps >= 1 and a.recovery_steps == b.recovery_steps and np.array_equal(a.distance, b.distance)
 
 
@@ -71,7 +71,7 @@ def test_a_late_swing_push_toward_the_swinging_foot_is_recovered_while_walking(g
     push = Push(3.0316, 300.0, 0.01608 + 1.25 * math.pi, 0.1)
     end = push.start + push.duration + SETTLE_AFTER_PUSH_S + 0.005
     runs = [simulate_walk(g1, (0.5, 0.0, 0.0), end, pushes=(push,), seed=700, config=config)
-            for config in (WalkerConfig(late_swing_push=False), WalkerConfig())]
+            for config in (WalkerConfig(late_swing_push=False), WalkerConfig(late_swing_push=True))]
     off, on = (judge_push(fell=r.fell, fall_time=r.fall_time, end_time=r.seconds, push_end=push.start + push.duration) for r in runs)
     assert not off.success and off.fall_after_push is not None and off.fall_after_push < 2.0
     assert on.success and runs[1].recovery_steps >= 1
